@@ -1,0 +1,521 @@
+"""The device controller: the interrupt handler of the paper, one call per tick.
+
+Each tick (1/7000 s) runs the tasks the scheduler assigned to it:
+
+- duty update (every tick): advances each leg's PWM slot and writes the 24 valve coils;
+- read sensors (every 7 ticks, 1 kHz): takes a fresh sensor vector, filters leg rates and
+  runs the sensor-level safety checks;
+- cylinder control k (every 28 ticks, 250 Hz, one per leg): outer PD (eq. 14-15), pressure
+  distribution (eq. 10-12), PI per chamber (eq. 13), duty with dead-band compensation
+  (eq. 1-3). Leg k's PWM period starts on the tick after its control task, so a new duty
+  acts at once and the six legs switch their valves at staggered instants;
+- pose (every 28 ticks): forward kinematics of the measured legs, the wrench at the ankle,
+  the exercise trajectory, impedance (eq. 16-17), inverse kinematics to leg targets, load
+  compensation and the pose-level safety checks.
+
+The controller sees only a sensor vector in and a valve vector out (``device.signals``): it
+never knows whether a plant simulation or an I/O board is on the other side.
+
+Modes: IDLE (all valves closed, pressures held), JOINT (independent leg position control),
+TASK (pose trajectory with impedance), FAULT (tripped, latched until re-armed; valves
+closed). Nothing leaves IDLE or FAULT except an explicit command.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device import impedance, position_loop, pressure_loop, pwm, safety
+from device._jit import njit
+from device.geometry import DEFAULT_GEOMETRY, Geometry
+from device.kinematics import (
+    FK_MAX_ITERATIONS,
+    FK_TOLERANCE,
+    cross3,
+    euler_rate_matrix,
+    forward_kinematics,
+    leg_forces_for_wrench,
+    leg_vectors,
+    mat3_vec,
+    pose_jacobian,
+    rotation,
+    twist_jacobian,
+)
+from device.plant.params import PARAMETERS, TICK_HZ
+from device.safety import SafetyLimits, Trip
+from device.scheduler import Schedule, Task, schedule
+
+# Task ids: indices into the task list handed to the scheduler.
+TASK_DUTY, TASK_SENSORS, TASK_POSE = 0, 1, 8
+TASK_CYLINDER0 = 2
+SENSOR_PERIOD = 7
+CONTROL_PERIOD = pwm.PWM_SLOTS
+
+
+class Mode(IntEnum):
+    IDLE = 0
+    JOINT = 1
+    TASK = 2
+    FAULT = 3
+
+
+class Waveform(IntEnum):
+    """Target waveform of one task-space axis."""
+
+    HOLD = 0
+    """Stay at ``center``."""
+    SINE = 1
+    """``center + amplitude sin(2 pi f (t - t0))``."""
+    RAMP = 2
+    """From ``center`` toward ``end`` at ``rate`` per second, then stay."""
+
+
+# Integer state slots.
+I_TICK, I_MODE, I_TRIP, I_FK_FAIL, I_TRIPS, I_SENSOR_READS = 0, 1, 2, 3, 4, 5
+N_ISTATE = 8
+
+
+def controller_tasks() -> tuple[Task, ...]:
+    """The interrupt handler's tasks, in task-id order."""
+    return (
+        Task("duty update", 1),
+        Task("read sensors", SENSOR_PERIOD),
+        *(Task(f"cylinder {i + 1}", CONTROL_PERIOD) for i in range(6)),
+        Task("pose and impedance", CONTROL_PERIOD),
+    )
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Gains and settings of the controller (what an engineer tunes), SI units.
+
+    Pressures are gauge. Gains were set on the simulated plant within the bounds the
+    single-leg study gives (overshoot <= 2 % caps the position gain near 0.2 bar/mm).
+    """
+
+    position_kp: float = 1.5e7
+    """Outer-loop proportional gain (Pa of differential per m): 0.15 bar/mm."""
+    position_kd: float = 1.2e5
+    """Outer-loop derivative gain (Pa per m/s)."""
+    pressure_kp: float = 1.0e-3
+    """Inner PI proportional gain (percent of duty per Pa): full duty at 1 bar error."""
+    pressure_ki: float = 0.02
+    """Inner PI integral gain (percent per Pa s)."""
+    hold_band: float = 0.0
+    """Control inputs below this (percent) hold the chamber (close-close)."""
+    deadband_compensation: bool = True
+    """Map inputs onto [d_dead, d_max] (eq. 2-3) instead of using them as the duty."""
+    valve_response_time: float = 1e-3
+    """T_v of eq. (1): the paper's ~1 ms, giving d_dead = 25 %."""
+    supply_pressure: float = 6.0e5
+    """Nominal supply, gauge (Pa); the upper bound of eq. (12)."""
+    critical_ratio: float = 0.4
+    """Valve b; P_critical = b * supply (absolute), the lower bound of eq. (12)."""
+    atmosphere: float = 1.01325e5
+    """To turn the absolute pressure sensors into gauge (Pa)."""
+    leg_rate_cutoff_hz: float = 60.0
+    """Low-pass on the differentiated leg sensors (1 kHz)."""
+    pose_rate_cutoff_hz: float = 30.0
+    """Low-pass on the differentiated forward-kinematics pose (250 Hz)."""
+    platform_mass: float = PARAMETERS["platform_mass"].value
+    """Model of the platform for gravity compensation (kg); the foot is measured instead."""
+    platform_com_below_ankle: float = PARAMETERS["platform_com_below_ankle"].value
+    leg_mass: float = PARAMETERS["leg_mass"].value
+    bore: float = PARAMETERS["bore"].value
+    rod: float = PARAMETERS["rod"].value
+    sensor_below_ankle: float = PARAMETERS["sensor_below_ankle"].value
+    load_compensation: bool = True
+    """Feed the measured foot wrench forward into ``G_p`` (see device.position_loop)."""
+
+
+class ControllerParams(NamedTuple):
+    schedule: NDArray[np.int64]
+    pwm_phase: NDArray[np.int64]
+    base: NDArray[np.float64]
+    plat: NDArray[np.float64]
+    min_length: float
+    stroke: float
+    area_cap: float
+    area_ratio: float
+    p_atm: float
+    p_min: float
+    p_max: float
+    p_sensor_max: float
+    kp_pos: float
+    kd_pos: float
+    kp_p: float
+    ki_p: float
+    hold_band: float
+    d_dead: float
+    compensate: bool
+    leg_alpha: float
+    pose_alpha: float
+    body_mass: float
+    body_com: NDArray[np.float64]
+    leg_mass: float
+    gravity: float
+    sensor_origin: NDArray[np.float64]
+    load_compensation: bool
+    limits: NDArray[np.float64]
+    home_pose: NDArray[np.float64]
+    dt_tick: float
+    dt_sensor: float
+    dt_control: float
+
+
+class ControllerState(NamedTuple):
+    istate: NDArray[np.int64]
+    sensors: NDArray[np.float64]  # (25,) last sensor vector
+    leg_x: NDArray[np.float64]  # (6,) measured piston displacement (m)
+    leg_rate: NDArray[np.float64]  # (6,) filtered (m/s)
+    pressure: NDArray[np.float64]  # (12,) gauge (Pa)
+    pose: NDArray[np.float64]  # (6,) measured by forward kinematics
+    pose_rate: NDArray[np.float64]
+    wrench: NDArray[np.float64]  # (6,) foot on plate at the ankle: force, E^T moment
+    tare: NDArray[np.float64]  # (6,) wrench at the start of an exercise
+    pose_cmd: NDArray[np.float64]
+    pose_cmd_rate: NDArray[np.float64]
+    x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
+    stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
+    damping: NDArray[np.float64]  # (6,) B in force
+    stiffness_target: NDArray[np.float64]
+    damping_target: NDArray[np.float64]
+    compliant: NDArray[np.float64]  # (6,) 1 where the axis renders impedance
+    trajectory: NDArray[np.float64]  # (6, 5) kind, center, amplitude|rate, freq|end, t0
+    leg_target: NDArray[np.float64]
+    leg_target_rate: NDArray[np.float64]
+    compensation: NDArray[np.float64]  # (6,) G_p (Pa)
+    p_desired: NDArray[np.float64]  # (12,)
+    integral: NDArray[np.float64]  # (12,)
+    u: NDArray[np.float64]  # (12,) control input (percent)
+    slots: NDArray[np.int64]  # (12,) signed PWM slots
+    valves: NDArray[np.uint8]  # (24,)
+
+
+def build_params(
+    config: ControllerConfig = ControllerConfig(),
+    geometry: Geometry = DEFAULT_GEOMETRY,
+    limits: SafetyLimits = SafetyLimits(),
+) -> tuple[ControllerParams, Schedule]:
+    sched = schedule(controller_tasks())
+    offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
+    area_cap = math.pi * config.bore**2 / 4.0
+    area_ann = area_cap - math.pi * config.rod**2 / 4.0
+    p_supply_abs = config.supply_pressure + config.atmosphere
+    dt_tick = 1.0 / TICK_HZ
+
+    def alpha(cutoff: float, dt: float) -> float:
+        return 1.0 - math.exp(-2.0 * math.pi * cutoff * dt)
+
+    params = ControllerParams(
+        schedule=sched.as_array(),
+        pwm_phase=(offsets + 1) % pwm.PWM_SLOTS,
+        base=np.ascontiguousarray(geometry.base_joints),
+        plat=np.ascontiguousarray(geometry.platform_joints),
+        min_length=geometry.min_length,
+        stroke=geometry.stroke,
+        area_cap=area_cap,
+        area_ratio=area_ann / area_cap,
+        p_atm=config.atmosphere,
+        p_min=config.critical_ratio * p_supply_abs - config.atmosphere,
+        p_max=config.supply_pressure,
+        p_sensor_max=1.0e6,
+        kp_pos=config.position_kp,
+        kd_pos=config.position_kd,
+        kp_p=config.pressure_kp,
+        ki_p=config.pressure_ki,
+        hold_band=config.hold_band,
+        d_dead=pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD),
+        compensate=config.deadband_compensation,
+        leg_alpha=alpha(config.leg_rate_cutoff_hz, SENSOR_PERIOD * dt_tick),
+        pose_alpha=alpha(config.pose_rate_cutoff_hz, CONTROL_PERIOD * dt_tick),
+        body_mass=config.platform_mass,
+        body_com=np.array([0.0, 0.0, -config.platform_com_below_ankle]),
+        leg_mass=config.leg_mass,
+        gravity=9.81,
+        sensor_origin=np.array([0.0, 0.0, -config.sensor_below_ankle]),
+        load_compensation=config.load_compensation,
+        limits=limits.as_array(),
+        home_pose=geometry.home_pose.copy(),
+        dt_tick=dt_tick,
+        dt_sensor=SENSOR_PERIOD * dt_tick,
+        dt_control=CONTROL_PERIOD * dt_tick,
+    )
+    return params, sched
+
+
+def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
+    home = geometry.home_pose
+    state = ControllerState(
+        istate=np.zeros(N_ISTATE, dtype=np.int64),
+        sensors=np.zeros(25),
+        leg_x=np.full(6, 0.5 * geometry.stroke),
+        leg_rate=np.zeros(6),
+        pressure=np.zeros(12),
+        pose=home.copy(),
+        pose_rate=np.zeros(6),
+        wrench=np.zeros(6),
+        tare=np.zeros(6),
+        pose_cmd=home.copy(),
+        pose_cmd_rate=np.zeros(6),
+        x_m=np.zeros(6),
+        stiffness=np.zeros(6),
+        damping=np.zeros(6),
+        stiffness_target=np.zeros(6),
+        damping_target=np.zeros(6),
+        compliant=np.zeros(6),
+        trajectory=np.zeros((6, 5)),
+        leg_target=np.full(6, 0.5 * geometry.stroke),
+        leg_target_rate=np.zeros(6),
+        compensation=np.zeros(6),
+        p_desired=np.zeros(12),
+        integral=np.zeros(12),
+        u=np.zeros(12),
+        slots=np.zeros(12, dtype=np.int64),
+        valves=np.zeros(24, dtype=np.uint8),
+    )
+    state.trajectory[:, 1] = home
+    return state
+
+
+@njit
+def trip(s: ControllerState, code: int) -> None:
+    """Latch a fault: valves close at this very tick's duty update or the next."""
+    if s.istate[I_MODE] != Mode.FAULT:
+        s.istate[I_TRIPS] += 1
+    s.istate[I_MODE] = Mode.FAULT
+    if s.istate[I_TRIP] == 0:
+        s.istate[I_TRIP] = code
+    for c in range(12):
+        s.slots[c] = 0
+        s.integral[c] = 0.0
+    for v in range(24):
+        s.valves[v] = 0
+
+
+@njit
+def moving(s: ControllerState) -> bool:
+    m = s.istate[I_MODE]
+    return m == Mode.JOINT or m == Mode.TASK
+
+
+@njit
+def duty_update(s: ControllerState, p: ControllerParams) -> None:
+    tick = s.istate[I_TICK]
+    go = moving(s)
+    for leg in range(6):
+        slot = (tick - p.pwm_phase[leg]) % pwm.PWM_SLOTS
+        for side in range(2):
+            c = 2 * leg + side
+            intake, exhaust = pwm.valve_states(s.slots[c] if go else 0, slot)
+            s.valves[2 * c] = intake
+            s.valves[2 * c + 1] = exhaust
+
+
+@njit
+def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
+    s.istate[I_SENSOR_READS] += 1
+    code = safety.check_sensors(sensors, p.p_sensor_max, p.stroke, p.limits)
+    if code == Trip.SENSOR_INVALID or (code != Trip.NONE and moving(s)):
+        trip(s, code)
+        return
+    for k in range(25):
+        s.sensors[k] = sensors[k]
+    for c in range(12):
+        s.pressure[c] = sensors[c] - p.p_atm
+    first = s.istate[I_SENSOR_READS] == 1
+    for i in range(6):
+        x = sensors[13 + i]
+        rate = 0.0 if first else (x - s.leg_x[i]) / p.dt_sensor
+        s.leg_rate[i] += p.leg_alpha * (rate - s.leg_rate[i])
+        s.leg_x[i] = x
+    if moving(s):
+        code = safety.check_leg_speed(s.leg_rate, p.limits)
+        if code != Trip.NONE:
+            trip(s, code)
+
+
+@njit
+def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
+    lo, up = 2 * leg, 2 * leg + 1
+    if not moving(s):
+        s.slots[lo] = 0
+        s.slots[up] = 0
+        s.integral[lo] = 0.0
+        s.integral[up] = 0.0
+        return
+    dP = position_loop.pd(
+        s.leg_target[leg], s.leg_x[leg], s.leg_target_rate[leg], s.leg_rate[leg],
+        p.kp_pos, p.kd_pos, s.compensation[leg],
+    )
+    r = p.area_ratio
+    P_l, P_u = pressure_loop.distribute(dP, s.pressure[lo], s.pressure[up], r, p.p_min, p.p_max)
+    s.p_desired[lo] = P_l
+    s.p_desired[up] = P_u
+    e_l = P_l - s.pressure[lo]  # eq. (5)
+    e_u = r * (P_u - s.pressure[up])  # eq. (6)
+    u_l, s.integral[lo] = pressure_loop.pi_step(e_l, s.integral[lo], p.kp_p, p.ki_p, p.dt_control)
+    u_u, s.integral[up] = pressure_loop.pi_step(e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control)
+    for c, u in ((lo, u_l), (up, u_u)):
+        s.u[c] = u
+        if abs(u) <= p.hold_band:
+            s.slots[c] = 0
+        else:
+            s.slots[c] = pwm.duty_slots(pwm.duty(u, p.d_dead, p.compensate))
+
+
+@njit
+def waveform(row: NDArray[np.float64], t: float) -> tuple[float, float]:
+    """(value, rate) of one axis' target at time t."""
+    kind = int(row[0])
+    center, a, b, t0 = row[1], row[2], row[3], row[4]
+    tau = max(0.0, t - t0)
+    if kind == Waveform.SINE:
+        w = 2.0 * math.pi * b
+        return center + a * math.sin(w * tau), a * w * math.cos(w * tau)
+    if kind == Waveform.RAMP:
+        span = b - center
+        rate = abs(a)
+        if rate * tau >= abs(span):
+            return b, 0.0
+        direction = 1.0 if span >= 0.0 else -1.0
+        return center + direction * rate * tau, direction * rate
+    return center, 0.0
+
+
+@njit
+def pose_task(s: ControllerState, p: ControllerParams) -> None:
+    lengths = np.empty(6)
+    for i in range(6):
+        lengths[i] = s.leg_x[i] + p.min_length
+    previous = s.pose.copy()
+    n = forward_kinematics(lengths, p.base, p.plat, s.pose, FK_MAX_ITERATIONS, FK_TOLERANCE)
+    if n < 0:
+        s.istate[I_FK_FAIL] += 1
+        if moving(s):
+            trip(s, Trip.KINEMATICS)
+        return
+    for k in range(6):
+        rate = (s.pose[k] - previous[k]) / p.dt_control
+        s.pose_rate[k] += p.pose_alpha * (rate - s.pose_rate[k])
+
+    # Foot wrench at the ankle, base frame; rotational part as generalised forces E^T M.
+    R = np.empty((3, 3))
+    rotation(s.pose[3], s.pose[4], s.pose[5], R)
+    F = mat3_vec(R, s.sensors[19:22].copy())
+    M = mat3_vec(R, s.sensors[22:25].copy()) + cross3(mat3_vec(R, p.sensor_origin), F)
+    E = np.empty((3, 3))
+    euler_rate_matrix(s.pose[4], s.pose[5], E)
+    for k in range(3):
+        s.wrench[k] = F[k]
+        s.wrench[3 + k] = E[0, k] * M[0] + E[1, k] * M[1] + E[2, k] * M[2]
+
+    L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
+    if s.istate[I_MODE] == Mode.TASK:
+        if not (safety.all_finite(s.trajectory) and safety.all_finite(s.stiffness_target)
+                and safety.all_finite(s.damping_target)):
+            trip(s, Trip.COMMAND_INVALID)
+            return
+        t = s.istate[I_TICK] * p.dt_tick
+        for k in range(6):
+            s.stiffness[k] = safety.slew(
+                s.stiffness[k], s.stiffness_target[k], p.limits[safety.ROW_K_SLEW, k], p.dt_control)
+            s.damping[k] = safety.slew(
+                s.damping[k], s.damping_target[k], p.limits[safety.ROW_B_SLEW, k], p.dt_control)
+            x_d, v_d = waveform(s.trajectory[k], t)
+            v_m = 0.0
+            if s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0):
+                s.x_m[k], v_m = impedance.compliance_step(
+                    s.x_m[k], s.wrench[k] - s.tare[k], s.stiffness[k], s.damping[k], p.dt_control)
+            else:
+                s.x_m[k] = 0.0
+            x_c = x_d + s.x_m[k]
+            lo, hi = p.limits[safety.ROW_ROM_LOW, k], p.limits[safety.ROW_ROM_HIGH, k]
+            home = p.home_pose[k]
+            if x_c - home < lo:
+                x_c, v_d, v_m = home + lo, 0.0, 0.0
+            elif x_c - home > hi:
+                x_c, v_d, v_m = home + hi, 0.0, 0.0
+            s.pose_cmd[k] = x_c
+            s.pose_cmd_rate[k] = v_d + v_m
+        leg_vectors(s.pose_cmd, p.base, p.plat, L, U, A)
+        twist_jacobian(U, A, J)
+        Jq = np.empty((6, 6))
+        pose_jacobian(s.pose_cmd, J, Jq)
+        for i in range(6):
+            s.leg_target[i] = min(max(L[i] - p.min_length, 0.0), p.stroke)
+            rate = 0.0
+            for k in range(6):
+                rate += Jq[i, k] * s.pose_cmd_rate[k]
+            s.leg_target_rate[i] = rate
+
+    if moving(s):
+        rel = s.pose.copy()
+        for k in range(6):
+            rel[k] -= p.home_pose[k]
+        code = safety.check_pose(rel, p.limits)
+        if code != Trip.NONE:
+            trip(s, code)
+            return
+
+    # G_p: the differential that holds platform weight (model) and the foot's wrench
+    # (measured), eq. (15)'s gravity compensation.
+    leg_vectors(s.pose, p.base, p.plat, L, U, A)
+    twist_jacobian(U, A, J)
+    r = mat3_vec(R, p.body_com)
+    W = np.zeros(6)
+    fz = -p.body_mass * p.gravity
+    W[2] = fz
+    W[3] = r[1] * fz
+    W[4] = -r[0] * fz
+    if p.load_compensation:
+        for k in range(3):
+            W[k] += F[k]
+            W[3 + k] += M[k]
+    for k in range(6):
+        W[k] = -W[k]
+    f = np.empty(6)
+    if leg_forces_for_wrench(J, W, f):
+        for i in range(6):
+            s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
+
+
+@njit
+def controller_tick(
+    s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]
+) -> None:
+    """Run this tick's tasks; ``sensors`` must be fresh when the read-sensors task is due."""
+    tick = s.istate[I_TICK]
+    row = p.schedule[tick % p.schedule.shape[0]]
+    for j in range(row.shape[0]):
+        task = row[j]
+        if task < 0:
+            break
+        if task == TASK_DUTY:
+            duty_update(s, p)
+        elif task == TASK_SENSORS:
+            sensor_task(s, p, sensors)
+        elif task == TASK_POSE:
+            pose_task(s, p)
+        else:
+            cylinder_task(s, p, task - TASK_CYLINDER0)
+    if s.istate[I_MODE] == Mode.FAULT or s.istate[I_MODE] == Mode.IDLE:
+        for v in range(24):
+            s.valves[v] = 0
+    s.istate[I_TICK] = tick + 1
+
+
+@njit
+def sensors_due(s: ControllerState, p: ControllerParams) -> bool:
+    """Whether the coming tick reads the sensors (the loop samples the hardware first)."""
+    row = p.schedule[s.istate[I_TICK] % p.schedule.shape[0]]
+    for j in range(row.shape[0]):
+        if row[j] == TASK_SENSORS:
+            return True
+    return False

@@ -1,0 +1,96 @@
+"""Response metrics of recorded runs: step, frequency response, stiffness.
+
+Pure functions of arrays (time in s, signals in SI units), no simulation here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    rise_ms: float
+    """10-90 % rise time (ms); NaN if the response never reached 90 %."""
+    overshoot_pct: float
+    """Peak beyond the target, in percent of the step."""
+    settling_ms: float
+    """Time after which the response stays within the band of the target (ms)."""
+    steady_error_mm: float
+    """|mean response - target| over the last ``tail`` seconds (mm)."""
+
+
+def step_metrics(
+    t: NDArray[np.float64],
+    y: NDArray[np.float64],
+    y0: float,
+    target: float,
+    band: float = 0.3e-3,
+    tail: float = 0.2,
+) -> StepMetrics:
+    """Metrics of a step from ``y0`` to ``target`` that starts at ``t[0]``.
+
+    The settling band is absolute (default the paper's 0.3 mm resolution) rather than a
+    percentage, because for a 10 mm step 2 % would be finer than the resolution itself.
+    """
+    t = np.asarray(t, dtype=np.float64) - float(t[0])
+    step = target - y0
+    if step == 0.0:
+        raise ValueError("a step needs a target different from its start")
+    frac = (np.asarray(y, dtype=np.float64) - y0) / step
+    i10 = np.argmax(frac >= 0.1)
+    i90 = np.argmax(frac >= 0.9)
+    rise = float(t[i90] - t[i10]) * 1e3 if frac[i90] >= 0.9 and frac[i10] >= 0.1 else math.nan
+    overshoot = max(0.0, float(np.max(frac)) - 1.0) * 100.0
+    outside = np.nonzero(np.abs(y - target) > band)[0]
+    if outside.size == 0:
+        settling = 0.0
+    elif outside[-1] + 1 < t.size:
+        settling = float(t[outside[-1] + 1]) * 1e3
+    else:
+        settling = math.nan
+    last = t >= t[-1] - tail
+    steady = abs(float(np.mean(y[last])) - target) * 1e3
+    return StepMetrics(rise, overshoot, settling, steady)
+
+
+def sine_response(
+    t: NDArray[np.float64], reference: NDArray[np.float64], response: NDArray[np.float64],
+    frequency: float,
+) -> tuple[float, float]:
+    """(gain dB, phase deg) of ``response`` relative to ``reference`` at ``frequency``.
+
+    Both are projected on sin and cos over whole periods (a one-bin DFT), which rejects
+    offsets, noise and harmonics.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    periods = math.floor((t[-1] - t[0]) * frequency)
+    if periods < 1:
+        raise ValueError("need at least one whole period of data")
+    keep = t <= t[0] + periods / frequency
+    tt = t[keep]
+    basis = np.exp(-2j * math.pi * frequency * tt)
+
+    def phasor(x: NDArray[np.float64]) -> complex:
+        xx = np.asarray(x, dtype=np.float64)[keep]
+        return complex(np.sum((xx - xx.mean()) * basis))
+
+    ref, out = phasor(reference), phasor(response)
+    if abs(ref) == 0.0:
+        raise ValueError("reference has no component at that frequency")
+    h = out / ref
+    return 20.0 * math.log10(max(abs(h), 1e-12)), math.degrees(math.atan2(h.imag, h.real))
+
+
+def stiffness_slope(angle: NDArray[np.float64], torque: NDArray[np.float64]) -> float:
+    """Least-squares slope of torque against angle (N m/rad)."""
+    a = np.asarray(angle, dtype=np.float64)
+    tq = np.asarray(torque, dtype=np.float64)
+    if a.size < 2 or float(np.ptp(a)) == 0.0:
+        raise ValueError("the angle did not change: no stiffness to measure")
+    slope, _ = np.polyfit(a, tq, 1)
+    return float(slope)

@@ -1,0 +1,1 @@
+"""Physical simulation of the Rutgers Ankle: valves, chambers, cylinders, platform, foot."""

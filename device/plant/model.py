@@ -1,0 +1,361 @@
+"""The plant: on/off valves, chambers, cylinders with friction, rigid platform and foot.
+
+One call of :func:`plant_tick` advances the physics by one controller tick (1/7000 s) in
+``substeps`` semi-implicit Euler steps. The pieces, each in its own function:
+
+- valve: the armature moves only after the coil has been on (or off) for ``valve_delay``,
+  then travels for ``valve_travel``; the open area follows it linearly. A pulse shorter than
+  the delay passes nothing, a gap shorter than it never closes the valve: the paper's dead band.
+- flow: ISO 6358 (sonic conductance C, critical ratio b) with the ISO 6358-3 laminar branch
+  near equal pressures, in either direction.
+- chamber: Richer & Hurmuzlu (2000) energy equation with dead volume; gauge force balance.
+- friction: LuGre (Canudas de Wit et al. 1995) per piston: sticks below breakaway, Stribeck.
+- platform: Newton-Euler of platform + foot about the ankle centre, leg masses reflected
+  through the Jacobian, end stops at both ends of each stroke.
+- patient: spring-damper of the strapped leg and passive ankle, the shank's preload and a
+  scripted active torque (relaxed, resisting, pushing).
+
+Chamber ``2 i`` is the cap (lower) side of leg ``i`` and ``2 i + 1`` its rod (upper) side;
+valve ``2 c`` is the intake and ``2 c + 1`` the exhaust of chamber ``c``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device._jit import njit
+from device.kinematics import (
+    cross3,
+    leg_vectors,
+    mat3_t_vec,
+    mat3_vec,
+    rotate_inertia,
+    rotation,
+    solve6,
+    twist_jacobian,
+)
+from device.plant.params import PlantParams
+
+
+class PlantState(NamedTuple):
+    """Mutable state of the plant (arrays changed in place)."""
+
+    time: NDArray[np.float64]  # (1,) s
+    pose: NDArray[np.float64]  # (6,) task pose (m, rad)
+    twist: NDArray[np.float64]  # (6,) v (m/s) and w (rad/s), base frame
+    accel: NDArray[np.float64]  # (6,) last acceleration, for the sensor's inertial term
+    pressure: NDArray[np.float64]  # (12,) Pa abs
+    valve_cmd: NDArray[np.float64]  # (24,) 1 energised, 0 not
+    valve_timer: NDArray[np.float64]  # (24,) s since the command last changed
+    valve_open: NDArray[np.float64]  # (24,) open area fraction 0..1
+    bristle: NDArray[np.float64]  # (6,) LuGre z (m)
+    leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
+    script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
+
+
+SCRIPT_NONE = 0
+SCRIPT_CONSTANT = 1  # a after t0
+SCRIPT_RAMP = 2  # a * (t - t0) after t0, limited to |b|
+SCRIPT_SINE = 3  # a * sin(2 pi b (t - t0)) after t0
+
+
+def new_state(params: PlantParams) -> PlantState:
+    """Platform at rest at home, chambers balanced so the legs carry the platform's weight."""
+    s = PlantState(
+        time=np.zeros(1),
+        pose=params.rest_pose.copy(),
+        twist=np.zeros(6),
+        accel=np.zeros(6),
+        pressure=np.full(12, params.p_atm),
+        valve_cmd=np.zeros(24),
+        valve_timer=np.full(24, 1.0),
+        valve_open=np.zeros(24),
+        bristle=np.zeros(6),
+        leg_force=np.zeros(6),
+        script=np.zeros((6, 4)),
+    )
+    static_pressures(s, params)
+    return s
+
+
+def static_pressures(s: PlantState, p: PlantParams) -> None:
+    """Set chamber pressures that hold the current pose still (half supply on the rod side)."""
+    L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
+    leg_vectors(s.pose, p.base, p.plat, L, U, A)
+    twist_jacobian(U, A, J)
+    W = np.zeros(6)
+    gravity_and_patient_wrench(s, p, W)
+    f = np.empty(6)
+    JT = np.ascontiguousarray(J.T)
+    # Legs must supply -W (their wrench balances gravity and the foot), plus their own weight.
+    if not solve6(JT, -W, f):
+        return
+    for i in range(6):
+        f[i] += p.leg_mass * p.gravity * U[i, 2]
+        p_rod = 0.5 * (p.p_supply + p.p_atm)
+        s.pressure[2 * i + 1] = p_rod
+        s.pressure[2 * i] = p.p_atm + (f[i] + (p_rod - p.p_atm) * p.area_annulus) / p.area_cap
+
+
+@njit
+def iso6358_mass_flow(p_up: float, p_down: float, open_fraction: float, p: PlantParams) -> float:
+    """Mass flow (kg/s) from ``p_up`` to ``p_down`` through a valve; negative if reversed."""
+    if open_fraction <= 0.0 or p_up == p_down:
+        return 0.0
+    sign = 1.0
+    if p_down > p_up:
+        p_up, p_down = p_down, p_up
+        sign = -1.0
+    ratio = p_down / p_up
+    b = p.critical_ratio
+    if ratio <= b:
+        phi = 1.0
+    elif ratio < p.laminar_ratio:
+        x = (ratio - b) / (1.0 - b)
+        phi = math.sqrt(1.0 - x * x)
+    else:
+        x = (p.laminar_ratio - b) / (1.0 - b)
+        phi = math.sqrt(1.0 - x * x) * (1.0 - ratio) / (1.0 - p.laminar_ratio)
+    return (
+        sign * open_fraction * p.conductance * p.rho_anr * p_up
+        * math.sqrt(p.t_anr / p.temperature) * phi
+    )
+
+
+@njit
+def valves_substep(s: PlantState, p: PlantParams, dt: float) -> None:
+    rate = dt / p.valve_travel
+    for v in range(24):
+        s.valve_timer[v] += dt
+        if s.valve_timer[v] >= p.valve_delay:
+            if s.valve_cmd[v] > 0.5:
+                s.valve_open[v] = min(1.0, s.valve_open[v] + rate)
+            else:
+                s.valve_open[v] = max(0.0, s.valve_open[v] - rate)
+
+
+@njit
+def write_valves(s: PlantState, command: NDArray[np.uint8]) -> None:
+    """Energise (1) or release (0) the 24 coils; open-open is refused (both released)."""
+    for c in range(12):
+        intake = 1.0 if command[2 * c] else 0.0
+        exhaust = 1.0 if command[2 * c + 1] else 0.0
+        if intake > 0.5 and exhaust > 0.5:
+            intake = 0.0
+            exhaust = 0.0
+        for v, new in ((2 * c, intake), (2 * c + 1, exhaust)):
+            if new != s.valve_cmd[v]:
+                s.valve_cmd[v] = new
+                s.valve_timer[v] = 0.0
+
+
+@njit
+def lugre_substep(s: PlantState, p: PlantParams, i: int, v: float, dt: float) -> float:
+    """Advance leg ``i``'s bristle state by dt at piston velocity v; return friction (N)."""
+    e = v / p.v_stribeck
+    g = p.f_coulomb + (p.f_static - p.f_coulomb) * math.exp(-e * e)
+    z = s.bristle[i]
+    av = abs(v)
+    if av > 0.0:
+        z_ss = g / p.bristle_k * (1.0 if v > 0.0 else -1.0)
+        # Exact solution of dz/dt = v - k |v| z / g for constant v: stable at any dt.
+        z_new = z_ss + (z - z_ss) * math.exp(-p.bristle_k * av / g * dt)
+    else:
+        z_new = z
+    z_dot = (z_new - z) / dt
+    s.bristle[i] = z_new
+    return p.bristle_k * z_new + p.bristle_c * z_dot + p.f_viscous * v
+
+
+@njit
+def scripted_torque(script: NDArray[np.float64], axis: int, t: float) -> float:
+    kind = int(script[axis, 0])
+    t0, a, b = script[axis, 1], script[axis, 2], script[axis, 3]
+    if kind == SCRIPT_NONE or t < t0:
+        return 0.0
+    if kind == SCRIPT_CONSTANT:
+        return a
+    if kind == SCRIPT_RAMP:
+        x = a * (t - t0)
+        return max(-abs(b), min(abs(b), x))
+    if kind == SCRIPT_SINE:
+        return a * math.sin(2.0 * math.pi * b * (t - t0))
+    return 0.0
+
+
+@njit
+def patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> None:
+    """Wrench the patient's leg exerts on the foot plate, about the ankle (base frame)."""
+    for k in range(6):
+        W[k] = -p.patient_k[k] * (s.pose[k] - p.rest_pose[k]) - p.patient_b[k] * s.twist[k]
+    W[2] -= p.shank_preload
+    for k in range(3):
+        W[3 + k] += scripted_torque(s.script, 3 + k, s.time[0])
+
+
+@njit
+def gravity_and_patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> None:
+    """Gravity on platform and foot plus the patient's wrench, about the ankle (base frame)."""
+    patient_wrench(s, p, W)
+    R = np.empty((3, 3))
+    rotation(s.pose[3], s.pose[4], s.pose[5], R)
+    r = mat3_vec(R, p.body_com)
+    fz = -p.body_mass * p.gravity
+    W[2] += fz
+    W[3] += r[1] * fz
+    W[4] -= r[0] * fz
+
+
+@njit
+def plant_tick(s: PlantState, p: PlantParams) -> None:
+    """Advance the plant by one tick with the valve commands already written."""
+    n = p.substeps
+    dt = p.dt / n
+    L, U, A = np.empty(6), np.empty((6, 3)), np.empty((6, 3))
+    J, M, W = np.empty((6, 6)), np.empty((6, 6)), np.empty(6)
+    R = np.empty((3, 3))
+    f, acc = np.empty(6), np.empty(6)
+    rt = p.gas_r * p.temperature
+    for _ in range(n):
+        valves_substep(s, p, dt)
+        leg_vectors(s.pose, p.base, p.plat, L, U, A)
+        twist_jacobian(U, A, J)
+        for i in range(6):
+            x = L[i] - p.min_length
+            xd = 0.0
+            for k in range(6):
+                xd += J[i, k] * s.twist[k]
+            # Chambers: cap side grows with x, rod side shrinks.
+            for side in range(2):
+                c = 2 * i + side
+                if side == 0:
+                    area = p.area_cap
+                    vol = p.dead_volume + area * x
+                    dvol = area * xd
+                else:
+                    area = p.area_annulus
+                    vol = p.dead_volume + area * (p.stroke - x)
+                    dvol = -area * xd
+                vol = max(vol, 0.2 * p.dead_volume)  # a bottomed piston still leaves its port
+                pc = s.pressure[c]
+                m_in = iso6358_mass_flow(p.p_supply, pc, s.valve_open[2 * c], p)
+                m_out = iso6358_mass_flow(pc, p.p_atm, s.valve_open[2 * c + 1], p)
+                inflow = (p.alpha_in if m_in > 0.0 else p.alpha_out) * m_in
+                outflow = (p.alpha_out if m_out > 0.0 else p.alpha_in) * m_out
+                dp = rt / vol * (inflow - outflow) - p.alpha_work * pc * dvol / vol
+                s.pressure[c] = max(1000.0, pc + dp * dt)
+            force = (s.pressure[2 * i] - p.p_atm) * p.area_cap - (
+                s.pressure[2 * i + 1] - p.p_atm
+            ) * p.area_annulus
+            s.leg_force[i] = force
+            force -= lugre_substep(s, p, i, xd, dt)
+            force -= p.leg_mass * p.gravity * U[i, 2]
+            if x < 0.0:
+                force -= p.stop_k * x + p.stop_c * min(xd, 0.0)
+            elif x > p.stroke:
+                force -= p.stop_k * (x - p.stroke) + p.stop_c * max(xd, 0.0)
+            f[i] = force
+        # Generalised forces on the platform (base frame, about the ankle).
+        gravity_and_patient_wrench(s, p, W)
+        for k in range(6):
+            for i in range(6):
+                W[k] += J[i, k] * f[i]
+        # Mass matrix of the rigid body about the ankle plus reflected leg masses.
+        rotation(s.pose[3], s.pose[4], s.pose[5], R)
+        r = mat3_vec(R, p.body_com)
+        Io = rotate_inertia(R, p.body_inertia)
+        m = p.body_mass
+        for a in range(6):
+            for b in range(6):
+                M[a, b] = 0.0
+        for a in range(3):
+            M[a, a] = m
+            for b in range(3):
+                M[3 + a, 3 + b] = Io[a, b]
+        # m [r]x in the lower-left block, its transpose upper-right.
+        M[3, 1] = -m * r[2]
+        M[3, 2] = m * r[1]
+        M[4, 0] = m * r[2]
+        M[4, 2] = -m * r[0]
+        M[5, 0] = -m * r[1]
+        M[5, 1] = m * r[0]
+        for a in range(3):
+            for b in range(3):
+                M[a, 3 + b] = M[3 + b, a]
+        for a in range(6):
+            for b in range(6):
+                s_ab = 0.0
+                for i in range(6):
+                    s_ab += J[i, a] * J[i, b]
+                M[a, b] += p.leg_mass * s_ab
+        w = s.twist[3:].copy()
+        wwr = cross3(w, cross3(w, r))
+        wIw = cross3(w, mat3_vec(Io, w))
+        for k in range(3):
+            W[k] -= m * wwr[k]
+            W[3 + k] -= wIw[k]
+        if not solve6(M, W, acc):
+            acc[:] = 0.0
+        for k in range(6):
+            s.twist[k] += acc[k] * dt
+            s.accel[k] = acc[k]
+        s.pose[0] += s.twist[0] * dt
+        s.pose[1] += s.twist[1] * dt
+        s.pose[2] += s.twist[2] * dt
+        cp, sp = math.cos(s.pose[4]), math.sin(s.pose[4])
+        cy, sy = math.cos(s.pose[5]), math.sin(s.pose[5])
+        wx, wy, wz = s.twist[3], s.twist[4], s.twist[5]
+        roll_rate = (cy * wx + sy * wy) / cp
+        s.pose[3] += roll_rate * dt
+        s.pose[4] += (-sy * wx + cy * wy) * dt
+        s.pose[5] += (wz + sp * roll_rate) * dt
+        s.time[0] += dt
+
+
+@njit
+def _quantise(value: float, lsb: float) -> float:
+    return lsb * math.floor(value / lsb + 0.5)
+
+
+@njit
+def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
+    """Sample every sensor with noise and quantisation into ``out`` (see device.signals)."""
+    for c in range(12):
+        out[c] = _quantise(s.pressure[c] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
+    out[12] = _quantise(p.p_supply + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
+    L, U, A = np.empty(6), np.empty((6, 3)), np.empty((6, 3))
+    leg_vectors(s.pose, p.base, p.plat, L, U, A)
+    for i in range(6):
+        x = L[i] - p.min_length + np.random.normal(0.0, p.leg_noise)
+        out[13 + i] = min(max(_quantise(x, p.leg_lsb), 0.0), p.stroke)
+    # The force plate carries the foot: the patient's wrench, the foot's weight and the
+    # foot's inertia, moved from the ankle to the sensor origin and into the sensor's frame.
+    W = np.empty(6)
+    patient_wrench(s, p, W)
+    R = np.empty((3, 3))
+    rotation(s.pose[3], s.pose[4], s.pose[5], R)
+    rf = mat3_vec(R, p.foot_com)
+    w = s.twist[3:].copy()
+    alpha = s.accel[3:].copy()
+    a_com = s.accel[:3] + cross3(alpha, rf) + cross3(w, cross3(w, rf))
+    F = W[:3] - p.foot_mass * a_com
+    F[2] -= p.foot_mass * p.gravity
+    If = rotate_inertia(R, p.foot_inertia)
+    Mo = W[3:] + cross3(rf, F - W[:3]) - mat3_vec(If, alpha) - cross3(w, mat3_vec(If, w))
+    rs = mat3_vec(R, p.sensor_origin)
+    Ms = Mo - cross3(rs, F)
+    Fb = mat3_t_vec(R, F)
+    Mb = mat3_t_vec(R, Ms)
+    for k in range(3):
+        out[19 + k] = _quantise(Fb[k] + np.random.normal(0.0, p.force_noise), p.force_lsb)
+        out[22 + k] = _quantise(Mb[k] + np.random.normal(0.0, p.torque_noise), p.torque_lsb)
+
+
+@njit
+def seed(value: int) -> None:
+    """Seed the compiled code's random generator (sensor noise)."""
+    np.random.seed(value)
