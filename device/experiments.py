@@ -69,8 +69,6 @@ def step(
     rig = _rig(patient, compensate, seed)
     _settle_at_home(rig)
     target = rig.state.leg_target.copy()
-    y0 = float(rig.hardware.state.pose[0] * 0.0 + rig.state.leg_x[i])  # type: ignore[attr-defined]
-    log0 = rig.run(0.0)  # noqa: F841  (keeps the log aligned on the step instant)
     target[i] += mm * 1e-3
     rig.move_legs(target)
     log = rig.run(duration)
@@ -78,7 +76,6 @@ def step(
     y = log[:, COL[f"leg_x{i}"]]
     y_start = float(y[0])
     m = step_metrics(t, y, y_start, y_start + mm * 1e-3)
-    del y0
     p = log[:, [COL[f"pressure_g{2 * i}"], COL[f"pressure_g{2 * i + 1}"]]] / 1e5
     d = log[:, [COL[f"slots{2 * i}"], COL[f"slots{2 * i + 1}"]]] * (100.0 / 28.0)
     return StepResult(leg, mm, compensate, m, t, (y - y_start) * 1e3, p, d)

@@ -1,0 +1,7 @@
+"""``python -m device``: the device's own command line."""
+
+import sys
+
+from device.cli import main
+
+sys.exit(main())

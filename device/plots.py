@@ -1,0 +1,106 @@
+"""Figures to hold next to the paper's Figures 7, 9, 10 and 12 (matplotlib, PNG)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from device.experiments import (  # noqa: E402
+    ImpedanceResult,
+    SineResult,
+    StaircaseResult,
+    StepResult,
+    SweepResult,
+)
+
+
+def _save(fig: plt.Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def step_figure(results: list[StepResult], path: Path) -> Path:
+    """Figure 7/9 analogue: displacement, chamber pressures and duty of a leg step."""
+    fig, ax = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+    for r in results:
+        label = "dead-band compensated" if r.compensate else "uncompensated"
+        t = r.t * 1e3
+        ax[0].plot(t, r.displacement_mm, label=label)
+        ax[1].plot(t, r.pressure_bar[:, 0], label=f"lower, {label}")
+        ax[1].plot(t, r.pressure_bar[:, 1], "--", label=f"upper, {label}")
+        ax[2].step(t, r.duty[:, 0], where="post", label=f"lower, {label}")
+    r0 = results[0]
+    ax[0].axhline(r0.step_mm, color="k", lw=0.6, ls=":")
+    ax[0].set_ylabel("displacement (mm)")
+    ax[0].set_title(f"Leg {r0.leg}: {r0.step_mm:g} mm step (cf. paper Fig. 7 and 9)")
+    ax[1].set_ylabel("pressure (bar gauge)")
+    ax[2].set_ylabel("duty (%, + intake, - exhaust)")
+    ax[2].set_xlabel("time (ms)")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def staircase_figure(r: StaircaseResult, path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(r.t, r.displacement_mm, label="leg displacement")
+    ax.step(r.t, r.target_mm, where="post", color="k", lw=0.8, label="target")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("mm")
+    ax.set_title(f"{r.step_mm:g} mm staircase: largest steady error {r.resolution_mm:.3f} mm")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, path)
+
+
+def bandwidth_figure(trace: SineResult, sweep: SweepResult, path: Path) -> Path:
+    """Figure 10 analogue: pitch following a sine, and the frequency response."""
+    fig, ax = plt.subplots(2, 1, figsize=(7, 6))
+    ax[0].plot(trace.t * 1e3, trace.command, "k--", lw=0.8, label="command")
+    ax[0].plot(trace.t * 1e3, trace.response, label="platform")
+    ax[0].set_xlabel("time (ms)")
+    ax[0].set_ylabel(f"{trace.axis} (deg)")
+    ax[0].set_title(f"{trace.axis} at {trace.frequency:g} Hz, {trace.amplitude:g} deg "
+                    f"(gain {trace.gain_db:+.1f} dB, phase {trace.phase_deg:.0f} deg)")
+    ax[0].legend()
+    ax[0].grid(alpha=0.3)
+    ax[1].semilogx(sweep.frequencies, sweep.gains_db, "o-")
+    ax[1].axhline(-3.0, color="r", lw=0.8, ls=":")
+    if not math.isnan(sweep.bandwidth_hz):
+        ax[1].axvline(sweep.bandwidth_hz, color="r", lw=0.8)
+    ax[1].set_xlabel("frequency (Hz)")
+    ax[1].set_ylabel("gain (dB)")
+    ax[1].set_title(f"-3 dB bandwidth {sweep.bandwidth_hz:.1f} Hz")
+    ax[1].grid(alpha=0.3, which="both")
+    return _save(fig, path)
+
+
+def impedance_figure(r: ImpedanceResult, path: Path) -> Path:
+    """Figure 12 analogue: foot angle and torque under position-based impedance control."""
+    fig, ax = plt.subplots(3, 1, figsize=(7, 8))
+    ax[0].plot(r.t, [math.degrees(a) for a in r.angle])
+    ax[0].set_ylabel(f"X_foot {r.axis} (deg)")
+    ax[1].plot(r.t, r.torque)
+    ax[1].set_ylabel(f"F {r.axis} (N m)")
+    ax[1].set_xlabel("time (s)")
+    ax[2].plot(r.angle, r.torque, ".", ms=1.5, label="measured")
+    lo, hi = float(min(r.angle)), float(max(r.angle))
+    ax[2].plot([lo, hi], [r.stiffness * lo, r.stiffness * hi], "k--", lw=0.8,
+               label=f"K = {r.stiffness:g} N m/rad")
+    ax[2].set_xlabel(f"{r.axis} (rad)")
+    ax[2].set_ylabel("torque (N m)")
+    ax[2].set_title(f"measured {r.measured_stiffness:.1f} N m/rad ({r.error_pct:.1f} % off)")
+    ax[2].legend()
+    ax[0].set_title(f"Patient pushes against K = {r.stiffness:g} N m/rad (cf. paper Fig. 12)")
+    for a in ax:
+        a.grid(alpha=0.3)
+    return _save(fig, path)

@@ -1,0 +1,153 @@
+"""The controller on the simulated plant: modes, latching trips, command validation."""
+
+import numpy as np
+import pytest
+
+from device import controller as ctl
+from device.controller import Mode, Waveform
+from device.hardware import HardwareError, SimulatedHardware, open_hardware
+from device.plant.params import PlantConfig
+from device.rig import AxisTarget, CommandError, Rig
+from device.safety import Trip
+from device.tickloop import COL, run_hardware
+
+
+def rig(patient: str = "relaxed") -> Rig:
+    return Rig(SimulatedHardware(PlantConfig(patient=patient), seed=2))
+
+
+def test_controller_schedule_keeps_two_tasks_per_interrupt() -> None:
+    r = rig()
+    assert r.schedule.max_tasks_per_interrupt == 2
+    assert r.schedule.hyperperiod == 28
+
+
+def test_idle_keeps_every_valve_closed() -> None:
+    r = rig()
+    log = r.run(0.2)
+    assert r.mode == Mode.IDLE
+    assert np.all(log[:, COL["slots0"]:COL["slots0"] + 12] == 0)
+    assert not r.hardware.state.valve_cmd.any()  # type: ignore[attr-defined]
+
+
+def test_valves_never_open_open_while_moving() -> None:
+    r = rig()
+    r.move_legs(r.state.leg_x + np.array([0.01, -0.01, 0.005, 0, 0, 0]))
+    for _ in range(200):
+        r.run(1 / 7000, log_hz=0)
+        v = r.state.valves
+        assert not np.any(v[0::2] & v[1::2])
+
+
+def test_joint_mode_reaches_leg_targets() -> None:
+    r = rig("absent")
+    target = r.state.leg_x.copy()
+    target[2] += 0.005
+    r.move_legs(target)
+    r.run(1.0)
+    assert abs(r.state.leg_x[2] - target[2]) < 0.3e-3
+
+
+def test_nan_sensor_trips_latches_and_closes_valves() -> None:
+    r = rig()
+    r.move_legs(r.state.leg_x.copy())
+    r.run(0.1)
+    bad = np.zeros(25)
+    bad[:] = np.nan
+    for _ in range(7):  # the next read-sensors task sees it
+        ctl.controller_tick(r.state, r.params, bad)
+    assert r.mode == Mode.FAULT and r.trip == Trip.SENSOR_INVALID
+    assert not r.state.valves.any()
+    r.run(0.5)  # healthy sensors again: still latched, still closed
+    assert r.mode == Mode.FAULT
+    with pytest.raises(CommandError, match="re-arm"):
+        r.move_legs(r.state.leg_x.copy())
+    r.rearm()
+    assert r.mode == Mode.IDLE  # re-arm alone never moves anything
+    r.run(0.1)
+    assert r.mode == Mode.IDLE
+
+
+def test_estop_latches() -> None:
+    r = rig()
+    r.track({"pitch": AxisTarget(Waveform.SINE, 0.0, 0.1, 0.5)})
+    r.run(0.2)
+    r.estop()
+    r.run(0.2)
+    assert r.mode == Mode.FAULT and r.trip == Trip.ESTOP
+    assert not r.hardware.state.valve_cmd.any()  # type: ignore[attr-defined]
+
+
+def test_leaving_the_range_of_motion_trips() -> None:
+    r = rig()
+    r.track({})
+    r.run(0.1)
+    r.hardware.state.pose[4] += 0.6  # type: ignore[attr-defined]  # a blow tilts the plate
+    r.run(0.05)
+    assert r.mode == Mode.FAULT
+    assert r.trip in (Trip.RANGE_OF_MOTION, Trip.LEG_SPEED, Trip.STROKE_END)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda r: r.move_legs([0.05] * 5), "6 values"),
+        (lambda r: r.move_legs([0.05, 0.05, 0.05, 0.05, 0.05, 0.2]), "leg"),
+        (lambda r: r.move_legs([np.nan] * 6), "finite"),
+        (lambda r: r.track({"pitch": AxisTarget(Waveform.SINE, 0.0, 1.0, 1.0)}), "range of motion"),
+        (lambda r: r.track({"knee": AxisTarget()}), "unknown axis"),
+        (lambda r: r.track({"pitch": AxisTarget(Waveform.HOLD, float("inf"))}), "finite"),
+        (lambda r: r.set_impedance([0, 0, 0, 0, -5, 0], [1] * 6), "stiffness"),
+        (lambda r: r.set_impedance([0, 0, 0, 0, 1e4, 0], [1] * 6), "stiffness"),
+        (lambda r: r.set_impedance([0] * 6, [0] * 6), "both be zero"),
+        (lambda r: r.set_impedance([1] * 6, [np.nan] * 6), "finite"),
+    ],
+)
+def test_bad_commands_are_refused_and_change_nothing(call: object, message: str) -> None:
+    r = rig()
+    r.move_legs(r.state.leg_x.copy())
+    r.run(0.05)
+    before = {name: np.array(getattr(r.state, name)).copy() for name in r.state._fields}
+    with pytest.raises(CommandError, match=message):
+        call(r)  # type: ignore[operator]
+    for name, value in before.items():
+        assert np.array_equal(np.array(getattr(r.state, name)), value, equal_nan=True), name
+
+
+def test_live_stiffness_change_is_slew_limited() -> None:
+    r = rig()
+    K = np.array([0, 0, 0, 0, 50.0, 0])
+    B = np.array([0, 0, 0, 0, 1.0, 0])
+    on = [False, False, False, False, True, False]
+    r.set_impedance(K, B, on)
+    r.track({})
+    r.run(0.2)
+    assert r.state.stiffness[4] == pytest.approx(50.0)
+    r.set_impedance(K * 2, B, on)
+    r.run(0.1)
+    slew = r.limits.stiffness_slew[4]
+    assert r.state.stiffness[4] == pytest.approx(50.0 + slew * 0.1, abs=slew * 0.005)
+    r.run(0.5)
+    assert r.state.stiffness[4] == pytest.approx(100.0)
+
+
+def test_python_loop_and_compiled_loop_run_the_same_controller() -> None:
+    runs = []
+    for compiled in (True, False):
+        r = rig()
+        r.move_legs(r.state.leg_x + np.array([0.004, 0, 0, 0, 0, -0.002]))
+        if compiled:
+            r.run(0.1, log_hz=0)
+        else:
+            run_hardware(r.state, r.params, r.hardware, 700)
+        runs.append((r.state.leg_x.copy(), r.state.pressure.copy(), r.state.slots.copy()))
+    for a, b in zip(runs[0], runs[1], strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_hardware_kind_is_chosen_by_name() -> None:
+    assert isinstance(open_hardware("sim"), SimulatedHardware)
+    with pytest.raises(HardwareError, match="no I/O board driver"):
+        open_hardware("board")
+    with pytest.raises(HardwareError, match="unknown hardware kind"):
+        open_hardware("toaster")
