@@ -16,8 +16,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=device_cli.Parser)
     run = sub.add_parser("run", help="run the system on its embedded defaults (simulated device)")
-    run.add_argument("--seconds", type=float, default=None,
-                     help="stop after this much time (default: until Ctrl-C)")
+    run.add_argument(
+        "--seconds",
+        type=float,
+        default=None,
+        help="stop after this much time (default: until Ctrl-C)",
+    )
     device_cli.add_commands(sub)
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["run"]:

@@ -122,11 +122,17 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     out["resolution_mm"] = stairs.resolution_mm
     sw = experiments.sweep("pitch", 2.0)
     out["pitch_bandwidth_hz"] = sw.bandwidth_hz if not math.isnan(sw.bandwidth_hz) else math.inf
-    out["pitch_gain_db_7hz"] = dict(zip(sw.frequencies, sw.gains_db, strict=True)).get(7.0, math.nan)
-    out["pitch_peak_gain_db"] = max(g for f, g in zip(sw.frequencies, sw.gains_db, strict=True)
-                                    if f <= 7.0)
-    out["pitch_sweep"] = {"frequencies_hz": list(sw.frequencies), "gains_db": list(sw.gains_db),
-                          "phases_deg": list(sw.phases_deg)}
+    out["pitch_gain_db_7hz"] = dict(zip(sw.frequencies, sw.gains_db, strict=True)).get(
+        7.0, math.nan
+    )
+    out["pitch_peak_gain_db"] = max(
+        g for f, g in zip(sw.frequencies, sw.gains_db, strict=True) if f <= 7.0
+    )
+    out["pitch_sweep"] = {
+        "frequencies_hz": list(sw.frequencies),
+        "gains_db": list(sw.gains_db),
+        "phases_deg": list(sw.phases_deg),
+    }
     imp = experiments.impedance("pitch", k=50.0, b=1.0, torque=10.0)
     out["stiffness_pitch_nm_per_rad"] = imp.measured_stiffness
     out["stiffness_error_pct"] = imp.error_pct
@@ -157,6 +163,8 @@ def table(result: dict[str, Any]) -> str:
         if isinstance(value, float) and abs(value) >= 1000:
             text = f"{value:,.0f}"
         tgt = targets.get(key)
-        lines.append(f"| {label} | {text} | {tgt.text() if tgt else ''} | "
-                     f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |")
+        lines.append(
+            f"| {label} | {text} | {tgt.text() if tgt else ''} | "
+            f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |"
+        )
     return "\n".join(lines)

@@ -11,7 +11,7 @@ import csv
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any, NoReturn
@@ -52,15 +52,19 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     p = ss.add_parser("step", help="position step of one leg (paper Fig. 9)")
     p.add_argument("--leg", type=int, default=1, help="leg number 1..6")
     p.add_argument("--mm", type=_finite_float, default=10.0, help="step size (mm)")
-    p.add_argument("--no-deadband-comp", action="store_true",
-                   help="drive the valves without dead-band compensation (eq. 2-3 off)")
+    p.add_argument(
+        "--no-deadband-comp",
+        action="store_true",
+        help="drive the valves without dead-band compensation (eq. 2-3 off)",
+    )
     p.add_argument("--duration", type=_finite_float, default=1.0, help="seconds to record")
     _outputs(p)
 
     p = ss.add_parser("sine", help="pose tracking of a sine on one axis (paper Fig. 10)")
     p.add_argument("--axis", choices=AXES, default="pitch")
-    p.add_argument("--amplitude", type=_finite_float, default=2.0,
-                   help="deg for roll/pitch/yaw, mm for x/y/z")
+    p.add_argument(
+        "--amplitude", type=_finite_float, default=2.0, help="deg for roll/pitch/yaw, mm for x/y/z"
+    )
     p.add_argument("--hz", type=_finite_float, default=1.0)
     _outputs(p)
 
@@ -129,6 +133,9 @@ def run_command(args: argparse.Namespace) -> int:
         print(json.dumps(_jsonable(result), indent=2) if args.json else bench.table(result))
         return 0
 
+    figure: Callable[[Path], Any] | None = None
+    trace: tuple[list[str], list[np.ndarray]] | None = None
+    data: Any
     if args.experiment == "params":
         from device.plant.params import parameter_table_markdown
 
@@ -137,52 +144,88 @@ def run_command(args: argparse.Namespace) -> int:
     if args.experiment == "step":
         r = ex.step(args.leg, args.mm, not args.no_deadband_comp, args.duration)
         m = r.metrics
-        text = (f"leg {r.leg} step {r.step_mm:g} mm "
-                f"({'dead-band compensated' if r.compensate else 'uncompensated'}): "
-                f"rise {m.rise_ms:.1f} ms, overshoot {m.overshoot_pct:.2f} %, "
-                f"settling {m.settling_ms:.0f} ms, steady-state error {m.steady_error_mm:.3f} mm")
-        data: Any = {"leg": r.leg, "step_mm": r.step_mm, "deadband_compensation": r.compensate,
-                     **asdict(m)}
-        trace = (["t_s", "displacement_mm", "lower_bar", "upper_bar", "lower_duty_pct",
-                  "upper_duty_pct"],
-                 [r.t, r.displacement_mm, *r.pressure_bar.T, *r.duty.T])
+        text = (
+            f"leg {r.leg} step {r.step_mm:g} mm "
+            f"({'dead-band compensated' if r.compensate else 'uncompensated'}): "
+            f"rise {m.rise_ms:.1f} ms, overshoot {m.overshoot_pct:.2f} %, "
+            f"settling {m.settling_ms:.0f} ms, steady-state error {m.steady_error_mm:.3f} mm"
+        )
+        data = {
+            "leg": r.leg,
+            "step_mm": r.step_mm,
+            "deadband_compensation": r.compensate,
+            **asdict(m),
+        }
+        trace = (
+            [
+                "t_s",
+                "displacement_mm",
+                "lower_bar",
+                "upper_bar",
+                "lower_duty_pct",
+                "upper_duty_pct",
+            ],
+            [r.t, r.displacement_mm, *r.pressure_bar.T, *r.duty.T],
+        )
         figure = lambda path: _plots().step_figure([r], path)  # noqa: E731
     elif args.experiment == "sine":
         r2 = ex.sine(args.axis, args.amplitude, args.hz)
         unit = "deg" if args.axis in AXES[3:] else "mm"
-        text = (f"{r2.axis} {r2.amplitude:g} {unit} at {r2.frequency:g} Hz: "
-                f"gain {r2.gain_db:+.2f} dB, phase {r2.phase_deg:.1f} deg")
-        data = {"axis": r2.axis, "amplitude": r2.amplitude, "unit": unit, "hz": r2.frequency,
-                "gain_db": r2.gain_db, "phase_deg": r2.phase_deg}
+        text = (
+            f"{r2.axis} {r2.amplitude:g} {unit} at {r2.frequency:g} Hz: "
+            f"gain {r2.gain_db:+.2f} dB, phase {r2.phase_deg:.1f} deg"
+        )
+        data = {
+            "axis": r2.axis,
+            "amplitude": r2.amplitude,
+            "unit": unit,
+            "hz": r2.frequency,
+            "gain_db": r2.gain_db,
+            "phase_deg": r2.phase_deg,
+        }
         trace = (["t_s", "command", "response"], [r2.t, r2.command, r2.response])
         figure = lambda path: _plots().bandwidth_figure(  # noqa: E731
-            r2, ex.SweepResult(r2.axis, r2.amplitude, (r2.frequency,), (r2.gain_db,),
-                               (r2.phase_deg,), math.nan), path)
+            r2,
+            ex.SweepResult(
+                r2.axis, r2.amplitude, (r2.frequency,), (r2.gain_db,), (r2.phase_deg,), math.nan
+            ),
+            path,
+        )
     elif args.experiment == "impedance":
         r3 = ex.impedance(args.axis, args.k, args.b, args.torque)
-        text = (f"{r3.axis}: K = {r3.stiffness:g} N m/rad, B = {r3.damping:g} N m s/rad: "
-                f"measured stiffness {r3.measured_stiffness:.2f} N m/rad "
-                f"({r3.error_pct:.2f} % error)")
-        data = {"axis": r3.axis, "k": r3.stiffness, "b": r3.damping,
-                "measured_stiffness": r3.measured_stiffness, "error_pct": r3.error_pct}
+        text = (
+            f"{r3.axis}: K = {r3.stiffness:g} N m/rad, B = {r3.damping:g} N m s/rad: "
+            f"measured stiffness {r3.measured_stiffness:.2f} N m/rad "
+            f"({r3.error_pct:.2f} % error)"
+        )
+        data = {
+            "axis": r3.axis,
+            "k": r3.stiffness,
+            "b": r3.damping,
+            "measured_stiffness": r3.measured_stiffness,
+            "error_pct": r3.error_pct,
+        }
         trace = (["t_s", "angle_rad", "torque_nm"], [r3.t, r3.angle, r3.torque])
         figure = lambda path: _plots().impedance_figure(r3, path)  # noqa: E731
     elif args.experiment == "sweep":
         r4 = ex.sweep(args.axis, args.amplitude)
-        rows = ", ".join(f"{f:g} Hz {g:+.1f} dB" for f, g in zip(r4.frequencies, r4.gains_db,
-                                                                   strict=True))
+        rows = ", ".join(
+            f"{f:g} Hz {g:+.1f} dB" for f, g in zip(r4.frequencies, r4.gains_db, strict=True)
+        )
         text = f"{r4.axis} at {r4.amplitude:g}: -3 dB bandwidth {r4.bandwidth_hz:.2f} Hz ({rows})"
         data = r4
-        trace = None
-        figure = None
     else:  # staircase
         r5 = ex.staircase(args.leg, args.mm)
-        text = (f"leg {r5.leg}, {r5.step_mm:g} mm steps: largest steady error "
-                f"{r5.resolution_mm:.3f} mm")
-        data = {"leg": r5.leg, "step_mm": r5.step_mm, "resolution_mm": r5.resolution_mm,
-                "errors_mm": list(r5.errors_mm)}
-        trace = (["t_s", "displacement_mm", "target_mm"],
-                 [r5.t, r5.displacement_mm, r5.target_mm])
+        text = (
+            f"leg {r5.leg}, {r5.step_mm:g} mm steps: largest steady error {r5.resolution_mm:.3f} mm"
+        )
+        data = {
+            "leg": r5.leg,
+            "step_mm": r5.step_mm,
+            "resolution_mm": r5.resolution_mm,
+            "errors_mm": list(r5.errors_mm),
+        }
+        trace = (["t_s", "displacement_mm", "target_mm"], [r5.t, r5.displacement_mm, r5.target_mm])
         figure = lambda path: _plots().staircase_figure(r5, path)  # noqa: E731
 
     print(json.dumps(_jsonable(data)) if args.json else text)

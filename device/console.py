@@ -58,7 +58,8 @@ def run_console(seconds: float | None = None, out: TextIO = sys.stdout) -> int:
                     f"({math.degrees(s.pose_cmd[4] - home):6.2f}) | "
                     f"{s.wrench[4] - s.tare[4]:7.2f}         | {s.stiffness[4]:5.1f}     | "
                     f"{lag_ms:5.1f}",
-                    file=out, flush=True,
+                    file=out,
+                    flush=True,
                 )
                 next_print += 1.0
     except KeyboardInterrupt:

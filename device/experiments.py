@@ -27,7 +27,9 @@ SETTLE_S = 0.5
 
 
 def _rig(
-    patient: str = "absent", compensate: bool = True, seed: int = 1,
+    patient: str = "absent",
+    compensate: bool = True,
+    seed: int = 1,
     plant: PlantConfig | None = None,
 ) -> Rig:
     cfg = plant if plant is not None else PlantConfig(patient=patient)
@@ -57,8 +59,12 @@ class StepResult:
 
 
 def step(
-    leg: int = 1, mm: float = 10.0, compensate: bool = True, duration: float = 1.0,
-    patient: str = "absent", seed: int = 1,
+    leg: int = 1,
+    mm: float = 10.0,
+    compensate: bool = True,
+    duration: float = 1.0,
+    patient: str = "absent",
+    seed: int = 1,
 ) -> StepResult:
     """Independent joint position step of one leg (paper, Figure 9)."""
     i = leg_index(leg)
@@ -121,8 +127,9 @@ def staircase(
         ys.append((y - start) * 1e3)
         rs.append(np.full(y.shape, (target[i] - start) * 1e3))
     t = np.concatenate(ts)
-    return StaircaseResult(leg, step_mm, tuple(errors), t - t[0], np.concatenate(ys),
-                           np.concatenate(rs))
+    return StaircaseResult(
+        leg, step_mm, tuple(errors), t - t[0], np.concatenate(ys), np.concatenate(rs)
+    )
 
 
 def _axis(axis: str) -> int:
@@ -149,8 +156,12 @@ class SineResult:
 
 
 def sine(
-    axis: str = "pitch", amplitude: float = 2.0, hz: float = 1.0, cycles: int = 6,
-    patient: str = "relaxed", seed: int = 1,
+    axis: str = "pitch",
+    amplitude: float = 2.0,
+    hz: float = 1.0,
+    cycles: int = 6,
+    patient: str = "relaxed",
+    seed: int = 1,
 ) -> SineResult:
     """Pose tracking of a sine on one axis (paper, Figure 10). Amplitude in deg or mm."""
     k = _axis(axis)
@@ -187,8 +198,22 @@ class SweepResult:
 
 
 def sweep(
-    axis: str = "pitch", amplitude: float = 2.0,
-    frequencies: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 15.0),
+    axis: str = "pitch",
+    amplitude: float = 2.0,
+    frequencies: tuple[float, ...] = (
+        0.5,
+        1.0,
+        2.0,
+        3.0,
+        4.0,
+        5.0,
+        6.0,
+        7.0,
+        8.0,
+        10.0,
+        12.0,
+        15.0,
+    ),
     seed: int = 1,
 ) -> SweepResult:
     """Frequency response of one axis and its -3 dB bandwidth."""
@@ -224,8 +249,12 @@ class ImpedanceResult:
 
 
 def impedance(
-    axis: str = "pitch", k: float = 50.0, b: float = 1.0, torque: float = 10.0,
-    ramp_s: float = 4.0, seed: int = 1,
+    axis: str = "pitch",
+    k: float = 50.0,
+    b: float = 1.0,
+    torque: float = 10.0,
+    ramp_s: float = 4.0,
+    seed: int = 1,
 ) -> ImpedanceResult:
     """The patient pushes with a slow torque ramp against the rendered impedance (Figure 12).
 

@@ -76,4 +76,6 @@ def open_hardware(kind: str, config: PlantConfig = PlantConfig(), seed: int = 0)
         raise HardwareError(
             "no I/O board driver is installed on this machine; run with the simulation (sim)"
         )
-    raise HardwareError(f"unknown hardware kind {kind!r}; choose one of {', '.join(HARDWARE_KINDS)}")
+    raise HardwareError(
+        f"unknown hardware kind {kind!r}; choose one of {', '.join(HARDWARE_KINDS)}"
+    )

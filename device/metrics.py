@@ -59,7 +59,9 @@ def step_metrics(
 
 
 def sine_response(
-    t: NDArray[np.float64], reference: NDArray[np.float64], response: NDArray[np.float64],
+    t: NDArray[np.float64],
+    reference: NDArray[np.float64],
+    response: NDArray[np.float64],
     frequency: float,
 ) -> tuple[float, float]:
     """(gain dB, phase deg) of ``response`` relative to ``reference`` at ``frequency``.

@@ -8,9 +8,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
-from device.experiments import (  # noqa: E402
+from device.experiments import (
     ImpedanceResult,
     SineResult,
     StaircaseResult,
@@ -19,7 +20,7 @@ from device.experiments import (  # noqa: E402
 )
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -69,8 +70,10 @@ def bandwidth_figure(trace: SineResult, sweep: SweepResult, path: Path) -> Path:
     ax[0].plot(trace.t * 1e3, trace.response, label="platform")
     ax[0].set_xlabel("time (ms)")
     ax[0].set_ylabel(f"{trace.axis} (deg)")
-    ax[0].set_title(f"{trace.axis} at {trace.frequency:g} Hz, {trace.amplitude:g} deg "
-                    f"(gain {trace.gain_db:+.1f} dB, phase {trace.phase_deg:.0f} deg)")
+    ax[0].set_title(
+        f"{trace.axis} at {trace.frequency:g} Hz, {trace.amplitude:g} deg "
+        f"(gain {trace.gain_db:+.1f} dB, phase {trace.phase_deg:.0f} deg)"
+    )
     ax[0].legend()
     ax[0].grid(alpha=0.3)
     ax[1].semilogx(sweep.frequencies, sweep.gains_db, "o-")
@@ -94,8 +97,13 @@ def impedance_figure(r: ImpedanceResult, path: Path) -> Path:
     ax[1].set_xlabel("time (s)")
     ax[2].plot(r.angle, r.torque, ".", ms=1.5, label="measured")
     lo, hi = float(min(r.angle)), float(max(r.angle))
-    ax[2].plot([lo, hi], [r.stiffness * lo, r.stiffness * hi], "k--", lw=0.8,
-               label=f"K = {r.stiffness:g} N m/rad")
+    ax[2].plot(
+        [lo, hi],
+        [r.stiffness * lo, r.stiffness * hi],
+        "k--",
+        lw=0.8,
+        label=f"K = {r.stiffness:g} N m/rad",
+    )
     ax[2].set_xlabel(f"{r.axis} (rad)")
     ax[2].set_ylabel("torque (N m)")
     ax[2].set_title(f"measured {r.measured_stiffness:.1f} N m/rad ({r.error_pct:.1f} % off)")

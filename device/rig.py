@@ -7,7 +7,6 @@ controller checks again on its side (``device.safety``); the limits live in both
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -21,6 +20,9 @@ from device.geometry import AXES, DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware, SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.safety import SafetyLimits, Trip
+
+Vector = Sequence[float] | NDArray[np.float64]
+"""Six numbers, one per leg or axis."""
 
 
 class CommandError(ValueError):
@@ -39,7 +41,7 @@ class AxisTarget:
     """Sine frequency (Hz), or the ramp's end value."""
 
 
-def _finite(name: str, values: Sequence[float] | NDArray[np.float64]) -> NDArray[np.float64]:
+def _finite(name: str, values: Vector | Sequence[float]) -> NDArray[np.float64]:
     arr = np.asarray(values, dtype=np.float64)
     if not np.all(np.isfinite(arr)):
         raise CommandError(f"{name} must be finite numbers, got {np.asarray(values).tolist()}")
@@ -72,8 +74,8 @@ class Rig:
 
     def run(self, seconds: float, log_hz: float = 1000.0) -> NDArray[np.float64]:
         """Advance by ``seconds``; returns the log rows taken (also kept in :attr:`log`)."""
-        n = int(round(seconds * TICK_HZ))
-        decimation = max(1, int(round(TICK_HZ / log_hz))) if log_hz > 0 else 0
+        n = round(seconds * TICK_HZ)
+        decimation = max(1, round(TICK_HZ / log_hz)) if log_hz > 0 else 0
         rows = np.zeros((n // decimation + 1 if decimation else 0, tickloop.N_LOG))
         if isinstance(self.hardware, SimulatedHardware):
             hw = self.hardware
@@ -112,7 +114,7 @@ class Rig:
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
 
-    def move_legs(self, displacement: Sequence[float]) -> None:
+    def move_legs(self, displacement: Vector) -> None:
         """Independent joint control: hold each piston at ``displacement`` (m, 0..stroke)."""
         x = _finite("leg displacement", displacement)
         if x.shape != (6,):
@@ -154,8 +156,13 @@ class Rig:
                     f"motion {lo:.4g}..{hi:.4g}"
                 )
             home = self.geometry.home_pose[k]
-            traj[k] = (int(tgt.kind), home + vals[0], vals[1],
-                       home + vals[2] if tgt.kind == Waveform.RAMP else vals[2], t0)
+            traj[k] = (
+                int(tgt.kind),
+                home + vals[0],
+                vals[1],
+                home + vals[2] if tgt.kind == Waveform.RAMP else vals[2],
+                t0,
+            )
         self._start_motion()
         self.state.trajectory[:] = traj
         if self.mode == Mode.IDLE:
@@ -164,8 +171,8 @@ class Rig:
 
     def set_impedance(
         self,
-        stiffness: Sequence[float],
-        damping: Sequence[float],
+        stiffness: Vector,
+        damping: Vector,
         compliant: Sequence[bool] | None = None,
     ) -> None:
         """K and B per axis (N/m, N m/rad; N s/m, N m s/rad); slewed by the device."""
@@ -177,10 +184,12 @@ class Rig:
         for k, axis in enumerate(AXES):
             if not 0.0 <= K[k] <= self.limits.stiffness_max[k]:
                 raise CommandError(
-                    f"{axis} stiffness {K[k]:g} outside 0..{self.limits.stiffness_max[k]:g}")
+                    f"{axis} stiffness {K[k]:g} outside 0..{self.limits.stiffness_max[k]:g}"
+                )
             if not 0.0 <= B[k] <= self.limits.damping_max[k]:
                 raise CommandError(
-                    f"{axis} damping {B[k]:g} outside 0..{self.limits.damping_max[k]:g}")
+                    f"{axis} damping {B[k]:g} outside 0..{self.limits.damping_max[k]:g}"
+                )
             if on[k] and K[k] == 0.0 and B[k] == 0.0:
                 raise CommandError(f"{axis}: stiffness and damping cannot both be zero")
         s = self.state
@@ -216,7 +225,3 @@ def leg_index(leg: int) -> int:
     if isinstance(leg, bool) or not isinstance(leg, int) or not 1 <= leg <= 6:
         raise CommandError(f"leg must be 1..6, got {leg!r}")
     return leg - 1
-
-
-def is_finite(x: float) -> bool:
-    return math.isfinite(x)

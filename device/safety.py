@@ -87,8 +87,14 @@ class SafetyLimits:
                 self.damping_max,
                 self.stiffness_slew,
                 self.damping_slew,
-                (self.force_limit, self.torque_limit, self.leg_speed_limit,
-                 self.stroke_margin, 0.0, 0.0),
+                (
+                    self.force_limit,
+                    self.torque_limit,
+                    self.leg_speed_limit,
+                    self.stroke_margin,
+                    0.0,
+                    0.0,
+                ),
             ],
             dtype=np.float64,
         )

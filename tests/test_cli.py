@@ -12,8 +12,9 @@ ANKLE = [sys.executable, "-m", "ankle.cli"]
 
 
 def ankle(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ANKLE, *args], capture_output=True, text=True, timeout=timeout,
-                          check=False)
+    return subprocess.run(
+        [*ANKLE, *args], capture_output=True, text=True, timeout=timeout, check=False
+    )
 
 
 @pytest.mark.parametrize(
@@ -40,8 +41,19 @@ def test_bad_arguments_give_one_line_and_exit_2(args: list[str], needle: str) ->
 
 def test_step_prints_metrics_json_and_writes_csv_and_plot(tmp_path: Path) -> None:
     out_csv, out_png = tmp_path / "step.csv", tmp_path / "step.png"
-    r = ankle("sim", "step", "--leg", "2", "--mm", "5", "--json", "--csv", str(out_csv),
-              "--plot", str(out_png))
+    r = ankle(
+        "sim",
+        "step",
+        "--leg",
+        "2",
+        "--mm",
+        "5",
+        "--json",
+        "--csv",
+        str(out_csv),
+        "--plot",
+        str(out_png),
+    )
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["leg"] == 2 and data["step_mm"] == 5.0

@@ -12,7 +12,7 @@ only with a better source, and the reason column says where each one comes from.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -33,51 +33,153 @@ class Param:
 
 _ROWS: tuple[Param, ...] = (
     # Air supply
-    Param("supply_pressure", 7.0e5, "Pa abs", "6 bar gauge: a common compressor/regulator setting, as DESIGN assumes"),
+    Param(
+        "supply_pressure",
+        7.0e5,
+        "Pa abs",
+        "6 bar gauge: a common compressor/regulator setting, as DESIGN assumes",
+    ),
     Param("atmosphere", 1.01325e5, "Pa abs", "standard atmosphere"),
-    Param("temperature", 293.15, "K", "supply air at room temperature; chambers exchange heat with the walls"),
+    Param(
+        "temperature",
+        293.15,
+        "K",
+        "supply air at room temperature; chambers exchange heat with the walls",
+    ),
     Param("gas_constant", 287.05, "J/(kg K)", "dry air"),
     Param("alpha_in", 1.4, "-", "polytropic index of charging: adiabatic (Richer & Hurmuzlu 2000)"),
     Param("alpha_out", 1.0, "-", "discharge close to isothermal (Richer & Hurmuzlu 2000)"),
     Param("alpha_work", 1.2, "-", "volume-change term between the two (Richer & Hurmuzlu 2000)"),
     # Valves
-    Param("valve_conductance", 0.30, "dm3/(s bar)", "ISO 6358 sonic conductance C. 100 NL/min is 0.24 if rated choked at 7 bar abs and 0.37 if rated 6->5 bar gauge with b = 0.4: the middle of that range"),
-    Param("valve_critical_ratio", 0.40, "-", "ISO 6358 b for a small poppet solenoid valve (typical 0.3-0.5)"),
-    Param("valve_laminar_ratio", 0.999, "-", "ISO 6358-3 laminar branch above this pressure ratio: finite, linear flow near equal pressures"),
-    Param("valve_delay", 0.8e-3, "s", "armature does not move until the coil has been on (or off) this long; with the travel, the paper's ~1 ms response"),
-    Param("valve_travel", 0.2e-3, "s", "armature travel from closed to open (and back); on/off symmetric as the paper assumes"),
+    Param(
+        "valve_conductance",
+        0.30,
+        "dm3/(s bar)",
+        "ISO 6358 sonic conductance C. 100 NL/min is 0.24 if rated choked at 7 bar abs and 0.37 if rated 6->5 bar gauge with b = 0.4: the middle of that range",
+    ),
+    Param(
+        "valve_critical_ratio",
+        0.40,
+        "-",
+        "ISO 6358 b for a small poppet solenoid valve (typical 0.3-0.5)",
+    ),
+    Param(
+        "valve_laminar_ratio",
+        0.999,
+        "-",
+        "ISO 6358-3 laminar branch above this pressure ratio: finite, linear flow near equal pressures",
+    ),
+    Param(
+        "valve_delay",
+        0.8e-3,
+        "s",
+        "armature does not move until the coil has been on (or off) this long; with the travel, the paper's ~1 ms response",
+    ),
+    Param(
+        "valve_travel",
+        0.2e-3,
+        "s",
+        "armature travel from closed to open (and back); on/off symmetric as the paper assumes",
+    ),
     # Cylinders (double-acting, low friction)
-    Param("bore", 25.0e-3, "m", "25 mm: about 290 N per leg at 6 bar, ample for ankle torques near 50 N m on a 0.1 m platform"),
+    Param(
+        "bore",
+        25.0e-3,
+        "m",
+        "25 mm: about 290 N per leg at 6 bar, ample for ankle torques near 50 N m on a 0.1 m platform",
+    ),
     Param("rod", 8.0e-3, "m", "8 mm rod of a 25 mm glass/graphite cylinder; area ratio r = 0.90"),
-    Param("dead_volume", 7.3e-6, "m3", "per chamber: 0.5 m of 4 mm tube from the control box (6.3 cm3) plus 1 cm3 in the cylinder end"),
+    Param(
+        "dead_volume",
+        7.3e-6,
+        "m3",
+        "per chamber: 0.5 m of 4 mm tube from the control box (6.3 cm3) plus 1 cm3 in the cylinder end",
+    ),
     Param("leg_mass", 0.25, "kg", "piston, rod and rod-end joint moving with each leg"),
-    Param("friction_coulomb", 1.0, "N", "glass/graphite piston: Coulomb about 1 N (haptic-grade cylinders)"),
+    Param(
+        "friction_coulomb",
+        1.0,
+        "N",
+        "glass/graphite piston: Coulomb about 1 N (haptic-grade cylinders)",
+    ),
     Param("friction_static", 1.5, "N", "breakaway about 1.5 N"),
-    Param("friction_stribeck_velocity", 5.0e-3, "m/s", "Stribeck velocity of lubricated glass/graphite"),
+    Param(
+        "friction_stribeck_velocity",
+        5.0e-3,
+        "m/s",
+        "Stribeck velocity of lubricated glass/graphite",
+    ),
     Param("friction_viscous", 5.0, "N s/m", "viscous friction of the piston and rod seal"),
-    Param("bristle_stiffness", 1.0e5, "N/m", "LuGre sigma0: 15 um pre-sliding displacement at breakaway"),
-    Param("bristle_damping", 300.0, "N s/m", "LuGre sigma1: about half critical damping of the bristles with ~1 kg on the leg"),
+    Param(
+        "bristle_stiffness",
+        1.0e5,
+        "N/m",
+        "LuGre sigma0: 15 um pre-sliding displacement at breakaway",
+    ),
+    Param(
+        "bristle_damping",
+        300.0,
+        "N s/m",
+        "LuGre sigma1: about half critical damping of the bristles with ~1 kg on the leg",
+    ),
     Param("end_stop_stiffness", 2.0e6, "N/m", "rubber bumper at either end of the stroke"),
     Param("end_stop_damping", 2.0e3, "N s/m", "bumper damping"),
     # Platform and foot
-    Param("platform_mass", 2.5, "kg", "aluminium plate (1.2 kg), force/torque sensor (0.3 kg), foot plate and straps (1.0 kg)"),
-    Param("platform_com_below_ankle", 0.09, "m", "platform centre of mass 1 cm above the joint plane"),
-    Param("platform_radius_of_gyration", 0.07, "m", "disc of 0.12 m radius about a diameter (r/2 = 0.06) plus the sensor and straps"),
+    Param(
+        "platform_mass",
+        2.5,
+        "kg",
+        "aluminium plate (1.2 kg), force/torque sensor (0.3 kg), foot plate and straps (1.0 kg)",
+    ),
+    Param(
+        "platform_com_below_ankle", 0.09, "m", "platform centre of mass 1 cm above the joint plane"
+    ),
+    Param(
+        "platform_radius_of_gyration",
+        0.07,
+        "m",
+        "disc of 0.12 m radius about a diameter (r/2 = 0.06) plus the sensor and straps",
+    ),
     Param("foot_mass", 1.1, "kg", "foot of a 75 kg adult: 1.45 % of body mass (de Leva 1996)"),
     Param("foot_com_forward", 0.05, "m", "foot centre of mass ahead of the ankle axis"),
     Param("foot_com_below", 0.04, "m", "foot centre of mass below the ankle axis"),
-    Param("foot_inertia_pitch", 0.004, "kg m2", "foot about its centre of mass, sagittal axis (de Leva 1996)"),
+    Param(
+        "foot_inertia_pitch",
+        0.004,
+        "kg m2",
+        "foot about its centre of mass, sagittal axis (de Leva 1996)",
+    ),
     Param("foot_inertia_roll", 0.001, "kg m2", "foot about its centre of mass, long axis"),
     Param("foot_inertia_yaw", 0.004, "kg m2", "foot about its centre of mass, vertical axis"),
     # Patient (seated, foot strapped to the plate)
-    Param("shank_preload", 30.0, "N", "part of the shank's weight that rests on the foot of a seated patient"),
-    Param("patient_translation_stiffness", 5.0e3, "N/m", "knee and hip compliance of a seated, strapped leg against translation of the ankle"),
+    Param(
+        "shank_preload",
+        30.0,
+        "N",
+        "part of the shank's weight that rests on the foot of a seated patient",
+    ),
+    Param(
+        "patient_translation_stiffness",
+        5.0e3,
+        "N/m",
+        "knee and hip compliance of a seated, strapped leg against translation of the ankle",
+    ),
     Param("patient_translation_damping", 100.0, "N s/m", "soft-tissue damping of that restraint"),
-    Param("ankle_stiffness_pitch", 15.0, "N m/rad", "passive ankle stiffness of a relaxed adult near neutral, sagittal plane"),
+    Param(
+        "ankle_stiffness_pitch",
+        15.0,
+        "N m/rad",
+        "passive ankle stiffness of a relaxed adult near neutral, sagittal plane",
+    ),
     Param("ankle_stiffness_roll", 20.0, "N m/rad", "passive ankle stiffness, frontal plane"),
     Param("ankle_stiffness_yaw", 10.0, "N m/rad", "passive stiffness about the shank axis"),
     Param("ankle_damping", 0.3, "N m s/rad", "passive ankle damping, relaxed"),
-    Param("resist_factor", 4.0, "-", "co-contraction of a patient who resists multiplies ankle stiffness about fourfold"),
+    Param(
+        "resist_factor",
+        4.0,
+        "-",
+        "co-contraction of a patient who resists multiplies ankle stiffness about fourfold",
+    ),
     # Sensors
     Param("pressure_range", 1.0e6, "Pa", "0-10 bar absolute transducers, 12-bit ADC"),
     Param("pressure_noise", 100.0, "Pa", "1 mbar rms electrical noise"),
@@ -87,7 +189,12 @@ _ROWS: tuple[Param, ...] = (
     Param("force_noise", 0.05, "N", "rms force noise"),
     Param("torque_resolution", 1.0 / 752.0, "N m", "6-axis sensor of the Mini45 class"),
     Param("torque_noise", 0.003, "N m", "rms torque noise"),
-    Param("sensor_below_ankle", 0.08, "m", "force/torque sensor origin above the platform centre, under the foot plate"),
+    Param(
+        "sensor_below_ankle",
+        0.08,
+        "m",
+        "force/torque sensor origin above the platform centre, under the foot plate",
+    ),
     Param("gravity", 9.81, "m/s2", "standard gravity"),
 )
 
@@ -195,7 +302,10 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
         raise ValueError(f"patient must be relaxed, resisting or absent, not {config.patient!r}")
     if not 1 <= config.substeps <= 64:
         raise ValueError("substeps must be 1..64")
-    v = lambda name: _value(config, name)  # noqa: E731
+
+    def v(name: str) -> float:
+        return _value(config, name)
+
     g = config.geometry
     bore, rod = v("bore"), v("rod")
     area_cap = math.pi * bore**2 / 4.0
@@ -209,11 +319,15 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
     absent = config.patient == "absent"
     m_f = 0.0 if absent else v("foot_mass")
     c_f = np.array([v("foot_com_forward"), 0.0, -v("foot_com_below")])
-    I_f = np.diag([v("foot_inertia_roll"), v("foot_inertia_pitch"), v("foot_inertia_yaw")])
+    I_f: NDArray[np.float64] = np.diag(
+        [v("foot_inertia_roll"), v("foot_inertia_pitch"), v("foot_inertia_yaw")]
+    )
     if absent:
         I_f = np.zeros((3, 3))
 
-    def about_origin(m: float, c: NDArray[np.float64], I: NDArray[np.float64]) -> NDArray[np.float64]:
+    def about_origin(
+        m: float, c: NDArray[np.float64], I: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
         return I + m * (float(c @ c) * np.eye(3) - np.outer(c, c))  # parallel axis theorem
 
     body_mass = m_p + m_f
@@ -222,12 +336,17 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
 
     factor = v("resist_factor") if config.patient == "resisting" else 1.0
     kt, bt = v("patient_translation_stiffness"), v("patient_translation_damping")
-    patient_k = np.array(
-        [kt, kt, kt]
-        + [factor * v("ankle_stiffness_roll"), factor * v("ankle_stiffness_pitch"),
-           factor * v("ankle_stiffness_yaw")]
+    patient_k: NDArray[np.float64] = np.array(
+        [
+            kt,
+            kt,
+            kt,
+            factor * v("ankle_stiffness_roll"),
+            factor * v("ankle_stiffness_pitch"),
+            factor * v("ankle_stiffness_yaw"),
+        ]
     )
-    patient_b = np.array([bt, bt, bt] + [factor * v("ankle_damping")] * 3)
+    patient_b: NDArray[np.float64] = np.array([bt, bt, bt] + [factor * v("ankle_damping")] * 3)
     if absent:
         patient_k[:] = 0.0
         patient_b[:] = 0.0
@@ -291,4 +410,4 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
 
 def param_names() -> list[str]:
     """Names accepted in :attr:`PlantConfig.overrides`."""
-    return [f.name for f in fields(Param)] and list(PARAMETERS)
+    return list(PARAMETERS)

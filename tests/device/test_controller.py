@@ -26,7 +26,7 @@ def test_idle_keeps_every_valve_closed() -> None:
     r = rig()
     log = r.run(0.2)
     assert r.mode == Mode.IDLE
-    assert np.all(log[:, COL["slots0"]:COL["slots0"] + 12] == 0)
+    assert np.all(log[:, COL["slots0"] : COL["slots0"] + 12] == 0)
     assert not r.hardware.state.valve_cmd.any()  # type: ignore[attr-defined]
 
 
@@ -63,6 +63,7 @@ def test_nan_sensor_trips_latches_and_closes_valves() -> None:
     with pytest.raises(CommandError, match="re-arm"):
         r.move_legs(r.state.leg_x.copy())
     r.rearm()
+    assert r.mode is not Mode.FAULT
     assert r.mode == Mode.IDLE  # re-arm alone never moves anything
     r.run(0.1)
     assert r.mode == Mode.IDLE

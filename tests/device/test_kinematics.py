@@ -10,8 +10,12 @@ KIN = Kinematics()
 HOME = DEFAULT_GEOMETRY.home_pose
 
 offsets = st.tuples(
-    st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.floats(-0.02, 0.02),
-    st.floats(-0.25, 0.25), st.floats(-0.3, 0.3), st.floats(-0.2, 0.2),
+    st.floats(-0.02, 0.02),
+    st.floats(-0.02, 0.02),
+    st.floats(-0.02, 0.02),
+    st.floats(-0.25, 0.25),
+    st.floats(-0.3, 0.3),
+    st.floats(-0.2, 0.2),
 )
 
 

@@ -16,7 +16,9 @@ pressures = st.floats(2.0e5, 5.8e5)
 
 
 @given(st.floats(-0.5e5, 0.5e5), pressures, pressures)
-def test_distribution_makes_the_differential_with_least_change(dP: float, pl: float, pu: float) -> None:
+def test_distribution_makes_the_differential_with_least_change(
+    dP: float, pl: float, pu: float
+) -> None:
     P_l, P_u = pressure_loop.distribute(dP, pl, pu, R, 0.0, 1e7)
     assert P_l - R * P_u == pytest.approx(dP, abs=1e-6)
     e_l, e_u = P_l - pl, R * (P_u - pu)
@@ -43,7 +45,7 @@ def test_pi_is_p_plus_i_and_stops_winding_up() -> None:
         u, integ = pressure_loop.pi_step(5e5, integ, 1e-3, 0.01, 0.004)
     assert u == 100.0
     assert integ == 0.0
-    u, integ2 = pressure_loop.pi_step(-10.0, integ, 1e-3, 0.01, 0.004)
+    u, _ = pressure_loop.pi_step(-10.0, integ, 1e-3, 0.01, 0.004)
     assert u < 0.0  # recovers at once when the error changes sign
 
 

@@ -1,5 +1,6 @@
 """Physics of the plant simulation: each piece against what physics says it must do."""
 
+import itertools
 import math
 
 import numpy as np
@@ -7,7 +8,13 @@ import pytest
 
 from device.kinematics import Kinematics
 from device.plant import model
-from device.plant.params import PARAMETERS, PlantConfig, build_params, parameter_table_markdown
+from device.plant.params import (
+    PARAMETERS,
+    PlantConfig,
+    PlantParams,
+    build_params,
+    parameter_table_markdown,
+)
 
 P = build_params()
 P_ABSENT = build_params(PlantConfig(patient="absent"))
@@ -17,7 +24,7 @@ def closed_valves() -> np.ndarray:
     return np.zeros(24, dtype=np.uint8)
 
 
-def run(s: model.PlantState, p: object, ticks: int, valves: np.ndarray | None = None) -> None:
+def run(s: model.PlantState, p: PlantParams, ticks: int, valves: np.ndarray | None = None) -> None:
     if valves is not None:
         model.write_valves(s, valves)
     for _ in range(ticks):
@@ -35,14 +42,15 @@ def test_iso6358_choked_flow_and_rating() -> None:
 def test_iso6358_flow_is_continuous_signed_and_zero_at_balance() -> None:
     assert model.iso6358_mass_flow(5e5, 5e5, 1.0, P) == 0.0
     assert model.iso6358_mass_flow(3e5, 5e5, 1.0, P) == pytest.approx(
-        -model.iso6358_mass_flow(5e5, 3e5, 1.0, P))
+        -model.iso6358_mass_flow(5e5, 3e5, 1.0, P)
+    )
     for ratio in (P.critical_ratio, P.laminar_ratio):
         lo = model.iso6358_mass_flow(5e5, 5e5 * (ratio - 1e-9), 1.0, P)
         hi = model.iso6358_mass_flow(5e5, 5e5 * (ratio + 1e-9), 1.0, P)
         assert lo == pytest.approx(hi, rel=1e-4)
     ratios = np.linspace(0.0, 1.0, 200)
     flows = [model.iso6358_mass_flow(5e5, 5e5 * r, 1.0, P) for r in ratios]
-    assert all(a >= b - 1e-15 for a, b in zip(flows, flows[1:], strict=False))
+    assert all(a >= b - 1e-15 for a, b in itertools.pairwise(flows))
 
 
 def test_a_pulse_shorter_than_the_valve_delay_passes_nothing() -> None:
