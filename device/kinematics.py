@@ -1,7 +1,12 @@
 """Stewart-platform kinematics: closed-form inverse, Newton forward, Jacobians, statics.
 
 The compiled functions work on preallocated arrays so that the 7 kHz tick loop allocates
-nothing; :class:`Kinematics` wraps them for Python callers.
+nothing; :class:`Kinematics` wraps them for Python callers. Small 3-vectors and 3x3 matrices
+that only live inside one computation are tuples (:data:`Vec3`, :data:`Mat3` and the ``v3``
+and ``m3`` functions): numba keeps tuples in registers, whereas every small ``np.empty`` is
+a heap allocation plus reference counting, which used to cost the plant step more than its
+physics. Each tuple function sums in the same order as its array twin, so the two give
+bit-identical results.
 
 Conventions are those of :mod:`device.geometry`. ``J`` (the twist Jacobian) maps the
 platform twist ``(v, w)`` (task-origin velocity and angular velocity, base frame) to leg
@@ -29,37 +34,61 @@ class KinematicsError(ValueError):
     """A kinematic computation has no valid answer (no convergence, singular pose)."""
 
 
+Vec3 = tuple[float, float, float]
+"""A 3-vector held by value (see the module docstring)."""
+Mat3 = tuple[Vec3, Vec3, Vec3]
+"""A 3x3 matrix held by value, as its three rows."""
+
+
+@njit
+def m3_rotation_sincos(cr: float, sr: float, cp: float, sp: float, cy: float, sy: float) -> Mat3:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` from the cosines and sines of the three angles."""
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+@njit
+def m3_rotation(roll: float, pitch: float, yaw: float) -> Mat3:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
+    return m3_rotation_sincos(
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
+
+
+@njit
+def m3_store(M: Mat3, out: NDArray[np.float64]) -> None:
+    """Write ``M`` into the 3x3 array ``out``."""
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = M[r][c]
+
+
 @njit
 def rotation(roll: float, pitch: float, yaw: float, R: NDArray[np.float64]) -> None:
     """Write ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` into ``R`` (3x3)."""
-    cr, sr = math.cos(roll), math.sin(roll)
+    m3_store(m3_rotation(roll, pitch, yaw), R)
+
+
+@njit
+def m3_euler_rate(pitch: float, yaw: float) -> Mat3:
+    """``E`` with ``w = E @ (roll_rate, pitch_rate, yaw_rate)``."""
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    R[0, 0] = cy * cp
-    R[0, 1] = cy * sp * sr - sy * cr
-    R[0, 2] = cy * sp * cr + sy * sr
-    R[1, 0] = sy * cp
-    R[1, 1] = sy * sp * sr + cy * cr
-    R[1, 2] = sy * sp * cr - cy * sr
-    R[2, 0] = -sp
-    R[2, 1] = cp * sr
-    R[2, 2] = cp * cr
+    return ((cy * cp, -sy, 0.0), (sy * cp, cy, 0.0), (-sp, 0.0, 1.0))
 
 
 @njit
 def euler_rate_matrix(pitch: float, yaw: float, E: NDArray[np.float64]) -> None:
     """Write ``E`` with ``w = E @ (roll_rate, pitch_rate, yaw_rate)`` (3x3)."""
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    E[0, 0] = cy * cp
-    E[1, 0] = sy * cp
-    E[2, 0] = -sp
-    E[0, 1] = -sy
-    E[1, 1] = cy
-    E[2, 1] = 0.0
-    E[0, 2] = 0.0
-    E[1, 2] = 0.0
-    E[2, 2] = 1.0
+    m3_store(m3_euler_rate(pitch, yaw), E)
 
 
 @njit
@@ -76,17 +105,29 @@ def leg_vectors(
     Writes leg ``lengths`` (6), unit vectors ``units`` (6x3, base to platform) and ``arms``
     (6x3, platform joint relative to the task origin, base frame).
     """
-    R = np.empty((3, 3))
-    rotation(pose[3], pose[4], pose[5], R)
+    position = v3(pose, 0)
+    R = m3_rotation(pose[3], pose[4], pose[5])
     for i in range(6):
-        for r in range(3):
-            a = R[r, 0] * plat[i, 0] + R[r, 1] * plat[i, 1] + R[r, 2] * plat[i, 2]
-            arms[i, r] = a
-            units[i, r] = pose[r] + a - base[i, r]
-        n = math.sqrt(units[i, 0] ** 2 + units[i, 1] ** 2 + units[i, 2] ** 2)
+        n, u, a = leg_vector(position, R, row3(base, i), row3(plat, i))
         lengths[i] = n
         for r in range(3):
-            units[i, r] /= n
+            units[i, r] = u[r]
+            arms[i, r] = a[r]
+
+
+@njit
+def leg_vector(
+    position: Vec3, R: Mat3, base_joint: Vec3, plat_joint: Vec3
+) -> tuple[float, Vec3, Vec3]:
+    """Length, unit vector and arm of one leg (a row of :func:`leg_vectors`) for the platform
+    at ``position`` rotated by ``R``, by value so that the plant step can use it without
+    arrays (see the module docstring)."""
+    a = m3_vec(R, plat_joint)
+    d0 = position[0] + a[0] - base_joint[0]
+    d1 = position[1] + a[1] - base_joint[1]
+    d2 = position[2] + a[2] - base_joint[2]
+    n = math.sqrt(d0**2 + d1**2 + d2**2)
+    return n, (d0 / n, d1 / n, d2 / n), a
 
 
 @njit
@@ -106,16 +147,17 @@ def twist_jacobian(
 
 
 @njit
-def pose_jacobian(pose: NDArray[np.float64], J: NDArray[np.float64], Jq: NDArray[np.float64]) -> None:
+def pose_jacobian(
+    pose: NDArray[np.float64], J: NDArray[np.float64], Jq: NDArray[np.float64]
+) -> None:
     """Write ``Jq = dL/dpose`` (6x6) from the twist Jacobian ``J`` at ``pose``."""
-    E = np.empty((3, 3))
-    euler_rate_matrix(pose[4], pose[5], E)
+    E = m3_euler_rate(pose[4], pose[5])
     for i in range(6):
         Jq[i, 0] = J[i, 0]
         Jq[i, 1] = J[i, 1]
         Jq[i, 2] = J[i, 2]
         for c in range(3):
-            Jq[i, 3 + c] = J[i, 3] * E[0, c] + J[i, 4] * E[1, c] + J[i, 5] * E[2, c]
+            Jq[i, 3 + c] = J[i, 3] * E[0][c] + J[i, 4] * E[1][c] + J[i, 5] * E[2][c]
 
 
 @njit
@@ -124,15 +166,28 @@ def solve6(A: NDArray[np.float64], b: NDArray[np.float64], x: NDArray[np.float64
 
     Hand-written because numba's ``np.linalg.solve`` needs SciPy's LAPACK and allocates; a
     6x6 system in the tick loop wants neither. Returns False (x untouched) if ``A`` is
-    numerically singular.
+    numerically singular. ``A`` and ``b`` are left as they were: this copies them into the
+    augmented matrix that :func:`solve6_augmented` works on.
     """
     M = np.empty((6, 7))
-    scale = 0.0
     for r in range(6):
         for c in range(6):
             M[r, c] = A[r, c]
-            scale = max(scale, abs(A[r, c]))
         M[r, 6] = b[r]
+    return solve6_augmented(M, x)
+
+
+@njit
+def solve6_augmented(M: NDArray[np.float64], x: NDArray[np.float64]) -> bool:
+    """:func:`solve6` on the augmented matrix ``M = [A | b]`` (6x7), which it overwrites.
+
+    For callers that build the system in a scratch buffer anyway (the plant step), so that
+    nothing is copied or allocated. Returns False (x untouched) if ``A`` is singular.
+    """
+    scale = 0.0
+    for r in range(6):
+        for c in range(6):
+            scale = max(scale, abs(M[r, c]))
     if not scale > 0.0:
         return False
     for c in range(6):
@@ -145,10 +200,12 @@ def solve6(A: NDArray[np.float64], b: NDArray[np.float64], x: NDArray[np.float64
         if p != c:
             for k in range(c, 7):
                 M[c, k], M[p, k] = M[p, k], M[c, k]
+        # Column c below the pivot would become zero and is never read again, so only the
+        # columns to its right are updated.
         for r in range(c + 1, 6):
             f = M[r, c] / M[c, c]
             if f != 0.0:
-                for k in range(c, 7):
+                for k in range(c + 1, 7):
                     M[r, k] -= f * M[c, k]
     for r in range(5, -1, -1):
         s = M[r, 6]
@@ -206,11 +263,12 @@ def leg_forces_for_wrench(
     J: NDArray[np.float64], wrench: NDArray[np.float64], forces: NDArray[np.float64]
 ) -> bool:
     """Leg forces ``f`` with ``J.T @ f = wrench``; False if the pose is singular."""
-    JT = np.empty((6, 6))
-    for i in range(6):
-        for k in range(6):
-            JT[k, i] = J[i, k]
-    return solve6(JT, wrench, forces)
+    M = np.empty((6, 7))  # [J.T | wrench]
+    for k in range(6):
+        for i in range(6):
+            M[k, i] = J[i, k]
+        M[k, 6] = wrench[k]
+    return solve6_augmented(M, forces)
 
 
 class Kinematics:
@@ -329,3 +387,78 @@ def cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
     return out
+
+
+# -- 3-vectors and 3x3 matrices by value (see the module docstring) ---------------------
+
+Vec3Like = Vec3 | NDArray[np.float64]
+"""A tuple, or an array of at least three numbers of which the first three are used."""
+
+
+@njit
+def v3(a: NDArray[np.float64], start: int) -> Vec3:
+    """``a[start:start + 3]`` as a tuple."""
+    return (a[start], a[start + 1], a[start + 2])
+
+
+@njit
+def row3(a: NDArray[np.float64], i: int) -> Vec3:
+    """Row ``i`` of an (n, 3) array as a tuple."""
+    return (a[i, 0], a[i, 1], a[i, 2])
+
+
+@njit
+def m3(a: NDArray[np.float64]) -> Mat3:
+    """A 3x3 array as a tuple."""
+    return ((a[0, 0], a[0, 1], a[0, 2]), (a[1, 0], a[1, 1], a[1, 2]), (a[2, 0], a[2, 1], a[2, 2]))
+
+
+@njit
+def v3_dot(a: Vec3Like, b: Vec3Like) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit
+def v3_cross(a: Vec3Like, b: Vec3Like) -> Vec3:
+    """``a x b`` (as :func:`cross3`)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit
+def v3_add(a: Vec3Like, b: Vec3Like) -> Vec3:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+@njit
+def v3_sub(a: Vec3Like, b: Vec3Like) -> Vec3:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit
+def v3_scale(k: float, a: Vec3Like) -> Vec3:
+    return (k * a[0], k * a[1], k * a[2])
+
+
+@njit
+def m3_transpose(M: Mat3) -> Mat3:
+    return ((M[0][0], M[1][0], M[2][0]), (M[0][1], M[1][1], M[2][1]), (M[0][2], M[1][2], M[2][2]))
+
+
+@njit
+def m3_vec(M: Mat3, v: Vec3Like) -> Vec3:
+    """``M @ v`` (as :func:`mat3_vec`)."""
+    return (v3_dot(M[0], v), v3_dot(M[1], v), v3_dot(M[2], v))
+
+
+@njit
+def m3_t_vec(M: Mat3, v: Vec3Like) -> Vec3:
+    """``M.T @ v`` (as :func:`mat3_t_vec`)."""
+    return m3_vec(m3_transpose(M), v)
+
+
+@njit
+def m3_rotate_inertia(R: Mat3, I: Mat3) -> Mat3:
+    """``R @ I @ R.T`` (as :func:`rotate_inertia`: row a of ``R @ I`` first, then its dot
+    products with the rows of ``R``)."""
+    IT = m3_transpose(I)
+    return (m3_vec(R, m3_vec(IT, R[0])), m3_vec(R, m3_vec(IT, R[1])), m3_vec(R, m3_vec(IT, R[2])))

@@ -29,14 +29,24 @@ from numpy.typing import NDArray
 
 from device._jit import njit
 from device.kinematics import (
-    cross3,
+    Vec3,
+    leg_vector,
     leg_vectors,
-    mat3_t_vec,
-    mat3_vec,
-    rotate_inertia,
-    rotation,
+    m3,
+    m3_rotate_inertia,
+    m3_rotation,
+    m3_rotation_sincos,
+    m3_t_vec,
+    m3_vec,
+    row3,
     solve6,
+    solve6_augmented,
     twist_jacobian,
+    v3,
+    v3_add,
+    v3_cross,
+    v3_scale,
+    v3_sub,
 )
 from device.plant.params import PlantParams
 
@@ -55,6 +65,7 @@ class PlantState(NamedTuple):
     bristle: NDArray[np.float64]  # (6,) LuGre z (m)
     leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
     script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
+    scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick, not state (see there)
 
 
 SCRIPT_NONE = 0
@@ -77,6 +88,7 @@ def new_state(params: PlantParams) -> PlantState:
         bristle=np.zeros(6),
         leg_force=np.zeros(6),
         script=np.zeros((6, 4)),
+        scratch=np.zeros((2, 6, 7)),
     )
     static_pressures(s, params)
     return s
@@ -121,8 +133,13 @@ def iso6358_mass_flow(p_up: float, p_down: float, open_fraction: float, p: Plant
         x = (p.laminar_ratio - b) / (1.0 - b)
         phi = math.sqrt(1.0 - x * x) * (1.0 - ratio) / (1.0 - p.laminar_ratio)
     return (
-        sign * open_fraction * p.conductance * p.rho_anr * p_up
-        * math.sqrt(p.t_anr / p.temperature) * phi
+        sign
+        * open_fraction
+        * p.conductance
+        * p.rho_anr
+        * p_up
+        * math.sqrt(p.t_anr / p.temperature)
+        * phi
     )
 
 
@@ -131,11 +148,21 @@ def valves_substep(s: PlantState, p: PlantParams, dt: float) -> None:
     rate = dt / p.valve_travel
     for v in range(24):
         s.valve_timer[v] += dt
-        if s.valve_timer[v] >= p.valve_delay:
-            if s.valve_cmd[v] > 0.5:
-                s.valve_open[v] = min(1.0, s.valve_open[v] + rate)
-            else:
-                s.valve_open[v] = max(0.0, s.valve_open[v] - rate)
+        s.valve_open[v] = valve_opening(
+            s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], p.valve_delay, rate
+        )
+
+
+@njit
+def valve_opening(
+    opening: float, energised: float, timer: float, delay: float, rate: float
+) -> float:
+    """Open fraction after a substep in which the armature may travel ``rate``."""
+    if timer < delay:
+        return opening
+    if energised > 0.5:
+        return min(1.0, opening + rate)
+    return max(0.0, opening - rate)
 
 
 @njit
@@ -158,7 +185,7 @@ def lugre_substep(s: PlantState, p: PlantParams, i: int, v: float, dt: float) ->
     """Advance leg ``i``'s bristle state by dt at piston velocity v; return friction (N)."""
     e = v / p.v_stribeck
     g = p.f_coulomb + (p.f_static - p.f_coulomb) * math.exp(-e * e)
-    z = s.bristle[i]
+    z: float = s.bristle[i]
     av = abs(v)
     if av > 0.0:
         z_ss = g / p.bristle_k * (1.0 if v > 0.0 else -1.0)
@@ -174,7 +201,9 @@ def lugre_substep(s: PlantState, p: PlantParams, i: int, v: float, dt: float) ->
 @njit
 def scripted_torque(script: NDArray[np.float64], axis: int, t: float) -> float:
     kind = int(script[axis, 0])
-    t0, a, b = script[axis, 1], script[axis, 2], script[axis, 3]
+    t0: float = script[axis, 1]
+    a: float = script[axis, 2]
+    b: float = script[axis, 3]
     if kind == SCRIPT_NONE or t < t0:
         return 0.0
     if kind == SCRIPT_CONSTANT:
@@ -201,10 +230,14 @@ def patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> Non
 def gravity_and_patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> None:
     """Gravity on platform and foot plus the patient's wrench, about the ankle (base frame)."""
     patient_wrench(s, p, W)
-    R = np.empty((3, 3))
-    rotation(s.pose[3], s.pose[4], s.pose[5], R)
-    r = mat3_vec(R, p.body_com)
-    fz = -p.body_mass * p.gravity
+    R = m3_rotation(s.pose[3], s.pose[4], s.pose[5])
+    add_weight(W, m3_vec(R, p.body_com), p.body_mass, p.gravity)
+
+
+@njit
+def add_weight(W: NDArray[np.float64], r: Vec3, mass: float, gravity: float) -> None:
+    """Add to ``W`` the wrench about the ankle of a weight whose centre is at ``r``."""
+    fz = -mass * gravity
     W[2] += fz
     W[3] += r[1] * fz
     W[4] -= r[0] * fz
@@ -212,20 +245,45 @@ def gravity_and_patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.floa
 
 @njit
 def plant_tick(s: PlantState, p: PlantParams) -> None:
-    """Advance the plant by one tick with the valve commands already written."""
+    """Advance the plant by one tick with the valve commands already written.
+
+    Written as one loop for speed: each ``np.empty`` is a heap allocation, and each call
+    that numba does not inline costs reference-count updates for the arrays it is passed
+    (22 for a state and its parameters); per substep these used to cost more than the
+    physics. So nothing here allocates (the working arrays live in ``s.scratch``), the
+    helpers called per substep take and return numbers and tuples and get inlined, and only
+    the linear solve is a call with arrays. The arithmetic is that of the plain version
+    operation for operation, so the results are bit-identical to it.
+    """
     n = p.substeps
     dt = p.dt / n
-    L, U, A = np.empty(6), np.empty((6, 3)), np.empty((6, 3))
-    J, M, W = np.empty((6, 6)), np.empty((6, 6)), np.empty(6)
-    R = np.empty((3, 3))
-    f, acc = np.empty(6), np.empty(6)
     rt = p.gas_r * p.temperature
+    valve_rate = dt / p.valve_travel
+    body_inertia = m3(p.body_inertia)
+    J = s.scratch[0, :, :6]  # twist Jacobian
+    f = s.scratch[0, :, 6]  # net force on each leg
+    MW = s.scratch[1]  # [M | W]: mass matrix and generalised forces, solved in place
+    W = MW[:, 6]
     for _ in range(n):
-        valves_substep(s, p, dt)
-        leg_vectors(s.pose, p.base, p.plat, L, U, A)
-        twist_jacobian(U, A, J)
+        for v in range(24):  # valves_substep, spelled out to keep s and p out of a call
+            s.valve_timer[v] += dt
+            s.valve_open[v] = valve_opening(
+                s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], p.valve_delay, valve_rate
+            )
+        # The pose does not change until the integration at the end, so its rotation (and
+        # the sines and cosines the integration needs) are computed once.
+        cr, sr = math.cos(s.pose[3]), math.sin(s.pose[3])
+        cp, sp = math.cos(s.pose[4]), math.sin(s.pose[4])
+        cy, sy = math.cos(s.pose[5]), math.sin(s.pose[5])
+        R = m3_rotation_sincos(cr, sr, cp, sp, cy, sy)
+        position = v3(s.pose, 0)
         for i in range(6):
-            x = L[i] - p.min_length
+            length, u, arm = leg_vector(position, R, row3(p.base, i), row3(p.plat, i))
+            moment_arm = v3_cross(arm, u)  # row i of the twist Jacobian is (u, arm x u)
+            for k in range(3):
+                J[i, k] = u[k]
+                J[i, 3 + k] = moment_arm[k]
+            x = length - p.min_length
             xd = 0.0
             for k in range(6):
                 xd += J[i, k] * s.twist[k]
@@ -253,61 +311,62 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
             ) * p.area_annulus
             s.leg_force[i] = force
             force -= lugre_substep(s, p, i, xd, dt)
-            force -= p.leg_mass * p.gravity * U[i, 2]
+            force -= p.leg_mass * p.gravity * u[2]
             if x < 0.0:
                 force -= p.stop_k * x + p.stop_c * min(xd, 0.0)
             elif x > p.stroke:
                 force -= p.stop_k * (x - p.stroke) + p.stop_c * max(xd, 0.0)
             f[i] = force
         # Generalised forces on the platform (base frame, about the ankle).
-        gravity_and_patient_wrench(s, p, W)
+        r = m3_vec(R, p.body_com)
+        patient_wrench(s, p, W)
+        add_weight(W, r, p.body_mass, p.gravity)
         for k in range(6):
             for i in range(6):
                 W[k] += J[i, k] * f[i]
         # Mass matrix of the rigid body about the ankle plus reflected leg masses.
-        rotation(s.pose[3], s.pose[4], s.pose[5], R)
-        r = mat3_vec(R, p.body_com)
-        Io = rotate_inertia(R, p.body_inertia)
+        Io = m3_rotate_inertia(R, body_inertia)
         m = p.body_mass
         for a in range(6):
             for b in range(6):
-                M[a, b] = 0.0
+                MW[a, b] = 0.0
         for a in range(3):
-            M[a, a] = m
+            MW[a, a] = m
             for b in range(3):
-                M[3 + a, 3 + b] = Io[a, b]
+                MW[3 + a, 3 + b] = Io[a][b]
         # m [r]x in the lower-left block, its transpose upper-right.
-        M[3, 1] = -m * r[2]
-        M[3, 2] = m * r[1]
-        M[4, 0] = m * r[2]
-        M[4, 2] = -m * r[0]
-        M[5, 0] = -m * r[1]
-        M[5, 1] = m * r[0]
+        MW[3, 1] = -m * r[2]
+        MW[3, 2] = m * r[1]
+        MW[4, 0] = m * r[2]
+        MW[4, 2] = -m * r[0]
+        MW[5, 0] = -m * r[1]
+        MW[5, 1] = m * r[0]
         for a in range(3):
             for b in range(3):
-                M[a, 3 + b] = M[3 + b, a]
+                MW[a, 3 + b] = MW[3 + b, a]
+        # J^T J is symmetric: each sum is formed once and added to both of its entries.
         for a in range(6):
-            for b in range(6):
+            for b in range(a, 6):
                 s_ab = 0.0
                 for i in range(6):
                     s_ab += J[i, a] * J[i, b]
-                M[a, b] += p.leg_mass * s_ab
-        w = s.twist[3:].copy()
-        wwr = cross3(w, cross3(w, r))
-        wIw = cross3(w, mat3_vec(Io, w))
+                MW[a, b] += p.leg_mass * s_ab
+                if b != a:
+                    MW[b, a] += p.leg_mass * s_ab
+        w = v3(s.twist, 3)
+        wwr = v3_cross(w, v3_cross(w, r))
+        wIw = v3_cross(w, m3_vec(Io, w))
         for k in range(3):
             W[k] -= m * wwr[k]
             W[3 + k] -= wIw[k]
-        if not solve6(M, W, acc):
+        acc = s.accel  # solved straight into the state
+        if not solve6_augmented(MW, acc):
             acc[:] = 0.0
         for k in range(6):
             s.twist[k] += acc[k] * dt
-            s.accel[k] = acc[k]
         s.pose[0] += s.twist[0] * dt
         s.pose[1] += s.twist[1] * dt
         s.pose[2] += s.twist[2] * dt
-        cp, sp = math.cos(s.pose[4]), math.sin(s.pose[4])
-        cy, sy = math.cos(s.pose[5]), math.sin(s.pose[5])
         wx, wy, wz = s.twist[3], s.twist[4], s.twist[5]
         roll_rate = (cy * wx + sy * wy) / cp
         s.pose[3] += roll_rate * dt
@@ -327,29 +386,29 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     for c in range(12):
         out[c] = _quantise(s.pressure[c] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
     out[12] = _quantise(p.p_supply + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
-    L, U, A = np.empty(6), np.empty((6, 3)), np.empty((6, 3))
-    leg_vectors(s.pose, p.base, p.plat, L, U, A)
+    R = m3_rotation(s.pose[3], s.pose[4], s.pose[5])
     for i in range(6):
-        x = L[i] - p.min_length + np.random.normal(0.0, p.leg_noise)
+        length = leg_vector(v3(s.pose, 0), R, row3(p.base, i), row3(p.plat, i))[0]
+        x = length - p.min_length + np.random.normal(0.0, p.leg_noise)
         out[13 + i] = min(max(_quantise(x, p.leg_lsb), 0.0), p.stroke)
     # The force plate carries the foot: the patient's wrench, the foot's weight and the
     # foot's inertia, moved from the ankle to the sensor origin and into the sensor's frame.
     W = np.empty(6)
     patient_wrench(s, p, W)
-    R = np.empty((3, 3))
-    rotation(s.pose[3], s.pose[4], s.pose[5], R)
-    rf = mat3_vec(R, p.foot_com)
-    w = s.twist[3:].copy()
-    alpha = s.accel[3:].copy()
-    a_com = s.accel[:3] + cross3(alpha, rf) + cross3(w, cross3(w, rf))
-    F = W[:3] - p.foot_mass * a_com
-    F[2] -= p.foot_mass * p.gravity
-    If = rotate_inertia(R, p.foot_inertia)
-    Mo = W[3:] + cross3(rf, F - W[:3]) - mat3_vec(If, alpha) - cross3(w, mat3_vec(If, w))
-    rs = mat3_vec(R, p.sensor_origin)
-    Ms = Mo - cross3(rs, F)
-    Fb = mat3_t_vec(R, F)
-    Mb = mat3_t_vec(R, Ms)
+    rf = m3_vec(R, p.foot_com)
+    w, alpha = v3(s.twist, 3), v3(s.accel, 3)
+    a_com = v3_add(v3_add(v3(s.accel, 0), v3_cross(alpha, rf)), v3_cross(w, v3_cross(w, rf)))
+    F0, F1, F2 = v3_sub(v3(W, 0), v3_scale(p.foot_mass, a_com))
+    F: Vec3 = (F0, F1, F2 - p.foot_mass * p.gravity)
+    If = m3_rotate_inertia(R, m3(p.foot_inertia))
+    Mo = v3_sub(
+        v3_sub(v3_add(v3(W, 3), v3_cross(rf, v3_sub(F, v3(W, 0)))), m3_vec(If, alpha)),
+        v3_cross(w, m3_vec(If, w)),
+    )
+    rs = m3_vec(R, p.sensor_origin)
+    Ms = v3_sub(Mo, v3_cross(rs, F))
+    Fb = m3_t_vec(R, F)
+    Mb = m3_t_vec(R, Ms)
     for k in range(3):
         out[19 + k] = _quantise(Fb[k] + np.random.normal(0.0, p.force_noise), p.force_lsb)
         out[22 + k] = _quantise(Mb[k] + np.random.normal(0.0, p.torque_noise), p.torque_lsb)
