@@ -71,7 +71,8 @@ class Waveform(IntEnum):
     HOLD = 0
     """Stay at ``center``."""
     SINE = 1
-    """``center + amplitude sin(2 pi f (t - t0))``."""
+    """``center + amplitude sin(2 pi f (t - t0))``, its amplitude faded in over
+    ``ControllerConfig.sine_fade_in``."""
     RAMP = 2
     """From ``center`` toward ``end`` at ``rate`` per second, then stay."""
 
@@ -95,20 +96,46 @@ def controller_tasks() -> tuple[Task, ...]:
 class ControllerConfig:
     """Gains and settings of the controller (what an engineer tunes), SI units.
 
-    Pressures are gauge. Gains were set on the simulated plant within the bounds the
-    single-leg study gives (overshoot <= 2 % caps the position gain near 0.2 bar/mm).
+    Pressures are gauge. The defaults were tuned on the simulated plant by measuring every
+    target (leg steps, staircase, pitch sweep, rendered stiffness) over several noise seeds.
+    Each field says why it has its value and what goes wrong either side of it.
     """
 
-    position_kp: float = 1.5e7
-    """Outer-loop proportional gain (Pa of differential per m): 0.15 bar/mm."""
-    position_kd: float = 1.2e5
-    """Outer-loop derivative gain (Pa per m/s)."""
-    pressure_kp: float = 1.0e-3
-    """Inner PI proportional gain (percent of duty per Pa): full duty at 1 bar error."""
-    pressure_ki: float = 0.02
-    """Inner PI integral gain (percent per Pa s)."""
+    position_kp: float = 1.2e7
+    """Outer-loop proportional gain (Pa of differential per m): 0.12 bar/mm. A higher gain
+    rings the heavy modes of the platform the coupled legs carry (worst overshoot over 40
+    steps 1.5 % at 0.135 bar/mm); below about 0.10 bar/mm the 10-90 % rise passes 90 ms."""
+    position_kd: float = 3.3e5
+    """Outer-loop derivative gain (Pa per m/s). The approach is nearly first order with
+    time constant Kd/Kp (27 ms; 10-90 % rise about 2.2 Kd/Kp). Below about 3.0e5 the
+    overshoot passes 2 %; from about 3.8e5 on the light modes of the platform (heave and
+    pitch, about 0.8 kg per leg) oscillate at 25-30 Hz, because the velocity estimate, the
+    250 Hz loop and the valves delay the damping force by several milliseconds."""
+    pressure_kp: float = 4.5e-3
+    """Inner PI proportional gain (percent of duty per Pa): full duty at 0.22 bar error.
+    Much lower and the legs ring after a step; much higher and the loop pushes through the
+    valve dead band by gain alone (the uncompensated PWM then does nearly as well), and
+    from about 1e-2 on the inner loop alternates from one PWM period to the next."""
+    pressure_ki: float = 0.05
+    """Inner PI integral gain (percent per Pa s). The shortest pulse of the compensated PWM
+    (d_dead, 1 ms) changes a chamber by about 0.06 bar, and intake and exhaust pulses differ
+    in size, so with P alone the loop settles into a pulse pattern whose mean differential
+    sits about 0.02 bar off target: a steady offset of 0.15-0.2 mm. The integral shifts
+    the switching point until the pattern averages to the target (offset < 0.05 mm)."""
+    pressure_integral_zone: float = 0.8e-3
+    """The inner integral only runs while the leg is this close to its target (m). During a
+    move the pressure errors are large and one-sided; integrating them leaves a wrong trim
+    that creeps out as overshoot after arrival (3 % with ki = 0.1 integrating everywhere)."""
+    approach_speed: float = 0.3
+    """The proportional term is limited to ``position_kd * approach_speed`` (an error of
+    8 mm), so a far target is approached at about this speed (m/s) instead of accelerating
+    past the 0.4 m/s speed limit: steps of 20 mm and more tripped it without this. It also
+    bounds the force a large position error can make (see device.position_loop)."""
     hold_band: float = 0.0
-    """Control inputs below this (percent) hold the chamber (close-close)."""
+    """Control inputs below this (percent) hold the chamber (close-close). Zero: a hold
+    band stops the minimum-pulse chatter at rest but leaves each pressure anywhere within
+    the band, and that chatter is the dither that averages out stiction and the pulse steps
+    (2 % raised the worst overshoot and steady error)."""
     deadband_compensation: bool = True
     """Map inputs onto [d_dead, d_max] (eq. 2-3) instead of using them as the duty."""
     valve_response_time: float = 1e-3
@@ -119,10 +146,15 @@ class ControllerConfig:
     """Valve b; P_critical = b * supply (absolute), the lower bound of eq. (12)."""
     atmosphere: float = 1.01325e5
     """To turn the absolute pressure sensors into gauge (Pa)."""
-    leg_rate_cutoff_hz: float = 60.0
-    """Low-pass on the differentiated leg sensors (1 kHz)."""
+    leg_rate_cutoff_hz: float = 40.0
+    """Low-pass on the differentiated leg sensors (1 kHz). The sensor's 24 um step makes a
+    single difference jump by 24 mm/s; a lower cutoff smooths that but delays the damping
+    (30-55 Hz all work; the filter is also what the speed limit watches)."""
     pose_rate_cutoff_hz: float = 30.0
     """Low-pass on the differentiated forward-kinematics pose (250 Hz)."""
+    sine_fade_in: float = 0.1
+    """Time over which a sine exercise's amplitude rises from zero (s), see ``waveform``.
+    Short beside the 0.3 s the sine experiments wait before measuring."""
     platform_mass: float = PARAMETERS["platform_mass"].value
     """Model of the platform for gravity compensation (kg); the foot is measured instead."""
     platform_com_below_ankle: float = PARAMETERS["platform_com_below_ankle"].value
@@ -149,13 +181,16 @@ class ControllerParams(NamedTuple):
     p_sensor_max: float
     kp_pos: float
     kd_pos: float
+    max_error: float
     kp_p: float
     ki_p: float
+    i_zone: float
     hold_band: float
     d_dead: float
     compensate: bool
     leg_alpha: float
     pose_alpha: float
+    sine_fade_in: float
     body_mass: float
     body_com: NDArray[np.float64]
     leg_mass: float
@@ -228,13 +263,16 @@ def build_params(
         p_sensor_max=1.0e6,
         kp_pos=config.position_kp,
         kd_pos=config.position_kd,
+        max_error=config.position_kd * config.approach_speed / config.position_kp,
         kp_p=config.pressure_kp,
         ki_p=config.pressure_ki,
+        i_zone=config.pressure_integral_zone,
         hold_band=config.hold_band,
         d_dead=pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD),
         compensate=config.deadband_compensation,
         leg_alpha=alpha(config.leg_rate_cutoff_hz, SENSOR_PERIOD * dt_tick),
         pose_alpha=alpha(config.pose_rate_cutoff_hz, CONTROL_PERIOD * dt_tick),
+        sine_fade_in=config.sine_fade_in,
         body_mass=config.platform_mass,
         body_com=np.array([0.0, 0.0, -config.platform_com_below_ankle]),
         leg_mass=config.leg_mass,
@@ -301,7 +339,7 @@ def trip(s: ControllerState, code: int) -> None:
 
 @njit
 def moving(s: ControllerState) -> bool:
-    m = s.istate[I_MODE]
+    m = int(s.istate[I_MODE])
     return m == Mode.JOINT or m == Mode.TASK
 
 
@@ -351,8 +389,14 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.integral[up] = 0.0
         return
     dP = position_loop.pd(
-        s.leg_target[leg], s.leg_x[leg], s.leg_target_rate[leg], s.leg_rate[leg],
-        p.kp_pos, p.kd_pos, s.compensation[leg],
+        s.leg_target[leg],
+        s.leg_x[leg],
+        s.leg_target_rate[leg],
+        s.leg_rate[leg],
+        p.kp_pos,
+        p.kd_pos,
+        s.compensation[leg],
+        p.max_error,
     )
     r = p.area_ratio
     P_l, P_u = pressure_loop.distribute(dP, s.pressure[lo], s.pressure[up], r, p.p_min, p.p_max)
@@ -360,8 +404,13 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     s.p_desired[up] = P_u
     e_l = P_l - s.pressure[lo]  # eq. (5)
     e_u = r * (P_u - s.pressure[up])  # eq. (6)
-    u_l, s.integral[lo] = pressure_loop.pi_step(e_l, s.integral[lo], p.kp_p, p.ki_p, p.dt_control)
-    u_u, s.integral[up] = pressure_loop.pi_step(e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control)
+    near = abs(s.leg_target[leg] - s.leg_x[leg]) < p.i_zone
+    u_l, s.integral[lo] = pressure_loop.pi_step(
+        e_l, s.integral[lo], p.kp_p, p.ki_p, p.dt_control, near
+    )
+    u_u, s.integral[up] = pressure_loop.pi_step(
+        e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control, near
+    )
     for c, u in ((lo, u_l), (up, u_u)):
         s.u[c] = u
         if abs(u) <= p.hold_band:
@@ -371,14 +420,26 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
 
 
 @njit
-def waveform(row: NDArray[np.float64], t: float) -> tuple[float, float]:
-    """(value, rate) of one axis' target at time t."""
+def waveform(row: NDArray[np.float64], t: float, fade: float) -> tuple[float, float]:
+    """(value, rate) of one axis' target at time t.
+
+    A sine starts at its zero crossing, where its speed is largest: started at once, the
+    command would jump from rest to ``a w`` (0.3 m/s on legs 4-5 for a 2 deg, 15 Hz pitch
+    sine), the legs overshoot that speed while catching up and the speed limit trips. Its
+    amplitude therefore rises over ``fade`` seconds along a raised cosine, which starts
+    the command with zero speed and zero amplitude.
+    """
     kind = int(row[0])
     center, a, b, t0 = row[1], row[2], row[3], row[4]
     tau = max(0.0, t - t0)
     if kind == Waveform.SINE:
         w = 2.0 * math.pi * b
-        return center + a * math.sin(w * tau), a * w * math.cos(w * tau)
+        env, env_rate = 1.0, 0.0
+        if tau < fade:
+            env = 0.5 - 0.5 * math.cos(math.pi * tau / fade)
+            env_rate = 0.5 * math.pi / fade * math.sin(math.pi * tau / fade)
+        sin_wt, cos_wt = math.sin(w * tau), math.cos(w * tau)
+        return center + env * a * sin_wt, a * (env * w * cos_wt + env_rate * sin_wt)
     if kind == Waveform.RAMP:
         span = b - center
         rate = abs(a)
@@ -418,21 +479,27 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
 
     L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
     if s.istate[I_MODE] == Mode.TASK:
-        if not (safety.all_finite(s.trajectory) and safety.all_finite(s.stiffness_target)
-                and safety.all_finite(s.damping_target)):
+        if not (
+            safety.all_finite(s.trajectory)
+            and safety.all_finite(s.stiffness_target)
+            and safety.all_finite(s.damping_target)
+        ):
             trip(s, Trip.COMMAND_INVALID)
             return
         t = s.istate[I_TICK] * p.dt_tick
         for k in range(6):
             s.stiffness[k] = safety.slew(
-                s.stiffness[k], s.stiffness_target[k], p.limits[safety.ROW_K_SLEW, k], p.dt_control)
+                s.stiffness[k], s.stiffness_target[k], p.limits[safety.ROW_K_SLEW, k], p.dt_control
+            )
             s.damping[k] = safety.slew(
-                s.damping[k], s.damping_target[k], p.limits[safety.ROW_B_SLEW, k], p.dt_control)
-            x_d, v_d = waveform(s.trajectory[k], t)
+                s.damping[k], s.damping_target[k], p.limits[safety.ROW_B_SLEW, k], p.dt_control
+            )
+            x_d, v_d = waveform(s.trajectory[k], t, p.sine_fade_in)
             v_m = 0.0
             if s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0):
                 s.x_m[k], v_m = impedance.compliance_step(
-                    s.x_m[k], s.wrench[k] - s.tare[k], s.stiffness[k], s.damping[k], p.dt_control)
+                    s.x_m[k], s.wrench[k] - s.tare[k], s.stiffness[k], s.damping[k], p.dt_control
+                )
             else:
                 s.x_m[k] = 0.0
             x_c = x_d + s.x_m[k]
@@ -487,9 +554,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
 
 
 @njit
-def controller_tick(
-    s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]
-) -> None:
+def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     """Run this tick's tasks; ``sensors`` must be fresh when the read-sensors task is due."""
     tick = s.istate[I_TICK]
     row = p.schedule[tick % p.schedule.shape[0]]

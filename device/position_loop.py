@@ -6,9 +6,18 @@ so a step target gives no derivative kick. ``G_p`` is the differential that hold
 load: the paper's gravity compensation of the platform and leg masses, plus the wrench the
 foot force sensor measures. Without the second term a PD loop (no integral) would sag by
 several millimetres under a patient's torque and the rendered stiffness would be wrong.
+
+The position error is clamped to ``max_error`` before the gain (an extension of the paper).
+Far from the target the loop then cruises where the clamped proportional term balances the
+derivative term, at about ``kp max_error / kd``: the controller sets ``max_error`` so that
+this is a chosen approach speed below the device's speed limit. A plain PD accelerates in
+proportion to the step, and steps of 20 mm and more tripped the speed limit. The clamp also
+bounds the force that a large position error (a blocked leg) can command.
 """
 
 from __future__ import annotations
+
+import math
 
 from device._jit import njit
 
@@ -22,6 +31,12 @@ def pd(
     kp: float,
     kd: float,
     compensation: float,
+    max_error: float = math.inf,
 ) -> float:
-    """Desired pressure differential (Pa) for one leg, eq. (14)-(15)."""
-    return kp * (target - measured) + kd * (target_rate - measured_rate) + compensation
+    """Desired pressure differential (Pa) for one leg, eq. (14)-(15).
+
+    The position error is clamped to ``max_error`` (m) before the gain: see the module
+    docstring.
+    """
+    error = min(max_error, max(-max_error, target - measured))
+    return kp * error + kd * (target_rate - measured_rate) + compensation

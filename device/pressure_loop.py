@@ -10,6 +10,12 @@ printed subtracts ``dP/2`` inside the bracket; the form consistent with eq. (4),
 is ``r P_u = (P_lm + r P_um - dP) / 2``.) Eq. (12) bounds both to
 ``[P_critical, P_supply]``; when one side is clamped the other takes up the rest of ``dP``
 where it can, since the differential is what makes force.
+
+The PI of eq. (13) can hold its integral (``integrate=False``): the controller integrates
+only near the leg's target. There the integral's job is small and slow, to trim the pattern
+of minimum-width valve pulses so that its mean pressure is the desired one; during a move
+the errors are large and one-sided and integrating them only stores a trim that is wrong
+once the leg arrives.
 """
 
 from __future__ import annotations
@@ -41,12 +47,15 @@ def distribute(
 
 
 @njit
-def pi_step(error: float, integral: float, kp: float, ki: float, dt: float) -> tuple[float, float]:
+def pi_step(
+    error: float, integral: float, kp: float, ki: float, dt: float, integrate: bool = True
+) -> tuple[float, float]:
     """PI of eq. (13) with clamping anti-windup; returns (u percent, new integral).
 
-    The integral only moves while the output is unsaturated or the error drives it back.
+    The integral only moves while ``integrate`` is set and the output is unsaturated or
+    the error drives it back; otherwise it is held (and still acts).
     """
-    candidate = integral + error * dt
+    candidate = integral + error * dt if integrate else integral
     u = kp * error + ki * candidate
     if u > 100.0:
         u = 100.0
