@@ -1,15 +1,54 @@
-"""Typed front for numba's ``njit``.
+"""Typed front for numba's ``njit``, with a compile cache that follows the source.
 
 The 7 kHz controller and the plant step are compiled: under numpy alone one simulated second
-costs more than one wall second. ``cache=True`` keeps the machine code beside the sources so
-a second process starts in well under a second instead of recompiling.
-``NUMBA_DISABLE_JIT=1`` runs everything as plain Python (for debugging and coverage).
+costs more than one wall second. ``cache=True`` keeps the machine code on disk so a second
+process starts in well under a second instead of recompiling.
+
+Numba's cache checks only the file of the function it compiles: a compiled loop that inlines
+the controller would keep running stale controller code after an edit. So the cache lives
+in a folder named after a hash of every source file of this package; any edit starts a fresh
+cache. ``NUMBA_CACHE_DIR`` set by the user wins. ``NUMBA_DISABLE_JIT=1`` runs everything as
+plain Python (for debugging and coverage).
 """
 
+import hashlib
+import os
+import shutil
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar, cast
 
-import numba
+
+def _source_hash() -> str:
+    digest = hashlib.sha256()
+    package = Path(__file__).resolve().parent
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _cache_dir() -> str:
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return str(base / "ankle-telerehab" / f"numba-{_source_hash()}")
+
+
+def _prune(current: str) -> None:
+    """Drop the caches of earlier sources (each is tens of MB)."""
+    here = Path(current)
+    if here.exists():
+        return
+    for old in here.parent.glob("numba-*"):
+        shutil.rmtree(old, ignore_errors=True)
+
+
+if "NUMBA_CACHE_DIR" not in os.environ:
+    os.environ["NUMBA_CACHE_DIR"] = _cache_dir()
+    _prune(os.environ["NUMBA_CACHE_DIR"])
+
+import numba  # noqa: E402  (reads NUMBA_CACHE_DIR when first imported)
+
+numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]
 
 F = TypeVar("F", bound=Callable[..., Any])
 

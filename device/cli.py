@@ -212,7 +212,12 @@ def run_command(args: argparse.Namespace) -> int:
         rows = ", ".join(
             f"{f:g} Hz {g:+.1f} dB" for f, g in zip(r4.frequencies, r4.gains_db, strict=True)
         )
-        text = f"{r4.axis} at {r4.amplitude:g}: -3 dB bandwidth {r4.bandwidth_hz:.2f} Hz ({rows})"
+        bw = (
+            f"above {max(r4.frequencies):g} Hz (gain never below -3 dB)"
+            if math.isinf(r4.bandwidth_hz)
+            else f"{r4.bandwidth_hz:.2f} Hz"
+        )
+        text = f"{r4.axis} at {r4.amplitude:g}: -3 dB bandwidth {bw} ({rows})"
         data = r4
     else:  # staircase
         r5 = ex.staircase(args.leg, args.mm)

@@ -81,7 +81,8 @@ def step(
     t = log[:, 0] - log[0, 0]
     y = log[:, COL[f"leg_x{i}"]]
     y_start = float(y[0])
-    m = step_metrics(t, y, y_start, y_start + mm * 1e-3)
+    # Against the commanded target, so a static offset cannot hide in the difference.
+    m = step_metrics(t, y, y_start, float(target[i]))
     p = log[:, [COL[f"pressure_g{2 * i}"], COL[f"pressure_g{2 * i + 1}"]]] / 1e5
     d = log[:, [COL[f"slots{2 * i}"], COL[f"slots{2 * i + 1}"]]] * (100.0 / 28.0)
     return StepResult(leg, mm, compensate, m, t, (y - y_start) * 1e3, p, d)
@@ -194,7 +195,8 @@ class SweepResult:
     gains_db: tuple[float, ...]
     phases_deg: tuple[float, ...]
     bandwidth_hz: float
-    """First frequency where the gain falls below -3 dB (interpolated); NaN if never."""
+    """First frequency where the gain falls below -3 dB (interpolated); inf if it never
+    does within the sweep (the bandwidth is then above its highest frequency)."""
 
 
 def sweep(
@@ -222,7 +224,7 @@ def sweep(
         r = sine(axis, amplitude, f, cycles=max(3, min(12, int(2 * f))), seed=seed)
         gains.append(r.gain_db)
         phases.append(r.phase_deg)
-    bw = math.nan
+    bw = math.inf  # never below -3 dB within the sweep: at least its top frequency
     for n in range(len(frequencies)):
         if gains[n] < -3.0:
             if n == 0:

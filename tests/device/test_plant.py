@@ -162,3 +162,10 @@ def test_parameter_table_is_complete_and_documented() -> None:
     with pytest.raises(ValueError, match="unknown plant parameter"):
         build_params(PlantConfig(overrides=(("bogus", 1.0),)))
     assert not math.isnan(build_params(PlantConfig(patient="resisting")).patient_k[4])
+
+
+def test_docs_table_is_the_code_table() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "plant.md").read_text()
+    assert parameter_table_markdown() in doc
