@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device import impedance, position_loop, pressure_loop, pwm, safety
-from device._jit import njit
+from device._jit import njit, njit_inline
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.kinematics import (
     FK_MAX_ITERATIONS,
@@ -553,7 +553,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
 
 
-@njit
+@njit_inline
 def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     """Run this tick's tasks; ``sensors`` must be fresh when the read-sensors task is due."""
     tick = s.istate[I_TICK]
@@ -576,7 +576,7 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
     s.istate[I_TICK] = tick + 1
 
 
-@njit
+@njit_inline
 def sensors_due(s: ControllerState, p: ControllerParams) -> bool:
     """Whether the coming tick reads the sensors (the loop samples the hardware first)."""
     row = p.schedule[s.istate[I_TICK] % p.schedule.shape[0]]

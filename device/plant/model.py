@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from device._jit import njit
+from device._jit import njit, njit_inline
 from device.kinematics import (
     Vec3,
     leg_vector,
@@ -165,7 +165,7 @@ def valve_opening(
     return max(0.0, opening - rate)
 
 
-@njit
+@njit_inline
 def write_valves(s: PlantState, command: NDArray[np.uint8]) -> None:
     """Energise (1) or release (0) the 24 coils; open-open is refused (both released)."""
     for c in range(12):
@@ -243,7 +243,7 @@ def add_weight(W: NDArray[np.float64], r: Vec3, mass: float, gravity: float) -> 
     W[4] -= r[0] * fz
 
 
-@njit
+@njit_inline
 def plant_tick(s: PlantState, p: PlantParams) -> None:
     """Advance the plant by one tick with the valve commands already written.
 
