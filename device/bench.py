@@ -167,6 +167,8 @@ def table(result: dict[str, Any]) -> str:
         text = f"{value:.3g}" if isinstance(value, float) else str(value)
         if isinstance(value, float) and abs(value) >= 1000:
             text = f"{value:,.0f}"
+        if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
+            text = f"> {text} (top of sweep)"
         tgt = targets.get(key)
         lines.append(
             f"| {label} | {text} | {tgt.text() if tgt else ''} | "
