@@ -1,0 +1,1 @@
+"""The serial link between the device and the home station: framing and messages."""
