@@ -165,8 +165,12 @@ class Rig:
             )
         self._start_motion()
         self.state.trajectory[:] = traj
-        if self.mode == Mode.IDLE:
+        if self.mode != Mode.TASK:
+            # A new exercise starts from the foot's resting wrench (its weight, the shank's
+            # preload) whether the platform was idle or holding legs: only what the patient
+            # adds beyond that drives the impedance.
             self.state.tare[:] = self.state.wrench
+            self.state.x_m[:] = 0.0
         self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def set_impedance(

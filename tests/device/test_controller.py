@@ -152,3 +152,18 @@ def test_hardware_kind_is_chosen_by_name() -> None:
         open_hardware("board")
     with pytest.raises(HardwareError, match="unknown hardware kind"):
         open_hardware("toaster")
+
+
+def test_an_exercise_started_from_joint_mode_tares_the_foot() -> None:
+    r = rig()
+    r.move_legs(r.state.leg_x.copy())
+    r.run(0.3)
+    K = np.array([0, 0, 0, 0, 50.0, 0])
+    B = np.array([0, 0, 0, 0, 1.0, 0])
+    r.set_impedance(K, B, [False, False, False, False, True, False])
+    r.track({})
+    r.run(0.5)
+    # The foot's own weight (0.54 N m about the ankle) must not tilt the plate: without a
+    # tare it would sit 0.011 rad (0.6 deg) down.
+    assert abs(r.state.pose[4] - r.geometry.home_pose[4]) < 0.002
+    assert abs(r.state.tare[4]) > 0.3
