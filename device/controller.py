@@ -19,6 +19,12 @@ never knows whether a plant simulation or an I/O board is on the other side.
 Modes: IDLE (all valves closed, pressures held), JOINT (independent leg position control),
 TASK (pose trajectory with impedance), FAULT (tripped, latched until re-armed; valves
 closed). Nothing leaves IDLE or FAULT except an explicit command.
+
+Release: with ``istate[I_VENT]`` set while IDLE or FAULT, the valves are no longer all
+closed: every chamber's exhaust valve opens for a short pulse once per PWM period
+(``ControllerConfig.vent_pulse_slots``) and the intakes stay shut, so the chambers vent
+slowly and the platform sinks gently under its own weight, freeing the patient's foot
+after a stop. In JOINT and TASK the flag has no effect.
 """
 
 from __future__ import annotations
@@ -79,6 +85,8 @@ class Waveform(IntEnum):
 
 # Integer state slots.
 I_TICK, I_MODE, I_TRIP, I_FK_FAIL, I_TRIPS, I_SENSOR_READS = 0, 1, 2, 3, 4, 5
+I_VENT = 6
+"""1: release (slow vent through the exhausts) while IDLE or FAULT; 0: hold."""
 N_ISTATE = 8
 
 
@@ -164,6 +172,17 @@ class ControllerConfig:
     sensor_below_ankle: float = PARAMETERS["sensor_below_ankle"].value
     load_compensation: bool = True
     """Feed the measured foot wrench forward into ``G_p`` (see device.position_loop)."""
+    vent_pulse_slots: int = 8
+    """Release (``I_VENT``): slots (of 28) that every exhaust valve is energised in a venting
+    PWM period, intakes shut. The armature moves only after 0.8 ms (5.6 slots) and is fully
+    open at 1.0 ms (7 slots): 8 slots open it fully whatever the valve's delay between 0.7
+    and 1.0 ms. A pulse that only cracks the valve (6 slots) would rest on that delay: a
+    slower valve would not vent at all and trap the foot."""
+    vent_every_periods: int = 4
+    """...once every this many PWM periods. Measured on the plant from a hold at home (about
+    5 bar in every chamber, relaxed foot): every chamber below 0.2 bar after 2.6 s and no leg
+    sinking faster than 17 mm/s, for valve delays of 0.7-1.0 ms. A full pulse every period
+    vents in 0.7 s at up to 48 mm/s: too fast under a patient's foot."""
 
 
 class ControllerParams(NamedTuple):
@@ -197,6 +216,8 @@ class ControllerParams(NamedTuple):
     gravity: float
     sensor_origin: NDArray[np.float64]
     load_compensation: bool
+    vent_pulse_slots: int
+    vent_every_periods: int
     limits: NDArray[np.float64]
     home_pose: NDArray[np.float64]
     dt_tick: float
@@ -238,6 +259,10 @@ def build_params(
     geometry: Geometry = DEFAULT_GEOMETRY,
     limits: SafetyLimits = SafetyLimits(),
 ) -> tuple[ControllerParams, Schedule]:
+    if not 0 <= config.vent_pulse_slots <= pwm.PWM_SLOTS:
+        raise ValueError(f"vent_pulse_slots must be 0..{pwm.PWM_SLOTS}")
+    if config.vent_every_periods < 1:
+        raise ValueError("vent_every_periods must be 1 or more")
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0
@@ -279,6 +304,8 @@ def build_params(
         gravity=9.81,
         sensor_origin=np.array([0.0, 0.0, -config.sensor_below_ankle]),
         load_compensation=config.load_compensation,
+        vent_pulse_slots=int(config.vent_pulse_slots),
+        vent_every_periods=int(config.vent_every_periods),
         limits=limits.as_array(),
         home_pose=geometry.home_pose.copy(),
         dt_tick=dt_tick,
@@ -344,7 +371,32 @@ def moving(s: ControllerState) -> bool:
 
 
 @njit
+def venting(s: ControllerState) -> bool:
+    """Whether this tick releases: the vent flag set while IDLE or FAULT."""
+    return s.istate[I_VENT] == 1 and not moving(s)
+
+
+@njit
+def vent_valves(s: ControllerState, p: ControllerParams) -> None:
+    """Release pattern: every exhaust open for the first ``vent_pulse_slots`` slots of its
+    leg's PWM period, one period in ``vent_every_periods``; every intake closed."""
+    tick = s.istate[I_TICK]
+    for leg in range(6):
+        since = tick - p.pwm_phase[leg]
+        slot = since % pwm.PWM_SLOTS
+        period = since // pwm.PWM_SLOTS
+        exhaust = 1 if slot < p.vent_pulse_slots and period % p.vent_every_periods == 0 else 0
+        for side in range(2):
+            c = 2 * leg + side
+            s.valves[2 * c] = 0
+            s.valves[2 * c + 1] = exhaust
+
+
+@njit
 def duty_update(s: ControllerState, p: ControllerParams) -> None:
+    if venting(s):
+        vent_valves(s, p)
+        return
     tick = s.istate[I_TICK]
     go = moving(s)
     for leg in range(6):
@@ -571,8 +623,13 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         else:
             cylinder_task(s, p, task - TASK_CYLINDER0)
     if s.istate[I_MODE] == Mode.FAULT or s.istate[I_MODE] == Mode.IDLE:
-        for v in range(24):
-            s.valves[v] = 0
+        if venting(s):
+            # Also after a trip earlier in this tick (which closed everything): exactly the
+            # exhaust pulses, never an intake.
+            vent_valves(s, p)
+        else:
+            for v in range(24):
+                s.valves[v] = 0
     s.istate[I_TICK] = tick + 1
 
 

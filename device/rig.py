@@ -25,6 +25,9 @@ Vector = Sequence[float] | NDArray[np.float64]
 """Six numbers, one per leg or axis."""
 
 
+_NO_LOG = np.zeros((0, tickloop.N_LOG))
+
+
 class CommandError(ValueError):
     """A command the device refuses; nothing was changed."""
 
@@ -86,6 +89,14 @@ class Rig:
             rows = rows[:0]
         self._log.append(rows)
         return rows
+
+    def advance(self, ticks: int) -> None:
+        """Advance ``ticks`` interrupts without logging (the device service's pacing step)."""
+        if isinstance(self.hardware, SimulatedHardware):
+            hw = self.hardware
+            tickloop.run_sim(self.state, self.params, hw.state, hw.params, ticks, 0, _NO_LOG)
+        else:
+            tickloop.run_hardware(self.state, self.params, self.hardware, ticks)
 
     @property
     def log(self) -> NDArray[np.float64]:

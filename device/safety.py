@@ -40,6 +40,8 @@ class Trip(IntEnum):
     """A piston reached the end of its stroke."""
     ESTOP = 9
     """Emergency stop."""
+    HOMING = 10
+    """Homing did not reach the home pose in time."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,10 @@ class SafetyLimits:
     100 N m/rad takes 0.4 s, so the patient never feels a jump."""
     damping_slew: tuple[float, ...] = (2000.0, 2000.0, 2000.0, 20.0, 20.0, 20.0)
     """Largest rate of change of B per axis (per second)."""
+
+    axis_speed_max: tuple[float, ...] = (0.10, 0.10, 0.10, 2.0, 2.0, 2.0)
+    """Fastest target waveform a command may ask for per axis (m/s, rad/s): a 7 Hz, 2 deg
+    pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion."""
 
     def as_array(self) -> NDArray[np.float64]:
         """(8, 6) array for the compiled controller: rows as the fields, in order."""

@@ -269,6 +269,10 @@ TICK_HZ = 7000
 """Interrupt rate of the controller (paper, section 3: 4 ms / 28)."""
 
 
+PATIENTS = ("relaxed", "resisting", "absent")
+"""The simulated patient: a relaxed foot, one that co-contracts, or no foot at all."""
+
+
 @dataclass(frozen=True)
 class PlantConfig:
     """What a user may vary per experiment; physics comes from the table."""
@@ -298,7 +302,7 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
     unknown = [k for k, _ in config.overrides if k not in PARAMETERS]
     if unknown:
         raise ValueError(f"unknown plant parameter(s): {', '.join(unknown)}")
-    if config.patient not in ("relaxed", "resisting", "absent"):
+    if config.patient not in PATIENTS:
         raise ValueError(f"patient must be relaxed, resisting or absent, not {config.patient!r}")
     if not 1 <= config.substeps <= 64:
         raise ValueError("substeps must be 1..64")
