@@ -7,7 +7,8 @@ one is an unambiguous place to resynchronise after garbage or a lost byte.
 
 The decoder never raises on input bytes and never returns a frame that failed a check: a
 frame with a bad COBS encoding, a length that disagrees with its header, a CRC mismatch or
-another protocol version is dropped and counted in :class:`DecoderStats`.
+another protocol version (except a handshake, see :data:`HANDSHAKE_TYPE`) is dropped and
+counted in :class:`DecoderStats`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ from dataclasses import dataclass, field
 from cobs import cobs
 
 PROTOCOL_VERSION = 1
+HANDSHAKE_TYPE = 1
+"""Message type of the handshake in every protocol version. A frame of this type is delivered
+whatever its version, so each side can tell the other which version it speaks instead of
+timing out; every other frame of a foreign version is dropped."""
 HEADER = struct.Struct("<BBHH")
 CRC = struct.Struct("<H")
 MAX_BODY = 1024
@@ -120,7 +125,7 @@ class FrameDecoder:
         if crc16(payload) != crc:
             self.stats.bad_crc += 1
             return None
-        if version != self.version:
+        if version != self.version and mtype != HANDSHAKE_TYPE:
             self.stats.bad_version += 1
             return None
         self.stats.frames += 1
