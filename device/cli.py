@@ -19,6 +19,8 @@ from typing import Any, NoReturn
 import numpy as np
 
 from device.geometry import AXES
+from device.hardware import HARDWARE_KINDS
+from device.plant.params import PATIENTS
 
 USAGE_ERROR = 2
 
@@ -42,6 +44,20 @@ def _finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
     return value
+
+
+def _ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(f"{text} outside {lo:g}..{hi:g}")
+        return value
+
+    parse.__name__ = kind.__name__ if hasattr(kind, "__name__") else "value"
+    return parse
 
 
 def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
@@ -92,6 +108,53 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     p = bs.add_parser("control", help="the paper's headline results and the real-time factor")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plots", type=Path, help="write PNG figures into this folder")
+    p = bs.add_parser("link", help="serial link: ACK round trip, telemetry, pacing, watchdog")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--seconds", type=_ranged(float, 1.0, 3600.0), default=60.0, help="telemetry window (s)"
+    )
+    p.add_argument(
+        "--watchdog-runs", type=_ranged(int, 1, 1000), default=20, help="link pulls to time"
+    )
+
+    sub.add_parser("protocol", help="print the serial protocol's messages (Markdown)")
+    dev = sub.add_parser(
+        "device",
+        help="the device service: the controller paced to the wall clock, on a serial link",
+    )
+    dev.add_argument(
+        "--hardware",
+        choices=HARDWARE_KINDS,
+        default="board",
+        help="the plant simulation or the I/O board (default board)",
+    )
+    dev.add_argument(
+        "--sim",
+        dest="hardware",
+        action="store_const",
+        const="sim",
+        help="same as --hardware sim",
+    )
+    dev.add_argument(
+        "--link",
+        default="pty",
+        help="pty (prints the port to open), tcp://HOST:PORT, or a serial port name",
+    )
+    dev.add_argument("--baud", type=_ranged(int, 1200, 12_000_000), default=921600)
+    dev.add_argument(
+        "--telemetry-hz", type=_ranged(int, 1, 250), default=100, help="1..250 (default 100)"
+    )
+    dev.add_argument(
+        "--watchdog-ms", type=_ranged(int, 50, 2000), default=200, help="50..2000 (default 200)"
+    )
+    dev.add_argument("--patient", choices=PATIENTS, default="relaxed", help="simulated patient")
+    dev.add_argument(
+        "--patient-torque",
+        type=_ranged(float, 0.0, 20.0),
+        default=0.0,
+        help="simulated patient pushes in pitch with this peak torque (N m, 0.1 Hz)",
+    )
+    dev.add_argument("--seconds", type=_ranged(float, 0.0, 1e9), default=None)
 
 
 def _outputs(p: argparse.ArgumentParser) -> None:
@@ -126,6 +189,19 @@ def run_command(args: argparse.Namespace) -> int:
     """Execute a parsed ``sim`` or ``bench`` command."""
     from device import experiments as ex
 
+    if args.command == "device":
+        return _device(args)
+    if args.command == "protocol":
+        from device.protocol.messages import markdown_table
+
+        print(markdown_table(), end="")
+        return 0
+    if args.command == "bench" and args.bench == "link":
+        from device import linkbench
+
+        lresult = linkbench.run(args.seconds, args.watchdog_runs)
+        print(json.dumps(_jsonable(lresult), indent=2) if args.json else linkbench.table(lresult))
+        return 0
     if args.command == "bench":
         from device import bench
 
@@ -239,6 +315,28 @@ def run_command(args: argparse.Namespace) -> int:
     if getattr(args, "plot", None) and figure is not None:
         figure(args.plot)
     return 0
+
+
+def _device(args: argparse.Namespace) -> int:
+    from device.hardware import HardwareError, SimulatedHardware, open_hardware
+    from device.plant.model import SCRIPT_SINE
+    from device.plant.params import PlantConfig
+    from device.rig import Rig
+    from device.service import DeviceService, ServiceConfig, serve
+    from device.transport import LinkError, open_link
+
+    try:
+        hardware = open_hardware(args.hardware, PlantConfig(patient=args.patient))
+        link = open_link(args.link, args.baud)
+    except (HardwareError, LinkError) as exc:
+        print(f"error: {exc.args[-1]}", file=sys.stderr)
+        return 1
+    if isinstance(hardware, SimulatedHardware) and args.patient_torque > 0:
+        hardware.script_torque(4, SCRIPT_SINE, 1.0, args.patient_torque, 0.1)
+    if args.hardware == "sim":
+        print("ankle device: preparing the simulated device (first start compiles ~20 s)...")
+    service = DeviceService(Rig(hardware), link, ServiceConfig(args.telemetry_hz, args.watchdog_ms))
+    return serve(service, args.seconds)
 
 
 def _plots() -> Any:

@@ -1,70 +1,99 @@
-"""The simulated device run against the wall clock with a live console summary.
+"""The device service on a pty with a console client showing live telemetry.
 
-What ``make run`` shows until the device service and the server exist: a relaxed patient
-on the simulated platform doing a slow plantar/dorsiflexion exercise against 30 N m/rad,
-one status line a second. Simulated time never runs ahead of wall time.
+What ``make run`` shows until the server and home station exist: the simulated device runs
+as its own process on a pseudo-terminal, exactly as it would on the embedded PC, and this
+client drives it over the serial protocol like a home station would: it homes the platform,
+then runs 30 s segments of slow plantar/dorsiflexion (8 deg at 0.2 Hz) against 30 N m/rad
+while the simulated patient pushes back, one status line a second. Ctrl-C holds the
+platform, stops the service (which closes the valves) and exits.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 import sys
-import time
 from typing import TextIO
 
-import numpy as np
-
+from device.client import AxisPlan, DeviceClient, DeviceError, build_segment
 from device.controller import Waveform
-from device.hardware import SimulatedHardware
-from device.plant.model import SCRIPT_SINE
-from device.plant.params import PlantConfig
-from device.rig import AxisTarget, Rig
+from device.process import ServiceProcess, ServiceStartError
+from device.protocol.messages import DeviceMode, Telemetry
 
-CHUNK_S = 0.02
-"""Simulated time advanced per pacing step (s)."""
+SEGMENT_S = 30.0
+DEMO_PITCH = AxisPlan(
+    Waveform.SINE,
+    amplitude=math.radians(8.0),
+    frequency=0.2,
+    stiffness=30.0,
+    damping=1.0,
+    compliant=True,
+)
+"""Slow plantar/dorsiflexion, 8 deg at 0.2 Hz, compliant at 30 N m/rad and 1 N m s/rad."""
+
+
+def _line(t: Telemetry, lost: int) -> str:
+    return (
+        f"{t.time:7.1f} | {t.mode.name:6s} | {math.degrees(t.pose[4]):6.2f} "
+        f"({math.degrees(t.pose_cmd[4]):6.2f}) | {t.wrench[4]:7.2f}         | "
+        f"{t.stiffness[4]:5.1f}     | {t.pacing_lag_ms:5.2f}  | {lost}"
+    )
+
+
+async def _drive(link: str, seconds: float | None, out: TextIO) -> None:
+    async with await DeviceClient.connect(link) as dev:
+        assert dev.hello is not None
+        hello = dev.hello
+        print(
+            f"ankle: connected to {hello.firmware} ({hello.hardware}) on {link}; "
+            f"telemetry {hello.telemetry_hz} Hz, watchdog {hello.watchdog_ms} ms",
+            file=out,
+        )
+        await dev.arm_home()
+        await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+        print(
+            "time s  | mode   | pitch deg (cmd) | foot torque N m | K N m/rad | lag ms | lost",
+            file=out,
+        )
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        segment_id = 0
+        next_print = 0.0
+        async for t in dev.telemetry():
+            if t.mode == DeviceMode.READY:
+                segment_id += 1
+                await dev.start_segment(
+                    build_segment(hello, segment_id, SEGMENT_S, {"pitch": DEMO_PITCH})
+                )
+            elif t.mode in (DeviceMode.FAULT, DeviceMode.ESTOP, DeviceMode.HOLD):
+                print(f"ankle: the device is in {t.mode.name} (trip {t.trip.name})", file=out)
+                break
+            if t.time >= next_print:
+                print(_line(t, dev.stats.frames_lost), file=out, flush=True)
+                next_print = t.time + 1.0
+            if seconds is not None and loop.time() - start >= seconds:
+                break
+        await dev.hold()
 
 
 def run_console(seconds: float | None = None, out: TextIO = sys.stdout) -> int:
-    """Run until ``seconds`` of simulated time have passed (forever if None) or Ctrl-C."""
-    rig = Rig(SimulatedHardware(PlantConfig(patient="relaxed")))
-    print("ankle: starting the simulated device (first start compiles for ~20 s)...", file=out)
-    rig.run(1.0 / 7000.0, log_hz=0)
-    rig.move_legs(rig.state.leg_x.copy())
-    K = np.zeros(6)
-    B = np.zeros(6)
-    K[4], B[4] = 30.0, 1.0
-    rig.set_impedance(K, B, [False, False, False, False, True, False])
-    rig.track({"pitch": AxisTarget(Waveform.SINE, 0.0, math.radians(8.0), 0.2)})
-    # The patient pushes back a little, then lets go, every 5 s.
-    rig.hardware.script_torque(4, SCRIPT_SINE, rig.time, 3.0, 0.1)  # type: ignore[attr-defined]
-    print("time s | mode  | pitch deg (cmd) | foot torque N m | K N m/rad | lag ms", file=out)
-    start_wall = time.perf_counter()
-    start_sim = rig.time
-    next_print = start_sim
-    lag_ms = 0.0
+    """Start the service, drive it until ``seconds`` pass (forever if None) or Ctrl-C."""
+    print("ankle: starting the device service (first start compiles for ~20 s)...", file=out)
     try:
-        while seconds is None or rig.time - start_sim < seconds:
-            rig.run(CHUNK_S, log_hz=0)
-            ahead = (rig.time - start_sim) - (time.perf_counter() - start_wall)
-            if ahead > 0:
-                time.sleep(ahead)
-            else:
-                lag_ms = -ahead * 1e3
-            if rig.time >= next_print:
-                s = rig.state
-                home = rig.geometry.home_pose[4]
-                print(
-                    f"{rig.time:6.1f} | {rig.mode.name:5s} | {math.degrees(s.pose[4] - home):6.2f} "
-                    f"({math.degrees(s.pose_cmd[4] - home):6.2f}) | "
-                    f"{s.wrench[4] - s.tare[4]:7.2f}         | {s.stiffness[4]:5.1f}     | "
-                    f"{lag_ms:5.1f}",
-                    file=out,
-                    flush=True,
-                )
-                next_print += 1.0
+        service = ServiceProcess("--link", "pty", "--patient-torque", "3")
+    except ServiceStartError as exc:
+        print(f"ankle: {exc}", file=sys.stderr)
+        return 1
+    code = 0
+    try:
+        print(f"ankle: device service on {service.link} (pid {service.pid})", file=out)
+        asyncio.run(_drive(service.link, seconds, out))
     except KeyboardInterrupt:
         pass
+    except DeviceError as exc:
+        print(f"ankle: {exc}", file=sys.stderr)
+        code = 1
     finally:
-        rig.hold()
+        service.stop()
         print("ankle: stopped; valves closed.", file=out)
-    return 0
+    return code

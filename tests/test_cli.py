@@ -2,11 +2,16 @@
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from device.linkbench import TARGETS as LINK_TARGETS
+from device.process import ServiceProcess
+from device.protocol.messages import markdown_table
 
 ANKLE = [sys.executable, "-m", "ankle.cli"]
 
@@ -65,11 +70,56 @@ def test_step_prints_metrics_json_and_writes_csv_and_plot(tmp_path: Path) -> Non
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_run_shows_a_live_console_and_stops_cleanly() -> None:
-    r = ankle("run", "--seconds", "2")
+def test_run_shows_live_telemetry_from_the_service_and_stops_cleanly() -> None:
+    r = ankle("run", "--seconds", "3")
     assert r.returncode == 0, r.stderr
-    assert "TASK" in r.stdout
-    assert "valves closed" in r.stdout
+    out = r.stdout
+    assert re.search(r"device service on /dev/pts/\d+", out), out
+    assert "connected to ankle-device" in out
+    rows = [line for line in out.splitlines() if "| ACTIVE |" in line]
+    assert rows, out  # the exercise segment is running, seen through telemetry
+    assert rows[-1].rstrip().endswith("| 0")  # no telemetry frame lost
+    assert out.rstrip().endswith("ankle: stopped; valves closed.")
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["device", "--link", "pty"], "no I/O board driver"),
+        (["device", "--sim", "--link", "tcp://nohost"], "expected tcp://HOST:PORT"),
+        (["device", "--sim", "--link", "/dev/does-not-exist"], "cannot open serial port"),
+    ],
+)
+def test_device_service_that_cannot_start_says_why(args: list[str], needle: str) -> None:
+    r = ankle(*args)
+    assert r.returncode == 1
+    assert needle in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_device_service_stops_on_sigterm_with_valves_closed() -> None:
+    proc = ServiceProcess("--link", "tcp://127.0.0.1:0")
+    assert proc.link.startswith("socket://127.0.0.1:")
+    assert proc.stop() == 0
+    assert proc.output[-1] == "ankle device: stopped; valves closed."
+
+
+def test_protocol_prints_the_readme_table() -> None:
+    r = ankle("protocol")
+    assert r.returncode == 0
+    assert r.stdout == markdown_table()
+
+
+def test_bench_link_prints_every_key() -> None:
+    r = ankle("bench", "link", "--json", "--seconds", "2", "--watchdog-runs", "2")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert {t.key for t in LINK_TARGETS} <= set(data)
+    assert data["telemetry_hz_configured"] == 250
+    assert data["telemetry_hz_received"] > 200
+    assert data["commands"] > 20 and data["cmd_ack_rtt_ms_p50"] > 0
+    assert data["watchdog_runs"] == 2 and data["watchdog_hold_ms_max"] >= 200.0
+    assert 0 < data["service_cpu_pct"] < 100
 
 
 def test_params_prints_the_table() -> None:

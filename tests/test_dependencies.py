@@ -18,6 +18,7 @@ ALLOWED: dict[str, set[str]] = {
 # Third-party libraries that may be imported only in the named places.
 CONFINED: dict[str, tuple[str, ...]] = {
     "serial": ("device/transport",),
+    "serial_asyncio_fast": ("device/transport",),
     "fastapi": ("server/", "webui/"),
     "viser": ("webui/",),
 }

@@ -1,0 +1,407 @@
+"""The host's side of the serial link: an asyncio client of the device service.
+
+The home station uses it to drive the device::
+
+    async with await DeviceClient.connect("/dev/pts/5") as dev:
+        await dev.arm_home()
+        await dev.wait_for_mode(DeviceMode.READY, timeout=15)
+        await dev.start_segment(segment)
+        async for sample in dev.telemetry():
+            ...
+
+``connect`` opens the port (any pyserial name or URL such as ``socket://host:port``),
+shakes hands (a device of another protocol version is a :class:`ProtocolVersionError`, not
+a timeout) and keeps the device's watchdog fed with heartbeats. Each command waits for its
+ACK; a lost frame is sent again with the same sequence number, which the device answers
+without running it twice. A NACK raises :class:`CommandRefused` carrying the device's code
+and reason. Events lost on the way are asked for again (``ReplayEvents``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import random
+import time
+from collections.abc import AsyncGenerator
+from dataclasses import dataclass, field
+from types import TracebackType
+
+from device.controller import Waveform
+from device.geometry import AXES
+from device.protocol import messages as msg
+from device.protocol.framing import HANDSHAKE_TYPE, PROTOCOL_VERSION, Frame, FrameDecoder
+from device.protocol.messages import DeviceMode
+from device.transport import open_stream
+
+HOST_NAME = "ankle-host 0.1.0"
+
+
+class DeviceError(Exception):
+    """Something went wrong talking to the device."""
+
+
+class LinkTimeout(DeviceError):
+    """No answer from the device in time (after the retries)."""
+
+
+class LinkClosed(DeviceError):
+    """The link was closed."""
+
+
+class ProtocolVersionError(DeviceError):
+    """The device speaks another protocol version."""
+
+
+class CommandRefused(DeviceError):
+    """The device answered NACK: nothing was changed."""
+
+    def __init__(self, nack: msg.Nack) -> None:
+        where = f" [{nack.field}]" if nack.field else ""
+        super().__init__(f"{nack.code.name}{where}: {nack.text}")
+        self.nack = nack
+
+
+@dataclass
+class ClientStats:
+    frames: int = 0
+    frames_lost: int = 0
+    """Gaps in the device's frame sequence numbers."""
+    undecodable: int = 0
+    retries: int = 0
+    rtt_ms: list[float] = field(default_factory=list)
+    """Command to ACK/NACK round trips (the last 10000)."""
+
+
+class DeviceClient:
+    """An open, handshaken link to one device."""
+
+    def __init__(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        command_timeout: float = 0.1,
+        retries: int = 3,
+        heartbeat_period: float = 0.05,
+    ) -> None:
+        self._reader = reader
+        self._writer = writer
+        self.command_timeout = command_timeout
+        self.retries = retries
+        self.heartbeat_period = heartbeat_period
+        self.heartbeats = True
+        """Clear to stop feeding the device's watchdog (to test it)."""
+        self.decoder = FrameDecoder()
+        self.stats = ClientStats()
+        self.hello: msg.DeviceHello | None = None
+        self.latest: msg.Telemetry | None = None
+        self.latest_at = 0.0
+        """Host clock (``time.perf_counter``) when :attr:`latest` arrived."""
+        self._seq = itertools.count(random.randrange(0x10000))
+        self._pending: dict[int, asyncio.Future[msg.Ack | msg.Nack]] = {}
+        self._hello: asyncio.Future[msg.DeviceHello] | None = None
+        self._telemetry_subs: list[asyncio.Queue[msg.Telemetry | None]] = []
+        self._event_subs: list[asyncio.Queue[msg.Event | None]] = []
+        self._last_rx_seq: int | None = None
+        self._last_event_id = 0
+        self._replay_asked = 0
+        self._replay_at = 0.0
+        self._closed = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = [asyncio.create_task(self._read_loop())]
+
+    # -- opening and closing -------------------------------------------------------------
+    @classmethod
+    async def connect(
+        cls,
+        url: str,
+        baud: int = 921600,
+        timeout: float = 2.0,
+        heartbeat: bool = True,
+        **kwargs: float,
+    ) -> DeviceClient:
+        reader, writer = await open_stream(url, baud)
+        client = cls(reader, writer, **kwargs)  # type: ignore[arg-type]
+        try:
+            await client.handshake(timeout)
+        except BaseException:
+            await client.close()
+            raise
+        if heartbeat:
+            client._tasks.append(asyncio.create_task(client._heartbeat_loop()))
+        return client
+
+    async def handshake(self, timeout: float = 2.0) -> msg.DeviceHello:
+        """Send HELLO until the device answers (a new nonce: old sequence numbers forgotten)."""
+        loop = asyncio.get_running_loop()
+        hello = msg.Hello(host=HOST_NAME, nonce=random.getrandbits(32))
+        deadline = loop.time() + timeout
+        while True:
+            self._hello = loop.create_future()
+            self._write(hello, next(self._seq))
+            try:
+                remaining = max(0.0, min(0.25, deadline - loop.time()))
+                self.hello = await asyncio.wait_for(asyncio.shield(self._hello), remaining)
+                return self.hello
+            except TimeoutError:
+                if loop.time() >= deadline:
+                    raise LinkTimeout(f"no answer to HELLO within {timeout:g} s") from None
+
+    async def close(self) -> None:
+        self._closed.set()
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        self._writer.close()
+        with contextlib.suppress(Exception):
+            await self._writer.wait_closed()
+        for q in self._telemetry_subs:
+            q.put_nowait(None)
+        for eq in self._event_subs:
+            eq.put_nowait(None)
+        for fut in self._pending.values():
+            if not fut.done():
+                fut.set_exception(LinkClosed("link closed"))
+
+    async def __aenter__(self) -> DeviceClient:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    # -- commands ------------------------------------------------------------------------
+    async def command(
+        self, message: msg.Message, timeout: float | None = None, retries: int | None = None
+    ) -> msg.Ack:
+        """Send a command and wait for its ACK; :class:`CommandRefused` on a NACK."""
+        if self._closed.is_set():
+            raise LinkClosed("link closed")
+        timeout = self.command_timeout if timeout is None else timeout
+        retries = self.retries if retries is None else retries
+        seq = next(self._seq) & 0xFFFF
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[msg.Ack | msg.Nack] = loop.create_future()
+        self._pending[seq] = fut
+        frame = msg.encode(message, seq)
+        start = time.perf_counter()
+        try:
+            for attempt in range(retries + 1):
+                if attempt:
+                    self.stats.retries += 1
+                self._writer.write(frame)
+                try:
+                    reply = await asyncio.wait_for(asyncio.shield(fut), timeout)
+                    break
+                except TimeoutError:
+                    continue
+            else:
+                raise LinkTimeout(
+                    f"{type(message).__name__}: no answer after {retries + 1} tries of "
+                    f"{timeout * 1e3:.0f} ms"
+                )
+        finally:
+            self._pending.pop(seq, None)
+        self.stats.rtt_ms.append((time.perf_counter() - start) * 1e3)
+        if len(self.stats.rtt_ms) > 10000:
+            del self.stats.rtt_ms[:5000]
+        if isinstance(reply, msg.Nack):
+            raise CommandRefused(reply)
+        return reply
+
+    async def configure(self, telemetry_hz: int, watchdog_ms: int) -> msg.Ack:
+        return await self.command(msg.Configure(telemetry_hz=telemetry_hz, watchdog_ms=watchdog_ms))
+
+    async def arm_home(self) -> msg.Ack:
+        return await self.command(msg.ArmHome())
+
+    async def start_segment(self, segment: msg.StartSegment) -> msg.Ack:
+        return await self.command(segment)
+
+    async def set_impedance(
+        self, stiffness: tuple[float, ...], damping: tuple[float, ...]
+    ) -> msg.Ack:
+        return await self.command(msg.SetImpedance(stiffness=stiffness, damping=damping))
+
+    async def hold(self) -> msg.Ack:
+        return await self.command(msg.HoldCmd())
+
+    async def resume(self) -> msg.Ack:
+        return await self.command(msg.Resume())
+
+    async def estop(self) -> msg.Ack:
+        return await self.command(msg.EStop())
+
+    async def rearm(self) -> msg.Ack:
+        return await self.command(msg.Rearm())
+
+    async def release(self) -> msg.Ack:
+        return await self.command(msg.Release())
+
+    # -- streams -------------------------------------------------------------------------
+    async def telemetry(self, maxsize: int = 1024) -> AsyncGenerator[msg.Telemetry, None]:
+        """Every telemetry sample from now on (oldest dropped if the consumer lags)."""
+        q: asyncio.Queue[msg.Telemetry | None] = asyncio.Queue(maxsize)
+        self._telemetry_subs.append(q)
+        try:
+            while (item := await q.get()) is not None:
+                yield item
+        finally:
+            self._telemetry_subs.remove(q)
+
+    async def events(self) -> AsyncGenerator[msg.Event, None]:
+        """Every event from now on, each once, in id order as received."""
+        q: asyncio.Queue[msg.Event | None] = asyncio.Queue()
+        self._event_subs.append(q)
+        try:
+            while (item := await q.get()) is not None:
+                yield item
+        finally:
+            self._event_subs.remove(q)
+
+    async def wait_for_mode(self, *modes: DeviceMode, timeout: float = 5.0) -> msg.Telemetry:
+        """The first telemetry sample in one of ``modes``; :class:`LinkTimeout` otherwise."""
+        if self.latest is not None and self.latest.mode in modes:
+            return self.latest
+        try:
+            async with asyncio.timeout(timeout):
+                async for sample in self.telemetry():
+                    if sample.mode in modes:
+                        return sample
+        except TimeoutError:
+            pass
+        now = self.latest.mode.name if self.latest else "unknown"
+        names = " or ".join(m.name for m in modes)
+        raise LinkTimeout(f"device did not reach {names} within {timeout:g} s (it is {now})")
+
+    # -- internals -----------------------------------------------------------------------
+    def _write(self, message: msg.Message, seq: int) -> None:
+        self._writer.write(msg.encode(message, seq))
+
+    async def _heartbeat_loop(self) -> None:
+        while not self._closed.is_set():
+            await asyncio.sleep(self.heartbeat_period)
+            if not self.heartbeats:
+                continue
+            with contextlib.suppress(DeviceError):
+                await self.command(msg.Heartbeat(), timeout=self.heartbeat_period, retries=0)
+
+    async def _read_loop(self) -> None:
+        while True:
+            data = await self._reader.read(4096)
+            if not data:
+                self._closed.set()
+                for q in self._telemetry_subs:
+                    q.put_nowait(None)
+                return
+            for frame in self.decoder.feed(data):
+                self._on_frame(frame)
+
+    def _on_frame(self, frame: Frame) -> None:
+        self.stats.frames += 1
+        if self._last_rx_seq is not None:
+            gap = (frame.seq - self._last_rx_seq - 1) & 0xFFFF
+            if gap < 0x8000:
+                self.stats.frames_lost += gap
+        self._last_rx_seq = frame.seq
+        if frame.type == HANDSHAKE_TYPE and frame.version != PROTOCOL_VERSION:
+            if self._hello is not None and not self._hello.done():
+                self._hello.set_exception(
+                    ProtocolVersionError(
+                        f"the device speaks protocol version {frame.version}; this host "
+                        f"speaks {PROTOCOL_VERSION}: update one of them"
+                    )
+                )
+            return
+        try:
+            message = msg.decode(frame, "device")
+        except msg.MessageError:
+            self.stats.undecodable += 1
+            return
+        if isinstance(message, msg.Telemetry):
+            self.latest = message
+            self.latest_at = time.perf_counter()
+            for q in self._telemetry_subs:
+                if q.full():
+                    q.get_nowait()
+                q.put_nowait(message)
+            if message.last_event_id > self._last_event_id:
+                self._ask_replay(message.last_event_id)
+        elif isinstance(message, msg.Ack | msg.Nack):
+            fut = self._pending.get(message.ack_seq)
+            if fut is not None and not fut.done():
+                fut.set_result(message)
+        elif isinstance(message, msg.Event):
+            if message.event_id <= self._last_event_id:
+                return  # already seen (a replay)
+            if message.event_id > self._last_event_id + 1:
+                self._ask_replay(message.event_id)
+                return  # wait for the missing ones so the order holds
+            self._last_event_id = message.event_id
+            for eq in self._event_subs:
+                eq.put_nowait(message)
+        elif isinstance(message, msg.DeviceHello):
+            if self._hello is not None and not self._hello.done():
+                self._hello.set_result(message)
+
+    def _ask_replay(self, newest: int) -> None:
+        now = time.perf_counter()
+        if self._replay_asked >= newest and now - self._replay_at < 0.2:
+            return  # asked already; ask again only if the answer got lost
+        self._replay_asked, self._replay_at = newest, now
+        self._write(msg.ReplayEvents(after_id=self._last_event_id), next(self._seq) & 0xFFFF)
+
+
+@dataclass(frozen=True)
+class AxisPlan:
+    """One axis of a segment (relative to home; m or rad), for :func:`build_segment`."""
+
+    waveform: Waveform = Waveform.HOLD
+    center: float = 0.0
+    amplitude: float = 0.0
+    frequency: float = 0.0
+    ramp_end: float = 0.0
+    ramp_rate: float = 0.0
+    stiffness: float = 0.0
+    damping: float = 0.0
+    compliant: bool = False
+
+
+def build_segment(
+    hello: msg.DeviceHello,
+    segment_id: int,
+    duration: float,
+    axes: dict[str, AxisPlan],
+    rom_low: tuple[float, ...] | None = None,
+    rom_high: tuple[float, ...] | None = None,
+    force_limit: float | None = None,
+    torque_limit: float | None = None,
+) -> msg.StartSegment:
+    """A segment message; unnamed axes hold home, unset limits are the device's own."""
+    unknown = set(axes) - set(AXES)
+    if unknown:
+        raise ValueError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")
+    plans = [axes.get(a, AxisPlan()) for a in AXES]
+    return msg.StartSegment(
+        segment_id=segment_id,
+        duration=duration,
+        waveform=tuple(p.waveform for p in plans),
+        center=tuple(p.center for p in plans),
+        amplitude=tuple(p.amplitude for p in plans),
+        frequency=tuple(p.frequency for p in plans),
+        ramp_end=tuple(p.ramp_end for p in plans),
+        ramp_rate=tuple(p.ramp_rate for p in plans),
+        stiffness=tuple(p.stiffness for p in plans),
+        damping=tuple(p.damping for p in plans),
+        compliant=tuple(p.compliant for p in plans),
+        rom_low=hello.rom_low if rom_low is None else rom_low,
+        rom_high=hello.rom_high if rom_high is None else rom_high,
+        force_limit=hello.force_limit if force_limit is None else force_limit,
+        torque_limit=hello.torque_limit if torque_limit is None else torque_limit,
+    )

@@ -1,0 +1,178 @@
+"""``ankle bench link``: the serial link as the home station sees it.
+
+The device service runs as its own process on a pty with the simulated plant (a relaxed
+patient pushing 3 N m in pitch), a :class:`~device.client.DeviceClient` homes it and runs a
+compliant pitch exercise with telemetry at 250 Hz, then for the window:
+
+- changes K every 50 ms and times each command to its ACK (``cmd_ack_rtt_ms_*``);
+- counts telemetry received against the configured rate and gaps in the device's frame
+  numbers (``frames_lost``);
+- reads the device's own pacing lag from every telemetry sample and its overrun counter;
+- reads the service's CPU time from ``/proc``.
+
+Then it pulls the link ``watchdog_runs`` times (stops every frame, heartbeats included) and
+times from the last frame it sent to the WATCHDOG event it receives: an upper bound of the
+device's time to HOLD (the device also reports its own measure in the event).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from device.bench import Target
+from device.client import DeviceClient, build_segment
+from device.console import DEMO_PITCH
+from device.process import ServiceProcess
+from device.protocol import messages as msg
+from device.protocol.messages import DeviceMode, EventKind
+
+TELEMETRY_HZ = 250
+WATCHDOG_MS = 200
+
+TARGETS: tuple[Target, ...] = (
+    Target("cmd_ack_rtt_ms_p99", "command to ACK round trip p99 (ms)", 5.0, "max"),
+    Target("frames_lost", "telemetry frames lost", 0, "eq"),
+    Target("telemetry_hz_received", "telemetry received (Hz)", 0.99 * TELEMETRY_HZ, "min"),
+    Target("pacing_lag_ms_p99", "pacing lag p99 (ms)", 2.0, "max"),
+    Target("watchdog_hold_ms_max", "last frame to HOLD, worst (ms)", WATCHDOG_MS + 4.0, "max"),
+    Target("service_cpu_pct", "device service CPU (% of one core)", 60.0, "max"),
+)
+
+ROWS: tuple[tuple[str, str], ...] = (
+    ("seconds", "telemetry window (s)"),
+    ("cmd_ack_rtt_ms_p50", "command to ACK round trip p50 (ms)"),
+    ("cmd_ack_rtt_ms_p99", "command to ACK round trip p99 (ms)"),
+    ("commands", "commands timed"),
+    ("telemetry_hz_configured", "telemetry configured (Hz)"),
+    ("telemetry_hz_received", "telemetry received (Hz)"),
+    ("frames_lost", "telemetry frames lost"),
+    ("pacing_lag_ms_p50", "pacing lag p50 (ms)"),
+    ("pacing_lag_ms_p99", "pacing lag p99 (ms)"),
+    ("pacing_lag_ms_max", "pacing lag max (ms)"),
+    ("overruns_per_min", "overruns per minute"),
+    ("service_cpu_pct", "device service CPU (% of one core)"),
+    ("watchdog_runs", "watchdog runs"),
+    ("watchdog_hold_ms_max", "last frame to HOLD, worst (ms)"),
+    ("watchdog_hold_ms_p50", "last frame to HOLD, median (ms)"),
+    ("watchdog_device_ms_max", "device's own measure, worst (ms)"),
+)
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else math.nan
+
+
+async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) -> dict[str, Any]:
+    async with await DeviceClient.connect(service.link) as dev:
+        hello = dev.hello
+        assert hello is not None
+        await dev.configure(TELEMETRY_HZ, WATCHDOG_MS)
+        await dev.arm_home()
+        await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+        window = seconds + 10.0 + watchdog_runs * 2.0
+        await dev.start_segment(build_segment(hello, 1, window, {"pitch": DEMO_PITCH}))
+        await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=5.0)
+        await asyncio.sleep(0.5)
+
+        # -- telemetry window with live K changes --------------------------------------
+        rtts: list[float] = []
+
+        async def change_k() -> None:
+            k = 30.0
+            while True:
+                await asyncio.sleep(0.05)
+                k = 40.0 if k == 30.0 else 30.0
+                start = time.perf_counter()
+                await dev.set_impedance((0, 0, 0, 0, k, 0), (0, 0, 0, 0, 1.0, 0))
+                rtts.append((time.perf_counter() - start) * 1e3)
+
+        lost0 = dev.stats.frames_lost
+        lags: list[float] = []
+        overruns0: int | None = None
+        last: msg.Telemetry | None = None
+        count = 0
+        changer = asyncio.create_task(change_k())
+        cpu0, t0 = service.cpu_seconds(), time.perf_counter()
+        async for sample in dev.telemetry(maxsize=100000):
+            if overruns0 is None:
+                overruns0 = sample.overruns
+                t0 = time.perf_counter()
+                cpu0 = service.cpu_seconds()
+                continue
+            count += 1
+            lags.append(sample.pacing_lag_ms)
+            last = sample
+            if time.perf_counter() - t0 >= seconds:
+                break
+        wall = time.perf_counter() - t0
+        cpu = service.cpu_seconds() - cpu0
+        changer.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await changer
+        lost = dev.stats.frames_lost - lost0
+        assert last is not None and overruns0 is not None
+        if last.mode != DeviceMode.ACTIVE:
+            raise RuntimeError(f"the exercise stopped during the benchmark ({last.mode.name})")
+
+        # -- watchdog: pull the link ------------------------------------------------------
+        holds: list[float] = []
+        device_ms: list[float] = []
+        events = dev.events()
+        for _ in range(watchdog_runs):
+            dev.heartbeats = False
+            await asyncio.sleep(dev.heartbeat_period * 2)  # let a heartbeat in flight land
+            sent = time.perf_counter()
+            await dev.command(msg.Heartbeat())  # the last valid frame
+            while True:
+                event = await asyncio.wait_for(anext(events), timeout=5.0)
+                if event.kind == EventKind.WATCHDOG:
+                    break
+            holds.append((time.perf_counter() - sent) * 1e3)
+            device_ms.append(event.value)
+            dev.heartbeats = True
+            await dev.resume()
+            await asyncio.sleep(0.3)
+        await events.aclose()
+        await dev.hold()
+
+    return {
+        "seconds": wall,
+        "cmd_ack_rtt_ms_p50": _pct(rtts, 50),
+        "cmd_ack_rtt_ms_p99": _pct(rtts, 99),
+        "commands": len(rtts),
+        "telemetry_hz_configured": TELEMETRY_HZ,
+        "telemetry_hz_received": count / wall,
+        "frames_lost": lost,
+        "pacing_lag_ms_p50": _pct(lags, 50),
+        "pacing_lag_ms_p99": _pct(lags, 99),
+        "pacing_lag_ms_max": max(lags),
+        "overruns_per_min": (last.overruns - overruns0) / (wall / 60.0),
+        "service_cpu_pct": 100.0 * cpu / wall,
+        "watchdog_runs": len(holds),
+        "watchdog_hold_ms_max": max(holds),
+        "watchdog_hold_ms_p50": _pct(holds, 50),
+        "watchdog_device_ms_max": max(device_ms),
+    }
+
+
+def run(seconds: float = 60.0, watchdog_runs: int = 20) -> dict[str, Any]:
+    with ServiceProcess("--link", "pty", "--patient-torque", "3") as service:
+        return asyncio.run(_measure(service, seconds, watchdog_runs))
+
+
+def table(result: dict[str, Any]) -> str:
+    targets = {t.key: t for t in TARGETS}
+    lines = ["| metric | value | target | met |", "|---|---:|---|---|"]
+    for key, label in ROWS:
+        value = result[key]
+        text = f"{value:.3g}" if isinstance(value, float) else str(value)
+        tgt = targets.get(key)
+        met = ("yes" if tgt.met(float(value)) else "NO") if tgt else ""
+        lines.append(f"| {label} | {text} | {tgt.text() if tgt else ''} | {met} |")
+    return "\n".join(lines)

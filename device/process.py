@@ -1,0 +1,98 @@
+"""The device service as a child process: what ``ankle run``, the link benchmark and the
+end-to-end tests start, so the service has its own interpreter and its own core as it
+would on the embedded PC.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from types import TracebackType
+
+SERVING = re.compile(r"serving on (\S+)")
+
+
+class ServiceStartError(RuntimeError):
+    """The device service did not come up."""
+
+
+class ServiceProcess:
+    """``python -m device device --sim ...`` started and waited for until it serves."""
+
+    def __init__(self, *args: str, start_timeout: float = 180.0) -> None:
+        self.argv = [sys.executable, "-m", "device", "device", "--sim", *args]
+        self.proc = subprocess.Popen(
+            self.argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+        )
+        self.output: list[str] = []
+        self.link = self._wait_for_link(start_timeout)
+
+    def _wait_for_link(self, timeout: float) -> str:
+        assert self.proc.stdout is not None
+        sel = selectors.DefaultSelector()
+        sel.register(self.proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + timeout
+        try:
+            while time.monotonic() < deadline:
+                if not sel.select(timeout=0.5):
+                    if self.proc.poll() is not None:
+                        break
+                    continue
+                line = self.proc.stdout.readline()
+                if not line:
+                    break
+                self.output.append(line.rstrip("\n"))
+                found = SERVING.search(line)
+                if found:
+                    return found.group(1)
+        finally:
+            sel.close()
+        self.stop()
+        raise ServiceStartError(
+            "the device service did not start:\n" + "\n".join(self.output[-20:])
+        )
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def cpu_seconds(self) -> float:
+        """User + system CPU time the service has used (Linux ``/proc``)."""
+        with open(f"/proc/{self.pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        ticks = os.sysconf("SC_CLK_TCK")
+        return (int(fields[11]) + int(fields[12])) / ticks
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGTERM (the service closes its valves and link), then SIGKILL if it hangs."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc.stdout is not None:
+            self.output += self.proc.stdout.read().splitlines()
+            self.proc.stdout.close()
+        return self.proc.returncode
+
+    def __enter__(self) -> ServiceProcess:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()

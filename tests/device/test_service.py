@@ -1,0 +1,385 @@
+"""The device service over a real pty, driven by the real client: modes, refusals, safety."""
+
+import asyncio
+import itertools
+import math
+import threading
+import time
+from collections.abc import Awaitable, Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from device import controller as ctl
+from device.client import AxisPlan, CommandRefused, DeviceClient, build_segment
+from device.controller import Mode, Waveform
+from device.hardware import SimulatedHardware
+from device.plant.model import SCRIPT_SINE
+from device.plant.params import PlantConfig
+from device.protocol import messages as m
+from device.protocol.framing import Frame, encode_frame
+from device.protocol.messages import DeviceMode, EventKind, NackCode
+from device.rig import Rig
+from device.safety import SafetyLimits, Trip
+from device.service import DeviceService, ServiceConfig
+from device.transport import PtyLink
+
+
+@dataclass
+class Running:
+    service: DeviceService
+    link: PtyLink
+    thread: threading.Thread
+
+
+@pytest.fixture
+def device() -> Iterator[Running]:
+    link = PtyLink()
+    service = DeviceService(
+        Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=3)),
+        link,
+        ServiceConfig(telemetry_hz=100, watchdog_ms=200),
+    )
+    thread = threading.Thread(target=service.run, daemon=True)
+    thread.start()
+    yield Running(service, link, thread)
+    service.stop()
+    thread.join(5.0)
+    assert not thread.is_alive(), "the service loop did not stop"
+    service.shutdown()
+
+
+def drive(device: Running, body: Callable[[DeviceClient], Awaitable[None]]) -> None:
+    async def main() -> None:
+        client = await DeviceClient.connect(device.link.name)
+        try:
+            await body(client)
+        finally:
+            await client.close()
+
+    asyncio.run(main())
+
+
+PITCH = AxisPlan(
+    Waveform.SINE,
+    amplitude=math.radians(6.0),
+    frequency=0.5,
+    stiffness=30.0,
+    damping=1.0,
+    compliant=True,
+)
+
+
+async def home(dev: DeviceClient) -> None:
+    await dev.arm_home()
+    await dev.wait_for_mode(DeviceMode.READY, timeout=15.0)
+
+
+async def start(dev: DeviceClient, duration: float = 30.0, **kw: float) -> m.StartSegment:
+    assert dev.hello is not None
+    seg = build_segment(dev.hello, 1, duration, {"pitch": PITCH}, **kw)  # type: ignore[arg-type]
+    await dev.start_segment(seg)
+    await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=2.0)
+    return seg
+
+
+def mode_of(device: Running) -> DeviceMode:
+    return device.service.mode
+
+
+def valves_closed(service: DeviceService) -> bool:
+    return not service.rig.state.valves.any() and service.rig.mode in (Mode.IDLE, Mode.FAULT)
+
+
+def test_hello_reports_the_devices_own_limits_and_geometry(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        h = dev.hello
+        assert h is not None
+        lim = SafetyLimits()
+        assert h.hardware == "sim" and m.Capability.SIMULATED in h.capabilities
+        assert h.tick_hz == 7000 and h.pwm_hz == 250
+        assert np.allclose(h.rom_high, lim.rom_high) and np.allclose(h.rom_low, lim.rom_low)
+        assert np.allclose(h.stiffness_max, lim.stiffness_max)
+        assert h.torque_limit == pytest.approx(lim.torque_limit)
+        assert h.stroke == pytest.approx(device.service.rig.geometry.stroke)
+        assert (h.watchdog_ms, h.telemetry_hz) == (200, 100)
+
+    drive(device, body)
+
+
+def test_homing_then_a_segment_runs_and_ends_ready(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        events: list[m.Event] = []
+
+        async def collect() -> None:
+            async for e in dev.events():
+                events.append(e)
+
+        task = asyncio.create_task(collect())
+        await home(dev)
+        assert valves_closed(device.service)
+        assert dev.latest is not None and m.TelemetryFlags.HOMED in dev.latest.flags
+        await start(dev, duration=1.5)
+        peak = 0.0
+        async for t in dev.telemetry():
+            peak = max(peak, abs(t.pose_cmd[4]))
+            assert t.segment_time <= 1.5
+            if t.mode == DeviceMode.READY:
+                break
+        await asyncio.sleep(0.05)
+        task.cancel()
+        kinds = [e.kind for e in events]
+        assert kinds == [
+            EventKind.MODE_CHANGE,
+            EventKind.HOMED,
+            EventKind.MODE_CHANGE,
+            EventKind.SEGMENT_DONE,
+        ]
+        assert [e.event_id for e in events] == [1, 2, 3, 4]
+        # The 6 deg sine ran, less what the relaxed foot's own stiffness (15 N m/rad against
+        # the rendered 30) pushes it back by: about a third.
+        assert math.radians(3.0) < peak < math.radians(6.5)
+        assert valves_closed(device.service)
+
+    drive(device, body)
+
+
+def test_telemetry_arrives_at_the_configured_rate(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await dev.configure(250, 200)
+        times = []
+        async for t in dev.telemetry():
+            times.append(t.time)
+            if len(times) == 251:
+                break
+        rate = 250 / (times[-1] - times[0])  # in device time: exact
+        assert rate == pytest.approx(250.0, rel=0.01)
+        assert dev.stats.frames_lost == 0
+
+    drive(device, body)
+
+
+def test_live_stiffness_changes_are_slewed_by_the_device(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev)
+        await dev.set_impedance((0, 0, 0, 0, 100.0, 0), (0, 0, 0, 0, 1.0, 0))
+        seen = []
+        async for t in dev.telemetry():
+            seen.append(t.stiffness[4])
+            if t.stiffness[4] >= 100.0 - 1e-3:
+                break
+        # 30 -> 100 N m/rad at 200 N m/rad/s: 0.35 s, so several samples in between.
+        assert len(seen) >= 25
+        assert all(b >= a for a, b in itertools.pairwise(seen))
+
+    drive(device, body)
+
+
+BAD_SEGMENTS: list[tuple[dict[str, object], NackCode, str]] = [
+    ({"duration": 0.0}, NackCode.OUT_OF_RANGE, "duration"),
+    ({"duration": math.nan}, NackCode.NOT_FINITE, "duration"),
+    ({"force_limit": 1000.0}, NackCode.OUT_OF_RANGE, "force_limit"),
+    ({"torque_limit": -1.0}, NackCode.OUT_OF_RANGE, "torque_limit"),
+    ({"rom_low": (-0.03, -0.03, -0.025, -0.35, -0.9, -0.30)}, NackCode.OUT_OF_RANGE, "rom_low"),
+    ({"rom_high": (0.03, 0.03, 0.025, 0.35, 0.05, 0.30)}, NackCode.OUT_OF_RANGE, "center"),
+    ({"stiffness": (0, 0, 0, 0, 1e5, 0)}, NackCode.OUT_OF_RANGE, "stiffness"),
+    ({"damping": (0, 0, 0, 0, -1.0, 0)}, NackCode.OUT_OF_RANGE, "damping"),
+    ({"stiffness": (0, 0, 0, 0, math.inf, 0)}, NackCode.NOT_FINITE, "stiffness"),
+    ({"frequency": (0, 0, 0, 0, 10.0, 0)}, NackCode.OUT_OF_RANGE, "frequency"),
+    ({"segment_id": 0}, NackCode.OUT_OF_RANGE, "segment_id"),
+]
+
+
+@pytest.mark.parametrize(
+    ("change", "code", "field"),
+    BAD_SEGMENTS,
+    ids=[c[2] + str(i) for i, c in enumerate(BAD_SEGMENTS)],
+)
+def test_a_bad_segment_is_refused_and_changes_nothing(
+    device: Running, change: dict[str, object], code: NackCode, field: str
+) -> None:
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        await home(dev)
+        good = build_segment(dev.hello, 1, 10.0, {"pitch": PITCH})
+        bad = m.StartSegment(**{**good.__dict__, **change})
+        before = device.service.rig.state.trajectory.copy()
+        limits = device.service.rig.params.limits.copy()
+        with pytest.raises(CommandRefused) as err:
+            await dev.start_segment(bad)
+        assert err.value.nack.code == code
+        assert err.value.nack.field == field
+        assert err.value.nack.mode == DeviceMode.READY
+        t = await dev.wait_for_mode(DeviceMode.READY)
+        assert t.segment_id == 0 and t.mode == DeviceMode.READY
+        assert np.array_equal(device.service.rig.state.trajectory, before)
+        assert np.array_equal(device.service.rig.params.limits, limits)
+        assert valves_closed(device.service)
+        # The same command, corrected, is accepted: the refusal left the device usable.
+        await dev.start_segment(good)
+
+    drive(device, body)
+
+
+def test_commands_in_the_wrong_mode_are_refused(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        seg = build_segment(dev.hello, 1, 10.0, {"pitch": PITCH})
+        cases = [
+            (dev.start_segment(seg), NackCode.WRONG_MODE),
+            (dev.resume(), NackCode.WRONG_MODE),
+            (dev.set_impedance((0,) * 6, (0,) * 6), NackCode.WRONG_MODE),
+            (dev.rearm(), NackCode.WRONG_MODE),
+            (dev.configure(0, 200), NackCode.OUT_OF_RANGE),
+            (dev.configure(100, 10), NackCode.OUT_OF_RANGE),
+            (dev.configure(251, 200), NackCode.OUT_OF_RANGE),
+        ]
+        for call, code in cases:
+            with pytest.raises(CommandRefused) as err:
+                await call
+            assert err.value.nack.code == code, err.value
+        assert device.service.mode == DeviceMode.IDLE
+        assert (device.service.telemetry_hz, device.service.watchdog_ms) == (100, 200)
+        assert device.service.commands_refused == len(cases)
+
+    drive(device, body)
+
+
+def test_malformed_and_unknown_frames_get_a_nack_and_change_nothing(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        for frame, code in [
+            (Frame(99, 40000, b""), NackCode.UNKNOWN_COMMAND),
+            (Frame(m.StartSegment.TYPE, 40001, b"\x01\x02"), NackCode.MALFORMED),
+        ]:
+            loop = asyncio.get_running_loop()
+            fut: asyncio.Future[m.Ack | m.Nack] = loop.create_future()
+            dev._pending[frame.seq] = fut
+            dev._writer.write(encode_frame(frame))
+            reply = await asyncio.wait_for(fut, 1.0)
+            assert isinstance(reply, m.Nack) and reply.code == code
+        assert device.service.mode == DeviceMode.IDLE
+
+    drive(device, body)
+
+
+def test_estop_latches_until_rearmed_and_rearm_moves_nothing(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev)
+        await asyncio.sleep(0.3)
+        await dev.estop()
+        t = await dev.wait_for_mode(DeviceMode.ESTOP, timeout=1.0)
+        assert t.trip == Trip.ESTOP
+        assert valves_closed(device.service)
+        for call in (dev.arm_home(), dev.resume(), dev.set_impedance((0,) * 6, (0,) * 6)):
+            with pytest.raises(CommandRefused) as err:
+                await call
+            assert err.value.nack.code == NackCode.LATCHED
+        await asyncio.sleep(0.3)
+        assert device.service.mode == DeviceMode.ESTOP and valves_closed(device.service)
+        await dev.rearm()
+        t = await dev.wait_for_mode(DeviceMode.IDLE, timeout=1.0)
+        assert t.trip == Trip.NONE and m.TelemetryFlags.HOMED not in t.flags
+        await asyncio.sleep(0.3)
+        assert mode_of(device) == DeviceMode.IDLE and valves_closed(device.service)
+        await home(dev)  # and it can be used again
+
+    drive(device, body)
+
+
+def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
+    device: Running,
+) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev)
+        events = dev.events()
+        for _ in range(3):
+            dev.heartbeats = False
+            await asyncio.sleep(0.12)
+            await dev.command(m.Heartbeat())
+            last = time.perf_counter()
+            while (e := await asyncio.wait_for(anext(events), 2.0)).kind != EventKind.WATCHDOG:
+                pass
+            host_ms = (time.perf_counter() - last) * 1e3
+            assert e.mode_from == DeviceMode.ACTIVE and e.mode_to == DeviceMode.HOLD
+            assert 200.0 <= e.value <= 204.0
+            assert host_ms <= 204.0 + 5.0  # plus the event's trip over the pty
+            assert valves_closed(device.service)
+            dev.heartbeats = True
+            await asyncio.sleep(0.5)  # the link is back: still holding
+            assert device.service.mode == DeviceMode.HOLD
+            assert dev.latest is not None and dev.latest.mode == DeviceMode.HOLD
+            await dev.resume()
+            await dev.wait_for_mode(DeviceMode.ACTIVE)
+        await events.aclose()
+
+    drive(device, body)
+
+
+def test_a_duplicated_command_runs_once(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        assert dev.hello is not None
+        seg = build_segment(dev.hello, 5, 10.0, {"pitch": PITCH})
+        wire = m.encode(seg, 777)
+        loop = asyncio.get_running_loop()
+        replies: list[m.Ack | m.Nack] = []
+        for _ in range(3):
+            fut: asyncio.Future[m.Ack | m.Nack] = loop.create_future()
+            dev._pending[777] = fut
+            dev._writer.write(wire)
+            replies.append(await asyncio.wait_for(fut, 1.0))
+        assert all(isinstance(r, m.Ack) for r in replies)
+        await asyncio.sleep(0.1)
+        starts = [e for e in device.service.events if e.mode_to == DeviceMode.ACTIVE]
+        assert len(starts) == 1
+
+    drive(device, body)
+
+
+def test_a_tripped_limit_is_a_latched_fault_with_its_code(device: Running) -> None:
+    hw = device.service.rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev, torque_limit=2.0)
+        # The patient pushes 6 N m: over the segment's own 2 N m limit.
+        hw.script_torque(4, SCRIPT_SINE, device.service.time, 6.0, 0.5)
+        t = await dev.wait_for_mode(DeviceMode.FAULT, timeout=3.0)
+        assert t.trip == Trip.WRENCH_LIMIT
+        faults = [e for e in device.service.events if e.mode_to == DeviceMode.FAULT]
+        assert faults[0].kind == EventKind.LIMIT and faults[0].code == Trip.WRENCH_LIMIT
+        assert valves_closed(device.service)
+        # The device's own limits are back in force for whatever comes next.
+        assert device.service.rig.params.limits[7, 1] == pytest.approx(60.0)
+
+    drive(device, body)
+
+
+def test_release_vents_and_needs_homing_again(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        before = dev.latest
+        assert before is not None
+        await start(dev)
+        with pytest.raises(CommandRefused) as err:
+            await dev.release()  # not while ACTIVE
+        assert err.value.nack.code == NackCode.WRONG_MODE
+        await dev.hold()
+        await dev.release()
+        t = await dev.wait_for_mode(DeviceMode.IDLE)
+        assert m.TelemetryFlags.VENTING in t.flags and m.TelemetryFlags.HOMED not in t.flags
+        await asyncio.sleep(1.5)
+        after = dev.latest
+        assert after is not None
+        assert max(after.pressures) < max(before.pressures) - 0.5e5
+        assert not device.service.rig.state.valves[0::2].any()  # intakes shut
+        await dev.arm_home()  # homing stops the vent
+        t = await dev.wait_for_mode(DeviceMode.HOMING)
+        assert device.service.rig.state.istate[ctl.I_VENT] == 0
+
+    drive(device, body)
