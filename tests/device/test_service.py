@@ -381,5 +381,8 @@ def test_release_vents_and_needs_homing_again(device: Running) -> None:
         await dev.arm_home()  # homing stops the vent
         t = await dev.wait_for_mode(DeviceMode.HOMING)
         assert device.service.rig.state.istate[ctl.I_VENT] == 0
+        # From the half-vented chambers back to home, without a trip.
+        t = await dev.wait_for_mode(DeviceMode.READY, DeviceMode.FAULT, timeout=15.0)
+        assert t.mode == DeviceMode.READY and t.trip == Trip.NONE
 
     drive(device, body)
