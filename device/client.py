@@ -118,10 +118,12 @@ class DeviceClient:
         baud: int = 921600,
         timeout: float = 2.0,
         heartbeat: bool = True,
-        **kwargs: float,
+        command_timeout: float = 0.1,
+        retries: int = 3,
+        heartbeat_period: float = 0.05,
     ) -> DeviceClient:
         reader, writer = await open_stream(url, baud)
-        client = cls(reader, writer, **kwargs)  # type: ignore[arg-type]
+        client = cls(reader, writer, command_timeout, retries, heartbeat_period)
         try:
             await client.handshake(timeout)
         except BaseException:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from device.bench import Target
+from device.bench import table as bench_table
 from device.client import DeviceClient, build_segment
 from device.console import DEMO_PITCH
 from device.process import ServiceProcess
@@ -167,12 +168,4 @@ def run(seconds: float = 60.0, watchdog_runs: int = 20) -> dict[str, Any]:
 
 
 def table(result: dict[str, Any]) -> str:
-    targets = {t.key: t for t in TARGETS}
-    lines = ["| metric | value | target | met |", "|---|---:|---|---|"]
-    for key, label in ROWS:
-        value = result[key]
-        text = f"{value:.3g}" if isinstance(value, float) else str(value)
-        tgt = targets.get(key)
-        met = ("yes" if tgt.met(float(value)) else "NO") if tgt else ""
-        lines.append(f"| {label} | {text} | {tgt.text() if tgt else ''} | {met} |")
-    return "\n".join(lines)
+    return bench_table(result, ROWS, TARGETS)
