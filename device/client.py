@@ -159,10 +159,7 @@ class DeviceClient:
         self._writer.close()
         with contextlib.suppress(Exception):
             await self._writer.wait_closed()
-        for q in self._telemetry_subs:
-            q.put_nowait(None)
-        for eq in self._event_subs:
-            eq.put_nowait(None)
+        self._end_streams()
         for fut in self._pending.values():
             if not fut.done():
                 fut.set_exception(LinkClosed("link closed"))
@@ -283,6 +280,13 @@ class DeviceClient:
         raise LinkTimeout(f"device did not reach {names} within {timeout:g} s (it is {now})")
 
     # -- internals -----------------------------------------------------------------------
+    def _end_streams(self) -> None:
+        """Let every telemetry and event iterator finish."""
+        for q in self._telemetry_subs:
+            q.put_nowait(None)
+        for eq in self._event_subs:
+            eq.put_nowait(None)
+
     def _write(self, message: msg.Message, seq: int) -> None:
         self._writer.write(msg.encode(message, seq))
 
@@ -299,8 +303,7 @@ class DeviceClient:
             data = await self._reader.read(4096)
             if not data:
                 self._closed.set()
-                for q in self._telemetry_subs:
-                    q.put_nowait(None)
+                self._end_streams()
                 return
             for frame in self.decoder.feed(data):
                 self._on_frame(frame)

@@ -38,6 +38,7 @@ from device import controller as ctl
 from device import safety
 from device.controller import Mode, Waveform
 from device.geometry import AXES
+from device.hardware import SimulatedHardware
 from device.plant.params import TICK_HZ
 from device.protocol import messages as msg
 from device.protocol.framing import MAX_BODY, Frame, FrameDecoder
@@ -616,6 +617,10 @@ class DeviceService:
     def _end_segment(self) -> None:
         self._restore_limits()
         self.segment = None
+        if self.rig.mode != Mode.TASK:
+            # Nothing is rendered any more: the next segment's K and B start where it asks,
+            # not slewed from this one's. (While running, a new segment slews as it must.)
+            self.rig.state.compliant[:] = 0.0
 
     def _set_mode(
         self,
@@ -685,7 +690,7 @@ class DeviceService:
         lim = self.rig.limits
         g = self.rig.geometry
         hw = self.rig.hardware
-        simulated = type(hw).__name__ == "SimulatedHardware"
+        simulated = isinstance(hw, SimulatedHardware)
         caps = msg.Capability.TASK_SPACE | msg.Capability.IMPEDANCE | msg.Capability.RELEASE
         caps |= msg.Capability.EVENT_REPLAY
         if simulated:

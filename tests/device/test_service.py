@@ -177,6 +177,21 @@ def test_live_stiffness_changes_are_slewed_by_the_device(device: Running) -> Non
     drive(device, body)
 
 
+def test_a_new_segment_renders_its_own_stiffness_from_the_start(device: Running) -> None:
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        await home(dev)
+        await start(dev, duration=0.3)
+        await dev.wait_for_mode(DeviceMode.READY, timeout=5.0)
+        stiff = AxisPlan(Waveform.HOLD, stiffness=400.0, damping=1.0, compliant=True)
+        await dev.start_segment(build_segment(dev.hello, 2, 5.0, {"pitch": stiff}))
+        t = await dev.wait_for_mode(DeviceMode.ACTIVE)
+        # Not slewed up from the previous segment's 30 N m/rad (that would take 1.9 s).
+        assert t.stiffness[4] == pytest.approx(400.0)
+
+    drive(device, body)
+
+
 BAD_SEGMENTS: list[tuple[dict[str, object], NackCode, str]] = [
     ({"duration": 0.0}, NackCode.OUT_OF_RANGE, "duration"),
     ({"duration": math.nan}, NackCode.NOT_FINITE, "duration"),
