@@ -1,0 +1,300 @@
+"""One recording model for a session, shared by the home station and the server.
+
+A session is a header, a time series and events, closed by an end record. On disk and on
+the wire it is one append-only file of checksummed records, so that the station can write it
+as the session runs (durable after each flush), upload it by byte ranges while or after it
+runs, and the server can check and read exactly the bytes the station wrote:
+
+    b"ANKLREC1" then records: type u8 | length u32 | payload | crc32(type, length, payload) u32
+
+Record types: HEADER (JSON, first), SAMPLES (a block of rows of :data:`SAMPLE_DTYPE`, little
+endian, packed), EVENT (JSON), END (JSON, last). A reader stops at the first record that is
+truncated or fails its CRC: what a killed writer left behind is the valid prefix.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from device.protocol.messages import Telemetry
+
+MAGIC = b"ANKLREC1"
+FORMAT_VERSION = 1
+_RECORD = struct.Struct("<BI")
+_CRC = struct.Struct("<I")
+MAX_RECORD = 16 * 1024 * 1024
+"""Largest payload of one record (bytes); a longer length field means a corrupt file."""
+
+
+class RecordType(enum.IntEnum):
+    HEADER = 1
+    SAMPLES = 2
+    EVENT = 3
+    END = 4
+
+
+SAMPLE_DTYPE = np.dtype(
+    [
+        ("t", "<f8"),  # device time, s
+        ("wall", "<f8"),  # station wall clock when received, Unix s
+        ("mode", "u1"),  # DeviceMode
+        ("trip", "u1"),  # Trip code, 0 if none
+        ("segment_id", "<u4"),
+        ("set", "<u2"),  # 1-based set of the timeline, 0 outside a repetition
+        ("rep", "<u2"),  # 1-based repetition within the set, 0 outside one
+        ("pose", "<f4", (6,)),  # m, rad, relative to home
+        ("pose_cmd", "<f4", (6,)),
+        ("legs", "<f4", (6,)),  # piston displacement, m
+        ("pressures", "<f4", (12,)),  # gauge, Pa
+        ("supply", "<f4"),  # Pa
+        ("wrench", "<f4", (6,)),  # N, N m, on the foot
+        ("stiffness", "<f4", (6,)),
+        ("damping", "<f4", (6,)),
+        ("duty", "i1", (12,)),  # signed valve duty in slots of 28
+    ]
+)
+"""One row of the time series: what the device reported, and where in the timeline."""
+
+
+def sample_row(t: Telemetry, wall: float, set_: int = 0, rep: int = 0) -> tuple[Any, ...]:
+    """A row of :data:`SAMPLE_DTYPE` from one telemetry message."""
+    return (
+        t.time,
+        wall,
+        int(t.mode),
+        int(t.trip),
+        t.segment_id,
+        set_,
+        rep,
+        t.pose,
+        t.pose_cmd,
+        t.legs,
+        t.pressures,
+        t.supply,
+        t.wrench,
+        t.stiffness,
+        t.damping,
+        t.duty,
+    )
+
+
+class DeviceInfo(BaseModel):
+    firmware: str
+    hardware: str
+    telemetry_hz: int
+    home_pose: list[float] = Field(description="m, rad")
+
+
+class Header(BaseModel):
+    """Who, what and with which software: the first record of every session."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format_version: int = FORMAT_VERSION
+    session_id: str = Field(description="UUID chosen by the station; the upload's key.")
+    station_id: int
+    patient_id: int
+    prescription_id: int
+    prescription: dict[str, Any] = Field(description="The prescription as it was run.")
+    device: DeviceInfo
+    software: str
+    started_at: float = Field(description="Unix time, s.")
+
+
+class SessionEvent(BaseModel):
+    """Something that happened: a repetition done, a limit hit, a change by a therapist."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    wall: float = Field(description="Unix time, s.")
+    t: float | None = Field(default=None, description="Device time, s, when known.")
+    kind: str = Field(
+        description="rep_done, set_done, rest, mode, limit, fault, watchdog, estop, "
+        "impedance, hold, resume, stop, game_score, note."
+    )
+    by: str = Field(default="station", description="device, station, patient or therapist:<id>.")
+    detail: dict[str, Any] = Field(default_factory=dict)
+
+
+EndReason = Literal["completed", "stopped", "fault", "interrupted"]
+
+
+class End(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    ended_at: float = Field(description="Unix time, s.")
+    reason: EndReason
+    sets_completed: int
+    repetitions_completed: int
+
+
+@dataclass
+class Recording:
+    """A whole session read back from its file."""
+
+    header: Header
+    samples: NDArray[np.void]
+    events: list[SessionEvent] = field(default_factory=list)
+    end: End | None = None
+    valid_bytes: int = 0
+    """Bytes of the file that form whole, checked records."""
+    damaged: bool = False
+    """Bytes after ``valid_bytes`` were truncated or failed their CRC."""
+
+
+class RecordingError(ValueError):
+    """The bytes are not a recording (wrong magic, or no header)."""
+
+
+def _record(kind: RecordType, payload: bytes) -> bytes:
+    head = _RECORD.pack(kind, len(payload))
+    return head + payload + _CRC.pack(zlib.crc32(payload, zlib.crc32(head)))
+
+
+def encode_json(kind: RecordType, model: BaseModel) -> bytes:
+    return _record(kind, model.model_dump_json().encode())
+
+
+def encode_samples(rows: NDArray[np.void]) -> bytes:
+    return _record(RecordType.SAMPLES, np.ascontiguousarray(rows, SAMPLE_DTYPE).tobytes())
+
+
+def iter_records(data: bytes | memoryview) -> tuple[list[tuple[RecordType, bytes]], int, bool]:
+    """Whole, checked records of ``data``; the bytes they span; whether anything followed."""
+    buf = memoryview(data)
+    if bytes(buf[: len(MAGIC)]) != MAGIC:
+        raise RecordingError("not a session recording (bad magic)")
+    pos = len(MAGIC)
+    out: list[tuple[RecordType, bytes]] = []
+    while pos + _RECORD.size <= len(buf):
+        kind, length = _RECORD.unpack_from(buf, pos)
+        end = pos + _RECORD.size + length + _CRC.size
+        if length > MAX_RECORD or end > len(buf) or kind not in RecordType._value2member_map_:
+            break
+        head = bytes(buf[pos : pos + _RECORD.size])
+        payload = bytes(buf[pos + _RECORD.size : end - _CRC.size])
+        (crc,) = _CRC.unpack_from(buf, end - _CRC.size)
+        if crc != zlib.crc32(payload, zlib.crc32(head)):
+            break
+        out.append((RecordType(kind), payload))
+        pos = end
+    return out, pos, pos != len(buf)
+
+
+def decode(data: bytes | memoryview) -> Recording:
+    """Read a recording; a damaged tail is dropped and flagged, never guessed at."""
+    records, valid, damaged = iter_records(data)
+    if not records or records[0][0] != RecordType.HEADER:
+        raise RecordingError("a recording starts with its header record")
+    header = Header.model_validate_json(records[0][1])
+    blocks: list[NDArray[np.void]] = []
+    events: list[SessionEvent] = []
+    end: End | None = None
+    for kind, payload in records[1:]:
+        if end is not None:
+            damaged = True  # nothing may follow the end record
+            break
+        if kind == RecordType.SAMPLES:
+            if len(payload) % SAMPLE_DTYPE.itemsize:
+                raise RecordingError("a samples record is not a whole number of rows")
+            blocks.append(np.frombuffer(payload, SAMPLE_DTYPE))
+        elif kind == RecordType.EVENT:
+            events.append(SessionEvent.model_validate_json(payload))
+        elif kind == RecordType.END:
+            end = End.model_validate_json(payload)
+        else:
+            raise RecordingError("a second header record")
+    samples = np.concatenate(blocks) if blocks else np.zeros(0, SAMPLE_DTYPE)
+    return Recording(header, samples, events, end, valid, damaged)
+
+
+def read(path: Path) -> Recording:
+    return decode(path.read_bytes())
+
+
+class RecordingWriter:
+    """Appends a session to its file; :meth:`flush` makes what was written durable.
+
+    Samples are buffered and written as one record per flush; events and the end record are
+    written at once. After a crash, :func:`recover` truncates the damaged tail and the writer
+    can be reopened to append the end record.
+    """
+
+    def __init__(self, path: Path, header: Header | None = None) -> None:
+        self.path = path
+        self._rows: list[tuple[Any, ...]] = []
+        existing = path.exists() and path.stat().st_size > 0
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+        if not existing:
+            if header is None:
+                raise RecordingError(f"{path} is new: a header is needed")
+            os.write(self._fd, MAGIC + encode_json(RecordType.HEADER, header))
+            self.flush()
+            _fsync_dir(path.parent)
+        self.samples_written = 0
+
+    def add(self, row: tuple[Any, ...]) -> None:
+        self._rows.append(row)
+
+    def event(self, event: SessionEvent) -> None:
+        self._write_rows()
+        os.write(self._fd, encode_json(RecordType.EVENT, event))
+
+    def end(self, end: End) -> None:
+        self._write_rows()
+        os.write(self._fd, encode_json(RecordType.END, end))
+        self.flush()
+
+    def _write_rows(self) -> None:
+        if self._rows:
+            rows = np.array(self._rows, dtype=SAMPLE_DTYPE)
+            os.write(self._fd, encode_samples(rows))
+            self.samples_written += len(rows)
+            self._rows.clear()
+
+    def flush(self) -> None:
+        """Write buffered samples and wait until the disk has them."""
+        self._write_rows()
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            self.flush()
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def recover(path: Path) -> Recording:
+    """Cut a crashed session's file back to its whole records and read it."""
+    rec = decode(path.read_bytes())
+    if rec.damaged:
+        with path.open("r+b") as f:
+            f.truncate(rec.valid_bytes)
+            f.flush()
+            os.fsync(f.fileno())
+        rec.damaged = False
+    return rec
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
