@@ -1,23 +1,445 @@
-"""Live links: home stations and therapists' live views over WebSocket (being written)."""
+"""Live links: home stations stream in, therapists watch and adjust, over WebSocket.
+
+One :class:`Hub` per process keeps who is connected. A station's telemetry is never queued
+for a viewer: the hub keeps the latest sample per station and each viewer is sent the newest
+one at most ``VIEW_HZ`` times a second (a slow browser sees fresh data late, never old data
+later). Events, status and command results are never dropped. A therapist's command goes to
+the station, which asks the device; the device's own ACK or NACK comes back to the viewers
+as a :class:`~sessions.wire.CommandResult` (or TIMEOUT / OFFLINE if it cannot).
+
+Message schemas: ``GET /api/v1/schemas/ws`` (WebSocket routes are not in OpenAPI).
+"""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+import asyncio
+import collections
+import contextlib
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
 
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from pydantic import ValidationError
+from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
+from starlette.websockets import WebSocketState
+
+from server import audit
+from server.deps import authenticate_station, authenticate_user
+from server.models import Patient, Prescription, Station, User, utcnow
+from sessions import wire
+from sessions.prescription import PrescriptionBody
+
+log = logging.getLogger("ankle.server.live")
 router = APIRouter()
+
+VIEW_HZ = 50.0
+"""Most telemetry messages a viewer gets per second (the station sends 100)."""
+COMMAND_TIMEOUT_S = 3.0
+"""A command with no answer from the station by then is reported as TIMEOUT."""
+CONTROL_QUEUE_MAX = 1000
+"""Events and status a viewer may fall behind by before it is closed as too slow."""
+
+
+@dataclass(eq=False)
+class Viewer:
+    ws: WebSocket
+    user_id: int
+    station_id: int
+    may_command: bool
+    control: collections.deque[str] = field(default_factory=collections.deque)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    seq: int = 0
+
+    def push(self, text: str) -> None:
+        self.control.append(text)
+        self.wake.set()
+
+
+@dataclass(eq=False)
+class StationConn:
+    ws: WebSocket
+    station_id: int
+    patient_id: int
+    status: wire.StatusMsg | None = None
+    latest: str | None = None
+    seq: int = 0
+    messages: int = 0
 
 
 class Hub:
     """Connected stations and their viewers, in one process."""
 
     def __init__(self) -> None:
-        self._online: set[int] = set()
+        self.stations: dict[int, StationConn] = {}
+        self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
+        self._pending: dict[str, tuple[int, asyncio.TimerHandle]] = {}
+        self.sessionmaker: async_sessionmaker[AsyncSession] | None = None
 
     def online(self, station_id: int) -> bool:
-        return station_id in self._online
+        return station_id in self.stations
 
     async def prescriptions_changed(self, station_id: int) -> None:
-        """Tell a connected station that its patient's prescriptions changed."""
+        """Push a station's patient's active prescriptions to it, if it is connected."""
+        conn = self.stations.get(station_id)
+        if conn is not None and self.sessionmaker is not None:
+            async with self.sessionmaker() as db:
+                message = await _prescriptions(db, conn.patient_id)
+            with contextlib.suppress(Exception):
+                await conn.ws.send_text(message.model_dump_json())
 
     async def close(self) -> None:
         """Close every live connection (at shutdown)."""
+        for conn in list(self.stations.values()):
+            with contextlib.suppress(Exception):
+                await conn.ws.close(wire.CLOSE_NORMAL, "server shutting down")
+        for viewers in list(self.viewers.values()):
+            for v in list(viewers):
+                with contextlib.suppress(Exception):
+                    await v.ws.close(wire.CLOSE_NORMAL, "server shutting down")
+
+    def broadcast(self, station_id: int, text: str) -> None:
+        for v in list(self.viewers.get(station_id, ())):
+            if len(v.control) >= CONTROL_QUEUE_MAX:
+                continue  # its writer closes it as too slow
+            v.push(text)
+
+    def expect_result(self, request_id: str, station_id: int) -> None:
+        loop = asyncio.get_running_loop()
+        handle = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
+        self._pending[request_id] = (station_id, handle)
+
+    def result(self, station_id: int, result: wire.CommandResult) -> None:
+        entry = self._pending.pop(result.request_id, None)
+        if entry is not None:
+            entry[1].cancel()
+        self.broadcast(station_id, result.model_dump_json())
+
+    def _timeout(self, request_id: str) -> None:
+        entry = self._pending.pop(request_id, None)
+        if entry is not None:
+            text = f"no answer from the station within {COMMAND_TIMEOUT_S:g} s"
+            self.broadcast(
+                entry[0],
+                wire.CommandResult(
+                    request_id=request_id, ok=False, code="TIMEOUT", text=text
+                ).model_dump_json(),
+            )
+
+
+def _hub(ws: WebSocket) -> Hub:
+    hub: Hub = ws.app.state.hub
+    if hub.sessionmaker is None:
+        hub.sessionmaker = ws.app.state.sessionmaker
+    return hub
+
+
+def _origin_ok(ws: WebSocket) -> bool:
+    """Browsers always send Origin: only our own pages may open a live view. Stations and
+    other non-browser clients send none and are judged by their token alone."""
+    origin = ws.headers.get("origin")
+    return origin is None or origin in ws.app.state.settings.allowed_origins
+
+
+def _bearer(ws: WebSocket) -> tuple[str | None, str | None]:
+    """The token (header or subprotocol) and the subprotocol to accept with."""
+    header = ws.headers.get("authorization", "")
+    if header.lower().startswith("bearer "):
+        return header[7:].strip(), None
+    offered = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")]
+    token = next((p[len(wire.BEARER_PREFIX) :] for p in offered if p.startswith("bearer.")), None)
+    return token, wire.SUBPROTOCOL if wire.SUBPROTOCOL in offered else None
+
+
+async def _prescriptions(db: AsyncSession, patient_id: int) -> wire.Prescriptions:
+    rows = await db.scalars(
+        select(Prescription)
+        .where(Prescription.patient_id == patient_id, Prescription.status == "active")
+        .order_by(Prescription.id)
+    )
+    return wire.Prescriptions(
+        items=[
+            wire.PrescriptionItem(
+                id=p.id,
+                version=p.version,
+                patient_id=p.patient_id,
+                body=PrescriptionBody.model_validate(p.body),
+            )
+            for p in rows
+        ]
+    )
+
+
+async def _receive(ws: WebSocket) -> str:
+    """One text message, within the heartbeat timeout and the size limit."""
+    try:
+        message = await asyncio.wait_for(ws.receive(), wire.HEARTBEAT_TIMEOUT_S)
+    except TimeoutError:
+        raise _Close(wire.CLOSE_TIMEOUT, "no message within the heartbeat timeout") from None
+    if message["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(message.get("code", 1000))
+    text = message.get("text")
+    if text is None:
+        raise _Close(wire.CLOSE_MALFORMED, "messages are JSON text frames")
+    if len(text) > wire.MAX_MESSAGE_BYTES:
+        raise _Close(wire.CLOSE_TOO_BIG, f"message over {wire.MAX_MESSAGE_BYTES} bytes")
+    return str(text)
+
+
+class _Close(Exception):
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = code
+        self.reason = reason
+
+
+async def _close(ws: WebSocket, code: int, reason: str) -> None:
+    if ws.client_state != WebSocketState.DISCONNECTED:
+        with contextlib.suppress(Exception):
+            await ws.close(code, reason[:120])
+
+
+# -- /ws/station ---------------------------------------------------------------------------
+@router.websocket("/ws/station")
+async def station_socket(ws: WebSocket) -> None:
+    hub = _hub(ws)
+    token, _ = _bearer(ws)
+    station: Station | None = None
+    if token and _origin_ok(ws):
+        assert hub.sessionmaker is not None
+        async with hub.sessionmaker() as db:
+            station = await authenticate_station(db, token)
+    if station is None:
+        await ws.close(wire.CLOSE_POLICY)  # before accept: the client sees HTTP 403
+        return
+    await ws.accept()
+    conn = StationConn(ws, station.id, station.patient_id)
+    try:
+        hello = wire.STATION_UP.validate_json(await _receive(ws))
+        if not isinstance(hello, wire.StationHello):
+            raise _Close(wire.CLOSE_MALFORMED, "the first message must be hello")
+        if hello.protocol != wire.PROTOCOL:
+            raise _Close(
+                wire.CLOSE_VERSION,
+                f"station speaks protocol {hello.protocol}, server {wire.PROTOCOL}: update one",
+            )
+        old = hub.stations.get(station.id)
+        if old is not None:
+            await _close(old.ws, wire.CLOSE_REPLACED, "the station connected again")
+        hub.stations[station.id] = conn
+        await _seen(hub, station.id)
+        await ws.send_text(
+            wire.Welcome(
+                station_id=station.id, patient_id=station.patient_id, server_time=time.time()
+            ).model_dump_json()
+        )
+        assert hub.sessionmaker is not None
+        async with hub.sessionmaker() as db:
+            await ws.send_text((await _prescriptions(db, station.patient_id)).model_dump_json())
+        hub.broadcast(station.id, wire.Presence(online=True).model_dump_json())
+        beat = asyncio.create_task(_heartbeats(ws))
+        try:
+            while True:
+                raw = await _receive(ws)
+                _on_station_message(hub, conn, raw, wire.STATION_UP.validate_json(raw))
+        finally:
+            beat.cancel()
+    except ValidationError as exc:
+        await _close(ws, wire.CLOSE_MALFORMED, wire.error_text(exc))
+    except _Close as exc:
+        await _close(ws, exc.code, exc.reason)
+    except WebSocketDisconnect:
+        pass
+    finally:
+        if hub.stations.get(station.id) is conn:
+            del hub.stations[station.id]
+            hub.broadcast(station.id, wire.Presence(online=False).model_dump_json())
+            with contextlib.suppress(Exception):
+                await _seen(hub, station.id)
+
+
+def _on_station_message(hub: Hub, conn: StationConn, raw: str, message: Any) -> None:
+    conn.messages += 1
+    if isinstance(message, wire.TelemetryMsg):
+        conn.latest = raw
+        conn.seq += 1
+        for v in hub.viewers.get(conn.station_id, ()):
+            v.wake.set()
+    elif isinstance(message, wire.StatusMsg):
+        conn.status = message
+        hub.broadcast(conn.station_id, raw)
+    elif isinstance(message, wire.EventMsg):
+        hub.broadcast(conn.station_id, raw)
+    elif isinstance(message, wire.CommandResult):
+        hub.result(conn.station_id, message)
+
+
+async def _seen(hub: Hub, station_id: int) -> None:
+    assert hub.sessionmaker is not None
+    async with hub.sessionmaker() as db:
+        station = await db.get(Station, station_id)
+        if station is not None:
+            station.last_seen_at = utcnow()
+            await db.commit()
+
+
+async def _heartbeats(ws: WebSocket) -> None:
+    with contextlib.suppress(Exception):
+        while True:
+            await asyncio.sleep(wire.HEARTBEAT_S)
+            await ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
+
+
+# -- /ws/live/{station_id} -----------------------------------------------------------------
+@router.websocket("/ws/live/{station_id}")
+async def live_socket(ws: WebSocket, station_id: int) -> None:
+    hub = _hub(ws)
+    token, subprotocol = _bearer(ws)
+    user: User | None = None
+    allowed = False
+    if token and _origin_ok(ws):
+        assert hub.sessionmaker is not None
+        async with hub.sessionmaker() as db:
+            user, allowed = await _viewer_may_watch(db, token, station_id)
+    if user is None or not allowed:
+        await ws.close(wire.CLOSE_POLICY)  # the same for a station that does not exist
+        return
+    await ws.accept(subprotocol=subprotocol)
+    viewer = Viewer(ws, user.id, station_id, may_command=user.role == "therapist")
+    hub.viewers[station_id].add(viewer)
+    conn = hub.stations.get(station_id)
+    writer = asyncio.create_task(_viewer_writer(hub, viewer))
+    try:
+        await ws.send_text(
+            wire.Welcome(
+                station_id=station_id,
+                patient_id=conn.patient_id if conn else 0,
+                online=conn is not None,
+                status=conn.status if conn else None,
+                server_time=time.time(),
+            ).model_dump_json()
+        )
+        while not writer.done():
+            raw = await _receive(ws)
+            message = wire.VIEWER_UP.validate_json(raw)
+            if isinstance(message, wire.Command):
+                await _on_command(hub, viewer, message)
+    except ValidationError as exc:
+        await _close(ws, wire.CLOSE_MALFORMED, wire.error_text(exc))
+    except _Close as exc:
+        await _close(ws, exc.code, exc.reason)
+    except WebSocketDisconnect:
+        pass
+    finally:
+        hub.viewers[station_id].discard(viewer)
+        writer.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await writer
+
+
+async def _viewer_may_watch(
+    db: AsyncSession, token: str, station_id: int
+) -> tuple[User | None, bool]:
+    user = await authenticate_user(db, token)
+    if user is None:
+        return None, False
+    station = await db.get(Station, station_id)
+    if station is None:
+        return user, False
+    if user.role == "admin":
+        return user, True
+    patient = await db.get(Patient, station.patient_id)
+    return user, patient is not None and patient.therapist_id == user.id
+
+
+async def _viewer_writer(hub: Hub, v: Viewer) -> None:
+    """Send control messages as they come and the newest telemetry at most VIEW_HZ."""
+    period = 1.0 / VIEW_HZ
+    last_beat = 0.0
+    while True:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(v.wake.wait(), wire.HEARTBEAT_S)
+        v.wake.clear()
+        if len(v.control) >= CONTROL_QUEUE_MAX:
+            await _close(v.ws, wire.CLOSE_TIMEOUT, "the viewer is not keeping up")
+            return
+        while v.control:
+            await v.ws.send_text(v.control.popleft())
+        conn = hub.stations.get(v.station_id)
+        sent = False
+        if conn is not None and conn.latest is not None and conn.seq != v.seq:
+            v.seq = conn.seq
+            await v.ws.send_text(conn.latest)
+            sent = True
+        now = time.monotonic()
+        if now - last_beat >= wire.HEARTBEAT_S:
+            await v.ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
+            last_beat = now
+        if sent:
+            await asyncio.sleep(period)  # conflation: newer samples replace this one meanwhile
+
+
+async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
+    def answer(code: str, text: str) -> None:
+        viewer.push(
+            wire.CommandResult(
+                request_id=cmd.request_id, ok=False, code=code, text=text
+            ).model_dump_json()
+        )
+
+    if not viewer.may_command:
+        answer("FORBIDDEN", "only the patient's therapist may change a running exercise")
+        return
+    conn = hub.stations.get(viewer.station_id)
+    if conn is None:
+        answer("OFFLINE", "the station is not connected")
+        return
+    cmd = cmd.model_copy(update={"by": f"therapist:{viewer.user_id}"})
+    if cmd.action == "set_impedance":
+        await _audit_impedance(hub, viewer, conn, cmd)
+    hub.expect_result(cmd.request_id, conn.station_id)
+    try:
+        await conn.ws.send_text(cmd.model_dump_json())
+    except Exception:
+        hub.result(
+            conn.station_id,
+            wire.CommandResult(
+                request_id=cmd.request_id, ok=False, code="OFFLINE", text="station link lost"
+            ),
+        )
+
+
+async def _audit_impedance(hub: Hub, viewer: Viewer, conn: StationConn, cmd: wire.Command) -> None:
+    """A live K/B change is a clinical change: audited with the values it replaced."""
+    old: dict[str, Any] = {}
+    if conn.latest is not None:
+        latest = json.loads(conn.latest)
+        index = {"roll": 3, "pitch": 4, "yaw": 5}
+        old = {
+            "stiffness": {a: latest["stiffness"][index[a]] for a in (cmd.stiffness or {})},
+            "damping": {a: latest["damping"][index[a]] for a in (cmd.damping or {})},
+        }
+    new = {"stiffness": cmd.stiffness or {}, "damping": cmd.damping or {}}
+    assert hub.sessionmaker is not None
+    async with hub.sessionmaker() as db:
+        audit.record(
+            db,
+            f"user:{viewer.user_id}",
+            "impedance.change",
+            "station",
+            conn.station_id,
+            conn.patient_id,
+            old,
+            new | {"request_id": cmd.request_id},
+        )
+        await db.commit()
+
+
+@router.get("/api/v1/schemas/ws", tags=["live"], summary="WebSocket message schemas")
+async def ws_schemas() -> dict[str, Any]:
+    """JSON Schema of every message on ``/ws/station`` and ``/ws/live/{station_id}``, by
+    direction (WebSocket routes are not part of OpenAPI)."""
+    return wire.json_schemas()

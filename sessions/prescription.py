@@ -92,8 +92,10 @@ class AxisPrescription(BaseModel):
 
     model_config = _NO_NAN
 
-    axis: Axis = Field(description="Ankle axis: roll (inversion/eversion), pitch "
-                       "(plantar/dorsiflexion) or yaw (ab-/adduction).")
+    axis: Axis = Field(
+        description="Ankle axis: roll (inversion/eversion), pitch "
+        "(plantar/dorsiflexion) or yaw (ab-/adduction)."
+    )
     stiffness: float = Field(
         ge=0.0, le=STIFFNESS_MAX, description="K, N·m/rad: resistance to leaving the target."
     )
@@ -266,8 +268,9 @@ _template(
     "Flexibility (range of motion)",
     "The platform slowly takes the foot towards the ends of its range and back.",
     True,
-    axes=[_axis("pitch", stiffness=60.0, damping=3.0, waveform="sine", amplitude=12.0,
-                frequency=0.1)],
+    axes=[
+        _axis("pitch", stiffness=60.0, damping=3.0, waveform="sine", amplitude=12.0, frequency=0.1)
+    ],
     sets=2,
     repetitions=5,
     repetition_s=10.0,
@@ -279,8 +282,9 @@ _template(
     "Passive range of motion",
     "The platform moves a relaxed foot through its range; it does not give way.",
     False,
-    axes=[_axis("pitch", stiffness=0.0, damping=0.0, waveform="sine", amplitude=10.0,
-                frequency=0.1)],
+    axes=[
+        _axis("pitch", stiffness=0.0, damping=0.0, waveform="sine", amplitude=10.0, frequency=0.1)
+    ],
     sets=1,
     repetitions=6,
     repetition_s=10.0,
@@ -323,4 +327,3 @@ _template(
     rest_s=0.0,
     instructions="Move your foot as far as you comfortably can: toes down, up, in and out.",
 )
-

@@ -57,7 +57,7 @@ SAMPLE_DTYPE = np.dtype(
         ("legs", "<f4", (6,)),  # piston displacement, m
         ("pressures", "<f4", (12,)),  # gauge, Pa
         ("supply", "<f4"),  # Pa
-        ("wrench", "<f4", (6,)),  # N, N m, on the foot
+        ("wrench", "<f4", (6,)),  # N, N m: the foot on the plate, minus the resting wrench
         ("stiffness", "<f4", (6,)),
         ("damping", "<f4", (6,)),
         ("duty", "i1", (12,)),  # signed valve duty in slots of 28

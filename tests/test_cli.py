@@ -70,8 +70,8 @@ def test_step_prints_metrics_json_and_writes_csv_and_plot(tmp_path: Path) -> Non
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_run_shows_live_telemetry_from_the_service_and_stops_cleanly() -> None:
-    r = ankle("run", "--seconds", "3")
+def test_console_shows_live_telemetry_from_the_service_and_stops_cleanly() -> None:
+    r = ankle("console", "--seconds", "3")
     assert r.returncode == 0, r.stderr
     out = r.stdout
     assert re.search(r"device service on /dev/pts/\d+", out), out

@@ -1,0 +1,231 @@
+"""Entry points for the command line and the one-machine demo: serve, create users, seed.
+
+``ankle server`` (in ``ankle/cli.py``) calls these; each opens and migrates the database by
+itself, so they work before the server has ever started.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import secrets
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import uvicorn
+from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
+
+from server import audit
+from server.app import create_app
+from server.config import Settings
+from server.db import create_engine, create_sessionmaker, migrate
+from server.models import Patient, Prescription, Role, Station, User
+from server.routes import API_PREFIX
+from server.schemas import UserCreate
+from server.security import hash_password, new_token, token_hash
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
+
+DEMO_EMAIL = "therapist@demo.local"
+DEMO_THERAPIST_NAME = "Demo Therapist"
+DEMO_PATIENT_NAME = "Demo Patient"
+DEMO_PATIENT_REFERENCE = "DEMO-1"
+DEMO_STATION_NAME = "Demo station"
+CREDENTIALS_FILE = "demo-credentials.json"
+
+
+def serve(settings: Settings | None = None) -> None:
+    """Run the server in the foreground until Ctrl-C (one process, one worker: the live hub
+    and the viser scene live in this process's memory)."""
+    settings = Settings() if settings is None else settings
+    app = create_app(settings)
+    print(f"ankle server on {settings.public_url} (API docs: {API_PREFIX}/docs)", flush=True)
+    config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info")
+    uvicorn.Server(config).run()
+
+
+@asynccontextmanager
+async def _database(settings: Settings) -> AsyncIterator[async_sessionmaker[AsyncSession]]:
+    engine = create_engine(settings)
+    try:
+        await migrate(engine)
+        yield create_sessionmaker(engine)
+    finally:
+        await engine.dispose()
+
+
+async def _ensure_user(
+    db: AsyncSession, email: str, name: str, role: Role, password: str
+) -> tuple[User, bool]:
+    valid = UserCreate(email=email, name=name, role=role, password=password)
+    user = (await db.execute(select(User).where(User.email == valid.email))).scalar_one_or_none()
+    if user is not None:
+        return user, False
+    password_hash = await asyncio.to_thread(hash_password, valid.password)
+    user = User(email=valid.email, name=valid.name, role=valid.role, password_hash=password_hash)
+    db.add(user)
+    await db.flush()
+    new = {"email": user.email, "name": user.name, "role": user.role}
+    audit.record(db, audit.SYSTEM, "user.create", "user", user.id, None, None, new)
+    return user, True
+
+
+async def ensure_user_async(
+    settings: Settings, email: str, name: str, role: Role, password: str
+) -> bool:
+    """Create the account unless one with this email exists (then nothing changes).
+    True if it was created. Raises pydantic's ValidationError for a malformed email or a
+    password shorter than 10 characters."""
+    async with _database(settings) as sessionmaker, sessionmaker() as db:
+        _, created = await _ensure_user(db, email, name, role, password)
+        await db.commit()
+    return created
+
+
+def ensure_user(settings: Settings, email: str, name: str, role: Role, password: str) -> bool:
+    """``ensure_user_async`` for code outside an event loop (the command line)."""
+    return asyncio.run(ensure_user_async(settings, email, name, role, password))
+
+
+def demo_prescription() -> PrescriptionBody:
+    """The strength exercise's defaults, short enough for a demonstration: 1 set of 3
+    repetitions of 6 s."""
+    defaults = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults
+    return PrescriptionBody.model_validate(
+        {**defaults.model_dump(), "sets": 1, "repetitions": 3, "repetition_s": 6.0}
+    )
+
+
+async def _seed_demo(db: AsyncSession) -> dict[str, Any]:
+    password = secrets.token_urlsafe(12)
+    therapist, created = await _ensure_user(
+        db, DEMO_EMAIL, DEMO_THERAPIST_NAME, "therapist", password
+    )
+    if not created:
+        # The credentials file is gone, and with it the only copy of the password: the demo
+        # account gets a new one rather than being locked out.
+        therapist.password_hash = await asyncio.to_thread(hash_password, password)
+        therapist.active = True
+    patient = (
+        await db.execute(
+            select(Patient).where(
+                Patient.therapist_id == therapist.id,
+                Patient.reference == DEMO_PATIENT_REFERENCE,
+            )
+        )
+    ).scalar_one_or_none()
+    if patient is None:
+        patient = Patient(
+            therapist_id=therapist.id,
+            display_name=DEMO_PATIENT_NAME,
+            reference=DEMO_PATIENT_REFERENCE,
+            affected_side="right",
+            notes="Created by the demo; not a real person.",
+        )
+        db.add(patient)
+        await db.flush()
+        new = {"display_name": patient.display_name, "reference": patient.reference}
+        audit.record(
+            db, audit.SYSTEM, "patient.create", "patient", patient.id, patient.id, None, new
+        )
+    # A station token is unrecoverable from its hash: retire any older demo station and
+    # provision a fresh one whose token goes into the file.
+    old_stations = (
+        await db.execute(
+            select(Station).where(Station.patient_id == patient.id, Station.revoked.is_(False))
+        )
+    ).scalars()
+    for old in old_stations:
+        old.revoked = True
+        audit.record(
+            db,
+            audit.SYSTEM,
+            "station.revoke",
+            "station",
+            old.id,
+            patient.id,
+            {"revoked": False},
+            {"revoked": True},
+        )
+    token = new_token()
+    station = Station(patient_id=patient.id, name=DEMO_STATION_NAME, token_hash=token_hash(token))
+    db.add(station)
+    await db.flush()
+    audit.record(
+        db,
+        audit.SYSTEM,
+        "station.provision",
+        "station",
+        station.id,
+        patient.id,
+        None,
+        {"name": station.name, "patient_id": patient.id},
+    )
+    prescription = (
+        await db.execute(
+            select(Prescription)
+            .where(Prescription.patient_id == patient.id, Prescription.status == "active")
+            .order_by(Prescription.id)
+        )
+    ).scalar()
+    if prescription is None:
+        body = demo_prescription().model_dump(mode="json")
+        prescription = Prescription(patient_id=patient.id, created_by=therapist.id, body=body)
+        db.add(prescription)
+        await db.flush()
+        audit.record(
+            db,
+            audit.SYSTEM,
+            "prescription.create",
+            "prescription",
+            prescription.id,
+            patient.id,
+            None,
+            {"status": "active", "version": 1, "body": body},
+        )
+    await db.commit()
+    return {
+        "therapist_email": therapist.email,
+        "therapist_password": password,
+        "therapist_id": therapist.id,
+        "patient_id": patient.id,
+        "patient_name": patient.display_name,
+        "station_id": station.id,
+        "station_token": token,
+        "prescription_id": prescription.id,
+    }
+
+
+def _write_private(path: os.PathLike[str], text: str) -> None:
+    tmp = f"{os.fspath(path)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        os.fchmod(f.fileno(), 0o600)  # whatever the umask, or a leftover file, said
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+async def provision_demo_async(settings: Settings) -> dict[str, Any]:
+    """The demo's therapist, patient, station and prescription, created on the first call.
+
+    The credentials (therapist email and password, station token, ids) are written to
+    ``data_dir/demo-credentials.json`` (mode 0600) and returned; later calls read that file
+    back and change nothing. ``url`` is added from the current settings each time.
+    """
+    path = settings.data_dir / CREDENTIALS_FILE
+    if path.exists():
+        credentials: dict[str, Any] = json.loads(path.read_text())
+    else:
+        async with _database(settings) as sessionmaker, sessionmaker() as db:
+            credentials = await _seed_demo(db)
+        _write_private(path, json.dumps(credentials, indent=2) + "\n")
+    return {**credentials, "url": settings.public_url}
+
+
+def provision_demo(settings: Settings) -> dict[str, Any]:
+    """``provision_demo_async`` for code outside an event loop."""
+    return asyncio.run(provision_demo_async(settings))

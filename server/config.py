@@ -1,0 +1,87 @@
+"""The server's settings: one object, read from ``ANKLE_*`` environment variables.
+
+Nothing here is read at import time: ``create_app(Settings(...))`` gets its own copy, so tests
+and the one-machine demo run servers side by side on different data directories.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+MiB = 1024 * 1024
+_WILDCARD_HOSTS = {"0.0.0.0", "::", ""}
+
+
+class Settings(BaseSettings):
+    """Where the server keeps its data, where it listens and how long credentials last.
+
+    Every field can be set as ``ANKLE_<FIELD>`` (``ANKLE_DATA_DIR=/srv/ankle``); lists are JSON
+    (``ANKLE_ALLOWED_ORIGINS='["https://clinic.example"]'``). Fields whose default depends on
+    another field (the database URL on ``data_dir``, the origins and public URL on ``host`` and
+    ``port``) are filled in when the object is built, so reading them never gives ``None``.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="ANKLE_", extra="ignore")
+
+    data_dir: Path = Field(
+        default=Path("ankle-data"),
+        description="Directory for the SQLite database, uploaded sessions and the demo's "
+        "credentials file; created on start.",
+    )
+    database_url: str = Field(
+        default="",
+        description="SQLAlchemy async URL. Empty or unset: "
+        "sqlite+aiosqlite:///{data_dir}/ankle.db. PostgreSQL would be "
+        "postgresql+asyncpg://user@host/db.",
+    )
+    host: str = Field(default="127.0.0.1", description="Interface to listen on.")
+    port: int = Field(default=8000, ge=0, le=65535, description="TCP port; 0 picks a free one.")
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="Browser origins allowed to call the API and open WebSockets. Empty: "
+        "http://127.0.0.1:{port} and http://localhost:{port}, the server's own pages.",
+    )
+    token_ttl_s: int = Field(
+        default=12 * 3600,
+        gt=0,
+        le=30 * 24 * 3600,
+        description="Lifetime of a therapist's or admin's login token, seconds (a clinic shift).",
+    )
+    upload_max_bytes: int = Field(
+        default=512 * MiB,
+        gt=0,
+        description="Largest session file a station may upload, bytes.",
+    )
+    public_url: str = Field(
+        default="",
+        description="Base URL people and stations use to reach this server. Empty: "
+        "http://{host}:{port}, with 127.0.0.1 for a wildcard host.",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _derived_defaults(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        data_dir = Path(data.get("data_dir") or "ankle-data")
+        host = str(data.get("host") or "127.0.0.1")
+        port = int(data.get("port") if data.get("port") is not None else 8000)
+        if not data.get("database_url"):
+            data["database_url"] = f"sqlite+aiosqlite:///{data_dir / 'ankle.db'}"
+        if not data.get("allowed_origins"):
+            data["allowed_origins"] = [f"http://127.0.0.1:{port}", f"http://localhost:{port}"]
+        if not data.get("public_url"):
+            shown = "127.0.0.1" if host in _WILDCARD_HOSTS else host
+            if ":" in shown:
+                shown = f"[{shown}]"
+            data["public_url"] = f"http://{shown}:{port}"
+        return data
+
+    @property
+    def is_sqlite(self) -> bool:
+        return self.database_url.startswith("sqlite")

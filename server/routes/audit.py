@@ -1,0 +1,44 @@
+"""Reading the audit log. There is deliberately no route that changes it."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+from sqlalchemy import select
+
+from server.deps import Db, TherapistOrAdmin
+from server.models import AuditEntry, Patient
+from server.routes.common import UNAUTHORIZED
+from server.schemas import AuditPublic
+
+router = APIRouter(prefix="/audit", tags=["audit"])
+
+
+@router.get(
+    "",
+    response_model=list[AuditPublic],
+    summary="Audit log, newest first",
+    responses=UNAUTHORIZED,
+)
+async def list_audit(
+    user: TherapistOrAdmin,
+    db: Db,
+    patient_id: Annotated[int | None, Query(description="Only this patient's rows.")] = None,
+    action: Annotated[
+        str | None, Query(max_length=64, description="Only this action, e.g. patient.update.")
+    ] = None,
+    limit: Annotated[int, Query(ge=1, le=500, description="Rows per page.")] = 100,
+    offset: Annotated[int, Query(ge=0, description="Rows to skip (newest first).")] = 0,
+) -> list[AuditPublic]:
+    """An admin reads every row; a therapist the rows about their own patients (rows about
+    accounts or other therapists' patients are not shown)."""
+    query = select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit).offset(offset)
+    if user.role != "admin":
+        own = select(Patient.id).where(Patient.therapist_id == user.id)
+        query = query.where(AuditEntry.patient_id.in_(own))
+    if patient_id is not None:
+        query = query.where(AuditEntry.patient_id == patient_id)
+    if action is not None:
+        query = query.where(AuditEntry.action == action)
+    return [AuditPublic.model_validate(e) for e in (await db.execute(query)).scalars()]

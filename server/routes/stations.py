@@ -1,0 +1,110 @@
+"""Home stations, as therapists and admins manage them: provision, list, revoke."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request, status
+from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from server import audit
+from server.deps import Db, TherapistOrAdmin, may_manage_stations, not_found
+from server.models import Patient, Station, User
+from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.schemas import StationCreate, StationProvisioned, StationPublic
+from server.security import new_token, token_hash
+
+router = APIRouter(tags=["stations"])
+
+
+def _online(request: Request, station: Station) -> bool:
+    return bool(request.app.state.hub.online(station.id))
+
+
+async def _manageable(db: AsyncSession, user: User, patient_id: int) -> bool:
+    patient = await db.get(Patient, patient_id)
+    return patient is not None and may_manage_stations(user, patient)
+
+
+@router.post(
+    "/patients/{patient_id}/stations",
+    response_model=StationProvisioned,
+    status_code=status.HTTP_201_CREATED,
+    summary="Provision a home station for a patient",
+    responses={**UNAUTHORIZED, **NOT_FOUND},
+)
+async def provision_station(
+    patient_id: int, body: StationCreate, user: TherapistOrAdmin, db: Db, request: Request
+) -> StationProvisioned:
+    """The patient's therapist or an admin. The answer carries the station's token; it is
+    shown this once and only its hash is stored. Audited as station.provision."""
+    if not await _manageable(db, user, patient_id):
+        raise not_found("patient")
+    token = new_token()
+    station = Station(patient_id=patient_id, name=body.name, token_hash=token_hash(token))
+    db.add(station)
+    await db.flush()
+    audit.record(
+        db,
+        audit.user_actor(user),
+        "station.provision",
+        "station",
+        station.id,
+        patient_id,
+        None,
+        {"name": station.name, "patient_id": patient_id},
+    )
+    await db.commit()
+    public = StationPublic.from_row(station, _online(request, station))
+    return StationProvisioned(**public.model_dump(), token=token)
+
+
+@router.get(
+    "/stations",
+    response_model=list[StationPublic],
+    summary="List home stations",
+    responses=UNAUTHORIZED,
+)
+async def list_stations(
+    user: TherapistOrAdmin, db: Db, request: Request, patient_id: int | None = None
+) -> list[StationPublic]:
+    """A therapist sees their patients' stations, an admin all; with ``online`` (connected
+    now) and ``last_seen_at``. Optionally one patient's."""
+    query = select(Station).order_by(Station.id)
+    if user.role != "admin":
+        query = query.join(Patient, Patient.id == Station.patient_id).where(
+            Patient.therapist_id == user.id
+        )
+    if patient_id is not None:
+        query = query.where(Station.patient_id == patient_id)
+    stations = (await db.execute(query)).scalars()
+    return [StationPublic.from_row(s, _online(request, s)) for s in stations]
+
+
+@router.post(
+    "/stations/{station_id}/revoke",
+    response_model=StationPublic,
+    summary="Revoke a station's token",
+    responses={**UNAUTHORIZED, **NOT_FOUND},
+)
+async def revoke_station(
+    station_id: int, user: TherapistOrAdmin, db: Db, request: Request
+) -> StationPublic:
+    """The patient's therapist or an admin. The station's token is refused from now on
+    (a lost or returned device); revoking twice changes nothing. Audited as station.revoke."""
+    station = await db.get(Station, station_id)
+    if station is None or not await _manageable(db, user, station.patient_id):
+        raise not_found("station")
+    if not station.revoked:
+        station.revoked = True
+        audit.record(
+            db,
+            audit.user_actor(user),
+            "station.revoke",
+            "station",
+            station.id,
+            station.patient_id,
+            {"revoked": False},
+            {"revoked": True},
+        )
+        await db.commit()
+    return StationPublic.from_row(station, _online(request, station))

@@ -1,0 +1,244 @@
+"""Resumable, idempotent session uploads from home stations (see ``station/uploader.py``).
+
+Bytes are appended to ``data_dir/uploads/<session uuid>.part`` and reach the disk (fsync)
+before the answer leaves, so an acknowledged byte is never lost and never asked for again.
+``complete`` checks size, SHA-256 and the recording itself (its header must name this
+station's patient, it must end with an end record, every record's CRC must hold), files the
+session under ``data_dir/sessions/`` with its summary, and answers the same way if asked
+again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import os
+import uuid
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Header, HTTPException, Request, Response, status
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import select
+
+from server import audit
+from server.deps import CurrentStation, Db
+from server.models import Prescription, Session, Upload
+from server.routes.common import UNAUTHORIZED
+from server.routes.sessions import SessionPublic, session_public
+from sessions.recording import MAGIC, RecordingError, RecordType, decode, iter_records
+from sessions.summary import summarize
+
+router = APIRouter(tags=["uploads"], responses=UNAUTHORIZED)
+CHUNK_MAX = 8 * 1024 * 1024
+"""Largest PATCH body (bytes); the station sends 1 MiB."""
+
+
+class UploadComplete(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    size: int = Field(ge=len(MAGIC), description="Bytes in the whole file.")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of the file, hex.")
+
+
+def _uuid(session_id: str) -> str:
+    try:
+        return str(uuid.UUID(session_id))
+    except ValueError:
+        raise HTTPException(422, f"session id {session_id!r} is not a UUID") from None
+
+
+def _dirs(request: Request) -> tuple[Path, Path]:
+    data = Path(request.app.state.settings.data_dir)
+    uploads, sessions = data / "uploads", data / "sessions"
+    uploads.mkdir(parents=True, exist_ok=True)
+    sessions.mkdir(parents=True, exist_ok=True)
+    return uploads, sessions
+
+
+def _lock(request: Request, key: str) -> asyncio.Lock:
+    locks: dict[str, asyncio.Lock] = request.app.state.__dict__.setdefault("upload_locks", {})
+    return locks.setdefault(key, asyncio.Lock())
+
+
+def _append(path: Path, offset: int, data: bytes) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o600)
+    try:
+        os.ftruncate(fd, offset)  # drop bytes a crash left past the acknowledged length
+        os.pwrite(fd, data, offset)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+@router.head("/uploads/{session_id}", summary="How much of an upload the server holds")
+async def upload_state(session_id: str, station: CurrentStation, db: Db) -> Response:
+    """``Upload-Offset``: bytes held; ``Upload-Complete: 1`` once the session is filed."""
+    sid = _uuid(session_id)
+    done = await db.scalar(select(Session).where(Session.session_uuid == sid))
+    if done is not None:
+        if done.station_id != station.id:
+            raise HTTPException(404, "no such upload")
+        return Response(headers={"Upload-Offset": str(done.size_bytes), "Upload-Complete": "1"})
+    up = await db.get(Upload, sid)
+    if up is None or up.station_id != station.id:
+        raise HTTPException(404, "no such upload")
+    return Response(headers={"Upload-Offset": str(up.received_bytes), "Upload-Complete": "0"})
+
+
+@router.patch(
+    "/uploads/{session_id}",
+    status_code=204,
+    summary="Append bytes to an upload",
+    responses={409: {"description": "Wrong Upload-Offset; the header has the right one."}},
+)
+async def upload_append(
+    session_id: str,
+    request: Request,
+    station: CurrentStation,
+    db: Db,
+    upload_offset: Annotated[int, Header(ge=0, description="Where these bytes go.")],
+) -> Response:
+    sid = _uuid(session_id)
+    length = int(request.headers.get("content-length") or 0)
+    if length > CHUNK_MAX:
+        raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
+    data = await request.body()
+    if len(data) > CHUNK_MAX:
+        raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
+    uploads, _ = _dirs(request)
+    async with _lock(request, sid):
+        if await db.scalar(select(Session.id).where(Session.session_uuid == sid)):
+            raise HTTPException(409, "this session is already complete")
+        up = await db.get(Upload, sid)
+        if up is not None and up.station_id != station.id:
+            raise HTTPException(404, "no such upload")
+        held = up.received_bytes if up else 0
+        if upload_offset != held:
+            raise HTTPException(
+                409, f"the server holds {held} bytes", headers={"Upload-Offset": str(held)}
+            )
+        if held == 0:
+            _check_start(data, station.patient_id, sid)
+        limit = request.app.state.settings.upload_max_bytes
+        if held + len(data) > limit:
+            raise HTTPException(413, f"a session may be at most {limit} bytes")
+        await asyncio.to_thread(_append, uploads / f"{sid}.part", held, data)
+        if up is None:
+            up = Upload(session_uuid=sid, station_id=station.id, received_bytes=0)
+            db.add(up)
+        up.received_bytes = held + len(data)
+        await db.commit()
+        return Response(status_code=204, headers={"Upload-Offset": str(up.received_bytes)})
+
+
+def _check_start(data: bytes, patient_id: int, sid: str) -> None:
+    """The first chunk must hold the header: a station uploads only its own patient's."""
+    try:
+        records, _, _ = iter_records(data)
+    except RecordingError as exc:
+        raise HTTPException(422, f"not a session recording: {exc}") from None
+    if not records or records[0][0] != RecordType.HEADER:
+        raise HTTPException(422, "the first chunk must contain the recording's header record")
+    rec = decode(data[: len(MAGIC) + 9 + len(records[0][1])])
+    if rec.header.session_id != sid:
+        raise HTTPException(422, "the header's session_id differs from the upload's")
+    if rec.header.patient_id != patient_id:
+        raise HTTPException(422, "the recording is for another patient than this station's")
+
+
+@router.post(
+    "/uploads/{session_id}/complete",
+    response_model=SessionPublic,
+    summary="Finish an upload: check it and file the session",
+    responses={409: {"description": "Not all bytes are there yet."}},
+)
+async def upload_complete(
+    session_id: str,
+    body: UploadComplete,
+    request: Request,
+    response: Response,
+    station: CurrentStation,
+    db: Db,
+) -> SessionPublic:
+    sid = _uuid(session_id)
+    uploads, sessions_dir = _dirs(request)
+    async with _lock(request, sid):
+        done = await db.scalar(select(Session).where(Session.session_uuid == sid))
+        if done is not None:
+            if done.station_id != station.id:
+                raise HTTPException(404, "no such upload")
+            if done.sha256 != body.sha256 or done.size_bytes != body.size:
+                raise HTTPException(409, "this session was filed with other content")
+            return session_public(done)
+        up = await db.get(Upload, sid)
+        if up is None or up.station_id != station.id:
+            raise HTTPException(404, "no such upload")
+        if up.received_bytes != body.size:
+            raise HTTPException(
+                409,
+                f"the server holds {up.received_bytes} of {body.size} bytes",
+                headers={"Upload-Offset": str(up.received_bytes)},
+            )
+        part = uploads / f"{sid}.part"
+        digest = await asyncio.to_thread(_sha256, part)
+        if digest != body.sha256:
+            # Start over rather than keep bytes that do not match the station's file.
+            await db.delete(up)
+            await db.commit()
+            part.unlink(missing_ok=True)
+            raise HTTPException(
+                422, f"checksum mismatch: the server's bytes hash to {digest}; upload again"
+            )
+        try:
+            rec = await asyncio.to_thread(decode, part.read_bytes())
+        except (RecordingError, ValueError) as exc:
+            raise HTTPException(422, f"not a valid recording: {exc}") from None
+        if rec.damaged or rec.end is None:
+            raise HTTPException(422, "the recording is cut off: it has no end record")
+        summary = await asyncio.to_thread(summarize, rec)
+        final = sessions_dir / f"{sid}.rec"
+        os.replace(part, final)
+        prescription = await db.get(Prescription, rec.header.prescription_id)
+        row = Session(
+            session_uuid=sid,
+            station_id=station.id,
+            patient_id=station.patient_id,
+            prescription_id=(
+                prescription.id
+                if prescription is not None and prescription.patient_id == station.patient_id
+                else None
+            ),
+            started_at=datetime.fromtimestamp(rec.header.started_at, UTC),
+            ended_at=datetime.fromtimestamp(rec.end.ended_at, UTC),
+            end_reason=rec.end.reason,
+            size_bytes=body.size,
+            sha256=digest,
+            summary=summary.model_dump(mode="json"),
+            file_path=str(final),
+            upload_complete=True,
+        )
+        db.add(row)
+        await db.delete(up)
+        await db.flush()
+        audit.record(
+            db,
+            audit.station_actor(station),
+            "session.upload",
+            "session",
+            row.id,
+            station.patient_id,
+            None,
+            {"session_uuid": sid, "size_bytes": body.size, "sha256": digest},
+        )
+        await db.commit()
+        response.status_code = status.HTTP_201_CREATED
+        return session_public(row)

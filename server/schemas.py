@@ -1,0 +1,255 @@
+"""What the REST API reads and writes: role-suffixed pydantic models.
+
+``XCreate`` is a request body that makes an X, ``XUpdate`` one that changes it, ``XPublic``
+what the API returns. ORM rows never leave the server as they are: a password or token hash
+has no ``Public`` field to leak through. Prescriptions reuse ``sessions.prescription``'s
+``PrescriptionBody``, the one model the station runs, rather than a copy of it.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    model_validator,
+)
+
+from server.models import Prescription, PrescriptionStatus, Role, Side, Station
+from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
+from sessions.prescription import PrescriptionBody
+
+Email = Annotated[
+    str,
+    StringConstraints(
+        strip_whitespace=True, to_lower=True, max_length=254, pattern=r"^[^@\s]+@[^@\s]+$"
+    ),
+    Field(description="Login name; stored lower-case.", examples=["therapist@clinic.example"]),
+]
+Password = Annotated[
+    str,
+    Field(
+        min_length=PASSWORD_MIN_LENGTH,
+        max_length=PASSWORD_MAX_LENGTH,
+        description=f"At least {PASSWORD_MIN_LENGTH} characters; a passphrase is best.",
+    ),
+]
+Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=120)]
+
+
+def _not_in_future(year: int | None) -> int | None:
+    if year is not None and year > datetime.now(UTC).year:
+        raise ValueError(f"birth_year {year} is in the future")
+    return year
+
+
+BirthYear = Annotated[
+    int | None,
+    Field(ge=1900, description="Year of birth (age matters for normal ranges), 1900..now."),
+    AfterValidator(_not_in_future),
+]
+
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+_FROM_ORM = ConfigDict(from_attributes=True)
+
+
+# --- auth and users ---------------------------------------------------------------------
+
+
+class LoginRequest(BaseModel):
+    model_config = _STRICT
+
+    email: str = Field(max_length=254, description="The account's email address.")
+    password: str = Field(max_length=PASSWORD_MAX_LENGTH)
+
+
+class UserCreate(BaseModel):
+    model_config = _STRICT
+
+    email: Email
+    name: Name = Field(description="Shown in the dashboard and the audit log.")
+    role: Role = Field(description="therapist: own patients; admin: users, stations, audit.")
+    password: Password
+
+
+class UserPublic(BaseModel):
+    model_config = _FROM_ORM
+
+    id: int
+    email: str
+    name: str
+    role: Role
+    active: bool = Field(description="An inactive account cannot log in.")
+    created_at: datetime
+
+
+class TokenPublic(BaseModel):
+    access_token: str = Field(description="Send as 'Authorization: Bearer <token>'.")
+    token_type: Literal["bearer"] = "bearer"
+    expires_at: datetime = Field(description="UTC; log in again after it.")
+    user: UserPublic
+
+
+# --- patients ---------------------------------------------------------------------------
+
+
+class PatientCreate(BaseModel):
+    model_config = _STRICT
+
+    display_name: Name = Field(
+        description="How the therapist and the patient's station name "
+        "the patient (initials or a first name suffice)."
+    )
+    reference: str | None = Field(
+        default=None, max_length=64, description="The clinic's own identifier, if any."
+    )
+    birth_year: BirthYear = None
+    affected_side: Side | None = Field(default=None, description="The ankle being treated.")
+    notes: str = Field(default="", max_length=5000, description="Free text for the therapist.")
+
+
+_REQUIRED_ON_UPDATE = ("display_name", "notes")
+
+
+class PatientUpdate(BaseModel):
+    """Only the fields present change; ``null`` clears an optional field."""
+
+    model_config = _STRICT
+
+    display_name: Name | None = None
+    reference: str | None = Field(default=None, max_length=64)
+    birth_year: BirthYear = None
+    affected_side: Side | None = None
+    notes: str | None = Field(default=None, max_length=5000)
+
+    @model_validator(mode="after")
+    def _no_null_for_required(self) -> PatientUpdate:
+        for name in _REQUIRED_ON_UPDATE:
+            if name in self.model_fields_set and getattr(self, name) is None:
+                raise ValueError(f"{name} cannot be null")
+        return self
+
+
+class PatientPublic(BaseModel):
+    model_config = _FROM_ORM
+
+    id: int
+    therapist_id: int = Field(description="The user whose patient this is.")
+    display_name: str
+    reference: str | None
+    birth_year: int | None
+    affected_side: Side | None
+    notes: str
+    created_at: datetime
+    updated_at: datetime
+
+
+# --- prescriptions ----------------------------------------------------------------------
+
+
+class PrescriptionCreate(PrescriptionBody):
+    """A new prescription: an exercise from GET /exercises with its settings and timeline.
+    Checked against anatomical ranges and the device's limits; a 422 names field and bound."""
+
+
+class PrescriptionUpdate(PrescriptionBody):
+    """The whole new body of an active prescription; the version goes up by one."""
+
+
+class PrescriptionPublic(BaseModel):
+    id: int
+    patient_id: int
+    created_by: int = Field(description="The user who wrote the prescription.")
+    status: PrescriptionStatus = Field(
+        description="active: the station runs it; cancelled: withdrawn by the therapist; "
+        "completed: all its sessions done."
+    )
+    version: int = Field(ge=1, description="1 on creation, +1 on each update.")
+    created_at: datetime
+    updated_at: datetime
+    total_s: float = Field(description="Exercise time including rests between sets, s.")
+    body: PrescriptionBody
+
+    @classmethod
+    def from_row(cls, row: Prescription) -> PrescriptionPublic:
+        body = PrescriptionBody.model_validate(row.body)
+        return cls(
+            id=row.id,
+            patient_id=row.patient_id,
+            created_by=row.created_by,
+            status=row.status,  # type: ignore[arg-type]  # the column's CHECK keeps it valid
+            version=row.version,
+            created_at=row.created_at,
+            updated_at=row.updated_at,
+            total_s=body.total_s(),
+            body=body,
+        )
+
+
+# --- stations ---------------------------------------------------------------------------
+
+
+class StationCreate(BaseModel):
+    model_config = _STRICT
+
+    name: Name = Field(description="Where the station is, e.g. 'Home, living room'.")
+
+
+class StationPublic(BaseModel):
+    model_config = _FROM_ORM
+
+    id: int
+    patient_id: int
+    name: str
+    created_at: datetime
+    last_seen_at: datetime | None = Field(description="Last request or connection, UTC.")
+    revoked: bool = Field(description="A revoked station's token is refused.")
+    online: bool = Field(default=False, description="Connected to the live link now.")
+
+    @classmethod
+    def from_row(cls, row: Station, online: bool) -> StationPublic:
+        return cls.model_validate(row).model_copy(update={"online": online})
+
+
+class StationProvisioned(StationPublic):
+    token: str = Field(
+        description="The station's bearer token. Shown once, never stored in clear: put it in "
+        "the station's configuration now; if lost, revoke and provision again."
+    )
+
+
+class StationSelf(BaseModel):
+    """What a station learns about itself with its own token."""
+
+    id: int
+    name: str
+    patient_id: int
+    patient_display_name: str
+
+
+# --- audit, health ----------------------------------------------------------------------
+
+
+class AuditPublic(BaseModel):
+    model_config = _FROM_ORM
+
+    id: int
+    at: datetime
+    actor: str = Field(description="'user:<id>', 'station:<id>' or 'system'.")
+    action: str = Field(description="'<entity>.<verb>', e.g. 'prescription.update'.")
+    entity: str
+    entity_id: str
+    patient_id: int | None
+    old: dict[str, Any] | None = Field(description="Changed fields before; null on creation.")
+    new: dict[str, Any] | None = Field(description="Changed fields after.")
+
+
+class HealthPublic(BaseModel):
+    status: Literal["ok", "degraded"]
+    version: str = Field(description="The server's package version.")
+    database: bool = Field(description="The database answered a query.")

@@ -1,0 +1,252 @@
+"""What a clinician reads about one session: time exercised, repetitions, range, torque, work.
+
+Everything is computed from the samples recorded while the device was ACTIVE (an exercise
+segment running): homing, rests, holds and faults do not count as exercise. Units are the
+clinic's, not the device's: degrees, newton metres, joules, seconds, percent.
+
+How the numbers are made:
+
+- Each sample stands for the time until the next one on the device clock ``t``. An interval
+  longer than :data:`GAP_FACTOR` times the median one is a gap in the telemetry (a lost link,
+  a restarted device), not exercise: it counts as one median interval.
+- Range of motion is the lowest and highest measured angle; torques are the patient's, on
+  the foot plate (``wrench[3:6]``: generalised forces conjugate to roll, pitch and yaw, so
+  torque times angular velocity is power).
+- Work: the power the patient puts into the platform is ``τ·ω``, positive when the foot
+  pushes the plate the way it moves (the platform yields to the foot in the direction of its
+  torque). Over each interval between two ACTIVE samples the work is the mean torque times
+  the change in angle, ``½(τₖ + τₖ₊₁)(qₖ₊₁ - qₖ)`` (∫τ·ω dt with ω by finite differences on
+  ``t``); ``work_j`` adds up the intervals where it is positive: the concentric work the
+  patient did, not reduced by the platform pushing the foot back.
+- Tracking error is measured minus commanded angle; time in target is the share of ACTIVE
+  time within :data:`TARGET_TOLERANCE_DEG` of the command.
+
+Values that cannot be computed (no ACTIVE samples, sensors reading NaN) are left out or
+null, never NaN: the summary is stored and sent as JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from pydantic_core import to_json
+
+from device.protocol.messages import DeviceMode
+from sessions.prescription import AXIS_INDEX, ROTATION_AXES
+from sessions.recording import EndReason, Recording
+
+TARGET_TOLERANCE_DEG = 2.0
+"""Degrees: a sample is on target when measured and commanded angle differ by less."""
+GAP_FACTOR = 5.0
+"""A sample interval longer than this many median intervals is a gap in the telemetry."""
+SAFETY_EVENT_KINDS = ("fault", "limit", "estop", "watchdog")
+"""Event kinds listed one by one in :attr:`Summary.faults`."""
+_TEXT_MAX = 160
+
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class AxisSummary(BaseModel):
+    """One ankle axis during exercise; null when the session has no ACTIVE samples."""
+
+    model_config = _STRICT
+
+    rom_min_deg: float | None = Field(description="Lowest measured angle, degrees from home.")
+    rom_max_deg: float | None = Field(description="Highest measured angle, degrees from home.")
+    rom_deg: float | None = Field(description="Range of motion: highest minus lowest, degrees.")
+    peak_torque_nm: float | None = Field(description="Largest |torque| of the patient, N·m.")
+    mean_torque_nm: float | None = Field(description="Time-averaged |torque|, N·m.")
+    work_j: float | None = Field(
+        description="Positive work done by the patient on the platform, J (concentric work)."
+    )
+    tracking_error_rms_deg: float | None = Field(
+        description="RMS of measured minus commanded angle, degrees."
+    )
+    time_in_target_pct: float | None = Field(
+        description=f"Share of exercise time within {TARGET_TOLERANCE_DEG:g} degrees of the "
+        "commanded angle, percent."
+    )
+
+
+class FaultSummary(BaseModel):
+    """A safety event, in a line."""
+
+    model_config = _STRICT
+
+    at_s: float = Field(description="Seconds after the session started (station clock).")
+    kind: str = Field(description="fault, limit, estop or watchdog.")
+    by: str = Field(description="Who reported it: device, station, patient or therapist:<id>.")
+    text: str = Field(description="What happened, shortened.")
+
+
+class Summary(BaseModel):
+    """The session at a glance, for the therapist's dashboard and the downloads."""
+
+    model_config = _STRICT
+
+    duration_s: float = Field(description="Exercise time (device ACTIVE), s.")
+    elapsed_s: float = Field(description="Station time from the first to the last sample, s.")
+    samples: int = Field(description="Telemetry samples recorded, in every mode.")
+    sets_completed: int = Field(description="Sets finished.")
+    repetitions_completed: int = Field(description="Repetitions finished, all sets.")
+    repetitions_prescribed: int | None = Field(
+        description="Sets times repetitions per set; null if the prescription does not say."
+    )
+    end_reason: EndReason | None = Field(
+        description="completed, stopped, fault or interrupted; null if the recording has no "
+        "end record (still running, or cut off)."
+    )
+    axes: dict[str, AxisSummary] = Field(
+        description="The prescribed ankle axes (roll, pitch, yaw) during exercise."
+    )
+    events: dict[str, int] = Field(description="Number of events of each kind.")
+    faults: list[FaultSummary] = Field(description="Faults, limits, emergency stops, watchdogs.")
+
+
+def summarize(rec: Recording) -> Summary:
+    """The summary of a recording; a recording in progress or cut off summarizes what it has."""
+    s = rec.samples
+    t = s["t"].astype(np.float64)
+    weights, contiguous = _sample_weights(t)
+    active = s["mode"] == int(DeviceMode.ACTIVE)
+
+    counts: dict[str, int] = {}
+    for e in rec.events:
+        counts[e.kind] = counts.get(e.kind, 0) + 1
+    if rec.end is not None:
+        sets_done, reps_done = rec.end.sets_completed, rec.end.repetitions_completed
+    else:
+        sets_done, reps_done = counts.get("set_done", 0), counts.get("rep_done", 0)
+
+    wall = s["wall"][np.isfinite(s["wall"])]
+    return Summary(
+        duration_s=float(weights[active].sum()),
+        elapsed_s=float(wall.max() - wall.min()) if len(wall) else 0.0,
+        samples=len(s),
+        sets_completed=sets_done,
+        repetitions_completed=reps_done,
+        repetitions_prescribed=_prescribed_repetitions(rec.header.prescription),
+        end_reason=rec.end.reason if rec.end is not None else None,
+        axes={
+            axis: _axis_summary(rec, AXIS_INDEX[axis], active, weights, contiguous)
+            for axis in prescribed_axes(rec.header.prescription)
+        },
+        events=dict(sorted(counts.items())),
+        faults=[
+            FaultSummary(
+                at_s=_finite_or_zero(e.wall - rec.header.started_at),
+                kind=e.kind,
+                by=e.by,
+                text=_short_text(e.detail),
+            )
+            for e in rec.events
+            if e.kind in SAFETY_EVENT_KINDS
+        ],
+    )
+
+
+def prescribed_axes(prescription: dict[str, Any]) -> list[str]:
+    """The axes a prescription names, in its order; all three rotations if it names none."""
+    axes = prescription.get("axes")
+    names: list[str] = []
+    if isinstance(axes, list):
+        for a in axes:
+            name = a.get("axis") if isinstance(a, dict) else None
+            if name in AXIS_INDEX and name not in names:
+                names.append(name)
+    return names or list(ROTATION_AXES)
+
+
+def _prescribed_repetitions(prescription: dict[str, Any]) -> int | None:
+    sets, reps = prescription.get("sets"), prescription.get("repetitions")
+    # bool is an int to Python, but never a count
+    if type(sets) is int and type(reps) is int:
+        return sets * reps
+    return None
+
+
+def _sample_weights(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Seconds each sample stands for, and which intervals k→k+1 are unbroken telemetry."""
+    n = len(t)
+    if n == 0:
+        return np.zeros(0), np.zeros(0, dtype=bool)
+    dt = np.diff(t)
+    forward = np.isfinite(dt) & (dt > 0)
+    typical = float(np.median(dt[forward])) if forward.any() else 0.0
+    contiguous = forward & (dt <= GAP_FACTOR * typical)
+    # One sample, or a clock that never moved, gives zero weights: no exercise time, and
+    # the averages count each sample the same (see _weighted_mean).
+    return np.append(np.where(contiguous, dt, typical), typical), contiguous
+
+
+def _weighted_mean(values: NDArray[np.float64], w: NDArray[np.float64]) -> float | None:
+    total = float(w.sum())
+    if len(values) == 0:
+        return None
+    if total <= 0:
+        return float(values.mean())
+    return float((values * w).sum() / total)
+
+
+def _axis_summary(
+    rec: Recording,
+    i: int,
+    active: NDArray[np.bool_],
+    weights: NDArray[np.float64],
+    contiguous: NDArray[np.bool_],
+) -> AxisSummary:
+    s = rec.samples
+    q = s["pose"][:, i].astype(np.float64)
+    q_cmd = s["pose_cmd"][:, i].astype(np.float64)
+    tau = s["wrench"][:, i].astype(np.float64)
+
+    ok_q = active & np.isfinite(q)
+    ok_tau = active & np.isfinite(tau)
+    ok_err = ok_q & np.isfinite(q_cmd)
+    # Unmeasured values are masked out below; zeroing them first keeps inf - inf and inf * 0
+    # from making NaN (and warnings) in the arithmetic on whole columns.
+    q, q_cmd, tau = (np.where(np.isfinite(x), x, 0.0) for x in (q, q_cmd, tau))
+    err = np.degrees(q - q_cmd)
+
+    q_deg = np.degrees(q[ok_q])
+    lo = float(q_deg.min()) if len(q_deg) else None
+    hi = float(q_deg.max()) if len(q_deg) else None
+    abs_tau = np.abs(tau[ok_tau])
+
+    # Work over interval k→k+1 only when both ends are ACTIVE, finite and the telemetry is
+    # unbroken between them: a gap's change of angle says nothing about the torque in it.
+    both = ok_q & ok_tau
+    step = both[:-1] & both[1:] & contiguous
+    dw = 0.5 * (tau[:-1] + tau[1:]) * np.diff(q)
+    work = float(np.maximum(dw[step], 0.0).sum()) if len(dw) else 0.0
+
+    w_err = weights[ok_err]
+    e = err[ok_err]
+    mean_sq = _weighted_mean(e * e, w_err)
+    in_target = _weighted_mean((np.abs(e) < TARGET_TOLERANCE_DEG).astype(np.float64), w_err)
+    return AxisSummary(
+        rom_min_deg=lo,
+        rom_max_deg=hi,
+        rom_deg=hi - lo if hi is not None and lo is not None else None,
+        peak_torque_nm=float(abs_tau.max()) if len(abs_tau) else None,
+        mean_torque_nm=_weighted_mean(abs_tau, weights[ok_tau]),
+        work_j=work if active.any() else None,
+        tracking_error_rms_deg=math.sqrt(mean_sq) if mean_sq is not None else None,
+        time_in_target_pct=100.0 * in_target if in_target is not None else None,
+    )
+
+
+def _finite_or_zero(x: float) -> float:
+    return x if math.isfinite(x) else 0.0
+
+
+def _short_text(detail: dict[str, Any]) -> str:
+    text = detail.get("text")
+    if not isinstance(text, str) or not text:
+        # pydantic's encoder writes NaN as null, as in the recording's own JSON
+        text = to_json(detail, fallback=str).decode()
+    return text if len(text) <= _TEXT_MAX else text[: _TEXT_MAX - 1] + "…"

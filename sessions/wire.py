@@ -1,0 +1,236 @@
+"""WebSocket messages between home station, server and live viewers: the one master copy.
+
+Station and server never import each other, so the models they share live here, below both.
+Every message is JSON with a ``type`` tag; each direction of each link is one discriminated
+union, validated on receipt. The server publishes the JSON Schemas of these unions (WebSocket
+routes do not appear in OpenAPI) at ``/api/v1/schemas/ws``.
+
+Links and their handshake (``PROTOCOL`` is the version; a mismatch closes with
+:data:`CLOSE_VERSION` and a reason naming both versions):
+- ``/ws/station``: the station authenticates with its bearer token (``Authorization``
+  header) and sends :class:`StationHello`; the server answers :class:`Welcome`, then pushes
+  :class:`Prescriptions` and :class:`Command`\\ s; the station streams :class:`TelemetryMsg`,
+  :class:`EventMsg`, :class:`StatusMsg` and :class:`CommandResult`.
+- ``/ws/live/{station_id}``: a therapist authenticates with the subprotocol pair
+  ``["ankle.v1", "bearer.<token>"]`` (browsers cannot set headers) or the header; receives
+  :class:`Welcome`, then telemetry conflated to the latest sample per tick, events, status,
+  presence and the results of commands; sends :class:`Command`.
+
+Both sides send :class:`Heartbeat` every ``HEARTBEAT_S`` and drop a link silent for
+``HEARTBEAT_TIMEOUT_S``: the WebSocket library's 20 s keepalive is far too slow to tell a
+therapist that the live view is stale.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+from sessions.prescription import DAMPING_MAX, STIFFNESS_MAX, Axis, PrescriptionBody
+from sessions.recording import DeviceInfo, SessionEvent
+
+PROTOCOL = 1
+SUBPROTOCOL = "ankle.v1"
+BEARER_PREFIX = "bearer."
+HEARTBEAT_S = 1.0
+HEARTBEAT_TIMEOUT_S = 5.0
+MAX_MESSAGE_BYTES = 64 * 1024
+"""Largest message either side accepts; a longer one closes the link with 1009."""
+
+CLOSE_NORMAL = 1000
+CLOSE_MALFORMED = 1007
+"""Not JSON, or not one of the link's messages: the reason says which field."""
+CLOSE_POLICY = 1008
+"""Wrong token or Origin (a browser sees the handshake refused with 403)."""
+CLOSE_TOO_BIG = 1009
+CLOSE_VERSION = 4000
+"""The peers speak different protocol versions."""
+CLOSE_TIMEOUT = 4001
+"""No message for ``HEARTBEAT_TIMEOUT_S``."""
+CLOSE_REPLACED = 4002
+"""The same station connected again; the newest connection wins."""
+CLOSE_REVOKED = 4003
+
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+Vec6 = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+
+class Heartbeat(BaseModel):
+    model_config = _STRICT
+    type: Literal["heartbeat"] = "heartbeat"
+    sent: float = Field(description="Sender's wall clock, Unix s.")
+
+
+class StationHello(BaseModel):
+    model_config = _STRICT
+    type: Literal["hello"] = "hello"
+    protocol: int
+    software: str
+    device: DeviceInfo | None = Field(default=None, description="None while not connected.")
+
+
+class Welcome(BaseModel):
+    model_config = _STRICT
+    type: Literal["welcome"] = "welcome"
+    protocol: int = PROTOCOL
+    station_id: int
+    patient_id: int
+    online: bool = Field(default=True, description="For a viewer: is the station connected.")
+    status: StatusMsg | None = None
+    server_time: float = Field(description="Unix s.")
+
+
+class TelemetryMsg(BaseModel):
+    """One device sample as the station received it (SI units: m, rad, N, N·m, Pa)."""
+
+    model_config = _STRICT
+    type: Literal["telemetry"] = "telemetry"
+    sent: float = Field(description="Station wall clock when sent, Unix s.")
+    t: float = Field(description="Device time, s.")
+    mode: str = Field(description="Device mode name: IDLE, HOMING, READY, ACTIVE, HOLD, ...")
+    trip: int = Field(description="Latched trip code, 0 if none.")
+    segment_id: int
+    set: int = Field(description="1-based set of the running exercise, 0 if none.")
+    rep: int = Field(description="1-based repetition in the set, 0 if none.")
+    pose: Vec6 = Field(description="Measured pose relative to home: m, m, m, rad, rad, rad.")
+    pose_cmd: Vec6 = Field(description="Commanded pose relative to home.")
+    legs: Vec6 = Field(description="Piston displacements, m.")
+    pressures: Annotated[list[float], Field(min_length=12, max_length=12)] = Field(
+        description="Chamber gauge pressures, Pa; legs 1..6, cap then rod side."
+    )
+    wrench: Vec6 = Field(description="Patient's wrench on the foot plate: N, N·m.")
+    stiffness: Vec6 = Field(description="K in force: N/m, N·m/rad.")
+    damping: Vec6 = Field(description="B in force: N·s/m, N·m·s/rad.")
+    lag_ms: float = Field(description="Device pacing lag, ms.")
+    overruns: int
+    frames_dropped: int = Field(description="Frames the device dropped (CRC, length, ...).")
+
+
+class EventMsg(BaseModel):
+    model_config = _STRICT
+    type: Literal["event"] = "event"
+    session_id: str | None = None
+    event: SessionEvent
+
+
+Phase = Literal["idle", "homing", "running", "rest", "paused", "done", "stopped", "fault"]
+
+
+class StatusMsg(BaseModel):
+    """What the station is doing: sent on every change and once a second."""
+
+    model_config = _STRICT
+    type: Literal["status"] = "status"
+    sent: float
+    device_link: Literal["connected", "lost"] = "lost"
+    device_mode: str = "UNKNOWN"
+    trip: int = 0
+    phase: Phase = "idle"
+    session_id: str | None = None
+    prescription_id: int | None = None
+    exercise: str | None = None
+    set: int = 0
+    rep: int = 0
+    sets: int = 0
+    repetitions: int = 0
+    rest_remaining_s: float = 0.0
+    pending_uploads: int = 0
+    overruns: int = 0
+    frames_lost: int = Field(default=0, description="Serial frames lost on the host side.")
+    message: str = Field(default="", description="Last error or notice, plain words.")
+
+
+Action = Literal["set_impedance", "hold", "resume", "stop", "start"]
+
+
+class Command(BaseModel):
+    """A therapist's live change, relayed by the server to the station and the device."""
+
+    model_config = _STRICT
+    type: Literal["command"] = "command"
+    request_id: str = Field(min_length=1, max_length=64)
+    action: Action
+    stiffness: dict[Axis, Annotated[float, Field(ge=0.0, le=STIFFNESS_MAX)]] | None = Field(
+        default=None, description="set_impedance: new K per ankle axis, N·m/rad."
+    )
+    damping: dict[Axis, Annotated[float, Field(ge=0.0, le=DAMPING_MAX)]] | None = Field(
+        default=None, description="set_impedance: new B per ankle axis, N·m·s/rad."
+    )
+    prescription_id: int | None = Field(default=None, description="start: which exercise.")
+    by: str = Field(default="", description="Set by the server: therapist:<id>.")
+
+
+class CommandResult(BaseModel):
+    """The device's own answer to a command (its ACK or NACK), or why it never got there."""
+
+    model_config = _STRICT
+    type: Literal["result"] = "result"
+    request_id: str
+    ok: bool
+    code: str = Field(default="", description="NACK code, or OFFLINE / TIMEOUT / REFUSED.")
+    field: str = ""
+    text: str = ""
+    rtt_ms: float = Field(default=0.0, description="Station to device and back, ms.")
+
+
+class PrescriptionItem(BaseModel):
+    model_config = _STRICT
+    id: int
+    version: int
+    patient_id: int
+    body: PrescriptionBody
+
+
+class Prescriptions(BaseModel):
+    model_config = _STRICT
+    type: Literal["prescriptions"] = "prescriptions"
+    items: list[PrescriptionItem]
+
+
+class Presence(BaseModel):
+    model_config = _STRICT
+    type: Literal["presence"] = "presence"
+    online: bool
+
+
+StationUp = Annotated[
+    StationHello | TelemetryMsg | EventMsg | StatusMsg | CommandResult | Heartbeat,
+    Field(discriminator="type"),
+]
+StationDown = Annotated[Welcome | Prescriptions | Command | Heartbeat, Field(discriminator="type")]
+ViewerUp = Annotated[Command | Heartbeat, Field(discriminator="type")]
+ViewerDown = Annotated[
+    Welcome | TelemetryMsg | EventMsg | StatusMsg | CommandResult | Presence | Heartbeat,
+    Field(discriminator="type"),
+]
+
+STATION_UP: TypeAdapter[Any] = TypeAdapter(StationUp)
+STATION_DOWN: TypeAdapter[Any] = TypeAdapter(StationDown)
+VIEWER_UP: TypeAdapter[Any] = TypeAdapter(ViewerUp)
+VIEWER_DOWN: TypeAdapter[Any] = TypeAdapter(ViewerDown)
+
+
+def json_schemas() -> dict[str, Any]:
+    """The JSON Schema of each direction of each link, for clients in other languages."""
+    return {
+        "protocol": PROTOCOL,
+        "station_to_server": STATION_UP.json_schema(),
+        "server_to_station": STATION_DOWN.json_schema(),
+        "viewer_to_server": VIEWER_UP.json_schema(),
+        "server_to_viewer": VIEWER_DOWN.json_schema(),
+    }
+
+
+def error_text(exc: Exception, limit: int = 120) -> str:
+    """A close reason (at most 123 bytes on the wire) naming the first bad field."""
+    from pydantic import ValidationError
+
+    if isinstance(exc, ValidationError) and exc.errors():
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"]) or "message"
+        text = f"{loc}: {err['msg']}"
+    else:
+        text = str(exc) or type(exc).__name__
+    return text.encode()[:limit].decode(errors="ignore")

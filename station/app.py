@@ -1,0 +1,408 @@
+"""The patient's home station: device on one side, server on the other, the session on disk.
+
+Three things run side by side and none waits for another: the device link (telemetry into
+the session file and up to the server, events into the exercise timeline), the server link
+(prescriptions and live commands down), and the uploader. A lost server never stops an
+exercise: samples go to disk first and the device's own watchdog guards the serial side.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from device.client import CommandRefused, DeviceClient, DeviceError
+from device.protocol import messages as msg
+from device.protocol.messages import DeviceMode, EventKind
+from sessions import wire
+from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
+from sessions.wire import PrescriptionItem
+from station.server_link import ServerLink
+from station.spool import Spool
+from station.timeline import ExerciseRun
+from station.uploader import Uploader
+
+log = logging.getLogger("ankle.station")
+SOFTWARE = "ankle-station 0.1.0"
+FLUSH_S = 0.2
+"""Session samples reach the disk at least this often (fsync): at most this much is lost
+if the station's power is cut."""
+DEVICE_STALE_S = 2.0
+
+
+@dataclass
+class StationConfig:
+    device: str
+    server: str
+    token: str
+    spool: Path
+    autostart: bool = False
+    """Start the first active prescription once connected (the demo; and a patient's
+    station set to start at a fixed time)."""
+    baud: int = 921600
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class Station:
+    def __init__(self, config: StationConfig) -> None:
+        self.config = config
+        self.spool = Spool(config.spool)
+        self.dev: DeviceClient | None = None
+        self.link = ServerLink(config.server, config.token, self._hello, self._on_server)
+        self.uploader = Uploader(config.server, config.token, self.spool)
+        self.prescriptions: list[PrescriptionItem] = [
+            PrescriptionItem.model_validate(p) for p in self.spool.load_prescriptions()
+        ]
+        self.run_: ExerciseRun | None = None
+        self.writer: RecordingWriter | None = None
+        self.session_id: str | None = None
+        self.message = ""
+        self.sessions_done: list[str] = []
+        self._status_dirty = asyncio.Event()
+        self._started = False
+        self._session_task: asyncio.Task[None] | None = None
+        self._last_phase: wire.Phase = "idle"
+        self._segment_base = max(1, int(time.time()) & 0xFFFF)
+
+    # -- running -------------------------------------------------------------------------
+    async def run(self) -> None:
+        closed = self.spool.recover_unfinished()
+        if closed:
+            log.info("closed %d interrupted session(s) from before: %s", len(closed), closed)
+        tasks = [
+            asyncio.create_task(self.link.run(), name="server-link"),
+            asyncio.create_task(self.uploader.run(), name="uploader"),
+            asyncio.create_task(self._device_loop(), name="device"),
+            asyncio.create_task(self._status_loop(), name="status"),
+        ]
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await self._shutdown()
+
+    async def _shutdown(self) -> None:
+        if self.run_ is not None:
+            self.run_.stop()
+        if self.dev is not None:
+            latest = self.dev.latest
+            with contextlib.suppress(DeviceError):
+                if latest is not None and latest.mode == DeviceMode.ACTIVE:
+                    await self.dev.hold()
+            await self.dev.close()
+        if self.writer is not None:
+            self.writer.close()  # left open: recovered and closed as interrupted next start
+        await self.uploader.aclose()
+
+    async def _device_loop(self) -> None:
+        while True:
+            try:
+                dev = await DeviceClient.connect(self.config.device, self.config.baud)
+            except (DeviceError, OSError) as exc:
+                self.message = f"cannot reach the platform: {exc}"
+                self._status_dirty.set()
+                await asyncio.sleep(1.0)
+                continue
+            self.dev = dev
+            self.message = ""
+            assert dev.hello is not None
+            log.info(
+                "device %s (%s) on %s", dev.hello.firmware, dev.hello.hardware, self.config.device
+            )
+            self.link.send(self._hello())
+            self._status_dirty.set()
+            try:
+                await self._serve_device(dev)
+            finally:
+                self.dev = None
+                if self.run_ is not None:
+                    self.run_.stop()
+                await dev.close()
+                self.message = "lost the platform's link"
+                self._status_dirty.set()
+            await asyncio.sleep(1.0)
+
+    async def _serve_device(self, dev: DeviceClient) -> None:
+        telemetry = asyncio.create_task(self._telemetry(dev))
+        events = asyncio.create_task(self._events(dev))
+        try:
+            self._autostart()
+            done, _ = await asyncio.wait({telemetry, events}, return_when=asyncio.FIRST_COMPLETED)
+            for t in done:
+                t.result()
+        finally:
+            telemetry.cancel()
+            events.cancel()
+            await asyncio.gather(telemetry, events, return_exceptions=True)
+
+    async def _telemetry(self, dev: DeviceClient) -> None:
+        last_flush = time.monotonic()
+        stream = dev.telemetry()
+        while True:
+            try:
+                t = await asyncio.wait_for(anext(stream), DEVICE_STALE_S)
+            except (StopAsyncIteration, TimeoutError):
+                return  # the link closed or went silent: reconnect
+            wall = time.time()
+            run = self.run_
+            s, r = (run.set, run.rep) if run else (0, 0)
+            if self.writer is not None:
+                self.writer.add(sample_row(t, wall, s, r))
+                if wall - last_flush >= FLUSH_S:
+                    self.writer.flush()
+                    last_flush = wall
+            self.link.send_telemetry(_telemetry_msg(t, wall, s, r))
+
+    async def _events(self, dev: DeviceClient) -> None:
+        async for e in dev.events():
+            if self.run_ is not None:
+                self.run_.device_event(e)
+            self._event(
+                SessionEvent(
+                    wall=time.time(),
+                    t=e.time,
+                    kind=_EVENT_KINDS.get(e.kind, e.kind.name.lower()),
+                    by="device",
+                    detail={
+                        "from": e.mode_from.name,
+                        "to": e.mode_to.name,
+                        "code": e.code,
+                        "value": e.value,
+                        "text": e.text,
+                    },
+                )
+            )
+            self._status_dirty.set()
+
+    def _event(self, event: SessionEvent) -> None:
+        if self.writer is not None:
+            self.writer.event(event)
+        self.link.send(wire.EventMsg(session_id=self.session_id, event=event))
+
+    # -- sessions ------------------------------------------------------------------------
+    def _autostart(self) -> None:
+        if self.config.autostart and not self._started and self.dev and self.prescriptions:
+            self._started = True
+            self.start(self.prescriptions[0].id)
+
+    def start(self, prescription_id: int) -> str:
+        """Start a prescription; a reason it cannot start, or ``""``."""
+        if self.run_ is not None:
+            return "an exercise is already running"
+        if self.dev is None or self.dev.hello is None:
+            return "the platform is not connected"
+        item = next((p for p in self.prescriptions if p.id == prescription_id), None)
+        if item is None:
+            return f"no active prescription {prescription_id} for this patient"
+        welcome = self.link.welcome
+        hello = self.dev.hello
+        self.session_id = str(uuid.uuid4())
+        header = Header(
+            session_id=self.session_id,
+            station_id=welcome.station_id if welcome else 0,
+            patient_id=item.patient_id,
+            prescription_id=item.id,
+            prescription=item.body.model_dump(mode="json"),
+            device=_device_info(hello),
+            software=SOFTWARE,
+            started_at=time.time(),
+        )
+        path = self.spool.path(self.session_id)
+        self.writer = RecordingWriter(path, header)
+        self.uploader.skip(path)
+        self.run_ = ExerciseRun(
+            self.dev,
+            item.id,
+            item.body,
+            self._event,
+            self._status_dirty.set,
+            first_segment_id=self._segment_base,
+        )
+        self._session_task = asyncio.create_task(self._run_session(self.run_), name="exercise")
+        self._status_dirty.set()
+        return ""
+
+    async def _run_session(self, run: ExerciseRun) -> None:
+        try:
+            end = await run.run()
+        except DeviceError as exc:
+            log.error("exercise stopped: %s", exc)
+            self.message = str(exc)
+            end = None
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            if end is not None:
+                writer.end(end)
+            writer.close()
+        self._segment_base = max(1, (run.last_segment_id + 1) & 0xFFFF)
+        if self.session_id:
+            self.sessions_done.append(self.session_id)
+        self.run_ = None
+        self.session_id = None
+        self._last_phase = run.phase  # shown until the next start: done, stopped or fault
+        if end is not None:
+            self.uploader.skip(None)
+            self.uploader.wake()
+        self._status_dirty.set()
+
+    # -- server messages -----------------------------------------------------------------
+    async def _on_server(self, message: Any) -> None:
+        if isinstance(message, wire.Prescriptions):
+            self.prescriptions = message.items
+            self.spool.save_prescriptions([p.model_dump(mode="json") for p in message.items])
+            self._status_dirty.set()
+            self._autostart()
+        elif isinstance(message, wire.Command):
+            result = await self.command(message)
+            self.link.send(result)
+
+    async def command(self, cmd: wire.Command) -> wire.CommandResult:
+        """Carry out a therapist's (or the patient's) command; the device's answer."""
+        dev, run = self.dev, self.run_
+        t0 = time.perf_counter()
+
+        def result(ok: bool, code: str = "", field: str = "", text: str = "") -> wire.CommandResult:
+            return wire.CommandResult(
+                request_id=cmd.request_id,
+                ok=ok,
+                code=code,
+                field=field,
+                text=text,
+                rtt_ms=(time.perf_counter() - t0) * 1e3,
+            )
+
+        if cmd.action == "start":
+            why = self.start(cmd.prescription_id or 0)
+            return result(not why, "REFUSED" if why else "", "prescription_id", why)
+        if dev is None:
+            return result(False, "OFFLINE", "", "the platform is not connected")
+        try:
+            if cmd.action == "set_impedance":
+                if run is None:
+                    return result(False, "REFUSED", "action", "no exercise is running")
+                old = (dict(run.stiffness), dict(run.damping))
+                k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
+                self._event(
+                    SessionEvent(
+                        wall=time.time(),
+                        kind="impedance",
+                        by=cmd.by or "station",
+                        detail={
+                            "old": {"stiffness": old[0], "damping": old[1]},
+                            "new": {"stiffness": run.stiffness, "damping": run.damping},
+                        },
+                    )
+                )
+                latest = dev.latest
+                if latest is None or latest.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
+                    return result(True, "DEFERRED", "", "applies from the next repetition")
+                await dev.set_impedance(k, b)
+            elif cmd.action == "hold":
+                if run is not None:
+                    run.pause()
+                await dev.hold()
+            elif cmd.action == "resume":
+                if dev.latest is not None and dev.latest.mode == DeviceMode.HOLD:
+                    await dev.resume()
+                if run is not None:
+                    run.resume()
+            elif cmd.action == "stop":
+                if run is None:
+                    return result(False, "REFUSED", "action", "no exercise is running")
+                run.stop()
+            self._event(SessionEvent(wall=time.time(), kind=cmd.action, by=cmd.by or "station"))
+            return result(True, text="acknowledged by the device")
+        except CommandRefused as exc:
+            return result(False, exc.nack.code.name, exc.nack.field, exc.nack.text)
+        except DeviceError as exc:
+            return result(False, "TIMEOUT", "", str(exc))
+
+    # -- status --------------------------------------------------------------------------
+    def _hello(self) -> wire.StationHello:
+        hello = self.dev.hello if self.dev is not None else None
+        return wire.StationHello(
+            protocol=wire.PROTOCOL,
+            software=SOFTWARE,
+            device=_device_info(hello) if hello else None,
+        )
+
+    def status(self) -> wire.StatusMsg:
+        dev, run = self.dev, self.run_
+        latest = dev.latest if dev is not None else None
+        body = run.body if run else None
+        return wire.StatusMsg(
+            sent=time.time(),
+            device_link="connected" if dev is not None else "lost",
+            device_mode=latest.mode.name if latest else "UNKNOWN",
+            trip=int(latest.trip) if latest else 0,
+            phase=run.phase if run else self._last_phase,
+            session_id=self.session_id,
+            prescription_id=run.prescription_id if run else None,
+            exercise=body.exercise.value if body else None,
+            set=run.set if run else 0,
+            rep=run.rep if run else 0,
+            sets=body.sets if body else 0,
+            repetitions=body.repetitions if body else 0,
+            rest_remaining_s=round(run.rest_remaining(), 1) if run else 0.0,
+            pending_uploads=self.uploader.pending(),
+            overruns=latest.overruns if latest else 0,
+            frames_lost=dev.stats.frames_lost if dev else 0,
+            message=(run.message if run and run.message else self.message),
+        )
+
+    async def _status_loop(self) -> None:
+        while True:
+            self._status_dirty.clear()
+            self.link.send(self.status())
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._status_dirty.wait(), 1.0)
+
+
+_EVENT_KINDS = {
+    EventKind.MODE_CHANGE: "mode",
+    EventKind.WATCHDOG: "watchdog",
+    EventKind.LIMIT: "limit",
+    EventKind.FAULT: "fault",
+    EventKind.SEGMENT_DONE: "segment_done",
+    EventKind.HOMED: "homed",
+    EventKind.ESTOP: "estop",
+}
+
+
+def _device_info(hello: msg.DeviceHello) -> DeviceInfo:
+    return DeviceInfo(
+        firmware=hello.firmware,
+        hardware=hello.hardware,
+        telemetry_hz=hello.telemetry_hz,
+        home_pose=list(hello.home_pose),
+    )
+
+
+def _telemetry_msg(t: msg.Telemetry, wall: float, s: int, r: int) -> wire.TelemetryMsg:
+    return wire.TelemetryMsg(
+        sent=wall,
+        t=t.time,
+        mode=t.mode.name,
+        trip=int(t.trip),
+        segment_id=t.segment_id,
+        set=s,
+        rep=r,
+        pose=list(t.pose),
+        pose_cmd=list(t.pose_cmd),
+        legs=list(t.legs),
+        pressures=list(t.pressures),
+        wrench=list(t.wrench),
+        stiffness=list(t.stiffness),
+        damping=list(t.damping),
+        lag_ms=t.pacing_lag_ms,
+        overruns=t.overruns,
+        frames_dropped=t.frames_dropped,
+    )

@@ -1,0 +1,151 @@
+"""The station's WebSocket to the server: reconnects by itself, never blocks the exercise.
+
+Outgoing messages go through two queues: telemetry is bounded and drops the oldest sample
+(a live view wants the newest; the session file has every sample), while events, status and
+command results are never dropped and wait for the next connection. Incoming prescriptions
+and commands are handed to the station's callbacks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed, InvalidStatus, WebSocketException
+
+from sessions import wire
+
+log = logging.getLogger("ankle.station.server")
+
+TELEMETRY_QUEUE = 32
+
+
+class ServerLink:
+    def __init__(
+        self,
+        url: str,
+        token: str,
+        hello: Callable[[], wire.StationHello],
+        on_message: Callable[[Any], Awaitable[None]],
+    ) -> None:
+        self.url = url.rstrip("/").replace("http://", "ws://").replace("https://", "wss://")
+        self.token = token
+        self._hello = hello
+        self._on_message = on_message
+        self.connected = asyncio.Event()
+        self.welcome: wire.Welcome | None = None
+        self.telemetry: collections.deque[str] = collections.deque(maxlen=TELEMETRY_QUEUE)
+        self.control: collections.deque[str] = collections.deque()
+        self._wake = asyncio.Event()
+        self.last_error = ""
+        self.connects = 0
+        self.telemetry_dropped = 0
+
+    def send_telemetry(self, message: wire.TelemetryMsg) -> None:
+        if len(self.telemetry) == self.telemetry.maxlen:
+            self.telemetry_dropped += 1
+        self.telemetry.append(message.model_dump_json())
+        self._wake.set()
+
+    def send(self, message: BaseModel) -> None:
+        """Queue a message that must arrive (event, status, result)."""
+        self.control.append(message.model_dump_json())
+        self._wake.set()
+
+    async def run(self) -> None:
+        backoff = 0.5
+        while True:
+            try:
+                async with connect(
+                    f"{self.url}/ws/station",
+                    additional_headers={"Authorization": f"Bearer {self.token}"},
+                    max_size=wire.MAX_MESSAGE_BYTES,
+                    open_timeout=5.0,
+                    ping_interval=None,  # the application heartbeat is ours, once a second
+                ) as ws:
+                    await self._session(ws)
+                    backoff = 0.5
+            except InvalidStatus as exc:
+                self.last_error = f"server refused the station ({exc.response.status_code})"
+            except (OSError, WebSocketException, TimeoutError) as exc:
+                self.last_error = f"server unreachable ({type(exc).__name__})"
+            except _Closed as exc:
+                self.last_error = str(exc)
+                if exc.code in (wire.CLOSE_POLICY, wire.CLOSE_REVOKED, wire.CLOSE_VERSION):
+                    backoff = 30.0
+            finally:
+                self.connected.clear()
+                self.welcome = None
+            log.info("server link down: %s; retrying in %.1f s", self.last_error, backoff)
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2, 10.0)
+
+    async def _session(self, ws: ClientConnection) -> None:
+        await ws.send(self._hello().model_dump_json())
+        first = await asyncio.wait_for(ws.recv(), wire.HEARTBEAT_TIMEOUT_S)
+        welcome = wire.STATION_DOWN.validate_json(first)
+        if not isinstance(welcome, wire.Welcome):
+            raise _Closed(wire.CLOSE_MALFORMED, "the server did not answer hello with welcome")
+        self.welcome = welcome
+        self.connects += 1
+        self.last_error = ""
+        self.connected.set()
+        log.info("connected to %s as station %d", self.url, welcome.station_id)
+        reader = asyncio.create_task(self._read(ws))
+        try:
+            await self._write(ws, reader)
+        finally:
+            reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await reader
+        if ws.close_code not in (None, wire.CLOSE_NORMAL):
+            raise _Closed(ws.close_code or 0, f"closed by the server: {ws.close_reason}")
+
+    async def _read(self, ws: ClientConnection) -> None:
+        while True:
+            try:
+                raw = await asyncio.wait_for(ws.recv(), wire.HEARTBEAT_TIMEOUT_S)
+            except TimeoutError:
+                await ws.close(wire.CLOSE_TIMEOUT, "no heartbeat from the server")
+                return
+            except ConnectionClosed:
+                return
+            try:
+                message = wire.STATION_DOWN.validate_json(raw)
+            except ValidationError as exc:
+                await ws.close(wire.CLOSE_MALFORMED, wire.error_text(exc))
+                return
+            if not isinstance(message, wire.Heartbeat):
+                await self._on_message(message)
+
+    async def _write(self, ws: ClientConnection, reader: asyncio.Task[None]) -> None:
+        next_beat = 0.0
+        while not reader.done():
+            now = time.monotonic()
+            try:
+                if now >= next_beat:
+                    await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+                    next_beat = now + wire.HEARTBEAT_S
+                while self.control:
+                    await ws.send(self.control[0])
+                    self.control.popleft()  # only once the library has taken it
+                while self.telemetry:
+                    await ws.send(self.telemetry.popleft())
+            except ConnectionClosed:
+                return
+            self._wake.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), max(0.0, next_beat - now))
+
+
+class _Closed(Exception):
+    def __init__(self, code: int, text: str) -> None:
+        super().__init__(text)
+        self.code = code

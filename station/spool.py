@@ -1,0 +1,71 @@
+"""The station's spool directory: recorded sessions waiting for the server, and the cache.
+
+Every session is written here first, as it runs (``<session uuid>.rec``), and deleted only
+after the server has confirmed the upload with the same checksum. A file without an end
+record is a session the station did not finish (killed, power lost): at start-up it is cut
+back to its whole records, closed as ``interrupted`` and queued like any other.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from sessions.recording import End, RecordingError, RecordingWriter, recover
+
+PRESCRIPTIONS_FILE = "prescriptions.json"
+
+
+class Spool:
+    def __init__(self, directory: Path) -> None:
+        self.dir = directory
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def path(self, session_id: str) -> Path:
+        return self.dir / f"{session_id}.rec"
+
+    def pending(self) -> list[Path]:
+        """Finished sessions not yet confirmed by the server, oldest first."""
+        return sorted(self.dir.glob("*.rec"), key=lambda p: p.stat().st_mtime)
+
+    def recover_unfinished(self, active: set[Path] | None = None) -> list[str]:
+        """Close sessions a crash left open; returns their ids. Skips ``active`` files."""
+        closed: list[str] = []
+        for path in self.pending():
+            if active and path in active:
+                continue
+            try:
+                rec = recover(path)
+            except RecordingError:
+                # Not even a header made it to disk: nothing was recorded.
+                path.unlink()
+                continue
+            if rec.end is None:
+                reps = sum(1 for e in rec.events if e.kind == "rep_done")
+                sets = sum(1 for e in rec.events if e.kind == "set_done")
+                with RecordingWriter(path) as writer:
+                    writer.end(
+                        End(
+                            ended_at=time.time(),
+                            reason="interrupted",
+                            sets_completed=sets,
+                            repetitions_completed=reps,
+                        )
+                    )
+                closed.append(rec.header.session_id)
+        return closed
+
+    def save_prescriptions(self, items: list[dict[str, object]]) -> None:
+        """Cache the latest prescriptions so the patient can exercise with no network."""
+        tmp = self.dir / (PRESCRIPTIONS_FILE + ".tmp")
+        tmp.write_text(json.dumps(items))
+        os.replace(tmp, self.dir / PRESCRIPTIONS_FILE)
+
+    def load_prescriptions(self) -> list[dict[str, object]]:
+        try:
+            data = json.loads((self.dir / PRESCRIPTIONS_FILE).read_text())
+        except (FileNotFoundError, ValueError):
+            return []
+        return data if isinstance(data, list) else []

@@ -1,0 +1,285 @@
+"""Running one prescription on the device: sets of repetitions with rest between sets.
+
+Each repetition is one device segment (the device moves gently to the waveform's start,
+runs it for ``repetition_s`` with the prescription's own limits loaded, returns home and
+reports SEGMENT_DONE). The station only sequences; every limit is enforced by the device.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Literal
+
+from device.client import AxisPlan, DeviceClient, build_segment
+from device.controller import Waveform
+from device.protocol import messages as msg
+from device.protocol.messages import DeviceMode, EventKind
+from sessions.prescription import AXIS_INDEX, Axis, PrescriptionBody
+from sessions.recording import End, EndReason, SessionEvent
+
+HOMING_TIMEOUT_S = 40.0
+SEGMENT_MARGIN_S = 30.0
+"""Beyond ``repetition_s``: the approach and return moves and any pause are added to it."""
+_WAVEFORM = {"hold": Waveform.HOLD, "sine": Waveform.SINE, "ramp": Waveform.RAMP}
+STOPPED_MODES = (DeviceMode.FAULT, DeviceMode.ESTOP)
+
+Phase = Literal["homing", "running", "rest", "paused", "done", "stopped", "fault"]
+
+
+def axis_plans(
+    body: PrescriptionBody, stiffness: dict[str, float], damping: dict[str, float]
+) -> dict[str, AxisPlan]:
+    """The device's per-axis plan (radians) from a prescription and the live K and B."""
+    plans: dict[str, AxisPlan] = {}
+    compliant = body.compliant()
+    for a in body.axes:
+        plans[a.axis] = AxisPlan(
+            waveform=_WAVEFORM[a.waveform],
+            center=math.radians(a.center),
+            amplitude=math.radians(a.amplitude),
+            frequency=a.frequency,
+            ramp_end=math.radians(a.ramp_end),
+            ramp_rate=math.radians(a.ramp_rate),
+            stiffness=stiffness[a.axis],
+            damping=damping[a.axis],
+            compliant=compliant,
+        )
+    return plans
+
+
+def segment_for(
+    hello: msg.DeviceHello,
+    segment_id: int,
+    body: PrescriptionBody,
+    stiffness: dict[str, float],
+    damping: dict[str, float],
+) -> msg.StartSegment:
+    low, high = list(hello.rom_low), list(hello.rom_high)
+    for a in body.axes:
+        lo, hi = a.limits_deg()
+        i = AXIS_INDEX[a.axis]
+        low[i], high[i] = math.radians(lo), math.radians(hi)
+    return build_segment(
+        hello,
+        segment_id,
+        body.repetition_s,
+        axis_plans(body, stiffness, damping),
+        rom_low=tuple(low),
+        rom_high=tuple(high),
+        force_limit=body.force_limit,
+        torque_limit=body.torque_limit,
+    )
+
+
+class ExerciseRun:
+    """One run of a prescription; :meth:`run` returns how it ended."""
+
+    def __init__(
+        self,
+        dev: DeviceClient,
+        prescription_id: int,
+        body: PrescriptionBody,
+        on_event: Callable[[SessionEvent], None],
+        on_change: Callable[[], None],
+        first_segment_id: int = 1,
+    ) -> None:
+        assert dev.hello is not None
+        self.dev = dev
+        self.hello = dev.hello
+        self.prescription_id = prescription_id
+        self.body = body
+        self._on_event = on_event
+        self._on_change = on_change
+        self.stiffness: dict[str, float] = {a.axis: a.stiffness for a in body.axes}
+        self.damping: dict[str, float] = {a.axis: a.damping for a in body.axes}
+        self.set = 0
+        self.rep = 0
+        self.reps_done = 0
+        self.sets_done = 0
+        self.phase: Phase = "homing"
+        self.rest_until = 0.0
+        self.message = ""
+        self._segment_id = first_segment_id
+        self._segment_done = asyncio.Event()
+        self._stop = asyncio.Event()
+        self._resumed = asyncio.Event()
+        self._resumed.set()
+
+    # -- from the station --------------------------------------------------------------
+    def device_event(self, event: msg.Event) -> None:
+        if event.kind == EventKind.SEGMENT_DONE:
+            self._segment_done.set()
+        elif event.mode_to in STOPPED_MODES:
+            self.message = event.text
+            self._stop.set()
+        elif event.mode_to == DeviceMode.HOLD and self.phase == "running":
+            self._pause()
+
+    def pause(self) -> None:
+        self._pause()
+
+    def resume(self) -> None:
+        if self.phase == "paused":
+            self.phase = "running" if self.rest_until == 0.0 else "rest"
+            self._resumed.set()
+            self._on_change()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    @property
+    def last_segment_id(self) -> int:
+        return self._segment_id
+
+    def rest_remaining(self) -> float:
+        return max(0.0, self.rest_until - time.monotonic()) if self.rest_until else 0.0
+
+    def _pause(self) -> None:
+        if self.phase in ("running", "rest"):
+            self.phase = "paused"
+            self._resumed.clear()
+            self._on_change()
+
+    def _event(self, kind: str, **detail: object) -> None:
+        self._on_event(SessionEvent(wall=time.time(), kind=kind, by="station", detail=detail))
+
+    # -- the timeline ------------------------------------------------------------------
+    async def run(self) -> End:
+        reason: EndReason = "completed"
+        try:
+            await self._home()
+            for s in range(1, self.body.sets + 1):
+                for r in range(1, self.body.repetitions + 1):
+                    self.set, self.rep, self.phase = s, r, "running"
+                    self._on_change()
+                    if not await self._repetition():
+                        break
+                    self.reps_done += 1
+                    self._event("rep_done", set=s, rep=r)
+                if self._stop.is_set():
+                    break
+                self.sets_done += 1
+                self._event("set_done", set=s)
+                if s < self.body.sets and self.body.rest_s > 0:
+                    await self._rest(self.body.rest_s)
+                if self._stop.is_set():
+                    break
+        finally:
+            latest = self.dev.latest
+            if latest is not None and latest.mode in STOPPED_MODES:
+                reason = "fault"
+            elif self._stop.is_set() and self.sets_done < self.body.sets:
+                reason = "stopped"
+            self.phase = (
+                "fault" if reason == "fault" else "stopped" if reason == "stopped" else "done"
+            )
+            self.set = self.rep = 0
+            self._on_change()
+        return End(
+            ended_at=time.time(),
+            reason=reason,
+            sets_completed=self.sets_done,
+            repetitions_completed=self.reps_done,
+        )
+
+    async def _home(self) -> None:
+        latest = await self.dev.wait_for_mode(*DeviceMode, timeout=5.0)
+        if latest.mode in STOPPED_MODES:
+            self.message = f"the device is in {latest.mode.name}; it must be re-armed"
+            self._stop.set()
+            return
+        if latest.mode == DeviceMode.READY:
+            return
+        if latest.mode in (DeviceMode.ACTIVE,):
+            await self.dev.hold()
+        if latest.mode != DeviceMode.HOMING:
+            await self.dev.arm_home()
+        self.phase = "homing"
+        self._on_change()
+        await self._until_mode(DeviceMode.READY, HOMING_TIMEOUT_S)
+
+    async def _until_mode(self, mode: DeviceMode, timeout: float) -> None:
+        stop = asyncio.create_task(self._stop.wait())
+        ready = asyncio.create_task(self.dev.wait_for_mode(mode, *STOPPED_MODES, timeout=timeout))
+        try:
+            await asyncio.wait({stop, ready}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop.cancel()
+            ready.cancel()
+        if ready.done() and not ready.cancelled() and ready.exception() is None:
+            if ready.result().mode in STOPPED_MODES:
+                self._stop.set()
+        elif ready.done() and not ready.cancelled():
+            self.message = str(ready.exception())
+            self._stop.set()
+
+    async def _repetition(self) -> bool:
+        """Run one segment to its end; False if the run was stopped."""
+        await self._resumed.wait()
+        if self._stop.is_set():
+            return False
+        self._segment_id += 1
+        self._segment_done.clear()
+        await self.dev.start_segment(
+            segment_for(self.hello, self._segment_id, self.body, self.stiffness, self.damping)
+        )
+        done = asyncio.create_task(self._segment_done.wait())
+        stop = asyncio.create_task(self._stop.wait())
+        try:
+            await asyncio.wait({done, stop}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            done.cancel()
+            stop.cancel()
+        if self._stop.is_set() and not self._segment_done.is_set():
+            await self._abort_segment()
+            return False
+        return True
+
+    async def _abort_segment(self) -> None:
+        """Stop a running segment: hold where it is, then home slowly to READY."""
+        latest = self.dev.latest
+        if latest is None or latest.mode in STOPPED_MODES:
+            return
+        if latest.mode == DeviceMode.ACTIVE:
+            await self.dev.hold()
+        await self.dev.arm_home()
+        await self.dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
+
+    async def _rest(self, seconds: float) -> None:
+        self.phase = "rest"
+        remaining = seconds
+        while remaining > 0 and not self._stop.is_set():
+            await self._resumed.wait()
+            self.rest_until = time.monotonic() + remaining
+            self._on_change()
+            self._event("rest", seconds=round(remaining, 1))
+            paused = asyncio.create_task(self._wait_paused())
+            stop = asyncio.create_task(self._stop.wait())
+            try:
+                await asyncio.wait({paused, stop}, timeout=remaining)
+            finally:
+                paused.cancel()
+                stop.cancel()
+            remaining = self.rest_until - time.monotonic()
+        self.rest_until = 0.0
+
+    async def _wait_paused(self) -> None:
+        while self._resumed.is_set():
+            await asyncio.sleep(0.05)
+
+    # -- live changes -------------------------------------------------------------------
+    def apply_impedance(
+        self, stiffness: Mapping[Axis, float] | None, damping: Mapping[Axis, float] | None
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Merge a live change into this run; the 6-axis K and B to send to the device."""
+        for name, value in (stiffness or {}).items():
+            if name in self.stiffness:
+                self.stiffness[name] = value
+        for name, value in (damping or {}).items():
+            if name in self.damping:
+                self.damping[name] = value
+        seg = segment_for(self.hello, 1, self.body, self.stiffness, self.damping)
+        return seg.stiffness, seg.damping

@@ -1,0 +1,5 @@
+"""Fixtures for the server tests; the helpers live in ``live_server``."""
+
+from tests.server.live_server import empty, live, seeded, world
+
+__all__ = ["empty", "live", "seeded", "world"]

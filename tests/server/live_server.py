@@ -1,0 +1,188 @@
+"""The real server on a real port, talked to over HTTP.
+
+A seeded database (an admin, two therapists each with a patient, stations and a
+prescription, all made through the API) is built once per test session; each test gets a
+fresh copy of it in its own ``data_dir`` and its own uvicorn server, so tests never see each
+other's changes and no test pays for Argon2 hashing it does not test.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import pytest_asyncio
+import uvicorn
+from fastapi import FastAPI
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
+
+from server.app import create_app
+from server.cli import ensure_user_async
+from server.config import Settings
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
+
+PASSWORD = "correct horse battery"
+STRENGTH: dict[str, Any] = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+
+
+@dataclass
+class Live:
+    """A running server: its app (for ``app.state``), an HTTP client on ``/api/v1``."""
+
+    app: FastAPI
+    client: httpx.AsyncClient
+    settings: Settings
+
+    @property
+    def sessionmaker(self) -> async_sessionmaker[AsyncSession]:
+        maker: async_sessionmaker[AsyncSession] = self.app.state.sessionmaker
+        return maker
+
+
+@asynccontextmanager
+async def running(settings: Settings) -> AsyncIterator[Live]:
+    """Serve ``create_app(settings)`` with uvicorn on a free port until the block ends."""
+    app = create_app(settings)
+    config = uvicorn.Config(app, host="127.0.0.1", port=0, lifespan="on", log_level="warning")
+    server = uvicorn.Server(config)
+    task = asyncio.create_task(server.serve())
+    while not server.started:
+        if task.done():
+            raise RuntimeError("the server did not start") from task.exception()
+        await asyncio.sleep(0.005)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    try:
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}/api/v1") as client:
+            yield Live(app, client, settings)
+    finally:
+        server.should_exit = True
+        await task
+
+
+def bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+@dataclass(frozen=True)
+class World:
+    """Who and what the seeded database holds (ids and tokens)."""
+
+    admin: str
+    t1: str
+    t2: str
+    t1_id: int
+    t2_id: int
+    p1: int
+    p2: int
+    s1: str
+    s1_id: int
+    s1_spare_id: int
+    s2: str
+    s2_id: int
+    rx1: int
+    rx2: int
+
+    def token(self, role: str) -> str | None:
+        """The bearer token of ``anon``, ``admin``, ``t1``, ``t2`` or ``station`` (s1)."""
+        return {
+            "anon": None,
+            "admin": self.admin,
+            "t1": self.t1,
+            "t2": self.t2,
+            "station": self.s1,
+        }[role]
+
+
+async def login(client: httpx.AsyncClient, email: str, password: str = PASSWORD) -> str:
+    r = await client.post("/auth/login", json={"email": email, "password": password})
+    assert r.status_code == 200, r.text
+    token: str = r.json()["access_token"]
+    return token
+
+
+async def _seed(data_dir: Path) -> World:
+    settings = Settings(data_dir=data_dir)
+    await ensure_user_async(settings, "admin@clinic.test", "Ada Admin", "admin", PASSWORD)
+    async with running(settings) as live:
+        c = live.client
+        admin = await login(c, "admin@clinic.test")
+        ids = {}
+        for who in ("t1", "t2"):
+            r = await c.post(
+                "/users",
+                json={
+                    "email": f"{who}@clinic.test",
+                    "name": who,
+                    "role": "therapist",
+                    "password": PASSWORD,
+                },
+                headers=bearer(admin),
+            )
+            assert r.status_code == 201, r.text
+            ids[who] = r.json()["id"]
+        t1, t2 = await login(c, "t1@clinic.test"), await login(c, "t2@clinic.test")
+
+        async def post(token: str, path: str, body: dict[str, Any]) -> dict[str, Any]:
+            r = await c.post(path, json=body, headers=bearer(token))
+            assert r.status_code == 201, r.text
+            out: dict[str, Any] = r.json()
+            return out
+
+        p1 = await post(t1, "/patients", {"display_name": "Pat One", "affected_side": "left"})
+        p2 = await post(t2, "/patients", {"display_name": "Pat Two"})
+        s1 = await post(t1, f"/patients/{p1['id']}/stations", {"name": "Home of Pat One"})
+        spare = await post(t1, f"/patients/{p1['id']}/stations", {"name": "Spare"})
+        s2 = await post(t2, f"/patients/{p2['id']}/stations", {"name": "Home of Pat Two"})
+        rx1 = await post(t1, f"/patients/{p1['id']}/prescriptions", STRENGTH)
+        rx2 = await post(t2, f"/patients/{p2['id']}/prescriptions", STRENGTH)
+    return World(
+        admin=admin,
+        t1=t1,
+        t2=t2,
+        t1_id=ids["t1"],
+        t2_id=ids["t2"],
+        p1=p1["id"],
+        p2=p2["id"],
+        s1=s1["token"],
+        s1_id=s1["id"],
+        s1_spare_id=spare["id"],
+        s2=s2["token"],
+        s2_id=s2["id"],
+        rx1=rx1["id"],
+        rx2=rx2["id"],
+    )
+
+
+@pytest.fixture(scope="session")
+def seeded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, World]:
+    data_dir = tmp_path_factory.mktemp("seeded")
+    return data_dir, asyncio.run(_seed(data_dir))
+
+
+@pytest_asyncio.fixture
+async def live(seeded: tuple[Path, World], tmp_path: Path) -> AsyncIterator[Live]:
+    """A server on a private copy of the seeded database."""
+    template, _ = seeded
+    for f in template.glob("ankle.db*"):
+        shutil.copy(f, tmp_path / f.name)
+    async with running(Settings(data_dir=tmp_path)) as server:
+        yield server
+
+
+@pytest.fixture
+def world(seeded: tuple[Path, World]) -> World:
+    return seeded[1]
+
+
+@pytest_asyncio.fixture
+async def empty(tmp_path: Path) -> AsyncIterator[Live]:
+    """A server on a new, empty data directory."""
+    async with running(Settings(data_dir=tmp_path)) as server:
+        yield server

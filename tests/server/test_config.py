@@ -1,0 +1,51 @@
+"""Settings: defaults that follow from other settings, and ANKLE_* variables."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from server.config import Settings
+
+
+def test_defaults_follow_data_dir_and_port(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path, port=8123)
+    assert s.database_url == f"sqlite+aiosqlite:///{tmp_path}/ankle.db"
+    assert s.allowed_origins == ["http://127.0.0.1:8123", "http://localhost:8123"]
+    assert s.public_url == "http://127.0.0.1:8123"
+    assert s.token_ttl_s == 12 * 3600
+    assert s.upload_max_bytes == 512 * 1024 * 1024
+
+
+def test_explicit_values_win_and_a_wildcard_host_is_published_as_loopback() -> None:
+    s = Settings(
+        host="0.0.0.0",
+        database_url="sqlite+aiosqlite:///elsewhere.db",
+        allowed_origins=["https://clinic.example"],
+    )
+    assert s.public_url == "http://127.0.0.1:8000"
+    assert s.database_url == "sqlite+aiosqlite:///elsewhere.db"
+    assert s.allowed_origins == ["https://clinic.example"]
+    # None (from code that builds settings from a dict) means "derive it", like unset.
+    derived = Settings.model_validate({"database_url": None}).database_url
+    assert derived.endswith("ankle-data/ankle.db")
+
+
+def test_environment_variables(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("ANKLE_DATA_DIR", str(tmp_path))
+    monkeypatch.setenv("ANKLE_PORT", "9001")
+    monkeypatch.setenv("ANKLE_TOKEN_TTL_S", "60")
+    monkeypatch.setenv("ANKLE_PUBLIC_URL", "https://ankle.clinic.example")
+    s = Settings()
+    assert (s.data_dir, s.port, s.token_ttl_s) == (tmp_path, 9001, 60)
+    assert s.database_url == f"sqlite+aiosqlite:///{tmp_path}/ankle.db"
+    assert s.allowed_origins == ["http://127.0.0.1:9001", "http://localhost:9001"]
+    assert s.public_url == "https://ankle.clinic.example"
+
+
+def test_out_of_range_values_are_refused() -> None:
+    with pytest.raises(ValueError, match="port"):
+        Settings(port=70000)
+    with pytest.raises(ValueError, match="token_ttl_s"):
+        Settings(token_ttl_s=0)

@@ -1,0 +1,63 @@
+"""Patients: what a therapist may write and how a partial update behaves."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+import pytest
+
+from tests.server.live_server import Live, World, bearer
+
+
+@pytest.mark.asyncio
+async def test_create_then_patch_only_the_given_fields(live: Live, world: World) -> None:
+    t1 = bearer(world.t1)
+    r = await live.client.post(
+        "/patients",
+        json={
+            "display_name": "  J. D.  ",
+            "reference": "CL-7",
+            "birth_year": 1950,
+            "affected_side": "both",
+            "notes": "post-fracture",
+        },
+        headers=t1,
+    )
+    assert r.status_code == 201
+    created = r.json()
+    assert (created["display_name"], created["therapist_id"]) == ("J. D.", world.t1_id)
+    r = await live.client.patch(
+        f"/patients/{created['id']}", json={"reference": None, "notes": "walking"}, headers=t1
+    )
+    updated = r.json()
+    assert updated == {
+        **created,
+        "reference": None,
+        "notes": "walking",
+        "updated_at": updated["updated_at"],
+    }
+    assert updated["updated_at"] > created["updated_at"]
+    again = await live.client.get(f"/patients/{created['id']}", headers=t1)
+    assert again.json() == updated
+
+
+INVALID: list[tuple[dict[str, Any], list[str]]] = [
+    ({"display_name": None}, ["body"]),
+    ({"display_name": ""}, ["body", "display_name"]),
+    ({"birth_year": datetime.now(UTC).year + 1}, ["body", "birth_year"]),
+    ({"birth_year": 1800}, ["body", "birth_year"]),
+    ({"affected_side": "middle"}, ["body", "affected_side"]),
+    ({"therapist_id": 2}, ["body", "therapist_id"]),
+]
+
+
+@pytest.mark.asyncio
+async def test_invalid_updates_are_refused(live: Live, world: World) -> None:
+    t1 = bearer(world.t1)
+    before = (await live.client.get(f"/patients/{world.p1}", headers=t1)).json()
+    for body, loc in INVALID:
+        r = await live.client.patch(f"/patients/{world.p1}", json=body, headers=t1)
+        assert r.status_code == 422, body
+        assert r.json()["detail"][0]["loc"] == loc, body
+    assert (await live.client.get(f"/patients/{world.p1}", headers=t1)).json() == before

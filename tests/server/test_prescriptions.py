@@ -1,0 +1,160 @@
+"""Prescriptions over the API: the library, validation at the door, versions, the hub."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+
+from sessions.prescription import STIFFNESS_MAX, ExerciseKind, PrescriptionBody
+from tests.server.live_server import STRENGTH, Live, World, bearer
+
+
+def with_pitch(**changes: Any) -> dict[str, Any]:
+    """The strength defaults with the pitch axis changed."""
+    return {**STRENGTH, "axes": [{**STRENGTH["axes"][0], **changes}]}
+
+
+def as_json(body: dict[str, Any], **raw: str) -> str:
+    """``body`` as JSON text, with ``@name`` placeholders replaced by raw JSON tokens."""
+    text = json.dumps(body)
+    for name, token in raw.items():
+        text = text.replace(f'"@{name}"', token)
+    return text
+
+
+AXIS = ["body", "axes", 0]
+INVALID = [
+    pytest.param(
+        as_json(with_pitch(stiffness="@x"), x="NaN"),
+        [*AXIS, "stiffness"],
+        "finite number",
+        id="nan",
+    ),
+    pytest.param(
+        as_json(with_pitch(damping="@x"), x="Infinity"),
+        [*AXIS, "damping"],
+        "finite number",
+        id="infinity",
+    ),
+    pytest.param(
+        as_json(with_pitch(stiffness=-1.0)),
+        [*AXIS, "stiffness"],
+        "greater than or equal to 0",
+        id="negative-stiffness",
+    ),
+    pytest.param(
+        as_json(with_pitch(stiffness=1e9)),
+        [*AXIS, "stiffness"],
+        f"less than or equal to {STIFFNESS_MAX:g}",
+        id="oversized-stiffness",
+    ),
+    pytest.param(
+        as_json({**STRENGTH, "repetitions": 10_000}),
+        ["body", "repetitions"],
+        "less than or equal to 100",
+        id="oversized-repetitions",
+    ),
+    pytest.param(
+        as_json(with_pitch(rom_high=40.0)),
+        AXIS,
+        "rom_high 40 deg is above 22.9 deg",
+        id="rom-beyond-anatomy-and-device",
+    ),
+    pytest.param(
+        as_json({**STRENGTH, "surprise": 1}),
+        ["body", "surprise"],
+        "Extra inputs are not permitted",
+        id="unknown-field",
+    ),
+]
+
+
+async def _snapshot(live: Live, world: World) -> tuple[Any, Any]:
+    rx = await live.client.get(f"/patients/{world.p1}/prescriptions", headers=bearer(world.t1))
+    log = await live.client.get("/audit", headers=bearer(world.admin))
+    return rx.json(), log.json()
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(("text", "loc", "msg"), INVALID)
+async def test_an_invalid_prescription_is_a_422_that_changes_nothing(
+    live: Live, world: World, text: str, loc: list[Any], msg: str
+) -> None:
+    before = await _snapshot(live, world)
+    headers = {**bearer(world.t1), "Content-Type": "application/json"}
+    for method, path in [
+        ("POST", f"/patients/{world.p1}/prescriptions"),
+        ("PATCH", f"/prescriptions/{world.rx1}"),
+    ]:
+        r = await live.client.request(method, path, content=text, headers=headers)
+        assert r.status_code == 422, r.text
+        errors = r.json()["detail"]
+        assert any(e["loc"] == loc and msg in e["msg"] for e in errors), errors
+    assert await _snapshot(live, world) == before
+
+
+@pytest.mark.asyncio
+async def test_the_exercise_library(live: Live, world: World) -> None:
+    r = await live.client.get("/exercises", headers=bearer(world.t1))
+    library = r.json()
+    assert [e["kind"] for e in library] == [k.value for k in ExerciseKind]
+    for entry in library:
+        PrescriptionBody.model_validate(entry["defaults"])
+
+
+@pytest.mark.asyncio
+async def test_create_update_cancel(
+    live: Live, world: World, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    hub = live.app.state.hub
+    nudged: list[int] = []
+    original = hub.prescriptions_changed
+
+    async def record(station_id: int) -> None:
+        nudged.append(station_id)
+        await original(station_id)
+
+    monkeypatch.setattr(hub, "prescriptions_changed", record)
+    t1 = bearer(world.t1)
+    body = with_pitch(stiffness=25.0, rom_low=-10.0, rom_high=20.0)
+    r = await live.client.post(f"/patients/{world.p1}/prescriptions", json=body, headers=t1)
+    assert r.status_code == 201
+    rx = r.json()
+    assert (rx["status"], rx["version"], rx["created_by"]) == ("active", 1, world.t1_id)
+    assert rx["body"]["axes"][0]["stiffness"] == 25.0
+    assert rx["total_s"] == PrescriptionBody.model_validate(body).total_s()
+    assert sorted(nudged) == [world.s1_id, world.s1_spare_id]
+
+    # Revoked stations are not told; the therapist's edit bumps the version.
+    await live.client.post(f"/stations/{world.s1_spare_id}/revoke", headers=t1)
+    nudged.clear()
+    r = await live.client.patch(f"/prescriptions/{rx['id']}", json={**body, "sets": 2}, headers=t1)
+    assert (r.json()["version"], r.json()["body"]["sets"]) == (2, 2)
+    assert nudged == [world.s1_id]
+    # The same body again is no change: no new version, no audit row.
+    r = await live.client.patch(f"/prescriptions/{rx['id']}", json={**body, "sets": 2}, headers=t1)
+    assert r.json()["version"] == 2
+
+    station = bearer(world.s1)
+    active = (await live.client.get("/station/prescriptions", headers=station)).json()
+    assert [p["id"] for p in active] == [world.rx1, rx["id"]]
+
+    r = await live.client.post(f"/prescriptions/{rx['id']}/cancel", headers=t1)
+    assert r.json()["status"] == "cancelled"
+    active = (await live.client.get("/station/prescriptions", headers=station)).json()
+    assert [p["id"] for p in active] == [world.rx1]
+    for method, path in [
+        ("POST", f"/prescriptions/{rx['id']}/cancel"),
+        ("PATCH", f"/prescriptions/{rx['id']}"),
+    ]:
+        r = await live.client.request(method, path, json=body, headers=t1)
+        assert (r.status_code, r.json()["detail"]) == (
+            409,
+            "the prescription is cancelled; write a new one instead",
+        )
+    listed = await live.client.get(
+        f"/patients/{world.p1}/prescriptions?status=cancelled", headers=t1
+    )
+    assert [p["id"] for p in listed.json()] == [rx["id"]]

@@ -1,0 +1,176 @@
+"""The whole system as separate processes: server, simulated device on a pty, home station.
+
+Nothing is in-process but the test's own clients (httpx for REST, websockets for the live
+view), so what is tested is what ``make run`` starts.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import pytest_asyncio
+from websockets.asyncio.client import ClientConnection, connect
+
+from ankle.system import wait_healthy
+from device.process import ServiceProcess
+from server.cli import provision_demo
+from server.config import Settings
+from sessions import wire
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class System:
+    data_dir: Path
+    port: int
+    creds: dict[str, Any]
+    device: ServiceProcess
+    server: subprocess.Popen[bytes] | None = None
+    station: subprocess.Popen[bytes] | None = None
+    logs: list[Path] = field(default_factory=list)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def station_id(self) -> int:
+        return int(self.creds["station_id"])
+
+    def _spawn(self, name: str, *args: str, env: dict[str, str]) -> subprocess.Popen[bytes]:
+        log = self.data_dir / f"{name}-{len(self.logs)}.log"
+        self.logs.append(log)
+        with log.open("wb") as out:
+            return subprocess.Popen(
+                [sys.executable, "-m", "ankle", *args],
+                env={**os.environ, **env},
+                stdout=out,
+                stderr=subprocess.STDOUT,
+            )
+
+    def start_server(self) -> None:
+        self.server = self._spawn(
+            "server",
+            "server",
+            env={
+                "ANKLE_DATA_DIR": str(self.data_dir / "server"),
+                "ANKLE_PORT": str(self.port),
+            },
+        )
+        wait_healthy(self.url, self.server, timeout=30.0)
+
+    def start_station(self) -> None:
+        self.station = self._spawn(
+            "station",
+            "station",
+            "--device",
+            self.device.link,
+            "--server",
+            self.url,
+            "--spool",
+            str(self.spool),
+            env={"ANKLE_STATION_TOKEN": self.creds["station_token"]},
+        )
+
+    @property
+    def spool(self) -> Path:
+        return self.data_dir / "station"
+
+    def stop(self, proc: subprocess.Popen[bytes] | None, sig: int = signal.SIGTERM) -> None:
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(sig)
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def log_tail(self) -> str:
+        return "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in self.logs)
+
+
+@pytest.fixture
+def system(tmp_path: Path) -> Iterator[System]:
+    port = free_port()
+    creds = provision_demo(Settings(data_dir=tmp_path / "server", port=port))
+    device = ServiceProcess("--link", "pty", "--patient-torque", "3")
+    sysm = System(tmp_path, port, creds, device)
+    try:
+        sysm.start_server()
+        yield sysm
+    finally:
+        sysm.stop(sysm.station)
+        device.stop()
+        sysm.stop(sysm.server)
+
+
+@pytest_asyncio.fixture
+async def therapist(system: System) -> AsyncIterator[httpx.AsyncClient]:
+    async with httpx.AsyncClient(base_url=system.url, timeout=30.0) as client:
+        r = await client.post(
+            "/api/v1/auth/login",
+            json={
+                "email": system.creds["therapist_email"],
+                "password": system.creds["therapist_password"],
+            },
+        )
+        assert r.status_code == 200, r.text
+        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+        yield client
+
+
+def bearer(client: httpx.AsyncClient) -> str:
+    return str(client.headers["Authorization"]).split(" ", 1)[1]
+
+
+async def live(system: System, token: str) -> ClientConnection:
+    return await connect(
+        f"ws://127.0.0.1:{system.port}/ws/live/{system.station_id}",
+        subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
+        max_size=wire.MAX_MESSAGE_BYTES,
+    )
+
+
+_last_beat: dict[int, float] = {}
+
+
+async def next_of(ws: ClientConnection, kind: type[Any], timeout: float = 30.0) -> Any:
+    """The next message of a type, skipping the others; sends the viewer's heartbeat."""
+    deadline = time.monotonic() + timeout
+    while True:
+        now = time.monotonic()
+        if now - _last_beat.get(id(ws), 0.0) >= wire.HEARTBEAT_S:
+            await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+            _last_beat[id(ws)] = now
+        left = deadline - now
+        if left <= 0:
+            raise TimeoutError(f"no {kind.__name__} within {timeout} s")
+        try:
+            raw = await asyncio.wait_for(ws.recv(), min(left, wire.HEARTBEAT_S))
+        except TimeoutError:
+            continue
+        message = wire.VIEWER_DOWN.validate_json(raw)
+        if isinstance(message, kind):
+            return message
+
+
+def dump(obj: Any) -> str:
+    return json.dumps(obj, indent=1, default=str)[:2000]
