@@ -96,6 +96,8 @@ def run_system(
             "--spool",
             str(data_dir / "station"),
             "--autostart",
+            "--repeat-after",
+            "15",
             env={"ANKLE_STATION_TOKEN": creds["station_token"]},
         )
         _banner(out, url, device.link, creds)
@@ -132,7 +134,8 @@ def _banner(out: TextIO, url: str, link: str, creds: dict[str, Any]) -> None:
         f"{creds.get('therapist_password')}",
         f"  Demo patient               {creds.get('patient_name', '')} "
         f"(id {creds.get('patient_id')}), station {station_id}",
-        "  The station starts the demo prescription now; Ctrl-C stops everything.",
+        "  The station runs the demo prescription now and again 15 s after each session;",
+        "  sessions appear under /api/v1/sessions. Ctrl-C stops everything.",
         "",
     ]
     print("\n".join(lines), file=out, flush=True)

@@ -46,6 +46,8 @@ class StationConfig:
     """Start the first active prescription once connected (the demo; and a patient's
     station set to start at a fixed time)."""
     baud: int = 921600
+    repeat_after_s: float | None = None
+    """With ``autostart``: start it again this long after each session ends (the demo)."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -252,6 +254,10 @@ class Station:
             self.uploader.skip(None)
             self.uploader.wake()
         self._status_dirty.set()
+        if self.config.autostart and self.config.repeat_after_s is not None:
+            await asyncio.sleep(self.config.repeat_after_s)
+            self._started = False
+            self._autostart()
 
     # -- server messages -----------------------------------------------------------------
     async def _on_server(self, message: Any) -> None:

@@ -37,6 +37,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="start the first active prescription as soon as the platform is connected",
     )
+    p.add_argument(
+        "--repeat-after",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --autostart: start it again S seconds after each session (a demo)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
         print("error: ankle station: --token (or ANKLE_STATION_TOKEN) is required")
         return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
     station = Station(
         StationConfig(
             device=args.device,
@@ -51,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
             token=args.token,
             spool=args.spool,
             autostart=args.autostart,
+            repeat_after_s=args.repeat_after,
             baud=args.baud,
         )
     )
