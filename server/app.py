@@ -68,6 +68,19 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
 
 
+async def overflow_error(request: Request, exc: Exception) -> JSONResponse:
+    """An id or offset beyond what the database stores (2**63-1) cannot name anything: a
+    422 in FastAPI's own shape, not a 500 from the driver."""
+    detail = [
+        {
+            "loc": ["request"],
+            "msg": "a number in the request is beyond 2**63-1, the largest the server stores",
+            "type": "overflow",
+        }
+    ]
+    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The API with its routes; the database is opened and migrated when it starts."""
     settings = Settings() if settings is None else settings
@@ -82,6 +95,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(OverflowError, overflow_error)
     # Bearer tokens, not cookies: no credentials mode, so a listed origin can call the API
     # but a browser never attaches anything on its own.
     app.add_middleware(

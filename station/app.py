@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -31,8 +32,8 @@ from station.uploader import Uploader
 log = logging.getLogger("ankle.station")
 SOFTWARE = "ankle-station 0.1.0"
 FLUSH_S = 0.2
-"""Session samples reach the disk at least this often (fsync): at most this much is lost
-if the station's power is cut."""
+"""Session samples are written this often and then synced to the disk: at most this much
+(and the disk's own delay) is lost if the station's power is cut; nothing if it is killed."""
 DEVICE_STALE_S = 2.0
 
 
@@ -62,7 +63,7 @@ class Station:
             PrescriptionItem.model_validate(p) for p in self.spool.load_prescriptions()
         ]
         self.run_: ExerciseRun | None = None
-        self.writer: RecordingWriter | None = None
+        self.writer: SessionWriter | None = None
         self.session_id: str | None = None
         self.message = ""
         self.sessions_done: list[str] = []
@@ -159,7 +160,7 @@ class Station:
             if self.writer is not None:
                 self.writer.add(sample_row(t, wall, s, r))
                 if wall - last_flush >= FLUSH_S:
-                    self.writer.flush()
+                    self.writer.flush_soon()
                     last_flush = wall
             self.link.send_telemetry(_telemetry_msg(t, wall, s, r))
 
@@ -218,7 +219,7 @@ class Station:
             started_at=time.time(),
         )
         path = self.spool.path(self.session_id)
-        self.writer = RecordingWriter(path, header)
+        self.writer = SessionWriter(path, header)
         self.uploader.skip(path)
         self.run_ = ExerciseRun(
             self.dev,
@@ -367,9 +368,42 @@ class Station:
     async def _status_loop(self) -> None:
         while True:
             self._status_dirty.clear()
-            self.link.send(self.status())
+            # Status is state, not history: none is queued while the server is away (a
+            # station offline for days would pile up one a second and replay them all).
+            if self.link.connected.is_set():
+                self.link.send(self.status())
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._status_dirty.wait(), 1.0)
+
+
+class SessionWriter(RecordingWriter):
+    """The session file as the station writes it: rows go to the OS at once, the wait for
+    the disk (fsync, up to half a second on a busy disk) runs in a thread. The event loop
+    also feeds the device's watchdog: if it stalls for 200 ms the device holds the exercise.
+    """
+
+    def __init__(self, path: Path, header: Header) -> None:
+        super().__init__(path, header)
+        self._sync: asyncio.Future[None] | None = None
+
+    def flush_soon(self) -> None:
+        """Write the buffered rows; sync them unless the last sync is still running."""
+        self._write_rows()
+        if self._sync is None or self._sync.done():
+            self._sync = asyncio.ensure_future(asyncio.to_thread(_fsync_dup, os.dup(self._fd)))
+            self._sync.add_done_callback(_sync_done)
+
+
+def _fsync_dup(fd: int) -> None:
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _sync_done(future: asyncio.Future[None]) -> None:
+    if not future.cancelled() and future.exception() is not None:
+        log.error("cannot sync the session file: %s", future.exception())
 
 
 _EVENT_KINDS = {

@@ -62,6 +62,7 @@ class ServerLink:
     async def run(self) -> None:
         backoff = 0.5
         while True:
+            connects = self.connects
             try:
                 async with connect(
                     f"{self.url}/ws/station",
@@ -83,6 +84,8 @@ class ServerLink:
             finally:
                 self.connected.clear()
                 self.welcome = None
+            if self.connects != connects and backoff < 30.0:
+                backoff = 0.5  # the link was up: a server that just went away is retried soon
             log.info("server link down: %s; retrying in %.1f s", self.last_error, backoff)
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, 10.0)

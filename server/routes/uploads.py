@@ -16,7 +16,7 @@ import os
 import uuid
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from pydantic import BaseModel, ConfigDict, Field
@@ -25,7 +25,7 @@ from sqlalchemy import select
 from server import audit
 from server.deps import CurrentStation, Db
 from server.models import Prescription, Session, Upload
-from server.routes.common import UNAUTHORIZED
+from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses
 from server.routes.sessions import SessionPublic, session_public
 from sessions.recording import MAGIC, RecordingError, RecordType, decode, iter_records
 from sessions.summary import summarize
@@ -35,17 +35,28 @@ CHUNK_MAX = 8 * 1024 * 1024
 """Largest PATCH body (bytes); the station sends 1 MiB."""
 
 
+class UploadRefused(BaseModel):
+    detail: str | list[dict[str, Any]] = Field(
+        description="Why, in words; or, for a malformed request, the list of invalid fields."
+    )
+
+
+UNKNOWN: Responses = {
+    404: {"model": ErrorPublic, "description": "No such upload (or another station's)."}
+}
+INVALID: Responses = {
+    422: {
+        "model": UploadRefused,
+        "description": "A malformed request, or bytes that are not this station's recording "
+        "(no header, another patient's, a checksum that does not match).",
+    }
+}
+
+
 class UploadComplete(BaseModel):
     model_config = ConfigDict(extra="forbid")
     size: int = Field(ge=len(MAGIC), description="Bytes in the whole file.")
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of the file, hex.")
-
-
-def _uuid(session_id: str) -> str:
-    try:
-        return str(uuid.UUID(session_id))
-    except ValueError:
-        raise HTTPException(422, f"session id {session_id!r} is not a UUID") from None
 
 
 def _dirs(request: Request) -> tuple[Path, Path]:
@@ -79,10 +90,14 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-@router.head("/uploads/{session_id}", summary="How much of an upload the server holds")
-async def upload_state(session_id: str, station: CurrentStation, db: Db) -> Response:
+@router.head(
+    "/uploads/{session_id}",
+    summary="How much of an upload the server holds",
+    responses={**UNKNOWN, **INVALID},
+)
+async def upload_state(session_id: uuid.UUID, station: CurrentStation, db: Db) -> Response:
     """``Upload-Offset``: bytes held; ``Upload-Complete: 1`` once the session is filed."""
-    sid = _uuid(session_id)
+    sid = str(session_id)
     done = await db.scalar(select(Session).where(Session.session_uuid == sid))
     if done is not None:
         if done.station_id != station.id:
@@ -98,16 +113,21 @@ async def upload_state(session_id: str, station: CurrentStation, db: Db) -> Resp
     "/uploads/{session_id}",
     status_code=204,
     summary="Append bytes to an upload",
-    responses={409: {"description": "Wrong Upload-Offset; the header has the right one."}},
+    responses={
+        409: {"description": "Wrong Upload-Offset; the header has the right one."},
+        413: {"model": ErrorPublic, "description": "The chunk or the session is too large."},
+        **UNKNOWN,
+        **INVALID,
+    },
 )
 async def upload_append(
-    session_id: str,
+    session_id: uuid.UUID,
     request: Request,
     station: CurrentStation,
     db: Db,
     upload_offset: Annotated[int, Header(ge=0, description="Where these bytes go.")],
 ) -> Response:
-    sid = _uuid(session_id)
+    sid = str(session_id)
     length = int(request.headers.get("content-length") or 0)
     if length > CHUNK_MAX:
         raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
@@ -159,17 +179,22 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> None:
     "/uploads/{session_id}/complete",
     response_model=SessionPublic,
     summary="Finish an upload: check it and file the session",
-    responses={409: {"description": "Not all bytes are there yet."}},
+    responses={
+        201: {"model": SessionPublic, "description": "Filed now (200: filed before, the same)."},
+        409: {"description": "Not all bytes are there yet."},
+        **UNKNOWN,
+        **INVALID,
+    },
 )
 async def upload_complete(
-    session_id: str,
+    session_id: uuid.UUID,
     body: UploadComplete,
     request: Request,
     response: Response,
     station: CurrentStation,
     db: Db,
 ) -> SessionPublic:
-    sid = _uuid(session_id)
+    sid = str(session_id)
     uploads, sessions_dir = _dirs(request)
     async with _lock(request, sid):
         done = await db.scalar(select(Session).where(Session.session_uuid == sid))

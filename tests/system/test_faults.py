@@ -1,0 +1,298 @@
+"""Faults of the whole system, with real processes: the station killed mid-repetition, the
+server killed mid-session. Nothing recorded is lost or doubled, the device is left safe and
+an exercise is not stopped because the clinic's server went away."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import time
+from collections.abc import Callable
+from types import SimpleNamespace
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from websockets.asyncio.client import ClientConnection
+from websockets.asyncio.server import ServerConnection, serve
+from websockets.exceptions import ConnectionClosed
+
+from sessions import wire
+from sessions.recording import decode
+from station import server_link
+from tests.system.harness import System, bearer, free_port, live, next_of
+
+SAFE_MODES = ("HOLD", "READY")
+
+
+def prescription(repetitions: int) -> dict[str, Any]:
+    return {
+        "exercise": "strength",
+        "title": "Fault test",
+        "axes": [
+            {
+                "axis": "pitch",
+                "stiffness": 40.0,
+                "damping": 2.0,
+                "waveform": "sine",
+                "amplitude": 6.0,
+                "frequency": 0.5,
+            }
+        ],
+        "sets": 1,
+        "repetitions": repetitions,
+        "repetition_s": 4.0,
+        "rest_s": 0.0,
+    }
+
+
+async def status_until(
+    ws: ClientConnection, done: Callable[[wire.StatusMsg], bool], timeout: float
+) -> wire.StatusMsg:
+    deadline = time.monotonic() + timeout
+    while True:
+        status: wire.StatusMsg = await next_of(
+            ws, wire.StatusMsg, timeout=max(0.1, deadline - time.monotonic())
+        )
+        if done(status):
+            return status
+
+
+async def presence(ws: ClientConnection, online: bool, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while (await next_of(ws, wire.Presence, max(0.1, deadline - time.monotonic()))).online != (
+        online
+    ):
+        pass
+
+
+async def start_exercise(
+    system: System, therapist: httpx.AsyncClient, repetitions: int
+) -> tuple[int, ClientConnection, wire.StatusMsg]:
+    """Prescribe, start the station, start the exercise from the live view; the prescription,
+    the open live view and the first status naming the session."""
+    r = await therapist.post(
+        f"/api/v1/patients/{system.creds['patient_id']}/prescriptions",
+        json=prescription(repetitions),
+    )
+    assert r.status_code == 201, r.text
+    pid = int(r.json()["id"])
+    system.start_station()
+    ws = await live(system, bearer(therapist))
+    await next_of(ws, wire.Welcome)
+    await status_until(ws, lambda s: s.device_link == "connected", 30)
+    await ws.send(
+        wire.Command(request_id="start", action="start", prescription_id=pid).model_dump_json()
+    )
+    result = await next_of(ws, wire.CommandResult, 10)
+    assert result.request_id == "start" and result.ok, result
+    status = await status_until(ws, lambda s: s.session_id is not None, 5)
+    return pid, ws, status
+
+
+async def active(ws: ClientConnection, timeout: float) -> wire.TelemetryMsg:
+    """The first telemetry of a repetition in progress."""
+    deadline = time.monotonic() + timeout
+    while True:
+        t: wire.TelemetryMsg = await next_of(
+            ws, wire.TelemetryMsg, max(0.1, deadline - time.monotonic())
+        )
+        if t.mode == "ACTIVE":
+            return t
+
+
+async def sessions_of(client: httpx.AsyncClient, pid: int) -> list[dict[str, Any]]:
+    r = await client.get("/api/v1/sessions", params={"prescription_id": pid})
+    assert r.status_code == 200, r.text
+    return list(r.json())
+
+
+async def uploaded(client: httpx.AsyncClient, pid: int, timeout: float) -> list[dict[str, Any]]:
+    deadline = time.monotonic() + timeout
+    while not (found := await sessions_of(client, pid)):
+        assert time.monotonic() < deadline, "the session never reached the server"
+        await asyncio.sleep(0.25)
+    return found
+
+
+@pytest.mark.asyncio
+async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device_safe(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    pid, ws, status = await start_exercise(system, therapist, repetitions=3)
+    sid = status.session_id
+    assert sid is not None
+    spool_file = system.spool / f"{sid}.rec"
+    try:
+        await active(ws, 30)
+        await asyncio.sleep(1.0)  # well into the repetition: a second of samples on disk
+        before = decode(spool_file.read_bytes())
+        assert before.header.session_id == sid and before.end is None
+        n, last_t = len(before.samples), float(before.samples["t"][-1])
+        assert n > 50, n  # 100 Hz, flushed every 0.2 s
+        assert (await next_of(ws, wire.TelemetryMsg)).mode == "ACTIVE"
+
+        assert system.station is not None
+        system.stop(system.station, signal.SIGKILL)
+        assert system.station.returncode == -signal.SIGKILL
+        await presence(ws, online=False, timeout=5)
+        killed_at = time.monotonic()
+
+        system.start_station()
+        await presence(ws, online=True, timeout=20)
+        # The device held by itself when the station's heartbeats stopped (its watchdog);
+        # the new station neither resumes nor restarts the exercise.
+        modes: set[str] = set()
+        times: list[float] = []
+        deadline = time.monotonic() + 1.5
+        while time.monotonic() < deadline:
+            t = await next_of(ws, wire.TelemetryMsg, 10)
+            modes.add(t.mode)
+            times.append(t.t)
+        assert modes and modes <= set(SAFE_MODES), modes
+        assert min(times) > last_t
+        state = await status_until(ws, lambda s: s.device_link == "connected", 10)
+        assert state.device_mode in SAFE_MODES and state.session_id is None, state
+        assert time.monotonic() - killed_at < 25
+    finally:
+        await ws.close()
+
+    found = await uploaded(therapist, pid, timeout=20)
+    assert [s["session_uuid"] for s in found] == [sid]
+    (session,) = found
+    assert session["end_reason"] == "interrupted"
+    r = await therapist.get(session["downloads"]["rec"])
+    assert r.status_code == 200
+    rec = decode(r.content)
+    assert not rec.damaged and rec.end is not None and rec.end.reason == "interrupted"
+    assert rec.header.session_id == sid
+    t = rec.samples["t"]
+    assert len(t) >= n
+    assert np.all(np.diff(t) > 0), "device times repeat or go back"
+    assert np.any(t == last_t), "a sample on disk before the kill is missing"
+    assert np.array_equal(t[:n], before.samples["t"]), "the uploaded prefix differs"
+
+    # The spool copy goes once the server has confirmed it, and nothing is left pending.
+    deadline = time.monotonic() + 10
+    while spool_file.exists():
+        assert time.monotonic() < deadline, "the spool file outlived its confirmed upload"
+        await asyncio.sleep(0.1)
+    assert list(system.spool.glob("*.rec")) == []
+
+
+@pytest.mark.asyncio
+async def test_server_killed_mid_session_the_exercise_runs_on_and_uploads(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    pid, ws, status = await start_exercise(system, therapist, repetitions=3)
+    sid = status.session_id
+    try:
+        first = await active(ws, 30)
+        assert (first.set, first.rep) == (1, 1)
+        assert system.server is not None
+        system.stop(system.server, signal.SIGKILL)
+        assert system.server.returncode == -signal.SIGKILL
+        with pytest.raises(ConnectionClosed):  # noqa: PT012 - the open view sees it go
+            while True:
+                await asyncio.wait_for(ws.recv(), 5)
+    finally:
+        await ws.close()
+    down_at = time.monotonic()
+    await asyncio.sleep(1.0)  # the station notices and backs off
+    await asyncio.to_thread(system.start_server)
+
+    ws = await live(system, bearer(therapist))
+    try:
+        welcome = await next_of(ws, wire.Welcome)
+        if not welcome.online:
+            await presence(ws, online=True, timeout=15)
+        back_after = time.monotonic() - down_at
+        assert back_after < 20, back_after
+        # The exercise went on meanwhile: the station reports it running (or already done),
+        # never stopped or paused, and it runs to its end.
+        statuses = [await next_of(ws, wire.StatusMsg, 5)]
+        ages = [time.time() - statuses[0].sent]
+        deadline = time.monotonic() + 30
+        while statuses[-1].phase not in ("done", "stopped", "fault"):
+            left = max(0.1, deadline - time.monotonic())
+            statuses.append(await next_of(ws, wire.StatusMsg, left))
+            ages.append(time.time() - statuses[-1].sent)
+        assert statuses[-1].phase == "done", statuses[-1]
+        assert {s.phase for s in statuses} <= {"running", "done"}, statuses
+        assert {s.session_id for s in statuses if s.phase == "running"} <= {sid}, statuses
+        # Status is state, not history: what the station had to say while the server was
+        # away is not replayed to viewers once it is back (at most the one in flight).
+        stale = [round(age, 1) for age in ages if age > 1.5]
+        assert len(stale) <= 1, stale
+    finally:
+        await ws.close()
+
+    (session,) = await uploaded(therapist, pid, timeout=20)
+    assert session["session_uuid"] == sid
+    assert session["end_reason"] == "completed"
+    summary = session["summary"]
+    assert summary["repetitions_completed"] == summary["repetitions_prescribed"] == 3
+    r = await therapist.get(session["downloads"]["rec"])
+    rec = decode(r.content)
+    t = rec.samples["t"]
+    assert np.all(np.diff(t) > 0)
+    # Recorded throughout: no hole where the server was away.
+    assert float(np.max(np.diff(t))) < 0.5, float(np.max(np.diff(t)))
+    assert not [e for e in rec.events if e.kind in ("hold", "stop", "watchdog")], rec.events
+
+
+@pytest.mark.asyncio
+async def test_the_station_link_retries_soon_after_a_good_connection_drops(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The link side of the test above, in-process and on a fake clock: a server that was
+    unreachable for a while (backoff grown), then up, then killed, is retried at once, not
+    after the backoff the earlier failures had built up."""
+    sleeps: list[float] = []
+
+    async def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        await asyncio.sleep(0.01)
+
+    fake = SimpleNamespace(**{**vars(asyncio), "sleep": sleep})
+    monkeypatch.setattr(server_link, "asyncio", fake)
+    port = free_port()
+
+    connected_after: list[int] = []  # sleeps taken before each connection
+
+    async def killed_after_welcome(ws: ServerConnection) -> None:
+        connected_after.append(len(sleeps))
+        await ws.recv()
+        await ws.send(wire.Welcome(station_id=1, patient_id=1, server_time=0).model_dump_json())
+        await asyncio.sleep(0.05)
+        ws.transport.abort()  # the server process dies: no close frame
+
+    async def ignore(message: Any) -> None:
+        pass
+
+    link = server_link.ServerLink(
+        f"http://127.0.0.1:{port}",
+        "token",
+        lambda: wire.StationHello(protocol=wire.PROTOCOL, software="test"),
+        ignore,
+    )
+    task = asyncio.create_task(link.run())
+    try:
+        deadline = time.monotonic() + 10
+        while len(sleeps) < 4:  # refused four times: the backoff is at 8 s
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.005)
+        async with serve(killed_after_welcome, "127.0.0.1", port):
+            while link.connects < 2:
+                assert time.monotonic() < deadline, sleeps
+                await asyncio.sleep(0.005)
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    assert sleeps[:4] == [0.5, 1.0, 2.0, 4.0]
+    first = connected_after[0]
+    assert sleeps[first - 1] >= 4.0, sleeps  # the backoff had grown before the server came
+    assert sleeps[first:] and set(sleeps[first:]) == {0.5}, sleeps
