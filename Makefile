@@ -29,4 +29,4 @@ bench: $(STAMP)
 	$(BIN)/ankle bench control --plots bench-output
 
 clean:
-	rm -rf $(VENV) bench-output test-output .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) bench-output test-output .pytest_cache .mypy_cache .ruff_cache ankle-data

@@ -14,14 +14,11 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any, TextIO
 
 from device.process import ServiceProcess, ServiceStartError
-
-STARTUP_S = 60.0
+from server.cli import ServerStartError, wait_healthy
 
 
 class StartError(Exception):
@@ -34,21 +31,6 @@ def _python_module(*args: str, env: dict[str, str] | None = None) -> subprocess.
         env={**os.environ, **(env or {})},
         start_new_session=True,  # Ctrl-C reaches us only; we stop the children in order
     )
-
-
-def wait_healthy(url: str, proc: subprocess.Popen[bytes], timeout: float = STARTUP_S) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise StartError(f"the server exited with code {proc.returncode}")
-        try:
-            with urllib.request.urlopen(f"{url}/api/v1/health", timeout=1.0) as r:
-                if r.status == 200:
-                    return
-        except (urllib.error.URLError, OSError):
-            pass
-        time.sleep(0.2)
-    raise StartError(f"the server did not answer at {url} within {timeout:g} s")
 
 
 def _stop(proc: subprocess.Popen[bytes] | None, timeout: float = 10.0) -> None:
@@ -81,7 +63,10 @@ def run_system(
     try:
         print(f"ankle: starting the server on {url} (data in {data_dir})", file=out)
         server = _python_module("server", env=env)
-        wait_healthy(url, server)
+        try:
+            wait_healthy(url, server)
+        except ServerStartError as exc:
+            raise StartError(str(exc)) from None
         print("ankle: starting the simulated device (first start compiles for ~20 s)", file=out)
         try:
             device = ServiceProcess("--link", "pty", "--patient-torque", "3")

@@ -78,6 +78,48 @@ class Hub:
         self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
         self._pending: dict[str, tuple[int, asyncio.TimerHandle]] = {}
         self.sessionmaker: async_sessionmaker[AsyncSession] | None = None
+        self._audit: asyncio.Queue[tuple[dict[str, Any], asyncio.Future[None]]] = asyncio.Queue()
+        self._audit_task: asyncio.Task[None] | None = None
+
+    async def audit(self, **row: Any) -> None:
+        """Write one audit row; returns once it is committed.
+
+        One writer commits every row waiting at that moment in one transaction: with one
+        database session per live change, a hundred therapists' changes contended for
+        SQLite's write lock and their acknowledgements took seconds (``ankle bench server``).
+        """
+        if self._audit_task is None or self._audit_task.done():
+            self._audit_task = asyncio.create_task(self._audit_writer())
+        done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._audit.put_nowait((row, done))
+        await done
+
+    async def _audit_writer(self) -> None:
+        assert self.sessionmaker is not None
+        while True:
+            batch = [await self._audit.get()]
+            while not self._audit.empty():
+                batch.append(self._audit.get_nowait())
+            try:
+                async with self.sessionmaker() as db:
+                    for row, _ in batch:
+                        audit.record(db, **row)
+                    await db.commit()
+            except Exception as exc:  # every waiter hears of it; the writer keeps going
+                for _, done in batch:
+                    if not done.done():
+                        done.set_exception(exc)
+            else:
+                for _, done in batch:
+                    if not done.done():
+                        done.set_result(None)
+
+    async def revoke(self, station_id: int) -> None:
+        """Disconnect a station whose token was just revoked."""
+        conn = self.stations.get(station_id)
+        if conn is not None:
+            with contextlib.suppress(Exception):
+                await conn.ws.close(wire.CLOSE_REVOKED, "the station's token was revoked")
 
     def online(self, station_id: int) -> bool:
         return station_id in self.stations
@@ -93,6 +135,8 @@ class Hub:
 
     async def close(self) -> None:
         """Close every live connection (at shutdown)."""
+        if self._audit_task is not None:
+            self._audit_task.cancel()
         for conn in list(self.stations.values()):
             with contextlib.suppress(Exception):
                 await conn.ws.close(wire.CLOSE_NORMAL, "server shutting down")
@@ -173,18 +217,61 @@ async def _prescriptions(db: AsyncSession, patient_id: int) -> wire.Prescription
     )
 
 
-async def _receive(ws: WebSocket) -> str:
+class _Silence:
+    """The heartbeat timeout of one link: a wait for its next message longer than
+    ``HEARTBEAT_TIMEOUT_S`` is cancelled and becomes :data:`~sessions.wire.CLOSE_TIMEOUT`.
+
+    ``asyncio.wait_for`` around each receive does the same with a new task and a new timer
+    for every message, which at a station's 100 messages a second was a good part of the
+    relay's CPU time. Here a message only stamps when the next wait began; the link's one
+    timer, when it falls due, looks at that stamp and either cancels the wait or sets
+    itself for the new due time.
+    """
+
+    def __init__(self) -> None:
+        self.loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+        self.task = task
+        self.since = self.loop.time()
+        self.waiting = False
+        self.expired = False
+        self._timer = self.loop.call_at(self.since + wire.HEARTBEAT_TIMEOUT_S, self._due)
+
+    def _due(self) -> None:
+        now = self.loop.time()
+        due = self.since + wire.HEARTBEAT_TIMEOUT_S
+        if not self.waiting:  # busy with the last message: its next wait starts later
+            due = now + wire.HEARTBEAT_TIMEOUT_S
+        elif now >= due:
+            self.expired = True
+            self.task.cancel()
+            return
+        self._timer = self.loop.call_at(due, self._due)
+
+    def stop(self) -> None:
+        self._timer.cancel()
+
+
+async def _receive(ws: WebSocket, silence: _Silence) -> str:
     """One text message, within the heartbeat timeout and the size limit."""
+    silence.since = silence.loop.time()
+    silence.waiting = True
     try:
-        message = await asyncio.wait_for(ws.receive(), wire.HEARTBEAT_TIMEOUT_S)
-    except TimeoutError:
-        raise _Close(wire.CLOSE_TIMEOUT, "no message within the heartbeat timeout") from None
+        message = await ws.receive()
+    except asyncio.CancelledError:
+        if silence.expired and silence.task.uncancel() == 0:
+            raise _Close(wire.CLOSE_TIMEOUT, "no message within the heartbeat timeout") from None
+        raise
+    finally:
+        silence.waiting = False
     if message["type"] == "websocket.disconnect":
         raise WebSocketDisconnect(message.get("code", 1000))
     text = message.get("text")
     if text is None:
         raise _Close(wire.CLOSE_MALFORMED, "messages are JSON text frames")
-    if len(text) > wire.MAX_MESSAGE_BYTES:
+    # Characters are at most 4 bytes: count bytes only when characters alone cannot tell.
+    if len(text) * 4 > wire.MAX_MESSAGE_BYTES and len(text.encode()) > wire.MAX_MESSAGE_BYTES:
         raise _Close(wire.CLOSE_TOO_BIG, f"message over {wire.MAX_MESSAGE_BYTES} bytes")
     return str(text)
 
@@ -217,8 +304,9 @@ async def station_socket(ws: WebSocket) -> None:
         return
     await ws.accept()
     conn = StationConn(ws, station.id, station.patient_id)
+    silence = _Silence()
     try:
-        hello = wire.STATION_UP.validate_json(await _receive(ws))
+        hello = wire.STATION_UP.validate_json(await _receive(ws, silence))
         if not isinstance(hello, wire.StationHello):
             raise _Close(wire.CLOSE_MALFORMED, "the first message must be hello")
         if hello.protocol != wire.PROTOCOL:
@@ -243,7 +331,7 @@ async def station_socket(ws: WebSocket) -> None:
         beat = asyncio.create_task(_heartbeats(ws))
         try:
             while True:
-                raw = await _receive(ws)
+                raw = await _receive(ws, silence)
                 _on_station_message(hub, conn, raw, wire.STATION_UP.validate_json(raw))
         finally:
             beat.cancel()
@@ -254,6 +342,7 @@ async def station_socket(ws: WebSocket) -> None:
     except WebSocketDisconnect:
         pass
     finally:
+        silence.stop()
         if hub.stations.get(station.id) is conn:
             del hub.stations[station.id]
             hub.broadcast(station.id, wire.Presence(online=False).model_dump_json())
@@ -311,7 +400,8 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
     viewer = Viewer(ws, user.id, station_id, may_command=user.role == "therapist")
     hub.viewers[station_id].add(viewer)
     conn = hub.stations.get(station_id)
-    writer = asyncio.create_task(_viewer_writer(hub, viewer))
+    silence = _Silence()
+    writer: asyncio.Task[None] | None = None
     try:
         await ws.send_text(
             wire.Welcome(
@@ -322,8 +412,9 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
                 server_time=time.time(),
             ).model_dump_json()
         )
+        writer = asyncio.create_task(_viewer_writer(hub, viewer))  # after the welcome
         while not writer.done():
-            raw = await _receive(ws)
+            raw = await _receive(ws, silence)
             message = wire.VIEWER_UP.validate_json(raw)
             if isinstance(message, wire.Command):
                 await _on_command(hub, viewer, message)
@@ -334,10 +425,12 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
     except WebSocketDisconnect:
         pass
     finally:
+        silence.stop()
         hub.viewers[station_id].discard(viewer)
-        writer.cancel()
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await writer
+        if writer is not None:
+            writer.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await writer
 
 
 async def _viewer_may_watch(
@@ -359,9 +452,15 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
     """Send control messages as they come and the newest telemetry at most VIEW_HZ."""
     period = 1.0 / VIEW_HZ
     last_beat = 0.0
+    loop = asyncio.get_running_loop()
     while True:
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(v.wake.wait(), wire.HEARTBEAT_S)
+        if not v.wake.is_set():  # while streaming it is: telemetry came during the sleep
+            # Wait at most HEARTBEAT_S (the heartbeat is due): one timer, not wait_for's task.
+            timer = loop.call_later(wire.HEARTBEAT_S, v.wake.set)
+            try:
+                await v.wake.wait()
+            finally:
+                timer.cancel()
         v.wake.clear()
         if len(v.control) >= CONTROL_QUEUE_MAX:
             await _close(v.ws, wire.CLOSE_TIMEOUT, "the viewer is not keeping up")
@@ -399,7 +498,12 @@ async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
         return
     cmd = cmd.model_copy(update={"by": f"therapist:{viewer.user_id}"})
     if cmd.action == "set_impedance":
-        await _audit_impedance(hub, viewer, conn, cmd)
+        try:
+            await _audit_impedance(hub, viewer, conn, cmd)
+        except Exception as exc:  # a change that cannot be audited is not made
+            log.error("audit of a live change failed: %s", exc)
+            answer("AUDIT", "the change could not be recorded, so it was not sent; try again")
+            return
     hub.expect_result(cmd.request_id, conn.station_id)
     try:
         await conn.ws.send_text(cmd.model_dump_json())
@@ -423,19 +527,15 @@ async def _audit_impedance(hub: Hub, viewer: Viewer, conn: StationConn, cmd: wir
             "damping": {a: latest["damping"][index[a]] for a in (cmd.damping or {})},
         }
     new = {"stiffness": cmd.stiffness or {}, "damping": cmd.damping or {}}
-    assert hub.sessionmaker is not None
-    async with hub.sessionmaker() as db:
-        audit.record(
-            db,
-            f"user:{viewer.user_id}",
-            "impedance.change",
-            "station",
-            conn.station_id,
-            conn.patient_id,
-            old,
-            new | {"request_id": cmd.request_id},
-        )
-        await db.commit()
+    await hub.audit(
+        actor=f"user:{viewer.user_id}",
+        action="impedance.change",
+        entity="station",
+        entity_id=conn.station_id,
+        patient_id=conn.patient_id,
+        old=old,
+        new=new | {"request_id": cmd.request_id},
+    )
 
 
 @router.get("/api/v1/schemas/ws", tags=["live"], summary="WebSocket message schemas")

@@ -36,8 +36,8 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
-from ankle.system import wait_healthy
 from server.app import create_app
+from server.cli import wait_healthy
 from tests.server.live_server import PASSWORD, World
 
 SQLITE_INT_MAX = 2**63 - 1

@@ -237,12 +237,6 @@ async def test_a_bad_message_closes_the_station_link(
     assert presence == [True, False], seen
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="server/live.py _receive compares len(text), in characters, with "
-    "MAX_MESSAGE_BYTES: a 66 kB message of 2-byte characters is taken and relayed to viewers, "
-    "whose own 64 KiB limit then drops their link with 1009",
-)
 @pytest.mark.asyncio
 async def test_the_size_limit_counts_bytes_not_characters(live: Live, world: World) -> None:
     """A message over MAX_MESSAGE_BYTES in UTF-8 but under it in characters."""

@@ -35,7 +35,8 @@ def header(session_id: str) -> Header:
 
 def row(t: float) -> tuple[object, ...]:
     z = np.zeros(1, SAMPLE_DTYPE)[0]
-    return (t, t, 3, 0, 1, 1, 1, *[z[name] for name in SAMPLE_DTYPE.names[7:]])
+    names = SAMPLE_DTYPE.names or ()
+    return (t, t, 3, 0, 1, 1, 1, *[z[name] for name in names[7:]])
 
 
 def test_a_killed_session_is_cut_to_whole_records_and_closed_as_interrupted(

@@ -76,8 +76,8 @@ def test_a_flexibility_sine_becomes_a_compliant_pitch_segment_in_radians() -> No
 @pytest.mark.parametrize("kind", list(ExerciseKind))
 def test_every_library_default_makes_a_valid_segment(kind: ExerciseKind) -> None:
     body = EXERCISE_LIBRARY[kind].defaults
-    k = {a.axis: a.stiffness for a in body.axes}
-    b = {a.axis: a.damping for a in body.axes}
+    k: dict[str, float] = {a.axis: a.stiffness for a in body.axes}
+    b: dict[str, float] = {a.axis: a.damping for a in body.axes}
     seg = segment_for(hello(), 1, body, k, b)
     assert all(lo <= hi for lo, hi in zip(seg.rom_low, seg.rom_high, strict=True))
     assert any(seg.compliant) == EXERCISE_LIBRARY[kind].compliant

@@ -24,9 +24,8 @@ import pytest
 import pytest_asyncio
 from websockets.asyncio.client import ClientConnection, connect
 
-from ankle.system import wait_healthy
 from device.process import ServiceProcess
-from server.cli import provision_demo
+from server.cli import provision_demo, wait_healthy
 from server.config import Settings
 from sessions import wire
 

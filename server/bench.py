@@ -1,0 +1,751 @@
+"""``ankle bench server``: the live relay under many stations and viewers, on a real server.
+
+The server runs as its own process (``python -m ankle server`` on a fresh data directory and
+a free port), so its CPU time is its own (read from ``/proc``). Before it starts, the
+database is given N therapists, each with a patient, a station and a login token, written
+directly (no Argon2 logins to wait for). The load comes from two more processes:
+
+- ``stations``: N simulated home stations, no device. Each connects to ``/ws/station``,
+  says hello, then sends a :class:`~sessions.wire.TelemetryMsg` at 100 Hz stamped with
+  ``sent = time.time()``, a heartbeat and a status once a second, and answers every
+  :class:`~sessions.wire.Command` at once with an ``ok`` :class:`~sessions.wire.CommandResult`.
+  Their phases are spread over the 10 ms period, as independent stations' would be.
+- ``viewers``: one (or more) therapist per station on ``/ws/live/{id}``. Each takes the
+  latency of every telemetry message it gets (receive time - ``sent``; same machine, same
+  clock), sends a heartbeat and a ``set_impedance`` command once a second and times the
+  command to its result (which includes the server's audit write of the change).
+
+After all are connected and a short warm-up, the processes measure the same window. With
+``sweep`` the same server then carries growing numbers of stations for a few seconds each,
+until one fails; ``max_stations_p99_under_50ms`` is the largest count whose telemetry
+latency p99 held with no connection lost.
+
+On a small machine all three processes share the cores: the numbers are what the server
+does while the load generator takes its part of the machine (``loadgen_cpu_pct``), and
+whatever else runs there (``machine_cpu_pct``, all cores). ``server_cpu_us_per_message`` is
+the server's CPU time over the station messages it took in: its cost per message, which
+depends less on the neighbours than latency does.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import os
+import queue
+import random
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import timedelta
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from device.bench import Target
+from device.bench import table as bench_table
+
+TELEMETRY_HZ = 100
+VIEW_HZ = 50.0
+"""The server's conflation rate (``server.live.VIEW_HZ``), what a viewer should see."""
+LATENCY_MS = 50.0
+"""A live view this late is still live: the target of ``telemetry_latency_ms_p99``."""
+SWEEP: tuple[int, ...] = (25, 50, 100, 150, 200)
+SWEEP_SECONDS = 5.0
+WARMUP_S = 2.0
+"""Between the last connection and the window: the server's queues settle."""
+TAIL_S = 1.0
+"""After the window: commands in flight get their answer."""
+CONNECT_CONCURRENCY = 16
+PHASES = 10
+"""Stations' sends are spread over this many slots of the telemetry period."""
+TEMPLATES = 64
+STARTUP_S = 60.0
+WORKER_TIMEOUT_S = 120.0
+
+TARGETS: tuple[Target, ...] = (
+    Target("telemetry_latency_ms_p99", "telemetry station to viewer p99 (ms)", LATENCY_MS, "max"),
+    Target(
+        "telemetry_hz_per_station", "telemetry sent per station (Hz)", 0.98 * TELEMETRY_HZ, "min"
+    ),
+    Target("viewer_hz", "telemetry received per viewer (Hz)", 0.9 * VIEW_HZ, "min"),
+    Target("kb_change_to_ack_ms_p99", "K/B change to the station's answer p99 (ms)", 100.0, "max"),
+    Target("disconnects", "connections lost", 0, "eq"),
+    Target("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms", 100, "min"),
+)
+
+ROWS: tuple[tuple[str, str], ...] = (
+    ("stations", "stations connected"),
+    ("viewers", "viewers connected"),
+    ("seconds", "measurement window (s)"),
+    ("telemetry_hz_per_station", "telemetry sent per station (Hz)"),
+    ("viewer_hz", "telemetry received per viewer (Hz)"),
+    ("telemetry_latency_ms_p50", "telemetry station to viewer p50 (ms)"),
+    ("telemetry_latency_ms_p99", "telemetry station to viewer p99 (ms)"),
+    ("telemetry_latency_ms_max", "telemetry station to viewer max (ms)"),
+    ("kb_change_to_ack_ms_p50", "K/B change to the station's answer p50 (ms)"),
+    ("kb_change_to_ack_ms_p99", "K/B change to the station's answer p99 (ms)"),
+    ("commands", "commands timed"),
+    ("commands_failed", "commands refused or unanswered"),
+    ("disconnects", "connections lost"),
+    ("server_cpu_pct", "server CPU (% of one core)"),
+    ("server_cpu_us_per_message", "server CPU per station message (us)"),
+    ("loadgen_cpu_pct", "load generator CPU (% of one core)"),
+    ("machine_cpu_pct", "whole machine busy, all cores (%)"),
+    ("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms"),
+)
+
+
+# -- provisioning ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Seat:
+    """One station and its patient's therapist, as the load generator needs them."""
+
+    station_id: int
+    station_token: str
+    therapist_token: str
+
+
+async def provision(data_dir: Path, count: int) -> list[Seat]:
+    """``count`` therapists, each with a patient, a station and a login token, written
+    straight into a new database (migrated here, as the server would)."""
+    from server.config import Settings
+    from server.db import create_engine, create_sessionmaker, migrate
+    from server.models import AuthToken, Patient, Station, User, utcnow
+    from server.security import new_token, token_hash
+
+    engine = create_engine(Settings(data_dir=data_dir))
+    seats: list[Seat] = []
+    try:
+        await migrate(engine)
+        async with create_sessionmaker(engine)() as db:
+            expires = utcnow() + timedelta(days=1)
+            for i in range(count):
+                # No usable password: a malformed hash never verifies. The token is the way in.
+                therapist = User(
+                    email=f"bench-{i}@bench.test",
+                    name=f"Bench therapist {i}",
+                    role="therapist",
+                    password_hash="!bench",
+                )
+                db.add(therapist)
+                await db.flush()
+                patient = Patient(therapist_id=therapist.id, display_name=f"Bench patient {i}")
+                db.add(patient)
+                await db.flush()
+                station_token, user_token = new_token(), new_token()
+                station = Station(
+                    patient_id=patient.id, name=f"Bench {i}", token_hash=token_hash(station_token)
+                )
+                db.add(station)
+                db.add(
+                    AuthToken(
+                        token_hash=token_hash(user_token), user_id=therapist.id, expires_at=expires
+                    )
+                )
+                await db.flush()
+                seats.append(Seat(station.id, station_token, user_token))
+            await db.commit()
+    finally:
+        await engine.dispose()
+    return seats
+
+
+# -- processes ---------------------------------------------------------------------------
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process, all its threads (Linux ``/proc``)."""
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def machine_cpu() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole machine, all cores (``/proc/stat``)."""
+    with open("/proc/stat") as fh:
+        ticks = [int(x) for x in fh.readline().split()[1:]]
+    hz = os.sysconf("SC_CLK_TCK")
+    idle = ticks[3] + ticks[4]  # idle + iowait
+    return (sum(ticks) - idle) / hz, sum(ticks) / hz
+
+
+def _stop(proc: subprocess.Popen[Any], timeout: float = 10.0) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+class ServerProcess:
+    """``python -m ankle server`` on ``data_dir`` and a free port, until :meth:`stop`."""
+
+    def __init__(self, data_dir: Path, argv: Sequence[str] | None = None) -> None:
+        from server.cli import wait_healthy
+
+        self.port = free_port()
+        self.log = data_dir / "server.log"
+        env = {
+            **os.environ,
+            "ANKLE_DATA_DIR": str(data_dir),
+            "ANKLE_HOST": "127.0.0.1",
+            "ANKLE_PORT": str(self.port),
+        }
+        with self.log.open("wb") as out:
+            self.proc = subprocess.Popen(
+                list(argv or [sys.executable, "-m", "ankle", "server"]),
+                env=env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+            )
+        try:
+            wait_healthy(self.url, self.proc, timeout=STARTUP_S)
+        except Exception:
+            self.stop()
+            raise
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def stop(self) -> None:
+        _stop(self.proc)
+
+
+class Worker:
+    """A load generator process (``python -m server.bench stations|viewers``): it reads its
+    configuration, connects everything, says ``ready``, then waits for the window."""
+
+    def __init__(self, role: str, config: dict[str, Any], log_dir: Path) -> None:
+        self.role = role
+        self.errors = log_dir / f"{role}.log"
+        with self.errors.open("wb") as errors:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "server.bench", role],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=errors,
+                text=True,
+            )
+        self._lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+        self._write(json.dumps(config))
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self._lines.put(line)
+        self._lines.put("")  # end of output
+
+    def _write(self, line: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+
+    def _line(self, timeout: float) -> str:
+        try:
+            line = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            line = ""
+        if not line:
+            _stop(self.proc)
+            tail = self.errors.read_text(errors="replace")[-3000:]
+            raise RuntimeError(f"the {self.role} load generator failed:\n{tail}")
+        return line
+
+    def ready(self) -> None:
+        if self._line(WORKER_TIMEOUT_S).strip() != "ready":
+            raise RuntimeError(f"the {self.role} load generator said something unexpected")
+
+    def go(self, start: float, end: float) -> None:
+        self._write(json.dumps({"start": start, "end": end}))
+
+    def result(self, timeout: float) -> dict[str, Any]:
+        out: dict[str, Any] = json.loads(self._line(timeout))
+        return out
+
+    def stop(self) -> None:
+        _stop(self.proc)
+        for stream in (self.proc.stdin, self.proc.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+
+
+# -- one measurement ---------------------------------------------------------------------
+def _pct(values: Sequence[float], q: float) -> float:
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def measure(
+    server: ServerProcess,
+    seats: Sequence[Seat],
+    viewers_per_station: int,
+    seconds: float,
+    commands: bool = True,
+) -> dict[str, Any]:
+    """One window of ``seconds`` with these stations and their viewers (who send a K/B
+    change each second if ``commands``)."""
+    ws_url = server.url.replace("http://", "ws://")
+    log_dir = server.log.parent
+    stations = Worker(
+        "stations",
+        {"url": ws_url, "items": [[s.station_id, s.station_token] for s in seats]},
+        log_dir,
+    )
+    viewers: Worker | None = None
+    try:
+        stations.ready()
+        viewers = Worker(
+            "viewers",
+            {
+                "url": ws_url,
+                "commands": commands,
+                "items": [
+                    [s.station_id, s.therapist_token]
+                    for s in seats
+                    for _ in range(viewers_per_station)
+                ],
+            },
+            log_dir,
+        )
+        viewers.ready()
+        start = time.time() + WARMUP_S
+        end = start + seconds
+        for w in (stations, viewers):
+            w.go(start, end)
+        pids = [server.proc.pid, stations.proc.pid, viewers.proc.pid]
+        time.sleep(max(0.0, start - time.time()))
+        cpu0, machine0 = [cpu_seconds(p) for p in pids], machine_cpu()
+        time.sleep(max(0.0, end - time.time()))
+        cpu1, machine1 = [cpu_seconds(p) for p in pids], machine_cpu()
+        sent, seen = stations.result(WORKER_TIMEOUT_S), viewers.result(WORKER_TIMEOUT_S)
+    finally:
+        stations.stop()
+        if viewers is not None:
+            viewers.stop()
+    cpu = [100.0 * (b - a) / seconds for a, b in zip(cpu0, cpu1, strict=True)]
+    n_viewers = max(seen["connected"], 1)
+    latency: list[float] = seen["latency_ms"]
+    acks: list[float] = seen["ack_ms"]
+    return {
+        "stations": sent["connected"],
+        "viewers": seen["connected"],
+        "seconds": seconds,
+        "telemetry_hz_per_station": sent["telemetry"] / seconds / max(sent["connected"], 1),
+        "viewer_hz": len(latency) / seconds / n_viewers,
+        "telemetry_latency_ms_p50": _pct(latency, 50),
+        "telemetry_latency_ms_p99": _pct(latency, 99),
+        "telemetry_latency_ms_max": max(latency) if latency else math.nan,
+        "kb_change_to_ack_ms_p50": _pct(acks, 50),
+        "kb_change_to_ack_ms_p99": _pct(acks, 99),
+        "commands": len(acks),
+        "commands_failed": seen["commands_failed"],
+        "disconnects": sent["disconnects"] + seen["disconnects"],
+        "server_cpu_pct": cpu[0],
+        "server_cpu_us_per_message": 1e6 * (cpu1[0] - cpu0[0]) / max(sent["telemetry"], 1),
+        "loadgen_cpu_pct": cpu[1] + cpu[2],
+        "stations_cpu_pct": cpu[1],
+        "viewers_cpu_pct": cpu[2],
+        "machine_cpu_pct": 100.0 * (machine1[0] - machine0[0]) / (machine1[1] - machine0[1]),
+        "cores": os.cpu_count(),
+    }
+
+
+def _held(result: dict[str, Any]) -> bool:
+    p99 = result["telemetry_latency_ms_p99"]
+    return (
+        bool(result["stations"] > 0 and not math.isnan(p99) and p99 <= LATENCY_MS)
+        and result["disconnects"] == 0
+    )
+
+
+def run(
+    stations: int = 100,
+    viewers_per_station: int = 1,
+    seconds: float = 20.0,
+    sweep: bool = True,
+    sweep_counts: Sequence[int] = SWEEP,
+    sweep_seconds: float = SWEEP_SECONDS,
+    server_argv: Sequence[str] | None = None,
+    commands: bool = True,
+) -> dict[str, Any]:
+    """The benchmark: one window at ``stations``, then (``sweep``) one per count in
+    ``sweep_counts`` until the latency target fails. ``server_argv`` replaces the server's
+    command line (to try server options; it must honour ``ANKLE_*``)."""
+    counts = sorted(set(sweep_counts)) if sweep else []
+    with tempfile.TemporaryDirectory(prefix="ankle-bench-server-") as tmp:
+        data_dir = Path(tmp)
+        seats = asyncio.run(provision(data_dir, max([stations, *counts])))
+        server = ServerProcess(data_dir, server_argv)
+        try:
+            result = measure(server, seats[:stations], viewers_per_station, seconds, commands)
+            held = [stations] if _held(result) else []
+            steps: list[dict[str, Any]] = []
+            for n in counts:
+                step = measure(server, seats[:n], viewers_per_station, sweep_seconds, commands)
+                steps.append(step)
+                if not _held(step):
+                    break
+                held.append(n)
+        finally:
+            server.stop()
+    result["max_stations_p99_under_50ms"] = max(held) if held else None
+    if sweep:
+        result["sweep"] = [
+            {
+                k: s[k]
+                for k in (
+                    "stations",
+                    "viewers",
+                    "telemetry_hz_per_station",
+                    "viewer_hz",
+                    "telemetry_latency_ms_p50",
+                    "telemetry_latency_ms_p99",
+                    "kb_change_to_ack_ms_p99",
+                    "disconnects",
+                    "server_cpu_pct",
+                )
+            }
+            for s in steps
+        ]
+    result["targets_met"] = {t.key: t.met(_number(result[t.key])) for t in TARGETS}
+    return result
+
+
+def _number(value: Any) -> float:
+    return math.nan if value is None else float(value)
+
+
+def jsonable(result: dict[str, Any]) -> dict[str, Any]:
+    """The result with NaN as null (strict JSON)."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [clean(x) for x in v]
+        return v
+
+    out: dict[str, Any] = clean(result)
+    return out
+
+
+def table(result: dict[str, Any]) -> str:
+    shown = {k: (math.nan if v is None else v) for k, v in result.items()}
+    text = bench_table(shown, ROWS, TARGETS)
+    sweep: list[dict[str, Any]] = result.get("sweep") or []
+    if sweep:
+        lines = [
+            "",
+            "| stations | viewers | sent/station (Hz) | viewer (Hz) | latency p50 (ms) "
+            "| latency p99 (ms) | K/B ack p99 (ms) | lost | server CPU (%) |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for s in sweep:
+            lines.append(
+                f"| {s['stations']} | {s['viewers']} | {s['telemetry_hz_per_station']:.1f} "
+                f"| {s['viewer_hz']:.1f} | {s['telemetry_latency_ms_p50']:.1f} "
+                f"| {s['telemetry_latency_ms_p99']:.1f} | {s['kb_change_to_ack_ms_p99']:.1f} "
+                f"| {s['disconnects']} | {s['server_cpu_pct']:.0f} |"
+            )
+        text += "\n".join(lines)
+    return text
+
+
+# -- the load generator processes ---------------------------------------------------------
+class _Window:
+    def __init__(self) -> None:
+        self.start = math.inf
+        self.end = math.inf
+        self.set = asyncio.Event()
+
+    def inside(self, t: float) -> bool:
+        return self.start <= t < self.end
+
+
+async def _go(window: _Window) -> None:
+    line = await asyncio.to_thread(sys.stdin.readline)
+    times = json.loads(line)
+    window.start, window.end = float(times["start"]), float(times["end"])
+    window.set.set()
+
+
+async def _connect_all(items: list[list[Any]], open_one: Any) -> list[Any]:
+    gate = asyncio.Semaphore(CONNECT_CONCURRENCY)
+
+    async def one(item: list[Any]) -> Any:
+        async with gate:
+            return await open_one(*item)
+
+    return list(await asyncio.gather(*(one(i) for i in items)))
+
+
+def _telemetry_templates(count: int = TEMPLATES) -> list[tuple[str, str]]:
+    """Plausible telemetry messages as text, each split where ``sent`` goes. Their numbers
+    differ, as a moving device's do (identical messages would make compression free)."""
+    from sessions import wire
+
+    rng = random.Random(1)
+
+    def six(scale: float) -> list[float]:
+        return [round(rng.uniform(-scale, scale), 7) for _ in range(6)]
+
+    out = []
+    for i in range(count):
+        text = wire.TelemetryMsg(
+            sent=0.0,
+            t=round(12.0 + i * 0.01, 6),
+            mode="ACTIVE",
+            trip=0,
+            segment_id=1,
+            set=1,
+            rep=3,
+            pose=six(0.1),
+            pose_cmd=six(0.1),
+            legs=six(0.05),
+            pressures=[round(rng.uniform(1e5, 6e5), 1) for _ in range(12)],
+            wrench=six(20.0),
+            stiffness=[20000.0, 20000.0, 20000.0, 30.0, 30.0, 10.0],
+            damping=[200.0, 200.0, 200.0, 1.0, 1.0, 0.5],
+            lag_ms=round(rng.uniform(0.0, 0.5), 3),
+            overruns=0,
+            frames_dropped=0,
+        ).model_dump_json()
+        head, tail = text.split('"sent":0.0', 1)
+        out.append((head + '"sent":', tail))
+    return out
+
+
+async def _stations(config: dict[str, Any]) -> dict[str, Any]:
+    from websockets.asyncio.client import ClientConnection, connect
+    from websockets.exceptions import ConnectionClosed
+
+    from sessions import wire
+
+    url = config["url"]
+    window = _Window()
+    templates = _telemetry_templates()
+    hello = wire.StationHello(protocol=wire.PROTOCOL, software="ankle bench").model_dump_json()
+    live: set[ClientConnection] = set()
+    stats = {"telemetry": 0, "disconnects": 0, "skipped": 0}
+    closing = False
+
+    async def answer(ws: ClientConnection) -> None:
+        try:
+            async for raw in ws:
+                message = json.loads(raw)
+                if message.get("type") == "command":
+                    result = wire.CommandResult(request_id=message["request_id"], ok=True)
+                    await ws.send(result.model_dump_json())
+        except ConnectionClosed:
+            pass
+        if ws in live and not closing:
+            stats["disconnects"] += 1
+        live.discard(ws)
+
+    async def open_one(station_id: int, token: str) -> ClientConnection:
+        ws = await connect(
+            f"{url}/ws/station",
+            additional_headers={"Authorization": f"Bearer {token}"},
+            max_size=wire.MAX_MESSAGE_BYTES,
+            open_timeout=30.0,
+            ping_interval=None,
+        )
+        await ws.send(hello)
+        welcome = json.loads(await ws.recv())
+        if welcome.get("type") != "welcome":
+            raise RuntimeError(f"station {station_id}: no welcome but {welcome}")
+        return ws
+
+    conns = await _connect_all(config["items"], open_one)
+    live.update(conns)
+    readers = [asyncio.create_task(answer(ws)) for ws in conns]
+    slots: list[list[ClientConnection]] = [[] for _ in range(PHASES)]
+    for i, ws in enumerate(conns):
+        slots[i % PHASES].append(ws)
+    status = wire.StatusMsg(sent=0.0, device_link="connected", device_mode="ACTIVE")
+
+    async def tick() -> None:
+        loop = asyncio.get_running_loop()
+        dt = 1.0 / TELEMETRY_HZ / PHASES
+        next_t = loop.time()
+        k = 0
+        beat_slot = random.randrange(TELEMETRY_HZ)
+        while time.time() < window.end:
+            slot = slots[k % PHASES]
+            now = time.time()
+            counting = window.inside(now)
+            second = (k // PHASES) % TELEMETRY_HZ == beat_slot
+            for j, ws in enumerate(slot):
+                if ws not in live:
+                    continue
+                # A real station drops samples rather than queue them behind a slow link.
+                if ws.transport.get_write_buffer_size() > 256 * 1024:
+                    stats["skipped"] += 1
+                    continue
+                try:
+                    head, tail = templates[(k + j) % TEMPLATES]
+                    await ws.send(f"{head}{time.time()!r}{tail}")
+                    if second:
+                        now = time.time()
+                        await ws.send(wire.Heartbeat(sent=now).model_dump_json())
+                        await ws.send(status.model_copy(update={"sent": now}).model_dump_json())
+                except ConnectionClosed:
+                    continue
+                if counting:
+                    stats["telemetry"] += 1
+            k += 1
+            next_t += dt
+            delay = next_t - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            elif delay < -0.1:  # far behind: do not burst to catch up
+                next_t = loop.time()
+
+    print("ready", flush=True)
+    go = asyncio.create_task(_go(window))
+    sender = asyncio.create_task(tick())
+    await go
+    await sender
+    await asyncio.sleep(TAIL_S)  # the viewers' last commands get answered
+    closing = True
+    await asyncio.gather(*(ws.close() for ws in conns), return_exceptions=True)
+    for r in readers:
+        r.cancel()
+    return {"connected": len(conns), **stats}
+
+
+async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
+    from websockets.asyncio.client import ClientConnection, connect
+    from websockets.exceptions import ConnectionClosed
+
+    from sessions import wire
+
+    url = config["url"]
+    window = _Window()
+    latency: list[float] = []
+    acks: list[float] = []
+    pending: dict[str, float] = {}
+    stats = {"disconnects": 0, "commands_failed": 0}
+    live: set[ClientConnection] = set()
+    closing = False
+
+    async def watch(ws: ClientConnection) -> None:
+        try:
+            async for raw in ws:
+                now = time.time()
+                message = json.loads(raw)
+                kind = message["type"]
+                if kind == "telemetry":
+                    if window.inside(now):
+                        latency.append(round((now - message["sent"]) * 1e3, 3))
+                elif kind == "result":
+                    sent = pending.pop(message["request_id"], None)
+                    if sent is not None:
+                        if message["ok"]:
+                            acks.append(round((time.perf_counter() - sent) * 1e3, 3))
+                        else:
+                            stats["commands_failed"] += 1
+        except ConnectionClosed:
+            pass
+        if ws in live and not closing:
+            stats["disconnects"] += 1
+        live.discard(ws)
+
+    async def open_one(station_id: int, token: str) -> ClientConnection:
+        ws = await connect(
+            f"{url}/ws/live/{station_id}",
+            subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
+            max_size=wire.MAX_MESSAGE_BYTES,
+            open_timeout=30.0,
+            ping_interval=None,
+        )
+        async with asyncio.timeout(30.0):
+            while (welcome := json.loads(await ws.recv())).get("type") != "welcome":
+                pass  # the server may send telemetry first (uvicorn's legacy websockets)
+        if not welcome.get("online"):
+            raise RuntimeError(f"viewer of station {station_id}: the station is offline")
+        return ws
+
+    conns = await _connect_all(config["items"], open_one)
+    live.update(conns)
+    watchers = [asyncio.create_task(watch(ws)) for ws in conns]
+    slots: list[list[tuple[int, ClientConnection]]] = [[] for _ in range(100)]
+    for i, ws in enumerate(conns):
+        slots[i % len(slots)].append((i, ws))
+
+    async def tick() -> None:
+        """Every viewer once a second, spread: a heartbeat and a K/B change."""
+        loop = asyncio.get_running_loop()
+        dt = 1.0 / len(slots)
+        next_t = loop.time()
+        k = 0
+        while time.time() < window.end:
+            commanding = config["commands"] and window.inside(time.time())
+            for i, ws in slots[k % len(slots)]:
+                if ws not in live:
+                    continue
+                try:
+                    await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+                    if commanding:
+                        rid = f"v{i}-{k}"
+                        k_pitch = 30.0 + (k // len(slots)) % 2 * 10.0
+                        cmd = wire.Command(
+                            request_id=rid,
+                            action="set_impedance",
+                            stiffness={"pitch": k_pitch},
+                            damping={"pitch": 1.0},
+                        )
+                        pending[rid] = time.perf_counter()
+                        await ws.send(cmd.model_dump_json())
+                except ConnectionClosed:
+                    continue
+            k += 1
+            next_t += dt
+            delay = next_t - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+
+    print("ready", flush=True)
+    go = asyncio.create_task(_go(window))
+    sender = asyncio.create_task(tick())
+    await go
+    await sender
+    await asyncio.sleep(TAIL_S + 0.5)
+    stats["commands_failed"] += len(pending)  # never answered
+    closing = True
+    await asyncio.gather(*(ws.close() for ws in conns), return_exceptions=True)
+    for w in watchers:
+        w.cancel()
+    return {"connected": len(conns), "latency_ms": latency, "ack_ms": acks, **stats}
+
+
+def _worker(role: str, stdin: IO[str]) -> int:
+    config = json.loads(stdin.readline())
+    main = {"stations": _stations, "viewers": _viewers}[role]
+    result = asyncio.run(main(config))
+    print(json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_worker(sys.argv[1], sys.stdin))
