@@ -77,7 +77,8 @@ TARGETS: tuple[Target, ...] = (
     Target(
         "telemetry_hz_per_station", "telemetry sent per station (Hz)", 0.98 * TELEMETRY_HZ, "min"
     ),
-    Target("viewer_hz", "telemetry received per viewer (Hz)", 0.9 * VIEW_HZ, "min"),
+    # What a live view needs (the floor); the relay's own cap is VIEW_HZ.
+    Target("viewer_hz", "telemetry received per viewer (Hz)", 30.0, "min"),
     Target("kb_change_to_ack_ms_p99", "K/B change to the station's answer p99 (ms)", 100.0, "max"),
     Target("disconnects", "connections lost", 0, "eq"),
     Target("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms", 100, "min"),
