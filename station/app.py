@@ -14,7 +14,7 @@ import logging
 import os
 import time
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,6 @@ class StationConfig:
     baud: int = 921600
     repeat_after_s: float | None = None
     """With ``autostart``: start it again this long after each session ends (the demo)."""
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class Station:
@@ -66,7 +65,6 @@ class Station:
         self.writer: SessionWriter | None = None
         self.session_id: str | None = None
         self.message = ""
-        self.sessions_done: list[str] = []
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
@@ -246,8 +244,6 @@ class Station:
                 writer.end(end)
             writer.close()
         self._segment_base = max(1, (run.last_segment_id + 1) & 0xFFFF)
-        if self.session_id:
-            self.sessions_done.append(self.session_id)
         self.run_ = None
         self.session_id = None
         self._last_phase = run.phase  # shown until the next start: done, stopped or fault

@@ -27,7 +27,14 @@ from server.deps import CurrentStation, Db
 from server.models import Prescription, Session, Upload
 from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses
 from server.routes.sessions import SessionPublic, session_public
-from sessions.recording import MAGIC, RecordingError, RecordType, decode, iter_records
+from sessions.recording import (
+    MAGIC,
+    RecordingError,
+    RecordType,
+    decode,
+    iter_records,
+)
+from sessions.recording import Header as RecordingHeader
 from sessions.summary import summarize
 
 router = APIRouter(tags=["uploads"], responses=UNAUTHORIZED)
@@ -168,10 +175,10 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> None:
         raise HTTPException(422, f"not a session recording: {exc}") from None
     if not records or records[0][0] != RecordType.HEADER:
         raise HTTPException(422, "the first chunk must contain the recording's header record")
-    rec = decode(data[: len(MAGIC) + 9 + len(records[0][1])])
-    if rec.header.session_id != sid:
+    header = RecordingHeader.model_validate_json(records[0][1])
+    if header.session_id != sid:
         raise HTTPException(422, "the header's session_id differs from the upload's")
-    if rec.header.patient_id != patient_id:
+    if header.patient_id != patient_id:
         raise HTTPException(422, "the recording is for another patient than this station's")
 
 
