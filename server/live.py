@@ -31,7 +31,7 @@ from server import audit
 from server.deps import authenticate_station, authenticate_user
 from server.models import Patient, Prescription, Station, User, utcnow
 from sessions import wire
-from sessions.prescription import PrescriptionBody
+from sessions.prescription import AXIS_INDEX, PrescriptionBody
 
 log = logging.getLogger("ankle.server.live")
 router = APIRouter()
@@ -521,10 +521,9 @@ async def _audit_impedance(hub: Hub, viewer: Viewer, conn: StationConn, cmd: wir
     old: dict[str, Any] = {}
     if conn.latest is not None:
         latest = json.loads(conn.latest)
-        index = {"roll": 3, "pitch": 4, "yaw": 5}
         old = {
-            "stiffness": {a: latest["stiffness"][index[a]] for a in (cmd.stiffness or {})},
-            "damping": {a: latest["damping"][index[a]] for a in (cmd.damping or {})},
+            "stiffness": {a: latest["stiffness"][AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
+            "damping": {a: latest["damping"][AXIS_INDEX[a]] for a in (cmd.damping or {})},
         }
     new = {"stiffness": cmd.stiffness or {}, "damping": cmd.damping or {}}
     await hub.audit(

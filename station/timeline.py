@@ -107,6 +107,7 @@ class ExerciseRun:
         self._stop = asyncio.Event()
         self._resumed = asyncio.Event()
         self._resumed.set()
+        self._paused = asyncio.Event()
 
     # -- from the station --------------------------------------------------------------
     def device_event(self, event: msg.Event) -> None:
@@ -124,6 +125,7 @@ class ExerciseRun:
     def resume(self) -> None:
         if self.phase == "paused":
             self.phase = "running" if self.rest_until == 0.0 else "rest"
+            self._paused.clear()
             self._resumed.set()
             self._on_change()
 
@@ -141,6 +143,7 @@ class ExerciseRun:
         if self.phase in ("running", "rest"):
             self.phase = "paused"
             self._resumed.clear()
+            self._paused.set()
             self._on_change()
 
     def _event(self, kind: str, **detail: object) -> None:
@@ -256,7 +259,7 @@ class ExerciseRun:
             self.rest_until = time.monotonic() + remaining
             self._on_change()
             self._event("rest", seconds=round(remaining, 1))
-            paused = asyncio.create_task(self._wait_paused())
+            paused = asyncio.create_task(self._paused.wait())
             stop = asyncio.create_task(self._stop.wait())
             try:
                 await asyncio.wait({paused, stop}, timeout=remaining)
@@ -265,10 +268,6 @@ class ExerciseRun:
                 stop.cancel()
             remaining = self.rest_until - time.monotonic()
         self.rest_until = 0.0
-
-    async def _wait_paused(self) -> None:
-        while self._resumed.is_set():
-            await asyncio.sleep(0.05)
 
     # -- live changes -------------------------------------------------------------------
     def apply_impedance(
