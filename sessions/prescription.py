@@ -207,6 +207,13 @@ class PrescriptionBody(BaseModel):
         le=FORCE_LIMIT_MAX,
         description="N: the device stops if the force on the foot plate exceeds it.",
     )
+    sessions_per_week: int = Field(
+        default=5,
+        ge=1,
+        le=14,
+        description="How often the patient should do this exercise; adherence is measured "
+        "against it.",
+    )
 
     @model_validator(mode="after")
     def _axes_once(self) -> PrescriptionBody:

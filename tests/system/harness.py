@@ -7,6 +7,7 @@ view), so what is tested is what ``make run`` starts.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import json
 import os
 import signal
@@ -109,7 +110,11 @@ class System:
 @pytest.fixture
 def system(tmp_path: Path) -> Iterator[System]:
     port = free_port()
-    creds = provision_demo(Settings(data_dir=tmp_path / "server", port=port))
+    # In a thread: Playwright's sync API keeps an event loop running in this one.
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        creds = pool.submit(
+            provision_demo, Settings(data_dir=tmp_path / "server", port=port)
+        ).result()
     device = ServiceProcess("--link", "pty", "--patient-torque", "3")
     sysm = System(tmp_path, port, creds, device)
     try:

@@ -1,0 +1,51 @@
+"""The server with its dashboard: ``create_app`` wraps ``server.app.create_app``.
+
+webui is the top layer (DESIGN.md section 5): the server never imports it. This factory adds
+the dashboard's pages under ``/app``, the scripts and styles under ``/static``, the chart
+libraries under ``/vendor``, and the live 3D views (one viser server per watched station),
+whose lifetime is the app's.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from server.app import create_app as create_server_app
+from server.config import Settings
+from server.routes import API_PREFIX
+from webui import pages, routes
+from webui.assets import STATIC, missing_vendor, vendor_router
+from webui.live3d import LiveScenes
+
+log = logging.getLogger("ankle.webui")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The API, the live links and the dashboard, in one app."""
+    app = create_server_app(settings)
+    server_lifespan = app.router.lifespan_context
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        async with server_lifespan(app):
+            missing = missing_vendor()
+            if missing:
+                log.warning("chart libraries not installed (%s): run 'make setup'", missing)
+            scenes = LiveScenes(app.state.hub, host=app.state.settings.host)
+            app.state.scenes = scenes
+            try:
+                yield
+            finally:
+                await scenes.close()
+
+    app.router.lifespan_context = lifespan
+    app.include_router(routes.router, prefix=API_PREFIX)
+    app.include_router(pages.router)
+    app.include_router(vendor_router)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    return app

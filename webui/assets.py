@@ -1,0 +1,62 @@
+"""Files the browser loads: our pages and scripts, and the chart libraries from npm.
+
+The libraries are installed from the npm registry with ``webui/package-lock.json`` by the
+setup step (``make setup`` runs ``npm ci``); nothing third-party is committed. They are served
+under ``/vendor/`` by a fixed name, so a page never depends on a package's folder layout.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, HTTPException
+from fastapi.responses import FileResponse
+
+HERE = Path(__file__).resolve().parent
+STATIC = HERE / "static"
+PAGES = HERE / "pages"
+NODE_MODULES = HERE / "node_modules"
+
+VENDOR: dict[str, Path] = {
+    "uPlot.iife.min.js": NODE_MODULES / "uplot" / "dist" / "uPlot.iife.min.js",
+    "uPlot.min.css": NODE_MODULES / "uplot" / "dist" / "uPlot.min.css",
+    "chart.umd.min.js": NODE_MODULES / "chart.js" / "dist" / "chart.umd.min.js",
+}
+"""Served name → installed file."""
+
+CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data: blob:; connect-src 'self' ws: wss:; frame-src http: https: blob:; "
+    "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'self'"
+)
+"""No inline script; frames for the 3D view (another port) and the session replay (blob)."""
+
+
+def missing_vendor() -> list[str]:
+    """Library files the setup step has not installed yet."""
+    return [name for name, path in VENDOR.items() if not path.is_file()]
+
+
+vendor_router = APIRouter(include_in_schema=False)
+
+
+@vendor_router.get("/vendor/{name}")
+async def vendor(name: str) -> FileResponse:
+    path = VENDOR.get(name)
+    if path is None:
+        raise HTTPException(404, "no such library file")
+    if not path.is_file():
+        raise HTTPException(
+            503,
+            f"{name} is not installed: run 'make setup' (npm ci in webui/) on this machine",
+        )
+    return FileResponse(path, headers={"Cache-Control": "public, max-age=86400"})
+
+
+def page(name: str) -> FileResponse:
+    """One of our HTML pages, with the content security policy."""
+    return FileResponse(
+        PAGES / name,
+        media_type="text/html",
+        headers={"Content-Security-Policy": CSP, "Cache-Control": "no-cache"},
+    )

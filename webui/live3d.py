@@ -1,0 +1,107 @@
+"""One viser server per watched station: the live 3D view the dashboard embeds.
+
+viser is not ASGI, so it cannot be mounted in the FastAPI app: each view is its own
+``ViserServer`` on a free port (``port=0``), published by ``GET /api/v1/stations/{id}/scene``
+and embedded by the live page as an iframe. A view is fed from the hub's newest telemetry
+sample at ``SCENE_HZ`` (the station sends 100 Hz; each scene update costs about 0.25 ms) and
+is stopped once no therapist has watched the station for ``IDLE_S``.
+
+The viser port serves the scene to whoever reaches it, without the API's token: it shows a
+moving platform, no names. Bind the server to an interface only the clinic reaches.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+
+import viser
+
+from server.live import Hub
+from webui.scene import PlatformScene
+
+log = logging.getLogger("ankle.webui.live3d")
+
+SCENE_HZ = 30.0
+"""Scene updates per second: within viser's 30–60 Hz sweet spot."""
+IDLE_S = 30.0
+"""A view nobody has watched (no live WebSocket, no scene request) for this long stops."""
+
+
+@dataclass(eq=False)
+class LiveView:
+    station_id: int
+    server: viser.ViserServer
+    scene: PlatformScene
+    touched: float = field(default_factory=time.monotonic)
+    seq: int = -1
+    updates: int = 0
+    task: asyncio.Task[None] | None = None
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+
+class LiveScenes:
+    """The live 3D views of one server process."""
+
+    def __init__(
+        self, hub: Hub, host: str, hz: float = SCENE_HZ, idle_s: float = IDLE_S
+    ) -> None:
+        self.hub = hub
+        self.host = host
+        self.period = 1.0 / hz
+        self.idle_s = idle_s
+        self.views: dict[int, LiveView] = {}
+        self._lock = asyncio.Lock()
+
+    async def open(self, station_id: int) -> LiveView:
+        """The station's view, started if it is not running; each call keeps it alive."""
+        async with self._lock:
+            view = self.views.get(station_id)
+            if view is None:
+                view = await asyncio.to_thread(self._start, station_id)
+                view.task = asyncio.create_task(self._feed(view), name=f"scene-{station_id}")
+                self.views[station_id] = view
+                log.info("3D view of station %d on port %d", station_id, view.port)
+            view.touched = time.monotonic()
+            return view
+
+    def _start(self, station_id: int) -> LiveView:
+        server = viser.ViserServer(host=self.host, port=0, verbose=False)
+        server.gui.configure_theme(
+            control_layout="collapsible", show_logo=False, show_share_button=False
+        )
+        return LiveView(station_id, server, PlatformScene(server))
+
+    async def _feed(self, view: LiveView) -> None:
+        try:
+            while True:
+                await asyncio.sleep(self.period)
+                conn = self.hub.stations.get(view.station_id)
+                if conn is not None and conn.latest is not None and conn.seq != view.seq:
+                    view.seq = conn.seq
+                    t = json.loads(conn.latest)
+                    view.scene.update(t["pose"], t["pose_cmd"], t["pressures"], t["wrench"])
+                    view.updates += 1
+                if self.hub.viewers.get(view.station_id):
+                    view.touched = time.monotonic()
+                elif time.monotonic() - view.touched > self.idle_s:
+                    break
+        finally:
+            if self.views.get(view.station_id) is view:
+                del self.views[view.station_id]
+            await asyncio.to_thread(view.server.stop)
+            log.info("3D view of station %d stopped", view.station_id)
+
+    async def close(self) -> None:
+        for view in list(self.views.values()):
+            if view.task is not None:
+                view.task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await view.task

@@ -1,0 +1,234 @@
+// The dashboard's one way to the server: REST with the signed-in therapist's bearer token,
+// errors as ApiError, and small DOM helpers that never put server text into innerHTML.
+
+export const TOKEN_KEY = "ankle.token";
+export const USER_KEY = "ankle.user";
+
+export function token() {
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+
+export function currentUser() {
+  const raw = sessionStorage.getItem(USER_KEY);
+  return raw ? JSON.parse(raw) : null;
+}
+
+export function signIn(tokenPublic) {
+  sessionStorage.setItem(TOKEN_KEY, tokenPublic.access_token);
+  sessionStorage.setItem(USER_KEY, JSON.stringify(tokenPublic.user));
+}
+
+export function signOut() {
+  sessionStorage.removeItem(TOKEN_KEY);
+  sessionStorage.removeItem(USER_KEY);
+}
+
+export function loginUrl() {
+  return `/app/login?next=${encodeURIComponent(location.pathname + location.search)}`;
+}
+
+/** Send the browser to sign-in unless a token is held. */
+export function requireSignIn() {
+  if (!token()) {
+    location.replace(loginUrl());
+    throw new Error("not signed in");
+  }
+}
+
+export class ApiError extends Error {
+  constructor(status, detail) {
+    super(ApiError.text(status, detail));
+    this.status = status;
+    this.detail = detail;
+  }
+
+  static text(status, detail) {
+    if (typeof detail === "string") return detail;
+    if (Array.isArray(detail)) return detail.map((d) => d.msg).join("; ");
+    return `the server answered ${status}`;
+  }
+
+  /** FastAPI's 422 items as {"axes.0.stiffness": "Input should be ..."} (the body's path). */
+  fieldErrors() {
+    const out = {};
+    if (!Array.isArray(this.detail)) return out;
+    for (const d of this.detail) {
+      const loc = (d.loc || []).filter((p, i) => !(i === 0 && p === "body"));
+      out[loc.join(".")] = d.msg.replace(/^Value error, /, "");
+    }
+    return out;
+  }
+}
+
+/** Call /api/v1{path}; JSON in and out. A 401 ends the sign-in and goes back to it. */
+export async function api(path, { method = "GET", body, raw = false } = {}) {
+  const headers = { Accept: "application/json" };
+  const t = token();
+  if (t) headers.Authorization = `Bearer ${t}`;
+  const init = { method, headers };
+  if (body !== undefined) {
+    headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  let r;
+  try {
+    r = await fetch(`/api/v1${path}`, init);
+  } catch (e) {
+    throw new ApiError(0, "the server cannot be reached: check the network and try again");
+  }
+  if (r.status === 401 && path !== "/auth/login") {
+    signOut();
+    location.replace(loginUrl());
+    throw new ApiError(401, "signed out: please sign in again");
+  }
+  if (!r.ok) {
+    let detail = r.statusText;
+    try {
+      detail = (await r.json()).detail ?? detail;
+    } catch (e) {
+      /* not JSON: keep the status text */
+    }
+    throw new ApiError(r.status, detail);
+  }
+  if (raw) return r;
+  return r.status === 204 ? null : r.json();
+}
+
+/** Fetch a file with the token and hand it to the browser as a download. */
+export async function download(path, filename) {
+  const r = await api(path, { raw: true });
+  const blob = await r.blob();
+  const url = URL.createObjectURL(blob);
+  const a = el("a", { href: url, download: filename });
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10000);
+}
+
+/** el("p", {class: "x", onclick: f}, "text", child): text children are text nodes. */
+export function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (v === undefined || v === null || v === false) continue;
+    if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
+    else if (k === "class") node.className = v;
+    else if (k === "dataset") Object.assign(node.dataset, v);
+    else if (v === true) node.setAttribute(k, "");
+    else node.setAttribute(k, String(v));
+  }
+  for (const c of children.flat()) {
+    if (c === undefined || c === null || c === false) continue;
+    node.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return node;
+}
+
+/**
+ * Show an ApiError beside the fields it names. A field is any element with
+ * data-field="path" (e.g. "axes.0.stiffness") inside the form; its message goes into the
+ * element with data-error-for="path", or a new one after the field. Anything unmatched goes
+ * to the form's [data-form-error] box.
+ */
+export function showErrors(form, error) {
+  clearErrors(form);
+  const box = form.querySelector("[data-form-error]");
+  const fields = error instanceof ApiError ? error.fieldErrors() : {};
+  const unmatched = [];
+  for (const [path, msg] of Object.entries(fields)) {
+    const input = form.querySelector(`[data-field="${CSS.escape(path)}"]`);
+    if (!input) {
+      unmatched.push(path ? `${path}: ${msg}` : msg);
+      continue;
+    }
+    input.setAttribute("aria-invalid", "true");
+    let slot = form.querySelector(`[data-error-for="${CSS.escape(path)}"]`);
+    if (!slot) {
+      slot = el("span", { class: "field-error", "data-error-for": path, role: "alert" });
+      input.insertAdjacentElement("afterend", slot);
+    }
+    slot.id = slot.id || `err-${path.replaceAll(".", "-")}`;
+    input.setAttribute("aria-describedby", slot.id);
+    slot.textContent = msg;
+  }
+  if (!Object.keys(fields).length) unmatched.push(error.message || String(error));
+  if (box) {
+    box.textContent = unmatched.join("; ");
+    box.hidden = !unmatched.length;
+  }
+  const first = form.querySelector('[aria-invalid="true"]');
+  if (first) first.focus();
+}
+
+export function clearErrors(form) {
+  for (const n of form.querySelectorAll('[aria-invalid="true"]')) n.removeAttribute("aria-invalid");
+  for (const n of form.querySelectorAll("[data-error-for]")) n.textContent = "";
+  const box = form.querySelector("[data-form-error]");
+  if (box) {
+    box.textContent = "";
+    box.hidden = true;
+  }
+}
+
+/** The page header: product name, navigation, who is signed in, sign out. */
+export function renderHeader() {
+  const user = currentUser();
+  const top = document.getElementById("top");
+  if (!top) return;
+  top.replaceChildren(
+    el("a", { class: "brand", href: "/app/patients" }, "Ankle telerehabilitation"),
+    el("nav", { "aria-label": "Main" }, el("a", { href: "/app/patients" }, "Patients")),
+    el(
+      "div",
+      { class: "who" },
+      user ? `${user.name} (${user.role})` : "",
+      el(
+        "button",
+        {
+          type: "button",
+          class: "link",
+          onclick: async () => {
+            try {
+              await api("/auth/logout", { method: "POST" });
+            } catch (e) {
+              /* signed out either way */
+            }
+            signOut();
+            location.href = "/app/login";
+          },
+        },
+        "Sign out",
+      ),
+    ),
+  );
+}
+
+export const fmt = {
+  num(v, digits = 1) {
+    return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits);
+  },
+  date(iso) {
+    return iso ? new Date(iso).toLocaleString() : "–";
+  },
+  day(iso) {
+    return iso ? new Date(iso).toLocaleDateString() : "–";
+  },
+  duration(s) {
+    if (s === null || s === undefined) return "–";
+    const m = Math.floor(s / 60);
+    const r = Math.round(s % 60);
+    return m ? `${m} min ${r} s` : `${r} s`;
+  },
+  exercise(kind) {
+    return (kind || "").replaceAll("_", " ");
+  },
+};
+
+export const RAD2DEG = 180 / Math.PI;
+
+/** Read an integer id from the page path: /app/patients/12 → pathId(2) === 12. */
+export function pathId(index) {
+  const part = location.pathname.split("/").filter(Boolean)[index];
+  const id = Number.parseInt(part, 10);
+  return Number.isFinite(id) ? id : null;
+}
