@@ -39,7 +39,6 @@ class LiveView:
     scene: PlatformScene
     touched: float = field(default_factory=time.monotonic)
     seq: int = -1
-    updates: int = 0
     task: asyncio.Task[None] | None = None
 
     @property
@@ -50,9 +49,7 @@ class LiveView:
 class LiveScenes:
     """The live 3D views of one server process."""
 
-    def __init__(
-        self, hub: Hub, host: str, hz: float = SCENE_HZ, idle_s: float = IDLE_S
-    ) -> None:
+    def __init__(self, hub: Hub, host: str, hz: float = SCENE_HZ, idle_s: float = IDLE_S) -> None:
         self.hub = hub
         self.host = host
         self.period = 1.0 / hz
@@ -74,9 +71,7 @@ class LiveScenes:
 
     def _start(self, station_id: int) -> LiveView:
         server = viser.ViserServer(host=self.host, port=0, verbose=False)
-        server.gui.configure_theme(
-            control_layout="collapsible", show_logo=False, show_share_button=False
-        )
+        server.gui.configure_theme(show_logo=False, show_share_button=False)
         return LiveView(station_id, server, PlatformScene(server))
 
     async def _feed(self, view: LiveView) -> None:
@@ -88,7 +83,6 @@ class LiveScenes:
                     view.seq = conn.seq
                     t = json.loads(conn.latest)
                     view.scene.update(t["pose"], t["pose_cmd"], t["pressures"], t["wrench"])
-                    view.updates += 1
                 if self.hub.viewers.get(view.station_id):
                     view.touched = time.monotonic()
                 elif time.monotonic() - view.touched > self.idle_s:

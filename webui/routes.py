@@ -18,6 +18,11 @@ class ScenePublic(BaseModel):
     port: int = Field(description="TCP port of the station's viser server on this host.")
     path: str = Field(description="Path and query to open, e.g. in an iframe.")
     idle_s: float = Field(description="The view stops after this long unwatched, s.")
+    updates: int = Field(description="Telemetry samples drawn since the view started.")
+    platform_position: list[float] = Field(
+        description="Where the scene draws the ankle frame now: x, y, z in m (world frame)."
+    )
+    platform_wxyz: list[float] = Field(description="Its orientation, a unit quaternion.")
 
 
 @router.get(
@@ -41,4 +46,13 @@ async def station_scene(
         raise HTTPException(404, "station not found") from None
     scenes: LiveScenes = request.app.state.scenes
     view = await scenes.open(station_id)
-    return ScenePublic(station_id=station_id, port=view.port, path="/", idle_s=IDLE_S)
+    platform = view.scene.platform
+    return ScenePublic(
+        station_id=station_id,
+        port=view.port,
+        path="/",
+        idle_s=IDLE_S,
+        updates=view.scene.updates,
+        platform_position=[float(v) for v in platform.position],
+        platform_wxyz=[float(v) for v in platform.wxyz],
+    )

@@ -17,7 +17,7 @@ from playwright.sync_api import Browser, BrowserContext, ConsoleMessage, Page, s
 
 from tests.system.harness import system
 
-__all__ = ["system", "browser", "context", "page", "shots"]
+__all__ = ["browser", "context", "page", "shots", "system"]
 
 ROOT = Path(__file__).resolve().parents[2]
 SCREENSHOTS = ROOT / "test-output" / "screenshots"

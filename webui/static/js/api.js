@@ -27,12 +27,19 @@ export function loginUrl() {
   return `/app/login?next=${encodeURIComponent(location.pathname + location.search)}`;
 }
 
-/** Send the browser to sign-in unless a token is held. */
+/** A promise that never settles: what a call returns while the page navigates away. */
+const never = () => new Promise(() => {});
+
+/**
+ * Send the browser to sign-in unless a token is held. Use as `await requireSignIn();` at the
+ * top of a page module: without a token the module waits there while the browser leaves.
+ */
 export function requireSignIn() {
   if (!token()) {
     location.replace(loginUrl());
-    throw new Error("not signed in");
+    return never();
   }
+  return Promise.resolve();
 }
 
 export class ApiError extends Error {
@@ -77,9 +84,10 @@ export async function api(path, { method = "GET", body, raw = false } = {}) {
     throw new ApiError(0, "the server cannot be reached: check the network and try again");
   }
   if (r.status === 401 && path !== "/auth/login") {
+    // The sign-in has expired: go back to it; the caller's code never resumes.
     signOut();
     location.replace(loginUrl());
-    throw new ApiError(401, "signed out: please sign in again");
+    return never();
   }
   if (!r.ok) {
     let detail = r.statusText;

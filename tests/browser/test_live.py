@@ -1,0 +1,131 @@
+"""The therapist's live view in a real browser against the real system.
+
+Sign in, open the demo station's live page, start the demo exercise from it, and see:
+telemetry moving the charts and the 3D view (the viser scene's platform pose changes), a K
+change acknowledged by the device and then in force, and HOLD reaching the device.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import httpx
+from playwright.sync_api import Page, expect
+
+from server.cli import demo_prescription
+from tests.system.harness import System
+
+
+def sign_in(page: Page, system: System, path: str) -> None:
+    page.goto(f"{system.url}{path}")
+    page.get_by_label("Email").fill(system.creds["therapist_email"])
+    page.get_by_label("Password").fill(system.creds["therapist_password"])
+    page.get_by_role("button", name="Sign in").click()
+    expect(page).to_have_url(f"{system.url}{path}")
+
+
+def therapist_token(system: System) -> str:
+    r = httpx.post(
+        f"{system.url}/api/v1/auth/login",
+        json={
+            "email": system.creds["therapist_email"],
+            "password": system.creds["therapist_password"],
+        },
+    )
+    r.raise_for_status()
+    return str(r.json()["access_token"])
+
+
+def scene(system: System, token: str) -> dict[str, object]:
+    r = httpx.get(
+        f"{system.url}/api/v1/stations/{system.station_id}/scene",
+        headers={"Authorization": f"Bearer {token}"},
+    )
+    r.raise_for_status()
+    body: dict[str, object] = r.json()
+    return body
+
+
+def long_prescription(system: System, token: str) -> int:
+    """The demo strength exercise with 10 repetitions: long enough to watch and adjust."""
+    auth = {"Authorization": f"Bearer {token}"}
+    body = demo_prescription().model_dump(mode="json") | {"repetitions": 10, "title": "Live test"}
+    r = httpx.post(
+        f"{system.url}/api/v1/patients/{system.creds['patient_id']}/prescriptions",
+        json=body,
+        headers=auth,
+    )
+    assert r.status_code == 201, r.text
+    return int(r.json()["id"])
+
+
+def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, shots: Path) -> None:
+    token = therapist_token(system)
+    rx = long_prescription(system, token)
+    system.start_station()
+    sign_in(page, system, f"/app/live/{system.station_id}")
+    expect(page.locator("#st-link")).to_have_text("station online", timeout=30_000)
+    expect(page.locator("#st-device")).to_have_text("connected", timeout=60_000)
+
+    # The 3D view loads first: its client is the page's heaviest part.
+    frame = page.frame_locator("#scene")
+    expect(frame.locator("canvas").first).to_be_visible(timeout=30_000)
+
+    # Start the prescription from the page.
+    page.get_by_label("Prescription to start").select_option(str(rx))
+    page.get_by_role("button", name="Start", exact=True).click()
+    expect(page.locator("#st-link")).to_have_text("station online")
+    expect(page.locator("#ack")).to_contain_text("Start: accepted")
+    expect(page.locator("#st-mode")).to_have_text("ACTIVE", timeout=30_000)
+
+    # Telemetry arrives at the live view's rate and moves the charts.
+    expect(page.locator("#st-rate")).to_have_text(
+        re.compile(r"^([3-9]\d|\d{3,}) samples/s$"), timeout=10_000
+    )
+    chart = page.locator("#chart-angle canvas")
+    before = chart.screenshot()
+    page.wait_for_timeout(700)
+    assert chart.screenshot() != before, "the angle chart did not move"
+
+    # The 3D view: the scene's platform pose follows telemetry, and the browser draws it.
+    first = scene(system, token)
+    time.sleep(1.0)
+    second = scene(system, token)
+    assert int(str(second["updates"])) > int(str(first["updates"])) + 10
+    assert (first["platform_wxyz"], first["platform_position"]) != (
+        second["platform_wxyz"],
+        second["platform_position"],
+    )
+    iframe = page.locator("#scene")
+    pixels = iframe.screenshot()
+    page.wait_for_timeout(800)
+    assert iframe.screenshot() != pixels, "the 3D view did not change on screen"
+    page.screenshot(path=shots / "live.png", full_page=True)
+
+    # A stiffness beyond the published limit is caught beside the field and never sent.
+    k = page.get_by_label("pitch stiffness K, N·m/rad")
+    k.fill("9999")
+    page.get_by_role("button", name="Send change").click()
+    expect(page.locator('[data-error-for="stiffness.pitch"]')).to_contain_text("from 0 to 500")
+    expect(page.locator("#kb-ack")).to_have_text("")
+    page.screenshot(path=shots / "live-k-error.png")
+
+    # A K change from 40 to 80: the device's answer, then 80 in force.
+    k.fill("80")
+    page.get_by_role("button", name="Send change").click()
+    expect(page.locator("#kb-ack")).to_contain_text(
+        re.compile(r"acknowledged by the device|accepted: applies"), timeout=10_000
+    )
+    expect(page.locator("#kb-now-pitch")).to_contain_text("80.0 ·", timeout=15_000)
+    expect(page.locator("#st-rtt")).to_contain_text("ms")
+
+    # HOLD reaches the device, and the device's mode changes on the page.
+    page.get_by_role("button", name="HOLD").click()
+    expect(page.locator("#ack")).to_contain_text("HOLD: acknowledged by the device")
+    expect(page.locator("#st-mode")).to_have_text("HOLD", timeout=5_000)
+    page.screenshot(path=shots / "live-hold.png", full_page=True)
+    page.get_by_role("button", name="Resume").click()
+    expect(page.locator("#ack")).to_contain_text("Resume: acknowledged by the device")
+    expect(page.locator("#st-mode")).not_to_have_text("HOLD", timeout=5_000)

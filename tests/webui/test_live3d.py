@@ -1,0 +1,84 @@
+"""One viser server per watched station: started on demand, fed from the hub, stopped idle."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import socket
+from typing import Any
+
+import pytest
+
+from server.live import Hub, StationConn
+from webui.live3d import LiveScenes
+
+
+def telemetry(pitch_deg: float) -> str:
+    pose = [0.0, 0.0, 0.0, 0.0, math.radians(pitch_deg), 0.0]
+    return json.dumps(
+        {"type": "telemetry", "pose": pose, "pose_cmd": pose, "pressures": [2e5] * 12}
+        | {"wrench": [0.0, 0.0, -50.0, 0.0, 1.0, 0.0]}
+    )
+
+
+def connected(hub: Hub, station_id: int) -> StationConn:
+    # The hub's record of a connected station; its socket is never used by the scenes.
+    ws: Any = None
+    conn = StationConn(ws, station_id, patient_id=1)
+    hub.stations[station_id] = conn
+    return conn
+
+
+def port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+@pytest.mark.asyncio
+async def test_a_view_follows_the_newest_sample_and_stops_when_unwatched() -> None:
+    hub = Hub()
+    scenes = LiveScenes(hub, host="127.0.0.1", hz=50.0, idle_s=0.5)
+    conn = connected(hub, 7)
+    try:
+        view = await scenes.open(7)
+        assert port_open(view.port)
+        assert (await scenes.open(7)) is view  # one server per station, however many ask
+
+        conn.latest, conn.seq = telemetry(10.0), 1
+        for _ in range(50):
+            await asyncio.sleep(0.02)
+            if view.scene.updates:
+                break
+        assert view.scene.updates == 1
+        y = view.scene.platform.wxyz[2]
+        assert y == pytest.approx(math.sin(math.radians(5.0)), abs=1e-6)
+
+        # The same sample is not drawn twice; a new one is.
+        await asyncio.sleep(0.1)
+        assert view.scene.updates == 1
+        conn.latest, conn.seq = telemetry(-5.0), 2
+        await asyncio.sleep(0.1)
+        assert view.scene.updates == 2
+        assert view.scene.platform.wxyz[2] == pytest.approx(-math.sin(math.radians(2.5)), abs=1e-6)
+
+        # Nobody watches: after idle_s the server stops and its port closes.
+        port = view.port
+        assert view.task is not None
+        await asyncio.wait_for(view.task, 5.0)
+        assert 7 not in scenes.views
+        assert not port_open(port)
+    finally:
+        await scenes.close()
+
+
+@pytest.mark.asyncio
+async def test_close_stops_every_view() -> None:
+    hub = Hub()
+    scenes = LiveScenes(hub, host="127.0.0.1")
+    a = await scenes.open(1)
+    b = await scenes.open(2)
+    assert a.port != b.port
+    await scenes.close()
+    assert not scenes.views
+    assert not port_open(a.port) and not port_open(b.port)

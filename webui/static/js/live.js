@@ -1,0 +1,426 @@
+// The live session: the 3D view (viser, in an iframe), status, charts, HOLD, and live
+// stiffness and damping changes answered by the device's own ACK or NACK.
+import { api, ApiError, clearErrors, el, fmt, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
+
+await requireSignIn();
+renderHeader();
+
+const stationId = pathId(2);
+const AXES = ["roll", "pitch", "yaw"];
+const AXIS_INDEX = { roll: 3, pitch: 4, yaw: 5 };
+const COLOURS = { roll: "#c0392b", pitch: "#1f5fbf", yaw: "#2e8b57" };
+const LEG_COLOURS = ["#c0392b", "#e67e22", "#b7950b", "#2e8b57", "#1f5fbf", "#8e44ad"];
+const WINDOW_S = 10;
+
+const $ = (id) => document.getElementById(id);
+const state = {
+  online: false,
+  status: null,
+  prescriptions: [],
+  activeAxes: AXES,
+  limits: { stiffness: Infinity, damping: Infinity },
+  pending: new Map(),
+  inForce: null,
+  frames: 0,
+  rate: 0,
+  lastTelemetry: null,
+  retryMs: 1000,
+  closedForGood: false,
+};
+
+function fail(message) {
+  const box = $("page-error");
+  box.textContent = message;
+  box.hidden = false;
+}
+
+// ---- charts (uPlot) ------------------------------------------------------------------------
+const buf = { t: [], angle: AXES.map(() => []), target: AXES.map(() => []), torque: AXES.map(() => []), dp: [0, 1, 2, 3, 4, 5].map(() => []) };
+
+function chart(target, series, yLabel) {
+  const width = Math.max(280, $(target).clientWidth || 400);
+  return new uPlot(
+    {
+      width,
+      height: 220,
+      scales: { x: { time: false } },
+      legend: { live: false },
+      cursor: { show: false },
+      axes: [{ label: "device time, s" }, { label: yLabel }],
+      series: [{ label: "t" }, ...series],
+    },
+    [[], ...series.map(() => [])],
+    $(target),
+  );
+}
+
+const charts = {
+  angle: chart(
+    "chart-angle",
+    AXES.flatMap((a) => [
+      { label: `${a}`, stroke: COLOURS[a], width: 2 },
+      { label: `${a} target`, stroke: COLOURS[a], width: 1, dash: [6, 4] },
+    ]),
+    "degrees",
+  ),
+  torque: chart("chart-torque", AXES.map((a) => ({ label: a, stroke: COLOURS[a], width: 2 })), "N·m"),
+  pressure: chart(
+    "chart-pressure",
+    LEG_COLOURS.map((c, i) => ({ label: `leg ${i + 1}`, stroke: c, width: 1.5 })),
+    "kPa",
+  ),
+};
+
+function showActiveAxes(axes) {
+  state.activeAxes = axes.length ? axes : AXES;
+  AXES.forEach((a, i) => {
+    const show = state.activeAxes.includes(a);
+    charts.angle.setSeries(1 + 2 * i, { show });
+    charts.angle.setSeries(2 + 2 * i, { show });
+    charts.torque.setSeries(1 + i, { show });
+  });
+}
+
+function record(m) {
+  buf.t.push(m.t);
+  AXES.forEach((a, i) => {
+    buf.angle[i].push(m.pose[AXIS_INDEX[a]] * RAD2DEG);
+    buf.target[i].push(m.pose_cmd[AXIS_INDEX[a]] * RAD2DEG);
+    buf.torque[i].push(m.wrench[AXIS_INDEX[a]]);
+  });
+  for (let leg = 0; leg < 6; leg++) buf.dp[leg].push((m.pressures[2 * leg] - m.pressures[2 * leg + 1]) / 1000);
+  while (buf.t.length && buf.t[0] < m.t - WINDOW_S) {
+    buf.t.shift();
+    for (const group of [buf.angle, buf.target, buf.torque, buf.dp]) for (const s of group) s.shift();
+  }
+  if (buf.t.length > 1 && buf.t[buf.t.length - 2] > m.t) {
+    // Device time went back (the platform restarted): start the window afresh.
+    for (const arr of [buf.t, ...buf.angle, ...buf.target, ...buf.torque, ...buf.dp]) arr.splice(0, arr.length - 1);
+  }
+}
+
+let drawQueued = false;
+function drawSoon() {
+  if (drawQueued) return;
+  drawQueued = true;
+  // At most one redraw per animation frame however fast telemetry comes.
+  requestAnimationFrame(() => {
+    drawQueued = false;
+    charts.angle.setData([buf.t, ...AXES.flatMap((_, i) => [buf.angle[i], buf.target[i]])]);
+    charts.torque.setData([buf.t, ...buf.torque]);
+    charts.pressure.setData([buf.t, ...buf.dp]);
+  });
+}
+
+window.addEventListener("resize", () => {
+  for (const [key, c] of Object.entries(charts)) {
+    c.setSize({ width: Math.max(280, $(`chart-${key}`).clientWidth), height: 220 });
+  }
+});
+
+// ---- status --------------------------------------------------------------------------------
+const MODE_CLASS = { ACTIVE: "ok", READY: "ok", HOLD: "warn", HOMING: "warn", FAULT: "bad", ESTOP: "bad" };
+
+function setBadge(node, text, cls) {
+  node.textContent = text;
+  node.className = `badge ${cls || ""}`;
+}
+
+function showLink() {
+  const badge = $("st-link");
+  if (!linkOpen) setBadge(badge, "server connection lost", "bad");
+  else if (state.online) setBadge(badge, "station online", "online");
+  else setBadge(badge, "station offline", "offline");
+}
+
+function showMode(mode, trip) {
+  setBadge($("st-mode"), mode || "–", MODE_CLASS[mode] || "");
+  $("st-trip").textContent = trip ? `trip code ${trip}` : "none";
+}
+
+function showStatus(s) {
+  state.status = s;
+  $("st-device").textContent = s.device_link === "connected" ? "connected" : "lost";
+  showMode(s.device_mode, s.trip);
+  $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
+  $("st-phase").textContent = s.phase;
+  $("st-progress").textContent = s.sets ? `set ${s.set} of ${s.sets} · repetition ${s.rep} of ${s.repetitions}` : "–";
+  $("st-rest").textContent = s.phase === "rest" ? `${Math.ceil(s.rest_remaining_s)} s` : "–";
+  $("st-overruns").textContent = String(s.overruns);
+  $("st-frames").textContent = String(s.frames_lost);
+  $("st-message").textContent = s.message || "–";
+  const rx = state.prescriptions.find((p) => p.id === s.prescription_id);
+  if (rx) {
+    showActiveAxes(rx.body.axes.map((a) => a.axis));
+    fillKB(rx.body.axes);
+  }
+}
+
+function showTelemetry(m) {
+  state.frames += 1;
+  state.lastTelemetry = m;
+  showMode(m.mode, m.trip);
+  state.inForce = m;
+  for (const a of AXES) {
+    const cell = $(`kb-now-${a}`);
+    if (cell) cell.textContent = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
+  }
+  record(m);
+  drawSoon();
+}
+
+setInterval(() => {
+  $("st-rate").textContent = state.frames ? `${state.frames} samples/s` : "no samples";
+  state.frames = 0;
+  const m = state.lastTelemetry;
+  // Station clock to this browser's clock: meaningful when both keep network time.
+  $("st-age").textContent = m ? `${Math.max(0, Date.now() - m.sent * 1000).toFixed(0)} ms` : "–";
+}, 1000);
+
+function addEvent(ev) {
+  const e = ev.event;
+  const when = new Date(e.wall * 1000).toLocaleTimeString();
+  const detail = e.detail && Object.keys(e.detail).length ? ` ${JSON.stringify(e.detail)}` : "";
+  const list = $("events");
+  list.prepend(el("li", {}, `${when} ${e.kind} (${e.by})${detail}`));
+  while (list.children.length > 50) list.lastChild.remove();
+}
+
+// ---- commands ------------------------------------------------------------------------------
+let counter = 0;
+function requestId() {
+  counter += 1;
+  return `${Date.now().toString(36)}-${counter}-${Math.random().toString(36).slice(2, 8)}`;
+}
+
+function send(action, fields, ackNode, label) {
+  const id = requestId();
+  state.pending.set(id, { sent: performance.now(), ackNode, label });
+  link.postMessage({ op: "send", message: { type: "command", request_id: id, action, ...fields } });
+  ackNode.textContent = `${label}: sent, waiting for the device…`;
+  ackNode.className = "small";
+}
+
+function onResult(r) {
+  const p = state.pending.get(r.request_id);
+  if (!p) return;
+  state.pending.delete(r.request_id);
+  const rtt = performance.now() - p.sent;
+  $("st-rtt").textContent = `${rtt.toFixed(0)} ms (station to device ${r.rtt_ms.toFixed(0)} ms)`;
+  if (r.ok) {
+    const how = r.code === "DEFERRED" ? `accepted: ${r.text}` : r.text || "accepted";
+    p.ackNode.textContent = `${p.label}: ${how} (${rtt.toFixed(0)} ms)`;
+    p.ackNode.className = "small ack-ok";
+  } else {
+    p.ackNode.textContent = `${p.label}: refused, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
+    p.ackNode.className = "small ack-bad";
+  }
+  p.ackNode.dataset.code = r.ok ? r.code || "ACK" : r.code;
+}
+
+$("hold").addEventListener("click", () => send("hold", {}, $("ack"), "HOLD"));
+$("resume").addEventListener("click", () => send("resume", {}, $("ack"), "Resume"));
+$("stop").addEventListener("click", () => {
+  if (confirm("Stop the exercise now? The platform returns home and the session ends.")) send("stop", {}, $("ack"), "Stop");
+});
+$("start-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  const id = Number.parseInt($("start-rx").value, 10);
+  if (Number.isFinite(id)) send("start", { prescription_id: id }, $("ack"), "Start");
+});
+
+// ---- stiffness and damping -----------------------------------------------------------------
+function buildKB() {
+  const rows = AXES.map((a) =>
+    el(
+      "tr",
+      { id: `kb-row-${a}` },
+      el("th", { scope: "row" }, a),
+      el(
+        "td",
+        {},
+        el("label", { for: `kb-k-${a}`, class: "sr-only" }, `${a} stiffness K, N·m/rad`),
+        el("input", { id: `kb-k-${a}`, type: "number", step: "any", min: 0, max: state.limits.stiffness, "data-field": `stiffness.${a}`, inputmode: "decimal" }),
+      ),
+      el(
+        "td",
+        {},
+        el("label", { for: `kb-b-${a}`, class: "sr-only" }, `${a} damping B, N·m·s/rad`),
+        el("input", { id: `kb-b-${a}`, type: "number", step: "any", min: 0, max: state.limits.damping, "data-field": `damping.${a}`, inputmode: "decimal" }),
+      ),
+      el("td", { id: `kb-now-${a}`, class: "num" }, "–"),
+    ),
+  );
+  $("kb-rows").replaceChildren(...rows);
+}
+
+let filledFor = null;
+function fillKB(axes) {
+  const key = JSON.stringify(axes);
+  if (filledFor === key) return; // never overwrite what the therapist is typing
+  filledFor = key;
+  for (const a of AXES) {
+    const rx = axes.find((x) => x.axis === a);
+    $(`kb-row-${a}`).hidden = !rx;
+    $(`kb-k-${a}`).value = rx ? rx.stiffness : "";
+    $(`kb-b-${a}`).value = rx ? rx.damping : "";
+  }
+}
+
+$("kb-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  const form = $("kb-form");
+  clearErrors(form);
+  const stiffness = {};
+  const damping = {};
+  const errors = [];
+  for (const a of state.activeAxes) {
+    for (const [kind, out, max, unit] of [
+      ["k", stiffness, state.limits.stiffness, "N·m/rad"],
+      ["b", damping, state.limits.damping, "N·m·s/rad"],
+    ]) {
+      const input = $(`kb-${kind}-${a}`);
+      if (input.value.trim() === "") continue;
+      const v = Number(input.value);
+      const field = `${kind === "k" ? "stiffness" : "damping"}.${a}`;
+      // Checked here as the server's schema checks it: a message the server refuses closes
+      // the live link, so the therapist's typo must never reach it.
+      if (!Number.isFinite(v) || v < 0 || v > max) {
+        errors.push({ loc: ["body", ...field.split(".")], msg: `must be a number from 0 to ${max} ${unit}` });
+      } else out[a] = v;
+    }
+  }
+  if (errors.length) {
+    showErrors(form, new ApiError(422, errors));
+    return;
+  }
+  if (!Object.keys(stiffness).length && !Object.keys(damping).length) {
+    $("kb-ack").textContent = "Enter a stiffness or damping to send.";
+    return;
+  }
+  send("set_impedance", { stiffness, damping }, $("kb-ack"), "Stiffness and damping");
+});
+
+// ---- the link (its socket lives in a worker: live-link.js) ----------------------------------
+const link = new Worker("/static/js/live-link.js", { type: "module" });
+let linkOpen = false;
+
+function onMessage(m) {
+  switch (m.type) {
+    case "telemetry":
+      showTelemetry(m);
+      break;
+    case "status":
+      showStatus(m);
+      break;
+    case "welcome":
+      state.online = m.online;
+      if (m.status) showStatus(m.status);
+      showLink();
+      break;
+    case "presence":
+      state.online = m.online;
+      showLink();
+      break;
+    case "event":
+      addEvent(m);
+      break;
+    case "result":
+      onResult(m);
+      break;
+    default:
+      break;
+  }
+}
+
+link.addEventListener("message", (ev) => {
+  const m = ev.data;
+  if (m.op === "messages") {
+    for (const item of m.items) onMessage(item);
+  } else if (m.op === "open") {
+    linkOpen = true;
+    state.retryMs = 1000;
+    showLink();
+  } else if (m.op === "unsent") {
+    const p = state.pending.get(m.request_id);
+    state.pending.delete(m.request_id);
+    if (p) {
+      p.ackNode.textContent = `${p.label}: not sent, the connection to the server is down`;
+      p.ackNode.className = "small ack-bad";
+    }
+  } else if (m.op === "close") {
+    linkOpen = false;
+    if (m.code === 1008) {
+      state.closedForGood = true;
+      showLink();
+      fail("You may not watch this station (signed out, or not your patient's station).");
+      return;
+    }
+    const wait = state.retryMs;
+    state.retryMs = Math.min(state.retryMs * 2, 10000);
+    const why = m.reason ? ` (${m.code}: ${m.reason})` : ` (${m.code})`;
+    setBadge($("st-link"), `server connection lost${why}, retrying in ${Math.round(wait / 1000)} s`, "bad");
+    setTimeout(() => {
+      connect();
+      openScene();
+    }, wait);
+  }
+});
+
+function connect() {
+  const proto = location.protocol === "https:" ? "wss" : "ws";
+  link.postMessage({
+    op: "open",
+    url: `${proto}://${location.host}/ws/live/${stationId}`,
+    protocols: ["ankle.v1", `bearer.${token()}`],
+  });
+}
+
+// ---- the 3D view -----------------------------------------------------------------------------
+let scenePort = null;
+async function openScene() {
+  try {
+    const s = await api(`/stations/${stationId}/scene`);
+    if (s.port !== scenePort) {
+      scenePort = s.port;
+      $("scene").src = `${location.protocol}//${location.hostname}:${s.port}${s.path}`;
+      $("scene-note").textContent = `3D view served on port ${s.port}.`;
+    }
+  } catch (e) {
+    $("scene-note").textContent = `The 3D view is not available: ${e.message}`;
+  }
+}
+
+// ---- start ---------------------------------------------------------------------------------
+async function main() {
+  if (stationId === null) return fail("No station in the address.");
+  let station;
+  try {
+    const [stations, schemas] = await Promise.all([api("/stations"), api("/schemas/ws")]);
+    station = stations.find((s) => s.id === stationId);
+    const command = schemas.viewer_to_server.$defs.Command.properties;
+    state.limits.stiffness = command.stiffness.anyOf[0].additionalProperties.maximum;
+    state.limits.damping = command.damping.anyOf[0].additionalProperties.maximum;
+  } catch (e) {
+    return fail(`Cannot load the station: ${e.message}`);
+  }
+  buildKB();
+  if (!station) return fail("No such station, or it is not one of your patients' stations.");
+  const patient = await api(`/patients/${station.patient_id}`);
+  document.title = `Live: ${patient.display_name} · Ankle telerehabilitation`;
+  $("title").textContent = `Live: ${patient.display_name}`;
+  $("back").replaceWith(
+    el("span", {}, el("a", { href: "/app/patients" }, "Patients"), " › ", el("a", { href: `/app/patients/${patient.id}` }, patient.display_name), ` › ${station.name}`),
+  );
+  const rxs = await api(`/patients/${patient.id}/prescriptions`);
+  state.prescriptions = rxs.filter((p) => p.status === "active");
+  $("start-rx").replaceChildren(
+    ...state.prescriptions.map((p) => el("option", { value: p.id }, `${p.body.title || fmt.exercise(p.body.exercise)} (v${p.version})`)),
+  );
+  if (state.status) showStatus(state.status);
+  connect();
+  openScene();
+  setInterval(openScene, 20000); // a view that stopped while the tab slept comes back
+}
+
+main();
