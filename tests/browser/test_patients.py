@@ -1,0 +1,326 @@
+"""The therapist's patient list, patient page and prescription form, in a browser against the
+real system: what the pages show is checked against what the API holds."""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from playwright.sync_api import Locator, Page, expect
+
+from sessions import wire
+from tests.system.harness import System, live, next_of
+
+API = "/api/v1"
+SESSION_S = 90.0
+"""Station start, homing, a short exercise and the upload, with room for a slow machine."""
+
+
+@pytest.fixture
+def client(system: System) -> Iterator[httpx.Client]:
+    """The demo therapist's own REST client: the independent witness of what a page did."""
+    with httpx.Client(base_url=system.url, timeout=30.0) as c:
+        r = c.post(
+            f"{API}/auth/login",
+            json={
+                "email": system.creds["therapist_email"],
+                "password": system.creds["therapist_password"],
+            },
+        )
+        assert r.status_code == 200, r.text
+        c.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+        yield c
+
+
+def get(client: httpx.Client, path: str, **params: Any) -> Any:
+    r = client.get(f"{API}{path}", params=params)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def sign_in(page: Page, system: System) -> None:
+    page.goto(f"{system.url}/app/patients")
+    page.get_by_label("Email").fill(system.creds["therapist_email"])
+    page.get_by_label("Password").fill(system.creds["therapist_password"])
+    page.get_by_role("button", name="Sign in").click()
+    expect(page).to_have_url(f"{system.url}/app/patients")
+
+
+def field(page: Page, path: str) -> Locator:
+    return page.locator(f'[data-field="{path}"]')
+
+
+def error_beside(page: Page, path: str) -> Locator:
+    return page.locator(f'[data-error-for="{path}"]')
+
+
+def test_patient_list_and_adding_a_patient(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    before = get(client, "/patients")
+    sign_in(page, system)
+    demo = page.locator(f'tr[data-patient-id="{system.creds["patient_id"]}"]')
+    expect(demo).to_contain_text(system.creds["patient_name"])
+    expect(demo).to_contain_text("Offline")  # its station is provisioned but not running
+    expect(demo).to_contain_text("No sessions yet")
+
+    # A blank name and a birth year in the future: both refused, each message by its field.
+    form = page.locator("#add-patient")
+    form.get_by_label("Display name").fill("   ")
+    form.get_by_label("Birth year").fill("3000")
+    form.get_by_role("button", name="Add patient").click()
+    expect(error_beside(page, "display_name")).to_contain_text("at least 1 character")
+    expect(error_beside(page, "birth_year")).to_contain_text("in the future")
+    expect(field(page, "display_name")).to_have_attribute("aria-invalid", "true")
+    expect(field(page, "display_name")).to_be_focused()
+    assert get(client, "/patients") == before, "a refused form created a patient"
+
+    form.get_by_label("Display name").fill("R. K.")
+    form.get_by_label("Reference").fill("RK-2031")
+    form.get_by_label("Birth year").fill("1961")
+    form.get_by_label("Affected side").select_option("left")
+    form.get_by_label("Notes").fill("Lateral sprain, grade II.")
+    form.get_by_role("button", name="Add patient").click()
+    expect(page.get_by_role("status").filter(has_text="Added “R. K.”")).to_be_visible()
+    expect(error_beside(page, "display_name")).to_be_empty()
+
+    after = get(client, "/patients")
+    assert len(after) == len(before) + 1
+    new = after[-1]
+    assert (new["display_name"], new["reference"], new["birth_year"]) == ("R. K.", "RK-2031", 1961)
+    assert (new["affected_side"], new["notes"]) == ("left", "Lateral sprain, grade II.")
+    row = page.locator(f'tr[data-patient-id="{new["id"]}"]')
+    expect(row).to_contain_text("RK-2031")
+    expect(row).to_contain_text("Left")
+    expect(row).to_contain_text("None provisioned")
+    page.screenshot(path=shots / "patients.png", full_page=True)
+
+    row.get_by_role("link", name="R. K.").click()
+    expect(page).to_have_url(f"{system.url}/app/patients/{new['id']}")
+    expect(page.get_by_role("heading", level=1)).to_have_text("R. K.")
+    expect(page.locator("#details")).to_contain_text("Lateral sprain, grade II.")
+    expect(page.locator("#rx-active")).to_contain_text("No active prescription")
+    expect(page.locator("#history-status")).to_have_text("No sessions recorded yet.")
+
+    # Provisioning shows the station's token once; the token is the station's own key.
+    page.get_by_label("New station's place").fill("Home, kitchen")
+    page.get_by_role("button", name="Provision a home station").click()
+    box = page.locator("#token-box")
+    expect(box).to_contain_text("shown only this once")
+    token = page.get_by_label("Station token").input_value()
+    (station,) = get(client, "/stations", patient_id=new["id"])
+    assert station["name"] == "Home, kitchen"
+    me = httpx.get(f"{system.url}{API}/station/me", headers={"Authorization": f"Bearer {token}"})
+    assert me.status_code == 200, me.text
+    assert (me.json()["id"], me.json()["patient_id"]) == (station["id"], new["id"])
+    expect(page.locator(f'li[data-station-id="{station["id"]}"]')).to_contain_text("Offline")
+    page.screenshot(path=shots / "patient-provisioned.png", full_page=True)
+    box.get_by_role("button", name="I have saved it: hide the token").click()
+    expect(box).to_be_hidden()
+    expect(page.get_by_label("Station token")).to_have_count(0)
+
+
+def test_prescribe_from_the_library_edit_and_withdraw(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    r = client.post(f"{API}/patients", json={"display_name": "M. S.", "affected_side": "right"})
+    assert r.status_code == 201, r.text
+    patient = r.json()["id"]
+    schemas = get(client, "/openapi.json")["components"]["schemas"]
+    k_max = schemas["AxisPrescription"]["properties"]["stiffness"]["maximum"]
+    balance = next(x for x in get(client, "/exercises") if x["kind"] == "balance")
+
+    sign_in(page, system)
+    page.goto(f"{system.url}/app/patients/{patient}")
+    page.get_by_role("link", name="Prescribe an exercise").click()
+    expect(page).to_have_url(f"{system.url}/app/patients/{patient}/prescribe")
+    page.get_by_label("Exercise from the library").select_option("balance")
+    expect(page.locator("#exercise-purpose")).to_contain_text(balance["purpose"])
+
+    # The library's defaults fill the form, and its bounds are the API's published ones.
+    roll_k, pitch = field(page, "axes.0.stiffness"), "axes.1"
+    expect(page.locator("fieldset[data-axis]")).to_have_count(len(balance["defaults"]["axes"]))
+    expect(roll_k).to_have_value(f"{balance['defaults']['axes'][0]['stiffness']:g}")
+    expect(roll_k).to_have_attribute("max", f"{k_max:g}")
+    expect(page.get_by_text("Stiffness K (N·m/rad)").first).to_be_visible()
+    expect(page.get_by_text("Damping B (N·m·s/rad)").first).to_be_visible()
+    expect(field(page, "sets")).to_have_value(str(balance["defaults"]["sets"]))
+    torque_max = schemas["PrescriptionCreate"]["properties"]["torque_limit"]["maximum"]
+    expect(field(page, "torque_limit")).to_have_attribute("max", f"{torque_max:g}")
+    # Three axes at most, each once: only yaw is left to add.
+    expect(page.locator("#add-axis option")).to_have_text(["Yaw (ab- / adduction)"])
+    page.screenshot(path=shots / "prescribe.png", full_page=True)
+
+    # Too stiff, and a sine that leaves the allowed pitch range: the API refuses both, and
+    # each message appears beside the input it is about (the second comes from a validator
+    # of the whole axis, placed by what it says).
+    roll_k.fill(f"{k_max + 100:g}")
+    page.locator(f'[data-field="{pitch}.waveform"]').select_option("sine")
+    field(page, f"{pitch}.amplitude").fill("40")
+    field(page, f"{pitch}.frequency").fill("0.1")
+    page.get_by_role("button", name="Prescribe").click()
+    expect(error_beside(page, "axes.0.stiffness")).to_contain_text(
+        f"less than or equal to {k_max:g}"
+    )
+    expect(error_beside(page, f"{pitch}.amplitude")).to_contain_text("outside the pitch range")
+    expect(roll_k).to_be_focused()
+    assert get(client, f"/patients/{patient}/prescriptions") == []
+    page.screenshot(path=shots / "prescribe-error.png", full_page=True)
+
+    roll_k.fill("25")
+    field(page, f"{pitch}.amplitude").fill("10")
+    page.get_by_role("button", name="Prescribe").click()
+    expect(page).to_have_url(f"{system.url}/app/patients/{patient}")
+    expect(page.locator("#flash")).to_contain_text("version 1")
+
+    (created,) = get(client, f"/patients/{patient}/prescriptions")
+    assert created["version"] == 1 and created["body"]["exercise"] == "balance"
+    roll, pitch_axis = created["body"]["axes"]
+    assert (roll["axis"], roll["stiffness"]) == ("roll", 25.0)
+    assert (pitch_axis["waveform"], pitch_axis["amplitude"]) == ("sine", 10.0)
+    card = page.locator(f'article[data-prescription-id="{created["id"]}"]')
+    expect(card).to_contain_text("25.0 N·m/rad")
+    expect(card).to_contain_text(f"{roll['damping']:.2f} N·m·s/rad")
+    expect(card).to_contain_text("Sine 0.0° ± 10.0° at 0.10 Hz")
+    expect(card).to_contain_text("version 1")
+
+    card.get_by_role("link", name=re.compile("^Edit")).click()
+    expect(page).to_have_url(f"{system.url}/app/patients/{patient}/prescribe?edit={created['id']}")
+    expect(roll_k).to_have_value("25")
+    expect(page.get_by_label("Exercise from the library")).to_have_value("balance")
+    field(page, "repetitions").fill("4")
+    page.get_by_role("button", name="Save as version 2").click()
+    expect(page).to_have_url(f"{system.url}/app/patients/{patient}")
+    edited = get(client, f"/prescriptions/{created['id']}")
+    assert (edited["version"], edited["body"]["repetitions"]) == (2, 4)
+    assert edited["body"]["axes"] == created["body"]["axes"]
+    expect(card).to_contain_text("version 2")
+    expect(card).to_contain_text(f"{edited['body']['sets']} × 4 repetitions")
+
+    card.get_by_role("button", name="Withdraw").click()
+    card.get_by_role("button", name="Yes, withdraw").click()
+    expect(page.locator("#rx-active")).to_contain_text("No active prescription")
+    expect(page.locator("#rx-earlier summary")).to_have_text("Earlier prescriptions (1)")
+    assert get(client, f"/prescriptions/{created['id']}")["status"] == "cancelled"
+
+
+SHORT = {
+    "exercise": "strength",
+    "title": "Short strength",
+    "axes": [
+        {
+            "axis": "pitch",
+            "stiffness": 40.0,
+            "damping": 2.0,
+            "waveform": "sine",
+            "amplitude": 6.0,
+            "frequency": 0.5,
+        }
+    ],
+    "sets": 1,
+    "repetitions": 2,
+    "repetition_s": 4.0,
+    "rest_s": 0.0,
+}
+
+
+async def run_session(system: System, token: str, prescription_id: int) -> None:
+    """Start one exercise on the running station, as the live page does, and let it end."""
+    ws = await live(system, token)
+    try:
+        deadline = time.monotonic() + SESSION_S
+        while (await next_of(ws, wire.StatusMsg, SESSION_S)).device_link != "connected":
+            assert time.monotonic() < deadline, "the station never reached its device"
+        await ws.send(
+            wire.Command(
+                request_id="start", action="start", prescription_id=prescription_id
+            ).model_dump_json()
+        )
+        result = await next_of(ws, wire.CommandResult)
+        assert result.ok, result
+        status = await next_of(ws, wire.StatusMsg)
+        while status.phase not in ("done", "stopped", "fault"):
+            status = await next_of(ws, wire.StatusMsg, deadline - time.monotonic())
+        assert status.phase == "done", status
+    finally:
+        await ws.close()
+
+
+def test_demo_patient_station_online_and_progress_charts(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    patient, station = system.creds["patient_id"], system.station_id
+    sign_in(page, system)
+    page.goto(f"{system.url}/app/patients/{patient}")
+    stations = page.locator("#stations")
+    expect(stations.locator(f'li[data-station-id="{station}"]')).to_contain_text("Offline")
+    expect(page.locator("#chart-rom [data-empty]")).to_contain_text("No recorded session yet")
+    # Adherence needs no session: it says what was prescribed and that none was done.
+    (demo_rx,) = get(client, f"/patients/{patient}/prescriptions")
+    expect(page.locator("#chart-adherence canvas")).to_have_attribute(
+        "aria-label",
+        re.compile(
+            f"This week 0 of {demo_rx['body']['sessions_per_week']} prescribed sessions completed"
+        ),
+    )
+
+    system.start_station()
+    badge = stations.locator(f'li[data-station-id="{station}"] .badge')
+    expect(badge).to_have_text("Online", timeout=60_000)
+    expect(stations.get_by_role("link", name="Watch live")).to_have_attribute(
+        "href", f"/app/live/{station}"
+    )
+
+    r = client.post(f"{API}/patients/{patient}/prescriptions", json=SHORT)
+    assert r.status_code == 201, r.text
+    rx = r.json()["id"]
+    token = str(client.headers["Authorization"]).split(" ", 1)[1]
+    # In a thread: Playwright's sync API keeps an event loop running in this one.
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        try:
+            pool.submit(asyncio.run, run_session(system, token, rx)).result(SESSION_S * 2)
+        except Exception as e:
+            # The processes' logs say why (device link, station, upload): keep them.
+            raise AssertionError(f"the session did not run: {e!r}\n{system.log_tail()}") from e
+    deadline = time.monotonic() + 60
+    while not (sessions := get(client, "/sessions", patient_id=patient)):
+        assert time.monotonic() < deadline, "the session never reached the server"
+        time.sleep(0.5)
+    (session,) = sessions
+    rom = session["summary"]["axes"]["pitch"]["rom_deg"]
+    peak = session["summary"]["axes"]["pitch"]["peak_torque_nm"]
+
+    page.reload()
+    row = page.locator(f'tr[data-session-id="{session["id"]}"]')
+    expect(row).to_contain_text("Short strength")
+    expect(row).to_contain_text("2 / 2")
+    expect(row).to_contain_text("Completed")
+    expect(row.get_by_role("link")).to_have_attribute("href", f"/app/sessions/{session['id']}")
+
+    # The charts are Chart.js's, drawn from the API's summary.
+    for chart_id, value, label in (
+        ("chart-rom", rom, "Pitch (°)"),
+        ("chart-torque", peak, "Pitch (N·m)"),
+    ):
+        canvas = page.locator(f"#{chart_id}-canvas")
+        expect(canvas).to_be_visible()
+        drawn = canvas.evaluate("c => Chart.getChart(c).data.datasets.map(d => [d.label, d.data])")
+        assert drawn == [[label, [pytest.approx(value)]]]
+        page.locator(f"#{chart_id} summary").click()
+        expect(page.locator(f"#{chart_id} table tbody")).to_contain_text(f"{value:.1f}")
+    adherence = page.locator("#chart-adherence-canvas")
+    weekly = adherence.evaluate("c => Chart.getChart(c).data.datasets.map(d => d.data.at(-1))")
+    active = get(client, f"/patients/{patient}/prescriptions", status="active")
+    asked = sum(p["body"]["sessions_per_week"] for p in active)
+    assert weekly == [1, 0, asked]  # completed, ended early, prescribed this week
+    expect(adherence).to_have_attribute(
+        "aria-label", re.compile(f"This week 1 of {asked} prescribed sessions completed")
+    )
+    page.screenshot(path=shots / "patient.png", full_page=True)
