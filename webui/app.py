@@ -18,7 +18,7 @@ from fastapi.staticfiles import StaticFiles
 from server.app import create_app as create_server_app
 from server.config import Settings
 from server.routes import API_PREFIX
-from webui import pages, routes
+from webui import pages, replay, routes
 from webui.assets import STATIC, missing_vendor, vendor_router
 from webui.live3d import LiveScenes
 
@@ -45,6 +45,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.router.lifespan_context = lifespan
     app.include_router(routes.router, prefix=API_PREFIX)
+    app.include_router(replay.router, prefix=API_PREFIX)
     app.include_router(pages.router)
     app.include_router(vendor_router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

@@ -1,9 +1,13 @@
-"""Recorded sessions: list, detail with the clinician's summary, downloads in open formats.
+"""Recorded sessions: list, detail with the clinician's summary, downloads in open formats,
+and the whole time series decimated for charts.
 
 Downloads are made from the stored recording on first request and kept beside it; each
 answer carries the file's SHA-256 (``X-Content-SHA256`` and the ``ETag``), so a clinician or
 a script can check what they got. Files are served with HTTP Range support, so a large
 download resumes.
+
+The chart series is computed from the recording on every request and kept nowhere: a 3 min
+session at 100 Hz reads and decimates in milliseconds, and nothing can go stale.
 """
 
 from __future__ import annotations
@@ -13,16 +17,21 @@ from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, Field
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
+from device.protocol.messages import DeviceMode
 from server.deps import Db, TherapistOrAdmin, patient_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
-from sessions.recording import read
+from sessions.prescription import AXIS_INDEX, ROTATION_AXES
+from sessions.recording import Recording, read
+from sessions.summary import prescribed_axes
 
 router = APIRouter(tags=["sessions"], responses=UNAUTHORIZED)
 
@@ -161,3 +170,230 @@ async def download(
 
 def _export(source: Path, fmt: str, path: Path) -> str:
     return write_export(read(source), fmt, path)
+
+
+def recording_path(row: Session) -> Path:
+    """The stored recording of a session; 404 if the server holds no file for it."""
+    if row.file_path is None or not Path(row.file_path).is_file():
+        raise HTTPException(404, "session file not found")
+    return Path(row.file_path)
+
+
+# ---- the whole session for charts -------------------------------------------------------
+
+SERIES_POINTS = 2000
+"""Rows of a chart series by default: two per pixel column of a wide chart."""
+SERIES_POINTS_MIN, SERIES_POINTS_MAX = 10, 20000
+
+_PA_PER_BAR = 1e5
+_MODE_NAMES = {int(m): m.name for m in DeviceMode}
+
+Column = list[float | None]
+
+
+class ModeSpan(BaseModel):
+    """A stretch of the session in one device mode, at full resolution (never decimated)."""
+
+    mode: str = Field(description="IDLE, HOMING, READY, ACTIVE, HOLD, ESTOP or FAULT.")
+    start_s: float = Field(description="Time of the first sample in this mode, s (as time_s).")
+    end_s: float = Field(
+        description="Time of the first sample after it, or of the last sample, s (as time_s)."
+    )
+
+
+class SessionSeries(BaseModel):
+    """The whole session as columns for charts, decimated so that no peak is lost.
+
+    Up to ``points`` rows. A longer session is cut into ``rows / 2`` buckets of consecutive
+    samples and each bucket gives two rows: for every column separately, its lowest and its
+    highest value in the bucket, in the order they happened. So every minimum and maximum of
+    the session is in the answer exactly (a line through the rows covers what the full data
+    covers), and the two rows of a bucket carry the times of its first and last sample: a
+    value is placed at most one bucket (``bucket_s``) from when it happened. A shorter
+    session comes whole. Values the device could not measure are null. The per-axis
+    columns are keyed ``roll``, ``pitch`` and ``yaw``.
+    """
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    session_id: int
+    samples: int = Field(description="Samples in the recording.")
+    rows: int = Field(description="Rows in each column here.")
+    decimated: bool = Field(description="True if the rows are bucket minima and maxima.")
+    bucket_s: float | None = Field(
+        description="Mean time one bucket spans, s; null when not decimated."
+    )
+    axes: list[str] = Field(description="The axes the prescription exercises, in its order.")
+    time_s: list[float] = Field(
+        description="Device clock, s since the first sample. Non-decreasing: should the clock "
+        "jump back (a restarted device), the jump counts as no time."
+    )
+    pose_deg: dict[str, Column] = Field(description="Measured angle, degrees from home.")
+    pose_cmd_deg: dict[str, Column] = Field(description="Commanded angle, degrees from home.")
+    torque_nm: dict[str, Column] = Field(
+        description="The patient's torque on the foot plate (wrench[3:6]), N·m."
+    )
+    force_z_n: Column = Field(description="The patient's vertical force on the foot plate, N.")
+    pressures_bar: list[Column] = Field(
+        description="12 chamber pressures, gauge, bar: p(2i-1) cap side and p(2i) rod side "
+        "of leg i, in that order."
+    )
+    supply_bar: Column = Field(description="Supply pressure, gauge, bar.")
+    stiffness_nm_per_rad: dict[str, Column] = Field(description="Stiffness in force, N·m/rad.")
+    damping_nms_per_rad: dict[str, Column] = Field(description="Damping in force, N·m·s/rad.")
+    modes: list[ModeSpan] = Field(description="Device modes over the session, in order.")
+
+
+def session_time(t: NDArray[Any]) -> NDArray[np.float64]:
+    """Seconds since the first sample on the device clock, never running backwards: an
+    interval in which the clock does not advance (or is not a number) counts as zero."""
+    t = np.asarray(t, dtype=np.float64)
+    if len(t) == 0:
+        return np.zeros(0)
+    dt = np.diff(t)
+    dt = np.where(np.isfinite(dt) & (dt > 0), dt, 0.0)
+    return np.concatenate(([0.0], np.cumsum(dt)))
+
+
+def minmax_buckets(
+    values: NDArray[np.float64], buckets: int
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+    """Cut ``values`` (samples × columns) into ``buckets`` runs of consecutive samples; per
+    bucket and column, the lowest and highest finite value in the order they came.
+
+    Returns each bucket's first and last sample index and the (2 × buckets, columns) values;
+    a bucket with no finite value of a column gives NaN for it.
+    """
+    n = len(values)
+    edges = np.linspace(0, n, buckets + 1).astype(np.intp)
+    starts, ends = edges[:-1], edges[1:] - 1
+    width = int((ends - starts).max()) + 1
+    # A bucket shorter than the widest is padded with its own last sample: a repeat changes
+    # neither its minimum nor its maximum.
+    index = np.minimum(starts[:, None] + np.arange(width)[None, :], ends[:, None])
+    # Columns first, so that each bucket's samples are contiguous for argmin and argmax.
+    block = np.ascontiguousarray(values.T)[:, index]  # columns × buckets × width
+    finite = np.isfinite(block)
+    low = np.argmin(np.where(finite, block, np.inf), axis=2)
+    high = np.argmax(np.where(finite, block, -np.inf), axis=2)
+    c = np.arange(values.shape[1])[:, None]
+    b = np.arange(buckets)[None, :]
+    out = np.empty((2 * buckets, values.shape[1]))
+    out[0::2] = block[c, b, np.minimum(low, high)].T
+    out[1::2] = block[c, b, np.maximum(low, high)].T
+    return starts, ends, out
+
+
+def _column(x: NDArray[np.float64], decimals: int) -> Column:
+    rounded = np.round(x, decimals)
+    if np.isfinite(rounded).all():
+        out: Column = rounded.tolist()
+        return out
+    return [float(v) if np.isfinite(v) else None for v in rounded]
+
+
+def _mode_spans(mode: NDArray[Any], time: NDArray[np.float64]) -> list[ModeSpan]:
+    if len(mode) == 0:
+        return []
+    change = np.flatnonzero(np.diff(mode.astype(np.int16))) + 1
+    starts = np.concatenate(([0], change))
+    ends = np.concatenate((change, [len(mode) - 1]))
+    return [
+        ModeSpan(
+            mode=_MODE_NAMES.get(int(mode[s]), str(int(mode[s]))),
+            start_s=round(float(time[s]), 3),
+            end_s=round(float(time[e]), 3),
+        )
+        for s, e in zip(starts, ends, strict=True)
+    ]
+
+
+def session_series(session_id: int, rec: Recording, points: int) -> SessionSeries:
+    """The chart columns of a recording, at most ``points`` rows (see :class:`SessionSeries`)."""
+    s = rec.samples
+    time = session_time(s["t"])
+    deg = float(np.degrees(1.0))
+    # (name, key, recording values, scale to the column's unit, decimals kept)
+    spec: list[tuple[str, str | int | None, NDArray[Any], float, int]] = []
+    for axis in ROTATION_AXES:
+        i = AXIS_INDEX[axis]
+        spec += [
+            ("pose_deg", axis, s["pose"][:, i], deg, 3),
+            ("pose_cmd_deg", axis, s["pose_cmd"][:, i], deg, 3),
+            ("torque_nm", axis, s["wrench"][:, i], 1.0, 3),
+            ("stiffness_nm_per_rad", axis, s["stiffness"][:, i], 1.0, 2),
+            ("damping_nms_per_rad", axis, s["damping"][:, i], 1.0, 3),
+        ]
+    spec.append(("force_z_n", None, s["wrench"][:, 2], 1.0, 2))
+    spec += [("pressures_bar", j, s["pressures"][:, j], 1 / _PA_PER_BAR, 4) for j in range(12)]
+    spec.append(("supply_bar", None, s["supply"], 1 / _PA_PER_BAR, 4))
+
+    n = len(s)
+    values = np.empty((n, len(spec)))
+    for k, (_, _, x, scale, _) in enumerate(spec):
+        values[:, k] = np.asarray(x, dtype=np.float64) * scale
+    buckets = points // 2
+    decimated = n > points
+    if decimated:
+        starts, ends, values = minmax_buckets(values, buckets)
+        row_time = np.empty(2 * buckets)
+        row_time[0::2], row_time[1::2] = time[starts], time[ends]
+    else:
+        row_time = time
+
+    out: dict[str, Any] = {
+        "pose_deg": {},
+        "pose_cmd_deg": {},
+        "torque_nm": {},
+        "stiffness_nm_per_rad": {},
+        "damping_nms_per_rad": {},
+        "pressures_bar": [],
+    }
+    for k, (name, key, _, _, decimals) in enumerate(spec):
+        column = _column(values[:, k], decimals)
+        if name == "pressures_bar":
+            out[name].append(column)
+        elif key is None:
+            out[name] = column
+        else:
+            out[name][key] = column
+    return SessionSeries(
+        session_id=session_id,
+        samples=n,
+        rows=len(row_time),
+        decimated=decimated,
+        bucket_s=float(time[-1] / buckets) if decimated else None,
+        axes=prescribed_axes(rec.header.prescription),
+        time_s=np.round(row_time, 3).tolist(),
+        modes=_mode_spans(s["mode"], time),
+        **out,
+    )
+
+
+@router.get(
+    "/sessions/{session_id}/series",
+    response_model=SessionSeries,
+    responses=NOT_FOUND,
+    summary="The whole session for charts, decimated keeping every peak",
+)
+async def get_series(
+    session_id: int,
+    db: Db,
+    user: TherapistOrAdmin,
+    points: Annotated[
+        int,
+        Query(
+            ge=SERIES_POINTS_MIN,
+            le=SERIES_POINTS_MAX,
+            description="Most rows to answer with; a longer session is decimated to minima "
+            "and maxima per bucket.",
+        ),
+    ] = SERIES_POINTS,
+) -> SessionSeries:
+    row = await _session_for(db, user, session_id)
+    source = recording_path(row)
+
+    def build() -> SessionSeries:
+        return session_series(session_id, read(source), points)
+
+    return await asyncio.to_thread(build)
