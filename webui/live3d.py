@@ -72,6 +72,7 @@ class LiveScenes:
     def _start(self, station_id: int) -> LiveView:
         server = viser.ViserServer(host=self.host, port=0, verbose=False)
         server.gui.configure_theme(show_logo=False, show_share_button=False)
+        server.gui.main_panel.minimize()  # the scene, not viser's controls, fills the frame
         return LiveView(station_id, server, PlatformScene(server))
 
     async def _feed(self, view: LiveView) -> None:

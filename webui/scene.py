@@ -59,6 +59,11 @@ class PlatformScene:
         scene = server.scene
         scene.set_up_direction("+z")
         g = geometry
+        # A three-quarter view from the patient's front right, close enough that the
+        # platform fills the view rather than the floor grid.
+        home = g.home_pose[:3]
+        server.initial_camera.look_at = (float(home[0]), float(home[1]), float(home[2]) * 0.6)
+        server.initial_camera.position = (0.55, -0.55, float(home[2]) + 0.35)
         plate_z = -g.ankle_height  # the platform joint plane, below the ankle
         scene.add_grid("/floor", width=0.6, height=0.6, cell_size=0.05, position=(0, 0, -0.01))
         scene.add_cylinder(

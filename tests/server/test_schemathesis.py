@@ -36,9 +36,9 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
-from server.app import create_app
 from server.cli import wait_healthy
 from tests.server.live_server import PASSWORD, World
+from webui.app import create_app  # what `ankle server` runs: the API with the dashboard
 
 SQLITE_INT_MAX = 2**63 - 1
 """Integer ids and offsets beyond SQLite's 64-bit range are a known server error (see

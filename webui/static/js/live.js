@@ -177,12 +177,31 @@ setInterval(() => {
   $("st-age").textContent = m ? `${Math.max(0, Date.now() - m.sent * 1000).toFixed(0)} ms` : "–";
 }, 1000);
 
+function describe(e) {
+  const d = e.detail || {};
+  if (d.from !== undefined && d.to !== undefined) {
+    const extra = [d.text, d.code ? `code ${d.code}` : ""].filter(Boolean).join(", ");
+    return `${e.kind}: ${d.from} → ${d.to}${extra ? ` (${extra})` : ""}`;
+  }
+  if (e.kind === "impedance" && d.old && d.new) {
+    const parts = [];
+    for (const [what, unit] of [["stiffness", "K"], ["damping", "B"]]) {
+      for (const [axis, v] of Object.entries(d.new[what] || {})) {
+        const was = (d.old[what] || {})[axis];
+        if (was !== v) parts.push(`${axis} ${unit} ${fmt.num(was, 1)} → ${fmt.num(v, 1)}`);
+      }
+    }
+    return `impedance: ${parts.join(", ") || "unchanged"}`;
+  }
+  const rest = Object.entries(d).map(([k, v]) => `${k} ${typeof v === "object" ? JSON.stringify(v) : v}`);
+  return rest.length ? `${e.kind}: ${rest.join(", ")}` : e.kind;
+}
+
 function addEvent(ev) {
   const e = ev.event;
   const when = new Date(e.wall * 1000).toLocaleTimeString();
-  const detail = e.detail && Object.keys(e.detail).length ? ` ${JSON.stringify(e.detail)}` : "";
   const list = $("events");
-  list.prepend(el("li", {}, `${when} ${e.kind} (${e.by})${detail}`));
+  list.prepend(el("li", {}, `${when} ${describe(e)} (by ${e.by})`));
   while (list.children.length > 50) list.lastChild.remove();
 }
 
@@ -378,7 +397,29 @@ function connect() {
 
 // ---- the 3D view -----------------------------------------------------------------------------
 let scenePort = null;
+const SCENE_KEY = "ankle.live.scene";
+
+function sceneWanted() {
+  return localStorage.getItem(SCENE_KEY) !== "off";
+}
+
+$("scene-on").checked = sceneWanted();
+$("scene-on").addEventListener("change", (ev) => {
+  localStorage.setItem(SCENE_KEY, ev.target.checked ? "on" : "off");
+  scenePort = null;
+  openScene();
+});
+
 async function openScene() {
+  const frame = $("scene");
+  if (!sceneWanted()) {
+    // about:blank stops the viewer's render loop; the server's view idles out by itself.
+    if (frame.getAttribute("src") !== "about:blank") frame.src = "about:blank";
+    frame.hidden = true;
+    $("scene-note").textContent = "3D view turned off.";
+    return;
+  }
+  frame.hidden = false;
   try {
     const s = await api(`/stations/${stationId}/scene`);
     if (s.port !== scenePort) {
