@@ -99,8 +99,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             serve(Settings(**overrides), create_app)
             return 0
         from station.cli import run as run_station
+        from webui.patient import serve_patient_page
 
-        return run_station(args)
+        return run_station(args, page=serve_patient_page)
     if argv[:2] == ["bench", "server"]:
         try:
             args = parser.parse_args(argv)

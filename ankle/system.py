@@ -20,6 +20,9 @@ from typing import Any, TextIO
 from device.process import ServiceProcess, ServiceStartError
 from server.cli import ServerStartError, wait_healthy
 
+PATIENT_PAGE_PORT = 8765
+"""Where the station serves the patient's page, on localhost."""
+
 
 class StartError(Exception):
     """The system could not start; the message says which part and why."""
@@ -83,6 +86,8 @@ def run_system(
             "--autostart",
             "--repeat-after",
             "15",
+            "--page-port",
+            str(PATIENT_PAGE_PORT),
             env={"ANKLE_STATION_TOKEN": creds["station_token"]},
         )
         _banner(out, url, device.link, creds)
@@ -111,16 +116,18 @@ def _banner(out: TextIO, url: str, link: str, creds: dict[str, Any]) -> None:
     lines = [
         "",
         "  The ankle telerehabilitation system is running (simulated device).",
-        f"  API and its documentation  {url}/api/v1/docs",
-        f"  Live view (WebSocket)      {url.replace('http', 'ws')}/ws/live/{station_id}",
-        f"  WebSocket message schemas  {url}/api/v1/schemas/ws",
-        f"  Device link                {link}",
+        f"  Therapist dashboard        {url}/app/",
         f"  Therapist sign-in          {creds.get('therapist_email')} / "
         f"{creds.get('therapist_password')}",
+        f"  Live view of the demo      {url}/app/live/{station_id}",
+        f"  Patient's page (station)   http://127.0.0.1:{PATIENT_PAGE_PORT}/",
+        f"  API and its documentation  {url}/api/v1/docs",
+        f"  WebSocket message schemas  {url}/api/v1/schemas/ws",
+        f"  Device link                {link}",
         f"  Demo patient               {creds.get('patient_name', '')} "
         f"(id {creds.get('patient_id')}), station {station_id}",
         "  The station runs the demo prescription now and again 15 s after each session;",
-        "  sessions appear under /api/v1/sessions. Ctrl-C stops everything.",
+        "  watch it live, then review it under the patient's sessions. Ctrl-C stops everything.",
         "",
     ]
     print("\n".join(lines), file=out, flush=True)

@@ -20,6 +20,9 @@ How the numbers are made:
   patient did, not reduced by the platform pushing the foot back.
 - Tracking error is measured minus commanded angle; time in target is the share of ACTIVE
   time within :data:`TARGET_TOLERANCE_DEG` of the command.
+- The game on the patient's page sends its running totals as ``game_score`` events, one per
+  gate, each tagged with the game it belongs to (a page reloaded mid-session starts a new
+  game): the last event of each game is its result, and the games are added up.
 
 Values that cannot be computed (no ACTIVE samples, sensors reading NaN) are left out or
 null, never NaN: the summary is stored and sent as JSON.
@@ -28,7 +31,7 @@ null, never NaN: the summary is stored and sent as JSON.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +48,8 @@ GAP_FACTOR = 5.0
 """A sample interval longer than this many median intervals is a gap in the telemetry."""
 SAFETY_EVENT_KINDS = ("fault", "limit", "estop", "watchdog")
 """Event kinds listed one by one in :attr:`Summary.faults`."""
+GAME_EVENT = "game_score"
+"""Event kind of the patient's game: detail ``game``, ``score``, ``gates``, ``missed``."""
 _TEXT_MAX = 160
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -83,6 +88,17 @@ class FaultSummary(BaseModel):
     text: str = Field(description="What happened, shortened.")
 
 
+class GameSummary(BaseModel):
+    """The game steered by the foot (plane through gates) during the session."""
+
+    model_config = _STRICT
+
+    games: int = Field(description="Games played in the session.")
+    score: int = Field(description="Gates flown through, all games.")
+    gates: int = Field(description="Gates that came up, all games: flown through or missed.")
+    missed: int = Field(description="Gates missed, all games.")
+
+
 class Summary(BaseModel):
     """The session at a glance, for the therapist's dashboard and the downloads."""
 
@@ -105,6 +121,9 @@ class Summary(BaseModel):
     )
     events: dict[str, int] = Field(description="Number of events of each kind.")
     faults: list[FaultSummary] = Field(description="Faults, limits, emergency stops, watchdogs.")
+    game: GameSummary | None = Field(
+        default=None, description="The patient's game; null if none was played."
+    )
 
 
 def summarize(rec: Recording) -> Summary:
@@ -146,6 +165,7 @@ def summarize(rec: Recording) -> Summary:
             for e in rec.events
             if e.kind in SAFETY_EVENT_KINDS
         ],
+        game=_game_summary(rec),
     )
 
 
@@ -238,6 +258,29 @@ def _axis_summary(
         tracking_error_rms_deg=math.sqrt(mean_sq) if mean_sq is not None else None,
         time_in_target_pct=100.0 * in_target if in_target is not None else None,
     )
+
+
+def _game_summary(rec: Recording) -> GameSummary | None:
+    final: dict[str, tuple[int, int, int]] = {}
+    for e in rec.events:
+        if e.kind != GAME_EVENT:
+            continue
+        score, gates, missed = (e.detail.get(k) for k in ("score", "gates", "missed"))
+        # A recording is data from elsewhere: an event without three counts is not a result.
+        if _is_count(score) and _is_count(gates) and _is_count(missed):
+            final[repr(e.detail.get("game"))] = (score, gates, missed)
+    if not final:
+        return None
+    return GameSummary(
+        games=len(final),
+        score=sum(t[0] for t in final.values()),
+        gates=sum(t[1] for t in final.values()),
+        missed=sum(t[2] for t in final.values()),
+    )
+
+
+def _is_count(value: object) -> TypeGuard[int]:
+    return type(value) is int and value >= 0  # bool is an int to Python, but never a count
 
 
 def _finite_or_zero(x: float) -> float:

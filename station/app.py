@@ -149,7 +149,10 @@ class Station:
         stream = dev.telemetry()
         while True:
             try:
-                t = await asyncio.wait_for(anext(stream), DEVICE_STALE_S)
+                # Not wait_for: on Python 3.11 it drops a cancellation that arrives together
+                # with a sample (at 100 Hz that happens), and the station would never stop.
+                async with asyncio.timeout(DEVICE_STALE_S):
+                    t = await anext(stream)
             except (StopAsyncIteration, TimeoutError):
                 return  # the link closed or went silent: reconnect
             wall = time.time()
@@ -328,6 +331,43 @@ class Station:
         except DeviceError as exc:
             return result(False, "TIMEOUT", "", str(exc))
 
+    # -- the patient's page ----------------------------------------------------------------
+    def note(self, kind: str, detail: dict[str, Any], by: str = "patient") -> bool:
+        """Record an event (a game score, a remark) in the running session and send it to the
+        server; False, and nothing recorded, when no session runs."""
+        if self.writer is None or self.run_ is None:
+            return False
+        latest = self.dev.latest if self.dev is not None else None
+        self._event(
+            SessionEvent(
+                wall=time.time(),
+                t=latest.time if latest is not None else None,
+                kind=kind,
+                by=by,
+                detail=detail,
+            )
+        )
+        return True
+
+    def foot(self) -> tuple[float, ...] | None:
+        """The platform's newest measured pose (x, y, z in m; roll, pitch, yaw in rad; from
+        home), or None without a device or when its telemetry has gone stale."""
+        dev = self.dev
+        latest = dev.latest if dev is not None else None
+        if dev is None or latest is None or time.perf_counter() - dev.latest_at > DEVICE_STALE_S:
+            return None
+        return tuple(latest.pose)
+
+    def progress(self) -> tuple[int, int]:
+        """Sets and repetitions finished in the running exercise; (0, 0) when none runs."""
+        run = self.run_
+        return (run.sets_done, run.reps_done) if run is not None else (0, 0)
+
+    @property
+    def online(self) -> bool:
+        """Whether the server is reachable now (sessions upload later when it is not)."""
+        return self.link.connected.is_set()
+
     # -- status --------------------------------------------------------------------------
     def _hello(self) -> wire.StationHello:
         hello = self.dev.hello if self.dev is not None else None
@@ -369,7 +409,8 @@ class Station:
             if self.link.connected.is_set():
                 self.link.send(self.status())
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._status_dirty.wait(), 1.0)
+                async with asyncio.timeout(1.0):  # not wait_for: see _telemetry
+                    await self._status_dirty.wait()
 
 
 class SessionWriter(RecordingWriter):

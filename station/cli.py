@@ -1,4 +1,9 @@
-"""``ankle station``: the patient's home station."""
+"""``ankle station``: the patient's home station.
+
+The patient's page is served from the station's own event loop, but it is web code and lives
+in ``webui``, above this package: the caller hands its server in as ``page`` (``ankle`` does),
+so the station never imports it and runs the same without it.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,9 @@ import contextlib
 import logging
 import os
 import signal
+from collections.abc import Callable, Coroutine
 from pathlib import Path
+from typing import Any
 
 from station.app import Station, StationConfig
 
@@ -44,11 +51,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="with --autostart: start it again S seconds after each session (a demo)",
     )
+    p.add_argument(
+        "--page-port",
+        type=int,
+        default=8765,
+        metavar="PORT",
+        help="the patient's page on http://HOST:PORT/ (default 8765; 0: no page)",
+    )
+    p.add_argument(
+        "--page-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address the patient's page listens on (default 127.0.0.1: this computer only)",
+    )
 
 
-def run(args: argparse.Namespace) -> int:
+PageServer = Callable[[Station, str, int], Coroutine[Any, Any, None]]
+"""Serves the patient's page for a station on (host, port) until cancelled."""
+
+
+def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
     if not args.token:
         print("error: ankle station: --token (or ANKLE_STATION_TOKEN) is required")
+        return 2
+    if not 0 <= args.page_port <= 65535:
+        print(f"error: ankle station: --page-port {args.page_port} is not a port (0..65535)")
         return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
@@ -63,14 +90,36 @@ def run(args: argparse.Namespace) -> int:
             baud=args.baud,
         )
     )
-    return asyncio.run(_main(station))
+    served = None
+    if page is not None and args.page_port:
+        served = (page, args.page_host, args.page_port)
+    return asyncio.run(_main(station, served))
 
 
-async def _main(station: Station) -> int:
+async def _main(station: Station, page: tuple[PageServer, str, int] | None = None) -> int:
     loop = asyncio.get_running_loop()
     task = asyncio.create_task(station.run())
+    page_task: asyncio.Task[None] | None = None
+    if page is not None:
+        serve, host, port = page
+        page_task = asyncio.create_task(serve(station, host, port), name="patient-page")
+        page_task.add_done_callback(_page_ended)
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, task.cancel)
-    with contextlib.suppress(asyncio.CancelledError):
-        await task
+    try:
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    finally:
+        if page_task is not None:
+            page_task.cancel()
+            await asyncio.gather(page_task, return_exceptions=True)
     return 0
+
+
+def _page_ended(task: asyncio.Task[None]) -> None:
+    # The exercise, its recording and the device's safety do not depend on the page: a page
+    # that cannot listen (the port is taken) is reported and the station carries on.
+    if not task.cancelled() and task.exception() is not None:
+        logging.getLogger("ankle.station").error(
+            "the patient's page is not available: %s", task.exception()
+        )

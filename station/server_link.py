@@ -92,7 +92,10 @@ class ServerLink:
 
     async def _session(self, ws: ClientConnection) -> None:
         await ws.send(self._hello().model_dump_json())
-        first = await asyncio.wait_for(ws.recv(), wire.HEARTBEAT_TIMEOUT_S)
+        # asyncio.timeout, not wait_for, throughout: on Python 3.11 wait_for drops a
+        # cancellation that arrives together with a result, and the link would not stop.
+        async with asyncio.timeout(wire.HEARTBEAT_TIMEOUT_S):
+            first = await ws.recv()
         welcome = wire.STATION_DOWN.validate_json(first)
         if not isinstance(welcome, wire.Welcome):
             raise _Closed(wire.CLOSE_MALFORMED, "the server did not answer hello with welcome")
@@ -114,7 +117,8 @@ class ServerLink:
     async def _read(self, ws: ClientConnection) -> None:
         while True:
             try:
-                raw = await asyncio.wait_for(ws.recv(), wire.HEARTBEAT_TIMEOUT_S)
+                async with asyncio.timeout(wire.HEARTBEAT_TIMEOUT_S):
+                    raw = await ws.recv()
             except TimeoutError:
                 await ws.close(wire.CLOSE_TIMEOUT, "no heartbeat from the server")
                 return
@@ -145,7 +149,8 @@ class ServerLink:
                 return
             self._wake.clear()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), max(0.0, next_beat - now))
+                async with asyncio.timeout(max(0.0, next_beat - now)):
+                    await self._wake.wait()
 
 
 class _Closed(Exception):

@@ -132,7 +132,8 @@ class Uploader:
                 backoff = min(backoff * 2, 30.0)
             self._wake.clear()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), wait)
+                async with asyncio.timeout(wait):  # not wait_for: see ServerLink
+                    await self._wake.wait()
 
     async def aclose(self) -> None:
         await self._client.aclose()

@@ -16,7 +16,7 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from sessions import wire
-from tests.system.harness import System, live, next_of
+from tests.system.harness import System, live, next_of, short_strength
 
 API = "/api/v1"
 SESSION_S = 90.0
@@ -211,24 +211,7 @@ def test_prescribe_from_the_library_edit_and_withdraw(
     assert get(client, f"/prescriptions/{created['id']}")["status"] == "cancelled"
 
 
-SHORT = {
-    "exercise": "strength",
-    "title": "Short strength",
-    "axes": [
-        {
-            "axis": "pitch",
-            "stiffness": 40.0,
-            "damping": 2.0,
-            "waveform": "sine",
-            "amplitude": 6.0,
-            "frequency": 0.5,
-        }
-    ],
-    "sets": 1,
-    "repetitions": 2,
-    "repetition_s": 4.0,
-    "rest_s": 0.0,
-}
+SHORT = short_strength("Short strength", repetitions=2)
 
 
 async def run_session(system: System, token: str, prescription_id: int) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import shutil
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,9 +47,12 @@ class Live:
 
 
 @asynccontextmanager
-async def running(settings: Settings) -> AsyncIterator[Live]:
-    """Serve ``create_app(settings)`` with uvicorn on a free port until the block ends."""
-    app = create_app(settings)
+async def running(
+    settings: Settings, factory: Callable[[Settings], FastAPI] = create_app
+) -> AsyncIterator[Live]:
+    """Serve ``factory(settings)`` (the API, or the dashboard that wraps it) with uvicorn on
+    a free port until the block ends."""
+    app = factory(settings)
     config = uvicorn.Config(app, host="127.0.0.1", port=0, lifespan="on", log_level="warning")
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())

@@ -303,3 +303,42 @@ def test_summarizing_180k_rows_is_vectorised(rec: Recording) -> None:
     assert time.perf_counter() - start < 2.0  # about 0.05 s; a Python loop would be ~100x
     assert s.samples == 180_000
     assert s.axes["pitch"].rom_max_deg == pytest.approx(AMPLITUDE_DEG, abs=1e-4)
+
+
+def game_event(
+    wall: float, game: object, score: object, gates: object, missed: object
+) -> SessionEvent:
+    return SessionEvent(
+        wall=STARTED_AT + wall,
+        kind="game_score",
+        by="patient",
+        detail={"game": game, "score": score, "gates": gates, "missed": missed},
+    )
+
+
+def test_the_game_is_the_last_score_of_each_game_added_up(tmp_path: Path) -> None:
+    """One event per gate with running totals; a page reloaded mid-session starts game 2."""
+    games = [
+        game_event(2.0, 11, 1, 1, 0),
+        game_event(4.5, 11, 1, 2, 1),
+        game_event(7.0, 11, 2, 3, 1),
+        game_event(9.5, 23, 0, 1, 1),
+        game_event(12.0, 23, 1, 2, 1),
+        # Not results: a count that is not a whole number, a missing one, a negative one.
+        game_event(13.0, 23, 5.5, 9, 0),
+        game_event(13.5, 31, True, 1, 0),
+        SessionEvent(wall=STARTED_AT + 14.0, kind="game_score", detail={"score": 4}),
+        game_event(14.5, 37, -1, 0, 1),
+    ]
+    rec = write_recording(tmp_path / "s.ankl", sine_samples(), [*EVENTS, *games], END)
+    s = summarize(rec)
+    assert s.game is not None
+    assert s.game.model_dump() == {"games": 2, "score": 3, "gates": 5, "missed": 2}
+    assert s.events["game_score"] == len(games)
+    assert no_nan_json(s.model_dump_json())["game"]["score"] == 3
+
+
+def test_no_game_played_is_null(rec: Recording) -> None:
+    s = summarize(rec)
+    assert s.game is None
+    assert no_nan_json(s.model_dump_json())["game"] is None

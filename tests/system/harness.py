@@ -31,6 +31,29 @@ from server.config import Settings
 from sessions import wire
 
 
+def short_strength(title: str, repetitions: int = 2) -> dict[str, Any]:
+    """A strength prescription of 4 s repetitions against K 40 N m/rad, B 2 N m s/rad:
+    short enough for a test to run whole."""
+    return {
+        "exercise": "strength",
+        "title": title,
+        "axes": [
+            {
+                "axis": "pitch",
+                "stiffness": 40.0,
+                "damping": 2.0,
+                "waveform": "sine",
+                "amplitude": 6.0,
+                "frequency": 0.5,
+            }
+        ],
+        "sets": 1,
+        "repetitions": repetitions,
+        "repetition_s": 4.0,
+        "rest_s": 0.0,
+    }
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -46,6 +69,7 @@ class System:
     server: subprocess.Popen[bytes] | None = None
     station: subprocess.Popen[bytes] | None = None
     logs: list[Path] = field(default_factory=list)
+    page_port: int = 0
 
     @property
     def url(self) -> str:
@@ -78,6 +102,8 @@ class System:
         wait_healthy(self.url, self.server, timeout=30.0)
 
     def start_station(self) -> None:
+        # A free port of its own, never the default: tests run side by side with a demo.
+        self.page_port = free_port()
         self.station = self._spawn(
             "station",
             "station",
@@ -87,8 +113,15 @@ class System:
             self.url,
             "--spool",
             str(self.spool),
+            "--page-port",
+            str(self.page_port),
             env={"ANKLE_STATION_TOKEN": self.creds["station_token"]},
         )
+
+    @property
+    def page_url(self) -> str:
+        """The patient's page, served by the station (after ``start_station``)."""
+        return f"http://127.0.0.1:{self.page_port}/"
 
     @property
     def spool(self) -> Path:

@@ -17,26 +17,9 @@ import pytest
 from mcap.reader import make_reader
 
 from sessions import wire
-from tests.system.harness import System, bearer, live, next_of
+from tests.system.harness import System, bearer, live, next_of, short_strength
 
-STRENGTH = {
-    "exercise": "strength",
-    "title": "End-to-end test",
-    "axes": [
-        {
-            "axis": "pitch",
-            "stiffness": 40.0,
-            "damping": 2.0,
-            "waveform": "sine",
-            "amplitude": 6.0,
-            "frequency": 0.5,
-        }
-    ],
-    "sets": 1,
-    "repetitions": 2,
-    "repetition_s": 4.0,
-    "rest_s": 0.0,
-}
+STRENGTH = short_strength("End-to-end test", repetitions=2)
 
 
 async def wait_session(

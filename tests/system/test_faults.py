@@ -22,30 +22,13 @@ from websockets.exceptions import ConnectionClosed
 from sessions import wire
 from sessions.recording import decode
 from station import server_link
-from tests.system.harness import System, bearer, free_port, live, next_of
+from tests.system.harness import System, bearer, free_port, live, next_of, short_strength
 
 SAFE_MODES = ("HOLD", "READY")
 
 
 def prescription(repetitions: int) -> dict[str, Any]:
-    return {
-        "exercise": "strength",
-        "title": "Fault test",
-        "axes": [
-            {
-                "axis": "pitch",
-                "stiffness": 40.0,
-                "damping": 2.0,
-                "waveform": "sine",
-                "amplitude": 6.0,
-                "frequency": 0.5,
-            }
-        ],
-        "sets": 1,
-        "repetitions": repetitions,
-        "repetition_s": 4.0,
-        "rest_s": 0.0,
-    }
+    return short_strength("Fault test", repetitions)
 
 
 async def status_until(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import base64
 import hashlib
 import math
@@ -10,8 +9,7 @@ import re
 import shutil
 import time
 import uuid
-from collections.abc import AsyncIterator, Iterator
-from contextlib import asynccontextmanager
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,14 +17,13 @@ import httpx
 import msgspec
 import numpy as np
 import pytest
-import uvicorn
 import zstandard
 
 from device.protocol.messages import DeviceMode
 from server.config import Settings
 from sessions.prescription import AXIS_INDEX
 from sessions.recording import SAMPLE_DTYPE, decode
-from tests.server.live_server import Live, World, bearer, seeded
+from tests.server.live_server import World, bearer, running, seeded
 from tests.server.test_series import recording_bytes, upload
 from webui.app import create_app
 from webui.replay import (
@@ -136,26 +133,6 @@ def test_frames_are_the_latest_drawable_sample_at_each_frame_time() -> None:
     assert frame_indices(clock, np.zeros(7, dtype=bool), 25.0) == []
 
 
-@asynccontextmanager
-async def dashboard(settings: Settings) -> AsyncIterator[Live]:
-    """The dashboard app (API and pages) with uvicorn on a free port."""
-    app = create_app(settings)
-    config = uvicorn.Config(app, host="127.0.0.1", port=0, lifespan="on", log_level="warning")
-    server = uvicorn.Server(config)
-    task = asyncio.create_task(server.serve())
-    while not server.started:
-        if task.done():
-            raise RuntimeError("the server did not start") from task.exception()
-        await asyncio.sleep(0.005)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    try:
-        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}/api/v1") as client:
-            yield Live(app, client, settings)
-    finally:
-        server.should_exit = True
-        await task
-
-
 @pytest.mark.asyncio
 async def test_replay_routes_check_access_and_serve_one_build(
     seeded: tuple[Path, World], tmp_path: Path
@@ -163,7 +140,7 @@ async def test_replay_routes_check_access_and_serve_one_build(
     template, world = seeded
     for f in template.glob("ankle.db*"):
         shutil.copy(f, tmp_path / f.name)
-    async with dashboard(Settings(data_dir=tmp_path)) as live:
+    async with running(Settings(data_dir=tmp_path), create_app) as live:
         sid = await upload(live, world, samples()[:800])
         c, t1 = live.client, bearer(world.t1)
 

@@ -1,0 +1,197 @@
+"""The patient's page in a real browser: the station serves it, the simulated patient's foot
+(a scripted push in pitch) flies the plane, the patient starts by keyboard, pauses, carries
+on and stops, and the game's score reaches the therapist in the uploaded session."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from playwright.sync_api import Page, expect
+
+from tests.system.harness import System
+
+MINUTE_MS = 60_000
+INSTRUCTIONS = "Push your toes down as far as is comfortable, then bring them up. Slowly."
+BODY: dict[str, Any] = {
+    "exercise": "strength",
+    "title": "Ankle strength",
+    "instructions": INSTRUCTIONS,
+    "axes": [{"axis": "pitch", "stiffness": 40.0, "damping": 2.0}],
+    "sets": 2,
+    "repetitions": 2,
+    "repetition_s": 5.0,
+    "rest_s": 6.0,
+}
+
+
+@pytest.fixture
+def therapist(system: System) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=system.url, timeout=30.0) as client:
+        yield signed_in(client, system)
+
+
+def signed_in(client: httpx.Client, system: System) -> httpx.Client:
+    r = client.post(
+        "/api/v1/auth/login",
+        json={
+            "email": system.creds["therapist_email"],
+            "password": system.creds["therapist_password"],
+        },
+    )
+    assert r.status_code == 200, r.text
+    client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+    return client
+
+
+def wait_for_page(system: System, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            if httpx.get(system.page_url, timeout=2.0).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        if system.station is not None and system.station.poll() is not None:
+            raise AssertionError("the station exited:\n" + system.log_tail())
+        assert time.monotonic() < deadline, "the page never answered:\n" + system.log_tail()
+        time.sleep(0.2)
+
+
+def uploaded_session(client: httpx.Client, patient: int, timeout: float = 60.0) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        r = client.get("/api/v1/sessions", params={"patient_id": patient})
+        assert r.status_code == 200, r.text
+        if r.json():
+            return r.json()[0]
+        time.sleep(0.5)
+    raise AssertionError("the session never reached the server")
+
+
+def test_the_patient_exercises_plays_pauses_and_stops(
+    system: System, therapist: httpx.Client, page: Page, shots: Path
+) -> None:
+    client = therapist
+    # The therapist's prescription for today: two short sets with a rest between them.
+    r = client.patch(f"/api/v1/prescriptions/{system.creds['prescription_id']}", json=BODY)
+    assert r.status_code == 200, r.text
+    system.start_station()
+    wait_for_page(system)
+
+    page.goto(system.page_url)
+    expect(page).to_have_title("Your ankle exercises")
+    expect(page.get_by_role("heading", name="Ankle strength")).to_be_visible()
+    expect(page.get_by_text(INSTRUCTIONS)).to_be_visible()
+    expect(page.get_by_text("2 sets of 2 repetitions, about 1 minute.")).to_be_visible()
+    connection, platform, todo = (
+        page.locator("#connection"),
+        page.locator("#platform"),
+        page.locator("#todo"),
+    )
+    expect(connection).to_have_text("Connected to your therapist", timeout=MINUTE_MS)
+    expect(platform).to_have_text("The platform is ready", timeout=MINUTE_MS)
+    expect(todo).to_have_text("Put your foot on the plate, then press Start when you are ready.")
+    stop = page.get_by_role("button", name="STOP")
+    expect(stop).to_be_visible()
+    expect(stop).to_be_enabled()
+    # Every control has a name a screen reader can say.
+    for button in page.get_by_role("button").all():
+        label = button.get_attribute("aria-label") or button.inner_text()
+        assert label.strip(), button
+    page.screenshot(path=shots / "patient-ready.png")
+
+    # Keyboard only: the first Tab reaches today's Start button.
+    page.keyboard.press("Tab")
+    start = page.get_by_role("button", name="Start Ankle strength")
+    expect(start).to_be_focused()
+    page.keyboard.press("Enter")
+    expect(todo).to_contain_text("Push your foot against the plate", timeout=MINUTE_MS)
+    expect(platform).to_have_text("The platform is moving with you")
+    expect(page.locator("#sets")).to_have_text("2")
+    expect(page.locator("#reps")).to_have_text("2")
+    expect(start).to_be_disabled()
+
+    # The foot flies the plane: its angle changes and gates are judged.
+    foot = page.locator("#foot")
+    expect(foot).to_contain_text("Your foot:")
+    first = foot.inner_text()
+    expect(foot).not_to_have_text(first, timeout=10_000)
+    expect(page.locator("#gates")).not_to_have_text("0", timeout=20_000)
+    expect(page.locator("#done")).to_have_text("1", timeout=MINUTE_MS)
+    page.screenshot(path=shots / "patient-game.png")
+
+    # A rest between the sets, counted down.
+    expect(page.locator("#rest")).to_be_visible(timeout=MINUTE_MS)
+    expect(page.locator("#rest")).to_contain_text("Rest: next set in")
+    expect(todo).to_have_text("Rest and relax your foot. The next set starts by itself.")
+    seconds = int(page.locator("#rest-seconds").inner_text())
+    assert 0 < seconds <= 6
+    expect(page.locator("#done")).to_have_text("2")
+    page.screenshot(path=shots / "patient-rest.png")
+    expect(page.locator("#rest-seconds")).not_to_have_text(str(seconds), timeout=5_000)
+
+    # The second set: pause, then carry on from the keyboard.
+    expect(todo).to_contain_text("Push your foot against the plate", timeout=MINUTE_MS)
+    expect(page.locator("#set")).to_have_text("2")
+    pause = page.get_by_role("button", name="Pause")
+    pause.click()
+    expect(todo).to_have_text("Paused. Press Continue when you are ready.")
+    expect(platform).to_have_text("The platform is holding still")
+    carry_on = page.get_by_role("button", name="Continue")
+    expect(carry_on).to_be_visible()
+    page.screenshot(path=shots / "patient-paused.png")
+    carry_on.focus()
+    page.keyboard.press("Space")
+    expect(todo).to_contain_text("Push your foot against the plate")
+    expect(platform).to_have_text("The platform is moving with you")
+
+    stop.click()
+    expect(todo).to_have_text(
+        "The exercise was stopped. You can start again when you are ready.", timeout=MINUTE_MS
+    )
+    expect(page.locator("#feedback")).to_contain_text("Stopped.")
+    expect(start).to_be_enabled(timeout=MINUTE_MS)
+    expect(page.locator("#game-note")).to_have_text(
+        "Game over. Your score is saved with today's exercise."
+    )
+    expect(page.locator("#set")).to_have_text("–")  # no current set once it has ended
+    score = int(page.locator("#score").inner_text())
+    gates = int(page.locator("#gates").inner_text())
+    assert gates >= 1
+    page.screenshot(path=shots / "patient-stopped.png")
+    page.set_viewport_size({"width": 820, "height": 1180})  # a tablet held upright
+    page.screenshot(path=shots / "patient-stopped-tablet.png")
+
+    # The therapist sees the stop and the game in the uploaded session.
+    session = uploaded_session(client, system.creds["patient_id"])
+    summary = session["summary"]
+    assert session["end_reason"] == "stopped", session
+    assert summary["events"]["game_score"] == gates
+    assert summary["game"] == {"games": 1, "score": score, "gates": gates, "missed": gates - score}
+    assert summary["events"]["hold"] == 1 and summary["events"]["resume"] == 1
+    r = client.get(session["downloads"]["json"])
+    assert r.status_code == 200
+    events = r.json()["events"]
+    last = [e for e in events if e["kind"] == "game_score"][-1]
+    assert last["by"] == "patient"
+    assert (last["detail"]["score"], last["detail"]["gates"]) == (score, gates)
+
+    # The therapist's server goes away: the patient is told, in words, that nothing is lost.
+    page.set_viewport_size({"width": 1400, "height": 1000})
+    system.stop(system.server)
+    expect(connection).to_have_text(
+        "Working offline — your session is saved and will be sent later", timeout=30_000
+    )
+    expect(platform).to_have_text("The platform is ready")
+    page.screenshot(path=shots / "patient-offline.png")
+    # And the station itself: the page says so and keeps trying.
+    system.stop(system.station)
+    expect(connection).to_have_text(
+        "This page has lost contact with your station. Trying again…", timeout=30_000
+    )
+    expect(start).to_be_disabled()

@@ -1,0 +1,543 @@
+"""The patient's page, served by the home station on this computer (``http://127.0.0.1:8765/``).
+
+One page, one script, one style sheet and one WebSocket, ``/ws``. Down the socket go what the
+page shows: today's exercises (:class:`Today`, on connecting and when the therapist changes
+them), the station's state in the patient's terms (:class:`PageStatus`, on every change and
+at least once a second) and the foot's angles for the game (:class:`Foot`, ~30 Hz). Up come
+the patient's actions (:data:`PageAction`): start, pause, resume, stop and the game's score.
+Each is validated; a malformed one is answered with :class:`PageError` and changes nothing.
+
+The platform moves a person's foot, so only the page itself may drive it: the WebSocket
+refuses (HTTP 403) any ``Origin`` but the page's own, and every request must name this
+computer in ``Host`` (a page on another website cannot use DNS rebinding to look local).
+
+webui is the top layer but the dependency rules keep it from importing ``station``: the page
+needs only :class:`PatientStation`, which ``station.app.Station`` provides, and is served in
+the station's own event loop by :func:`serve_patient_page`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+import socket
+import time
+from collections.abc import Collection, Iterator
+from typing import Annotated, Any, Literal, Protocol
+from urllib.parse import urlsplit
+
+import uvicorn
+from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+
+from sessions import wire
+from sessions.prescription import EXERCISE_LIBRARY, PrescriptionBody
+from sessions.summary import GAME_EVENT
+from webui.assets import STATIC, page
+
+log = logging.getLogger("ankle.station.page")
+
+FOOT_HZ = 30.0
+"""Rate of :class:`Foot` messages: smooth enough for the game, light for the station's loop
+(which also feeds the device's watchdog)."""
+STATUS_EVERY_S = 1.0
+MAX_MESSAGE_BYTES = 4096
+"""Largest message the page may send; a longer one closes the socket (1009)."""
+LOOPBACK = frozenset({"localhost", "127.0.0.1", "::1"})
+GAME_SPAN_DEG = {"pitch": 10.0, "roll": 8.0}
+"""Half the game's field on each axis, degrees, when the prescription sets no range: a
+comfortable movement, not the ends of the ankle's range."""
+GAME_ROM_SHARE = 0.8
+"""The game keeps to this share of a prescribed range: gates at the very end of it would
+lead the foot into the device's range-of-motion stop."""
+_WILDCARD = frozenset({"", "0.0.0.0", "::"})
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class PatientStation(Protocol):
+    """What the page needs of the home station (``station.app.Station`` has it)."""
+
+    @property
+    def prescriptions(self) -> list[wire.PrescriptionItem]: ...
+
+    @property
+    def online(self) -> bool: ...
+
+    def status(self) -> wire.StatusMsg: ...
+
+    async def command(self, cmd: wire.Command) -> wire.CommandResult: ...
+
+    def note(self, kind: str, detail: dict[str, Any], by: str = "patient") -> bool: ...
+
+    def foot(self) -> tuple[float, ...] | None: ...
+
+    def progress(self) -> tuple[int, int]: ...
+
+
+# -- down: station to page -------------------------------------------------------------------
+class GameField(BaseModel):
+    """Where the game's gates may be, degrees from home; None for an axis the exercise holds
+    still (the plane does not move on it)."""
+
+    model_config = _STRICT
+    pitch: tuple[float, float] | None = Field(description="Toes up (low) to toes down (high).")
+    roll: tuple[float, float] | None = Field(description="Left edge down to left edge up.")
+
+
+class Exercise(BaseModel):
+    model_config = _STRICT
+    id: int
+    title: str
+    instructions: str
+    exercise: str
+    sets: int
+    repetitions: int
+    repetition_s: float
+    rest_s: float
+    minutes: int = Field(description="About how long it takes, rests included.")
+    game: GameField | None = Field(description="None: no game in this exercise.")
+
+
+class Today(BaseModel):
+    model_config = _STRICT
+    type: Literal["today"] = "today"
+    exercises: list[Exercise]
+
+
+class PageStatus(BaseModel):
+    """The station's state as the page shows it."""
+
+    model_config = _STRICT
+    type: Literal["status"] = "status"
+    online: bool = Field(description="The therapist's server is reachable.")
+    pending_uploads: int = Field(description="Sessions saved here, waiting to be sent.")
+    device: Literal["connected", "lost"]
+    device_mode: str
+    phase: wire.Phase
+    session_id: str | None
+    prescription_id: int | None
+    set: int
+    rep: int
+    sets: int
+    repetitions: int
+    sets_done: int
+    reps_done: int
+    rest_remaining_s: float
+    message: str
+
+
+class Foot(BaseModel):
+    """The foot's angles now, degrees from home (pitch > 0: toes down; roll > 0: the foot's
+    left edge up)."""
+
+    model_config = _STRICT
+    type: Literal["foot"] = "foot"
+    pitch: float
+    roll: float
+
+
+class ActionResult(BaseModel):
+    model_config = _STRICT
+    type: Literal["result"] = "result"
+    id: str | None = None
+    action: str
+    ok: bool
+    text: str = Field(default="", description="Why not, in plain words.")
+
+
+class PageError(BaseModel):
+    model_config = _STRICT
+    type: Literal["error"] = "error"
+    text: str
+
+
+# -- up: page to station ---------------------------------------------------------------------
+_Id = Annotated[str | None, Field(default=None, max_length=64)]
+_Count = Annotated[int, Field(ge=0, le=100_000)]
+
+
+class Start(BaseModel):
+    model_config = _STRICT
+    type: Literal["start"]
+    id: _Id = None
+    prescription_id: int
+
+
+class Pause(BaseModel):
+    model_config = _STRICT
+    type: Literal["pause"]
+    id: _Id = None
+
+
+class Resume(BaseModel):
+    model_config = _STRICT
+    type: Literal["resume"]
+    id: _Id = None
+
+
+class Stop(BaseModel):
+    model_config = _STRICT
+    type: Literal["stop"]
+    id: _Id = None
+
+
+class GameScore(BaseModel):
+    """The game's running totals after a gate: recorded in the session it was played in."""
+
+    model_config = _STRICT
+    type: Literal["game_score"]
+    id: _Id = None
+    session_id: str = Field(min_length=1, max_length=64)
+    game: int = Field(ge=1, le=2**31, description="Tells apart two games in one session.")
+    score: _Count = Field(description="Gates flown through.")
+    gates: _Count = Field(description="Gates that came up.")
+    missed: _Count = Field(description="Gates missed.")
+
+    @model_validator(mode="after")
+    def _adds_up(self) -> GameScore:
+        if self.score + self.missed != self.gates:
+            raise ValueError("score + missed must equal gates")
+        return self
+
+
+PageAction = Annotated[Start | Pause | Resume | Stop | GameScore, Field(discriminator="type")]
+PAGE_ACTION: TypeAdapter[Start | Pause | Resume | Stop | GameScore] = TypeAdapter(PageAction)
+PageMessage = Annotated[
+    Today | PageStatus | Foot | ActionResult | PageError, Field(discriminator="type")
+]
+
+
+def page_schemas() -> dict[str, Any]:
+    """The JSON Schema of each direction of ``/ws``, served at ``/schemas``."""
+    return {
+        "page_to_station": PAGE_ACTION.json_schema(),
+        "station_to_page": TypeAdapter(PageMessage).json_schema(),
+    }
+
+
+# -- what the page shows -----------------------------------------------------------------------
+def game_field(body: PrescriptionBody) -> GameField | None:
+    """The game's field for an exercise; None where the platform does not yield to the foot
+    (the plane could not be steered) or neither pitch nor roll is exercised."""
+    if not body.compliant():
+        return None
+    spans: dict[str, tuple[float, float]] = {}
+    for a in body.axes:
+        if a.axis not in GAME_SPAN_DEG:
+            continue
+        lo, hi = a.limits_deg()
+        if a.rom_low is None and a.rom_high is None:
+            # Wide enough for where the platform's own target takes the foot (a sine).
+            half = GAME_SPAN_DEG[a.axis]
+            t_lo, t_hi = a.target_span_deg()
+            lo, hi = max(lo, min(a.center - half, t_lo)), min(hi, max(a.center + half, t_hi))
+        else:
+            mid, half = (lo + hi) / 2, (hi - lo) / 2 * GAME_ROM_SHARE
+            lo, hi = mid - half, mid + half
+        spans[a.axis] = (round(lo, 2), round(hi, 2))
+    if not spans:
+        return None
+    return GameField(pitch=spans.get("pitch"), roll=spans.get("roll"))
+
+
+def today(items: list[wire.PrescriptionItem]) -> Today:
+    exercises = []
+    for item in items:
+        b = item.body
+        template = EXERCISE_LIBRARY[b.exercise]
+        exercises.append(
+            Exercise(
+                id=item.id,
+                title=b.title or template.name,
+                instructions=b.instructions or template.defaults.instructions,
+                exercise=b.exercise.value,
+                sets=b.sets,
+                repetitions=b.repetitions,
+                repetition_s=b.repetition_s,
+                rest_s=b.rest_s,
+                minutes=max(1, math.ceil(b.total_s() / 60)),
+                game=game_field(b),
+            )
+        )
+    return Today(exercises=exercises)
+
+
+def page_status(station: PatientStation) -> PageStatus:
+    s = station.status()
+    sets_done, reps_done = station.progress()
+    return PageStatus(
+        online=station.online,
+        pending_uploads=s.pending_uploads,
+        device=s.device_link,
+        device_mode=s.device_mode,
+        phase=s.phase,
+        session_id=s.session_id,
+        prescription_id=s.prescription_id,
+        set=s.set,
+        rep=s.rep,
+        sets=s.sets,
+        repetitions=s.repetitions,
+        sets_done=sets_done,
+        reps_done=reps_done,
+        rest_remaining_s=s.rest_remaining_s,
+        message=s.message,
+    )
+
+
+# -- who may connect ---------------------------------------------------------------------------
+def allowed_hosts(host: str) -> frozenset[str]:
+    """Names the page answers to: this computer's, and the address it listens on if that is
+    a particular one (a station serving its page to a tablet on the home network)."""
+    name = host.strip("[]").lower()
+    return LOOPBACK if name in _WILDCARD else LOOPBACK | {name}
+
+
+def _hostname(netloc: str) -> str | None:
+    try:
+        parts = urlsplit("//" + netloc)
+        _ = parts.port  # a port that is not a number raises
+    except ValueError:
+        return None
+    return parts.hostname
+
+
+def host_ok(host_header: str | None, hosts: Collection[str]) -> bool:
+    return bool(host_header) and _hostname(host_header or "") in hosts
+
+
+def origin_ok(origin: str | None, host_header: str | None, hosts: Collection[str]) -> bool:
+    """The page's own origin only: the scheme and the ``Host`` it was loaded from."""
+    if not origin or not host_ok(host_header, hosts):
+        return False
+    return origin.lower() == f"http://{(host_header or '').lower()}"
+
+
+# -- the app -----------------------------------------------------------------------------------
+def create_patient_app(station: PatientStation, hosts: Collection[str] = LOOPBACK) -> FastAPI:
+    """The page, its two files and its WebSocket, for one station."""
+    app = FastAPI(
+        title="Ankle telerehabilitation: patient's page",
+        docs_url=None,
+        redoc_url=None,
+        openapi_url=None,
+    )
+
+    def local(request: Request) -> None:
+        if not host_ok(request.headers.get("host"), hosts):
+            raise HTTPException(400, "this page is only served to this computer")
+
+    files = {
+        "js/station.js": "text/javascript",
+        "css/station.css": "text/css",
+    }
+
+    # HEAD too: the page asks it whether the station is back before reopening its socket.
+    @app.api_route(
+        "/", methods=["GET", "HEAD"], dependencies=[Depends(local)], include_in_schema=False
+    )
+    async def index() -> FileResponse:
+        return page("station.html")
+
+    @app.get("/static/{kind}/{name}", dependencies=[Depends(local)], include_in_schema=False)
+    async def static(kind: str, name: str) -> FileResponse:
+        path = f"{kind}/{name}"
+        if path not in files:
+            raise HTTPException(404, "no such file")
+        return FileResponse(
+            STATIC / path, media_type=files[path], headers={"Cache-Control": "no-cache"}
+        )
+
+    @app.get("/schemas", dependencies=[Depends(local)], include_in_schema=False)
+    async def schemas() -> dict[str, Any]:
+        return page_schemas()
+
+    @app.websocket("/ws")
+    async def ws(websocket: WebSocket) -> None:
+        if not origin_ok(websocket.headers.get("origin"), websocket.headers.get("host"), hosts):
+            log.warning(
+                "refused a connection to the patient's page from origin %r (host %r)",
+                websocket.headers.get("origin"),
+                websocket.headers.get("host"),
+            )
+            await websocket.close(code=wire.CLOSE_POLICY)  # before accept: HTTP 403
+            return
+        await websocket.accept()
+        await PageLink(station, websocket).run()
+
+    return app
+
+
+class PageLink:
+    """One open page: pushes state, carries out the patient's actions."""
+
+    _ids = itertools.count(1)
+
+    def __init__(self, station: PatientStation, websocket: WebSocket) -> None:
+        self.station = station
+        self.ws = websocket
+        self._send_lock = asyncio.Lock()
+
+    async def send(self, message: BaseModel) -> None:
+        async with self._send_lock:  # the pusher and the replies share one socket
+            await self.ws.send_text(message.model_dump_json())
+
+    async def run(self) -> None:
+        pusher = asyncio.create_task(self._push(), name="patient-page-push")
+        pusher.add_done_callback(_push_ended)
+        try:
+            while True:
+                message = await self.ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    return
+                text = message.get("text")
+                if text is None:
+                    await self.send(PageError(text="send JSON text, not binary data"))
+                    continue
+                await self.send(await self.handle(text))
+        finally:
+            pusher.cancel()
+            await asyncio.gather(pusher, return_exceptions=True)
+
+    async def handle(self, text: str) -> BaseModel:
+        try:
+            action = PAGE_ACTION.validate_json(text)
+        except ValidationError as exc:
+            return PageError(text=f"not understood: {wire.error_text(exc, 200)}")
+        ok, why = await self._carry_out(action)
+        return ActionResult(id=action.id, action=action.type, ok=ok, text=why)
+
+    async def _carry_out(
+        self, action: Start | Pause | Resume | Stop | GameScore
+    ) -> tuple[bool, str]:
+        st = self.station
+        now = st.status()
+        phase = now.phase
+        if isinstance(action, GameScore):
+            if now.session_id != action.session_id:
+                return False, "that exercise has ended; the score was not saved"
+            detail = action.model_dump(include={"game", "score", "gates", "missed"})
+            if not st.note(GAME_EVENT, detail):
+                return False, "no exercise is running; the score was not saved"
+            return True, ""
+        if isinstance(action, Start):
+            return await self._command("start", prescription_id=action.prescription_id)
+        if isinstance(action, Pause):
+            if phase not in ("running", "rest"):
+                return False, "there is nothing to pause right now"
+            return await self._command("hold")
+        if isinstance(action, Resume):
+            if phase != "paused":
+                return False, "the exercise is not paused"
+            return await self._command("resume")
+        ok, why = await self._command("stop")
+        if not ok and phase not in ("homing", "running", "rest", "paused"):
+            # Nothing was running; still make sure the platform is holding still.
+            return await self._command("hold")
+        return ok, why
+
+    async def _command(
+        self, action: wire.Action, prescription_id: int | None = None
+    ) -> tuple[bool, str]:
+        result = await self.station.command(
+            wire.Command(
+                request_id=f"page-{next(self._ids)}",
+                action=action,
+                prescription_id=prescription_id,
+                by="patient",
+            )
+        )
+        return result.ok, "" if result.ok else result.text or result.code
+
+    async def _push(self) -> None:
+        last_items: list[wire.PrescriptionItem] | None = None
+        last_status: dict[str, Any] | None = None
+        status_at = 0.0
+        period = 1.0 / FOOT_HZ
+        loop = asyncio.get_running_loop()
+        next_tick = loop.time()
+        while True:
+            items = self.station.prescriptions
+            if items is not last_items:  # the station replaces the list when it changes
+                await self.send(today(items))
+                last_items = items
+            status = page_status(self.station)
+            state = status.model_dump()
+            now = time.monotonic()
+            if state != last_status or now - status_at >= STATUS_EVERY_S:
+                await self.send(status)
+                last_status, status_at = state, now
+            pose = self.station.foot()
+            if pose is not None:
+                await self.send(
+                    Foot(
+                        pitch=round(math.degrees(pose[4]), 2), roll=round(math.degrees(pose[3]), 2)
+                    )
+                )
+            next_tick = max(next_tick + period, loop.time())
+            await asyncio.sleep(next_tick - loop.time())
+
+
+def _push_ended(task: asyncio.Task[None]) -> None:
+    # A closed socket ends the pusher with one of these; anything else is a fault in the
+    # page's code that leaves the patient looking at a page that no longer changes.
+    if task.cancelled():
+        return
+    exc = task.exception()
+    if exc is not None and not isinstance(exc, WebSocketDisconnect | RuntimeError):
+        log.error("the patient's page stopped updating", exc_info=exc)
+
+
+# -- serving -----------------------------------------------------------------------------------
+class _Server(uvicorn.Server):
+    """uvicorn in the station's loop: the station owns the signals (Ctrl-C stops the exercise
+    first, then the page), so uvicorn must not take them over."""
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        yield
+
+
+async def serve_patient_page(
+    station: PatientStation, host: str = "127.0.0.1", port: int = 8765
+) -> None:
+    """Serve the page for ``station`` on (host, port) in the running loop until cancelled.
+
+    The socket is bound here, so a port that is taken raises ``OSError`` to the caller
+    (uvicorn itself would exit the whole process)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host.strip("[]"), port))
+    except OSError:
+        sock.close()
+        raise
+    bound = sock.getsockname()[1]
+    config = uvicorn.Config(
+        create_patient_app(station, allowed_hosts(host)),
+        log_level="warning",
+        lifespan="off",
+        ws_max_size=MAX_MESSAGE_BYTES,
+        ws_per_message_deflate=False,
+        proxy_headers=False,
+        server_header=False,
+        timeout_graceful_shutdown=2,
+    )
+    server = _Server(config)
+    shown = "localhost" if host in _WILDCARD else host.strip("[]")
+    shown = f"[{shown}]" if ":" in shown else shown
+    log.info("the patient's page: http://%s:%d/", shown, bound)
+    task = asyncio.ensure_future(server.serve(sockets=[sock]))
+    try:
+        await asyncio.shield(task)
+    except asyncio.CancelledError:
+        # Close the open pages and the socket before going: a cancelled serve() leaves both.
+        server.should_exit = True
+        await task
+        raise
+    finally:
+        sock.close()
