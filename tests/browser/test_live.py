@@ -15,6 +15,7 @@ import httpx
 from playwright.sync_api import Page, expect
 
 from server.cli import demo_prescription
+from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System
 
 
@@ -103,6 +104,7 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     page.wait_for_timeout(800)
     assert iframe.screenshot() != pixels, "the 3D view did not change on screen"
     page.screenshot(path=shots / "live.png", full_page=True)
+    assert_controls_labelled(page)
 
     # Software WebGL costs a core: with it off, the station, device and server on this
     # machine keep their timing for the rest of the test (the device holds if the station

@@ -13,6 +13,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
+from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System
 
 MINUTE_MS = 60_000
@@ -124,6 +125,7 @@ def test_the_patient_exercises_plays_pauses_and_stops(
     expect(page.locator("#gates")).not_to_have_text("0", timeout=20_000)
     expect(page.locator("#done")).to_have_text("1", timeout=MINUTE_MS)
     page.screenshot(path=shots / "patient-game.png")
+    assert_controls_labelled(page)
 
     # A rest between the sets, counted down.
     expect(page.locator("#rest")).to_be_visible(timeout=MINUTE_MS)

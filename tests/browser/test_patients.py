@@ -16,6 +16,7 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from sessions import wire
+from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System, live, next_of, short_strength
 
 API = "/api/v1"
@@ -101,6 +102,7 @@ def test_patient_list_and_adding_a_patient(
     expect(row).to_contain_text("Left")
     expect(row).to_contain_text("None provisioned")
     page.screenshot(path=shots / "patients.png", full_page=True)
+    assert_controls_labelled(page)
 
     row.get_by_role("link", name="R. K.").click()
     expect(page).to_have_url(f"{system.url}/app/patients/{new['id']}")
@@ -157,6 +159,7 @@ def test_prescribe_from_the_library_edit_and_withdraw(
     # Three axes at most, each once: only yaw is left to add.
     expect(page.locator("#add-axis option")).to_have_text(["Yaw (ab- / adduction)"])
     page.screenshot(path=shots / "prescribe.png", full_page=True)
+    assert_controls_labelled(page)
 
     # Too stiff, and a sine that leaves the allowed pitch range: the API refuses both, and
     # each message appears beside the input it is about (the second comes from a validator
@@ -307,3 +310,4 @@ def test_demo_patient_station_online_and_progress_charts(
         "aria-label", re.compile(f"This week 1 of {asked} prescribed sessions completed")
     )
     page.screenshot(path=shots / "patient.png", full_page=True)
+    assert_controls_labelled(page)

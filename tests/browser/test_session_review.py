@@ -17,6 +17,7 @@ from mcap.reader import make_reader
 from playwright.sync_api import BrowserContext, Page, expect
 
 from sessions.recording import decode
+from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System
 
 FORMATS = ("csv", "parquet", "mcap", "json", "rec")
@@ -123,6 +124,7 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     page.wait_for_timeout(2500)  # let the replay play a moment before the screenshot
     # A full page with a software-rendered WebGL frame in it is slow to capture.
     page.screenshot(path=shots / "session-review.png", full_page=True, timeout=90_000)
+    assert_controls_labelled(page)
 
     # Every download button, read back with its own library; each holds every sample.
     for fmt in FORMATS:
