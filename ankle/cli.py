@@ -26,6 +26,9 @@ def _parser() -> device_cli.Parser:
     run.add_argument("--host", default="127.0.0.1")
     run.add_argument("--port", type=int, default=8000)
     run.add_argument(
+        "--page-port", type=int, default=8765, help="the patient's page on this computer"
+    )
+    run.add_argument(
         "--seconds", type=float, default=None, help="stop after this long (default: Ctrl-C)"
     )
     console = sub.add_parser(
@@ -85,7 +88,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "run":
             from ankle.system import run_system
 
-            return run_system(args.data_dir, args.host, args.port, args.seconds)
+            return run_system(
+                args.data_dir, args.host, args.port, args.seconds, page_port=args.page_port
+            )
         if args.command == "server":
             from server.cli import serve
             from server.config import Settings

@@ -36,6 +36,10 @@ def _python_module(*args: str, env: dict[str, str] | None = None) -> subprocess.
     )
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def _stop(proc: subprocess.Popen[bytes] | None, timeout: float = 10.0) -> None:
     if proc is None or proc.poll() is not None:
         return
@@ -53,11 +57,17 @@ def run_system(
     port: int = 8000,
     seconds: float | None = None,
     out: TextIO = sys.stdout,
+    page_port: int = PATIENT_PAGE_PORT,
 ) -> int:
     from server.cli import provision_demo
     from server.config import Settings
 
     settings = Settings(data_dir=data_dir, host=host, port=port)
+    # A service manager, `timeout` or a closed terminal stops us with SIGTERM or SIGHUP, not
+    # Ctrl-C: the same orderly stop, or the children (started in their own sessions) would be
+    # left running without us.
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
     url = f"http://{host}:{port}"
     creds: dict[str, Any] = provision_demo(settings)
     server = station = None
@@ -87,10 +97,10 @@ def run_system(
             "--repeat-after",
             "15",
             "--page-port",
-            str(PATIENT_PAGE_PORT),
+            str(page_port),
             env={"ANKLE_STATION_TOKEN": creds["station_token"]},
         )
-        _banner(out, url, device.link, creds)
+        _banner(out, url, device.link, creds, page_port)
         deadline = None if seconds is None else time.monotonic() + seconds
         while deadline is None or time.monotonic() < deadline:
             for name, proc in (("server", server), ("station", station)):
@@ -111,7 +121,7 @@ def run_system(
     return 0
 
 
-def _banner(out: TextIO, url: str, link: str, creds: dict[str, Any]) -> None:
+def _banner(out: TextIO, url: str, link: str, creds: dict[str, Any], page_port: int) -> None:
     station_id = creds.get("station_id")
     lines = [
         "",
@@ -120,7 +130,7 @@ def _banner(out: TextIO, url: str, link: str, creds: dict[str, Any]) -> None:
         f"  Therapist sign-in          {creds.get('therapist_email')} / "
         f"{creds.get('therapist_password')}",
         f"  Live view of the demo      {url}/app/live/{station_id}",
-        f"  Patient's page (station)   http://127.0.0.1:{PATIENT_PAGE_PORT}/",
+        f"  Patient's page (station)   http://127.0.0.1:{page_port}/",
         f"  API and its documentation  {url}/api/v1/docs",
         f"  WebSocket message schemas  {url}/api/v1/schemas/ws",
         f"  Device link                {link}",
