@@ -49,16 +49,13 @@ from server.deps import Db, TherapistOrAdmin
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.sessions import _session_for, recording_path, session_time
 from sessions.recording import Recording, read
-from webui.scene import PlatformScene
+from webui.scene import CAMERA_LOOK_AT, CAMERA_POSITION, PlatformScene
 
 REPLAY_HZ = 25.0
 """Frames per second of a replay: smooth enough for ankle motion (under 2 Hz), and each
 frame is about seven messages in the file."""
 REPLAY_FORMAT = 1
 """Part of the cache file name: bump it when the scene or the sampling changes."""
-CAMERA_POSITION = (0.36, -0.44, 0.32)
-"""Where the replay's camera starts (m, z up): ahead of the toes (+x), to the side, above."""
-CAMERA_LOOK_AT = (0.0, 0.0, 0.15)
 
 CLIENT_HTML = Path(viser.__file__).parent / "client" / "build" / "index.html"
 """viser's packaged single-file client: the page ``as_html`` and the viewer are made of."""
@@ -139,8 +136,6 @@ class Replays:
         self, server: viser.ViserServer, serializer: StateSerializer, rec: Recording
     ) -> None:
         server.gui.configure_theme(show_logo=False, show_share_button=False)
-        server.initial_camera.position = CAMERA_POSITION
-        server.initial_camera.look_at = CAMERA_LOOK_AT
         scene = PlatformScene(server)
         s = rec.samples
         clock = session_time(s["t"])

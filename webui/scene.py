@@ -29,6 +29,10 @@ FORCE_SCALE = 0.002
 TORQUE_SCALE = 0.01
 """Arrow length per newton metre (m/(N m)): 10 N m is 10 cm."""
 NEUTRAL = np.array([150.0, 150.0, 150.0])
+CAMERA_POSITION = (0.36, -0.44, 0.32)
+"""Where a view's camera starts (m, z up): ahead of the toes (+x), to the side, above; close
+enough that the platform, not the floor grid, fills the view."""
+CAMERA_LOOK_AT = (0.0, 0.0, 0.15)
 
 
 def leg_colours(pressures: Sequence[float]) -> NDArray[np.uint8]:
@@ -59,11 +63,8 @@ class PlatformScene:
         scene = server.scene
         scene.set_up_direction("+z")
         g = geometry
-        # A three-quarter view from the patient's front right, close enough that the
-        # platform fills the view rather than the floor grid.
-        home = g.home_pose[:3]
-        server.initial_camera.look_at = (float(home[0]), float(home[1]), float(home[2]) * 0.6)
-        server.initial_camera.position = (0.55, -0.55, float(home[2]) + 0.35)
+        server.initial_camera.position = CAMERA_POSITION
+        server.initial_camera.look_at = CAMERA_LOOK_AT
         plate_z = -g.ankle_height  # the platform joint plane, below the ankle
         scene.add_grid("/floor", width=0.6, height=0.6, cell_size=0.05, position=(0, 0, -0.01))
         scene.add_cylinder(
