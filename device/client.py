@@ -28,12 +28,12 @@ from collections.abc import AsyncGenerator
 from dataclasses import dataclass, field
 from types import TracebackType
 
-from device.controller import Waveform
-from device.geometry import AXES
+from device.axes import AXES
 from device.protocol import messages as msg
 from device.protocol.framing import HANDSHAKE_TYPE, PROTOCOL_VERSION, Frame, FrameDecoder
 from device.protocol.messages import DeviceMode
 from device.transport import open_stream
+from device.waveforms import Waveform
 
 HOST_NAME = "ankle-host 0.1.0"
 

@@ -16,9 +16,9 @@ import sys
 from typing import TextIO
 
 from device.client import AxisPlan, DeviceClient, DeviceError, build_segment
-from device.controller import Waveform
 from device.process import ServiceProcess, ServiceStartError
 from device.protocol.messages import DeviceMode, Telemetry
+from device.waveforms import Waveform
 
 SEGMENT_S = 30.0
 DEMO_PITCH = AxisPlan(

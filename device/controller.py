@@ -53,9 +53,11 @@ from device.kinematics import (
     rotation,
     twist_jacobian,
 )
+from device.limits import LEG_HEADROOM
 from device.plant.params import PARAMETERS, TICK_HZ
 from device.safety import SafetyLimits, Trip
 from device.scheduler import Schedule, Task, schedule
+from device.waveforms import Waveform as Waveform  # re-exported: older callers import it here
 
 # Task ids: indices into the task list handed to the scheduler.
 TASK_DUTY, TASK_SENSORS, TASK_POSE = 0, 1, 8
@@ -69,18 +71,6 @@ class Mode(IntEnum):
     JOINT = 1
     TASK = 2
     FAULT = 3
-
-
-class Waveform(IntEnum):
-    """Target waveform of one task-space axis."""
-
-    HOLD = 0
-    """Stay at ``center``."""
-    SINE = 1
-    """``center + amplitude sin(2 pi f (t - t0))``, its amplitude faded in over
-    ``ControllerConfig.sine_fade_in``."""
-    RAMP = 2
-    """From ``center`` toward ``end`` at ``rate`` per second, then stay."""
 
 
 # Integer state slots.
@@ -567,11 +557,15 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
         twist_jacobian(U, A, J)
         Jq = np.empty((6, 6))
         pose_jacobian(s.pose_cmd, J, Jq)
+        leg_lo = p.limits[safety.ROW_SCALARS, 3] + LEG_HEADROOM
+        leg_hi = p.stroke - leg_lo
         for i in range(6):
-            s.leg_target[i] = min(max(L[i] - p.min_length, 0.0), p.stroke)
+            x = L[i] - p.min_length
+            s.leg_target[i] = min(max(x, leg_lo), leg_hi)
             rate = 0.0
-            for k in range(6):
-                rate += Jq[i, k] * s.pose_cmd_rate[k]
+            if x == s.leg_target[i]:  # a clamped leg waits at the wall: no feedforward
+                for k in range(6):
+                    rate += Jq[i, k] * s.pose_cmd_rate[k]
             s.leg_target_rate[i] = rate
 
     if moving(s):

@@ -27,10 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-AXES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
-"""Task-space axis names, in pose order."""
-
-AXIS_INDEX: dict[str, int] = {name: i for i, name in enumerate(AXES)}
+from device.axes import AXES as AXES  # re-exported: older callers name the axes from here
+from device.axes import AXIS_INDEX as AXIS_INDEX
 
 N_LEGS = 6
 

@@ -1,54 +1,37 @@
-"""A controller on its hardware: the Python face of the device, with validated commands.
+"""A controller on its hardware: the Python face of the device.
 
-Every command is checked here (finite, inside the device's own limits) and refused with
-:class:`CommandError` saying what was wrong, leaving the controller untouched. The compiled
-controller checks again on its side (``device.safety``); the limits live in both places.
+The only code that writes the controller's state. Its public commands (``move_legs``,
+``track``, ``set_impedance``) check their arguments with :mod:`device.commands`, the same
+checks the device service answers its host with, and raise :class:`CommandError` leaving
+the controller untouched. The ``apply_*`` methods and the mode helpers take values that were
+already checked (or that the mode machine built to be valid) and never refuse. The compiled
+controller still enforces its limits on the measured motion (``device.safety``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from device import commands, safety, tickloop
 from device import controller as ctl
-from device import tickloop
-from device.controller import ControllerConfig, Mode, Waveform
-from device.geometry import AXES, DEFAULT_GEOMETRY, Geometry
+from device.axes import AXES
+from device.commands import CommandError as CommandError
+from device.controller import ControllerConfig, Mode
+from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware, SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.safety import SafetyLimits, Trip
+from device.waveforms import AxisTarget as AxisTarget
+from device.waveforms import Waveform
 
 Vector = Sequence[float] | NDArray[np.float64]
 """Six numbers, one per leg or axis."""
 
 
 _NO_LOG = np.zeros((0, tickloop.N_LOG))
-
-
-class CommandError(ValueError):
-    """A command the device refuses; nothing was changed."""
-
-
-@dataclass(frozen=True)
-class AxisTarget:
-    """Target waveform of one task-space axis, relative to the home pose (m or rad)."""
-
-    kind: Waveform = Waveform.HOLD
-    center: float = 0.0
-    amplitude: float = 0.0
-    """Sine amplitude, or ramp rate per second."""
-    frequency: float = 0.0
-    """Sine frequency (Hz), or the ramp's end value."""
-
-
-def _finite(name: str, values: Vector | Sequence[float]) -> NDArray[np.float64]:
-    arr = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise CommandError(f"{name} must be finite numbers, got {np.asarray(values).tolist()}")
-    return arr
 
 
 class Rig:
@@ -63,9 +46,11 @@ class Rig:
     ) -> None:
         self.hardware = hardware if hardware is not None else SimulatedHardware(PlantConfig())
         self.geometry = geometry
-        self.limits = limits
+        self.limits = limits.published()
+        """The device's own limits, exactly as ``DeviceHello`` publishes them."""
         self.config = config
-        self.params, self.schedule = ctl.build_params(config, geometry, limits)
+        self.params, self.schedule = ctl.build_params(config, geometry, self.limits)
+        self._limits = self.params.limits.copy()
         self.state = ctl.new_state(geometry)
         self._log: list[NDArray[np.float64]] = []
 
@@ -114,10 +99,42 @@ class Rig:
     def trip(self) -> Trip:
         return Trip(int(self.state.istate[ctl.I_TRIP]))
 
-    # -- commands ------------------------------------------------------------------------
-    def _start_motion(self) -> None:
+    # -- checked commands (experiments and tools) ----------------------------------------
+    def _check_not_tripped(self) -> None:
         if self.mode == Mode.FAULT:
             raise CommandError(f"the device is tripped ({self.trip.name}); re-arm first")
+
+    def move_legs(self, displacement: Vector) -> None:
+        """Independent joint control: hold each piston at ``displacement`` (m, 0..stroke)."""
+        x = commands.check_leg_targets(displacement, self.geometry, self.limits)
+        self._check_not_tripped()
+        self.apply_leg_targets(x)
+
+    def track(self, targets: Mapping[str, AxisTarget]) -> None:
+        """Task-space exercise: each named axis follows its waveform, the others hold home."""
+        unknown = set(targets) - set(AXES)
+        if unknown:
+            raise CommandError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")
+        six = [targets.get(axis, AxisTarget()) for axis in AXES]
+        lim = self.limits
+        commands.check_axis_targets(six, lim.rom_low, lim.rom_high, lim)
+        commands.check_reachable(six, self.geometry, lim)
+        self._check_not_tripped()
+        self.apply_track(six)
+
+    def set_impedance(
+        self,
+        stiffness: Vector,
+        damping: Vector,
+        compliant: Sequence[bool] | None = None,
+    ) -> None:
+        """K and B per axis (N/m, N m/rad; N s/m, N m s/rad); slewed by the device."""
+        on = (True,) * 6 if compliant is None else tuple(bool(c) for c in compliant)
+        commands.check_impedance(stiffness, damping, on, self.limits)
+        self.apply_impedance(stiffness, damping, on)
+
+    # -- applying checked values (never refuses) -----------------------------------------
+    def _start_motion(self) -> None:
         s = self.state
         if self.mode == Mode.IDLE:
             s.integral[:] = 0.0
@@ -125,53 +142,29 @@ class Rig:
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
 
-    def move_legs(self, displacement: Vector) -> None:
-        """Independent joint control: hold each piston at ``displacement`` (m, 0..stroke)."""
-        x = _finite("leg displacement", displacement)
-        if x.shape != (6,):
-            raise CommandError("leg displacement needs 6 values")
-        m = self.limits.stroke_margin
-        bad = [i for i in range(6) if not m < x[i] < self.geometry.stroke - m]
-        if bad:
-            raise CommandError(
-                f"leg(s) {', '.join(str(i + 1) for i in bad)} outside "
-                f"{m * 1e3:.0f}..{(self.geometry.stroke - m) * 1e3:.0f} mm"
-            )
+    def apply_leg_targets(self, x: Vector, rate: Vector | None = None) -> None:
+        """Joint mode at piston targets ``x`` (m) moving at ``rate`` (m/s); no-op if tripped."""
+        if self.mode == Mode.FAULT:
+            return
         self._start_motion()
         self.state.leg_target[:] = x
-        self.state.leg_target_rate[:] = 0.0
+        self.state.leg_target_rate[:] = 0.0 if rate is None else rate
         self.state.istate[ctl.I_MODE] = Mode.JOINT
 
-    def track(self, targets: dict[str, AxisTarget]) -> None:
-        """Task-space exercise: each named axis follows its waveform, the others hold home."""
-        unknown = set(targets) - set(AXES)
-        if unknown:
-            raise CommandError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")
+    def apply_track(self, targets: Sequence[AxisTarget]) -> None:
+        """Task mode on six checked waveforms (relative to home); no-op if tripped."""
+        if self.mode == Mode.FAULT:
+            return
         traj = np.zeros((6, 5))
         t0 = self.time
-        for k, axis in enumerate(AXES):
-            tgt = targets.get(axis, AxisTarget())
-            vals = _finite(f"{axis} target", [tgt.center, tgt.amplitude, tgt.frequency])
-            lo, hi = self.limits.rom_low[k], self.limits.rom_high[k]
-            if tgt.kind == Waveform.SINE:
-                extent = (tgt.center - abs(tgt.amplitude), tgt.center + abs(tgt.amplitude))
-                if not 0.0 <= tgt.frequency <= 20.0:
-                    raise CommandError(f"{axis} frequency must be 0..20 Hz")
-            elif tgt.kind == Waveform.RAMP:
-                extent = (min(tgt.center, tgt.frequency), max(tgt.center, tgt.frequency))
-            else:
-                extent = (tgt.center, tgt.center)
-            if extent[0] < lo or extent[1] > hi:
-                raise CommandError(
-                    f"{axis} target {extent[0]:.4g}..{extent[1]:.4g} leaves the range of "
-                    f"motion {lo:.4g}..{hi:.4g}"
-                )
-            home = self.geometry.home_pose[k]
+        home = self.geometry.home_pose
+        for k, tgt in enumerate(targets):
+            ramp = tgt.kind == Waveform.RAMP
             traj[k] = (
                 int(tgt.kind),
-                home + vals[0],
-                vals[1],
-                home + vals[2] if tgt.kind == Waveform.RAMP else vals[2],
+                home[k] + tgt.center,
+                tgt.amplitude,
+                home[k] + tgt.frequency if ramp else tgt.frequency,
                 t0,
             )
         self._start_motion()
@@ -184,38 +177,57 @@ class Rig:
             self.state.x_m[:] = 0.0
         self.state.istate[ctl.I_MODE] = Mode.TASK
 
-    def set_impedance(
-        self,
-        stiffness: Vector,
-        damping: Vector,
-        compliant: Sequence[bool] | None = None,
+    def apply_impedance(
+        self, stiffness: Vector, damping: Vector, compliant: Sequence[bool]
     ) -> None:
-        """K and B per axis (N/m, N m/rad; N s/m, N m s/rad); slewed by the device."""
-        K = _finite("stiffness", stiffness)
-        B = _finite("damping", damping)
-        if K.shape != (6,) or B.shape != (6,):
-            raise CommandError("stiffness and damping need 6 values each")
-        on = np.ones(6) if compliant is None else np.asarray(compliant, dtype=np.float64)
-        for k, axis in enumerate(AXES):
-            if not 0.0 <= K[k] <= self.limits.stiffness_max[k]:
-                raise CommandError(
-                    f"{axis} stiffness {K[k]:g} outside 0..{self.limits.stiffness_max[k]:g}"
-                )
-            if not 0.0 <= B[k] <= self.limits.damping_max[k]:
-                raise CommandError(
-                    f"{axis} damping {B[k]:g} outside 0..{self.limits.damping_max[k]:g}"
-                )
-            if on[k] and K[k] == 0.0 and B[k] == 0.0:
-                raise CommandError(f"{axis}: stiffness and damping cannot both be zero")
         s = self.state
         first = not np.any(s.compliant) and self.mode != Mode.TASK
-        s.stiffness_target[:] = K
-        s.damping_target[:] = B
-        s.compliant[:] = on
+        s.stiffness_target[:] = stiffness
+        s.damping_target[:] = damping
+        s.compliant[:] = np.asarray(compliant, dtype=np.float64)
         if first:
             # Nothing is being rendered yet: start at the requested values, no slew from 0.
-            s.stiffness[:] = K
-            s.damping[:] = B
+            s.stiffness[:] = stiffness
+            s.damping[:] = damping
+
+    def release_impedance(self) -> None:
+        """Render nothing: the next segment's K and B start where it asks, not slewed."""
+        self.state.compliant[:] = 0.0
+
+    def shift_trajectory(self, seconds: float) -> None:
+        """Delay every waveform by ``seconds`` (a resumed segment continues where it paused)."""
+        self.state.trajectory[:, 4] += seconds
+
+    def resume_task(self) -> None:
+        """Back to task mode on the loaded waveforms, from a hold; no-op if tripped."""
+        if self.mode != Mode.FAULT:
+            self.state.istate[ctl.I_MODE] = Mode.TASK
+
+    def set_vent(self, on: bool) -> None:
+        """Release: vent the chambers slowly while idle or tripped (see device.controller)."""
+        self.state.istate[ctl.I_VENT] = 1 if on else 0
+
+    @property
+    def venting(self) -> bool:
+        return bool(self.state.istate[ctl.I_VENT])
+
+    def narrow_limits(
+        self,
+        rom_low: Sequence[float],
+        rom_high: Sequence[float],
+        force_limit: float,
+        torque_limit: float,
+    ) -> None:
+        """The controller enforces a segment's (checked, narrower) range and wrench limits."""
+        lim = self.params.limits
+        lim[safety.ROW_ROM_LOW] = rom_low
+        lim[safety.ROW_ROM_HIGH] = rom_high
+        lim[safety.ROW_SCALARS, 0] = force_limit
+        lim[safety.ROW_SCALARS, 1] = torque_limit
+
+    def restore_limits(self) -> None:
+        """The device's own limits again."""
+        self.params.limits[:] = self._limits
 
     def hold(self) -> None:
         """Close every valve and hold; leaves FAULT untouched."""
@@ -223,8 +235,18 @@ class Rig:
             self.state.istate[ctl.I_MODE] = Mode.IDLE
             self.state.valves[:] = 0
 
+    def latch_trip(self, code: Trip) -> None:
+        """Latch a fault now: valves close, nothing moves until a re-arm."""
+        ctl.trip(self.state, int(code))
+
     def estop(self) -> None:
-        ctl.trip(self.state, int(Trip.ESTOP))
+        self.latch_trip(Trip.ESTOP)
+
+    def close_valves_now(self) -> None:
+        """De-energise every coil at the hardware at once (the safe state), whatever the loop
+        does next: for when the loop itself failed."""
+        self.state.valves[:] = 0
+        self.hardware.write_valves(self.state.valves)
 
     def rearm(self) -> None:
         """Clear a latched fault into IDLE; motion needs a new command."""

@@ -9,105 +9,41 @@ followed by a new motion command. Trip codes are stable numbers for logs and the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
 
 from device._jit import njit
+from device.limits import (
+    ROW_B_MAX,
+    ROW_B_SLEW,
+    ROW_K_MAX,
+    ROW_K_SLEW,
+    ROW_ROM_HIGH,
+    ROW_ROM_LOW,
+    ROW_ROM_MARGIN,
+    ROW_SCALARS,
+    SafetyLimits,
+)
+from device.trips import Trip
 
-
-class Trip(IntEnum):
-    """Why the controller stopped. 0 means no trip."""
-
-    NONE = 0
-    SENSOR_INVALID = 1
-    """A sensor read NaN or infinity."""
-    PRESSURE_RANGE = 2
-    """A chamber or the supply read outside its physical range."""
-    RANGE_OF_MOTION = 3
-    """The measured pose left the range of motion (plus margin)."""
-    WRENCH_LIMIT = 4
-    """The foot's force or torque exceeded its limit."""
-    LEG_SPEED = 5
-    """A leg moved faster than the speed limit."""
-    KINEMATICS = 6
-    """Forward kinematics did not converge on the measured leg lengths."""
-    COMMAND_INVALID = 7
-    """A command reached the controller with NaN/inf or out of its limits."""
-    STROKE_END = 8
-    """A piston reached the end of its stroke."""
-    ESTOP = 9
-    """Emergency stop."""
-    HOMING = 10
-    """Homing did not reach the home pose in time."""
-
-
-@dataclass(frozen=True)
-class SafetyLimits:
-    """The device's own limits. Commands asking for more are refused; motion beyond trips.
-
-    Angles in radians, lengths in metres. The range of motion fits inside the stroke of the
-    placeholder geometry for every single-axis excursion and stays within normal adult ankle
-    ranges (dorsiflexion about 20 deg, plantarflexion about 45 deg, inversion 30 deg,
-    eversion 20 deg): the narrower of the two wins.
-    """
-
-    # Ranges are relative to the home pose.
-    rom_low: tuple[float, ...] = (-0.03, -0.03, -0.025, -0.35, -0.40, -0.30)
-    rom_high: tuple[float, ...] = (0.03, 0.03, 0.025, 0.35, 0.40, 0.30)
-    rom_trip_margin: tuple[float, ...] = (0.005, 0.005, 0.005, 0.05, 0.05, 0.05)
-    """How far past the range of motion the measured pose may go before a trip (commands are
-    clamped to the range; the margin covers tracking error)."""
-    force_limit: float = 400.0
-    """Largest force magnitude on the foot plate (N)."""
-    torque_limit: float = 60.0
-    """Largest torque on the foot plate about any axis (N m)."""
-    leg_speed_limit: float = 0.40
-    """Largest piston speed (m/s): well above a 7 Hz, 2 deg pitch sine (0.1 m/s)."""
-    stroke_margin: float = 0.002
-    """A piston this close to either end of its stroke trips (m)."""
-    stiffness_max: tuple[float, ...] = (20000.0, 20000.0, 20000.0, 500.0, 500.0, 500.0)
-    """Largest K per axis (N/m, N m/rad)."""
-    damping_max: tuple[float, ...] = (2000.0, 2000.0, 2000.0, 50.0, 50.0, 50.0)
-    """Largest B per axis (N s/m, N m s/rad)."""
-    stiffness_slew: tuple[float, ...] = (20000.0, 20000.0, 20000.0, 200.0, 200.0, 200.0)
-    """Largest rate of change of K in force per axis (per second): a live change from 20 to
-    100 N m/rad takes 0.4 s, so the patient never feels a jump."""
-    damping_slew: tuple[float, ...] = (2000.0, 2000.0, 2000.0, 20.0, 20.0, 20.0)
-    """Largest rate of change of B per axis (per second)."""
-
-    axis_speed_max: tuple[float, ...] = (0.10, 0.10, 0.10, 2.0, 2.0, 2.0)
-    """Fastest target waveform a command may ask for per axis (m/s, rad/s): a 7 Hz, 2 deg
-    pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion."""
-
-    def as_array(self) -> NDArray[np.float64]:
-        """(8, 6) array for the compiled controller: rows as the fields, in order."""
-        return np.array(
-            [
-                self.rom_low,
-                self.rom_high,
-                self.rom_trip_margin,
-                self.stiffness_max,
-                self.damping_max,
-                self.stiffness_slew,
-                self.damping_slew,
-                (
-                    self.force_limit,
-                    self.torque_limit,
-                    self.leg_speed_limit,
-                    self.stroke_margin,
-                    0.0,
-                    0.0,
-                ),
-            ],
-            dtype=np.float64,
-        )
-
-
-ROW_ROM_LOW, ROW_ROM_HIGH, ROW_ROM_MARGIN = 0, 1, 2
-ROW_K_MAX, ROW_B_MAX, ROW_K_SLEW, ROW_B_SLEW, ROW_SCALARS = 3, 4, 5, 6, 7
+__all__ = [  # the limits' rows and types, for the compiled controller that reads them here
+    "ROW_B_MAX",
+    "ROW_B_SLEW",
+    "ROW_K_MAX",
+    "ROW_K_SLEW",
+    "ROW_ROM_HIGH",
+    "ROW_ROM_LOW",
+    "ROW_ROM_MARGIN",
+    "ROW_SCALARS",
+    "SafetyLimits",
+    "Trip",
+    "all_finite",
+    "check_leg_speed",
+    "check_pose",
+    "check_sensors",
+    "slew",
+]
 
 
 @njit

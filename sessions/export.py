@@ -65,8 +65,9 @@ from mcap.writer import Writer
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
+from device.axes import AXES
 from device.protocol.messages import DeviceMode
-from device.safety import Trip
+from device.trips import Trip
 from sessions.recording import Recording, SessionEvent
 from sessions.summary import summarize
 
@@ -80,7 +81,7 @@ MEDIA_TYPES: dict[str, str] = {
 }
 FILE_SUFFIX: dict[str, str] = {fmt: f".{fmt}" for fmt in FORMATS}
 
-_AXES6 = ("x", "y", "z", "roll", "pitch", "yaw")
+_AXES6 = AXES
 _PA_PER_BAR = 1e5
 
 

@@ -22,11 +22,14 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from device.safety import SafetyLimits
+from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
+from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
+from device.axes import RotationAxis
+from device.limits import SafetyLimits
 
-Axis = Literal["roll", "pitch", "yaw"]
-ROTATION_AXES: tuple[Axis, ...] = ("roll", "pitch", "yaw")
-AXIS_INDEX: dict[str, int] = {"roll": 3, "pitch": 4, "yaw": 5}
+Axis = RotationAxis
+"""A prescribed axis: one of the ankle's rotations (``device.axes``, the project's one table)."""
+AXIS_INDEX: dict[str, int] = {a: DEVICE_AXIS_INDEX[a] for a in ROTATION_AXES}
 """Index of each prescribed axis in the device's 6-axis pose."""
 
 ANATOMICAL_DEG: dict[str, tuple[float, float]] = {

@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping
 from typing import Literal
 
 from device.client import AxisPlan, DeviceClient, build_segment
-from device.controller import Waveform
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
+from device.waveforms import Waveform
 from sessions.prescription import AXIS_INDEX, Axis, PrescriptionBody
 from sessions.recording import End, EndReason, SessionEvent
 

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 
 from cobs import cobs
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+"""2: trip SOFTWARE, NACK DEVICE_FAULT, events of 120 bytes of text."""
 HANDSHAKE_TYPE = 1
 """Message type of the handshake in every protocol version. A frame of this type is delivered
 whatever its version, so each side can tell the other which version it speaks instead of

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 from typing import Any, ClassVar, Literal, dataclass_transform
 
-from device.controller import Waveform
 from device.protocol.framing import HANDSHAKE_TYPE, MAX_BODY, Frame, encode_frame
-from device.safety import Trip
+from device.trips import Trip
+from device.waveforms import Waveform
 
 Sender = Literal["host", "device"]
 
@@ -98,6 +98,8 @@ class NackCode(IntEnum):
     """ESTOP or FAULT is latched: re-arm first."""
     NOT_HOMED = 7
     """Arm/home first."""
+    DEVICE_FAULT = 8
+    """The device failed while applying the command and is now in FAULT (trip SOFTWARE)."""
 
 
 _STRUCT_KIND = {
@@ -301,7 +303,7 @@ class Event(Message, type_=3, sender="device"):
     mode_to: DeviceMode = wire("B", enum=DeviceMode)
     code: int = wire("B", doc="Trip code for LIMIT/FAULT/ESTOP.")
     value: float = wire("f", doc="WATCHDOG: ms since the last valid frame.")
-    text: str = wire("64s", doc="For people.")
+    text: str = wire("120s", doc="For people: what happened, and for a fault why.")
 
 
 class Ack(Message, type_=4, sender="device"):

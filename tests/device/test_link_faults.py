@@ -8,7 +8,6 @@ from collections.abc import Iterator
 import pytest
 
 from device.client import AxisPlan, DeviceClient, build_segment
-from device.controller import Waveform
 from device.hardware import SimulatedHardware
 from device.plant.params import PlantConfig
 from device.protocol import messages as m
@@ -16,6 +15,7 @@ from device.protocol.messages import DeviceMode
 from device.rig import Rig
 from device.service import DeviceService, ServiceConfig
 from device.transport import TcpLink
+from device.waveforms import Waveform
 from tests.device.faults import FaultProxy, Faults
 
 

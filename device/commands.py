@@ -1,0 +1,365 @@
+"""Every check of every command, in one place, against the limits the device publishes.
+
+The device service answers each command ACK or NACK after :func:`check`; the rig (the
+controller's Python face, used by experiments) calls the same functions. A command that
+passes is turned into a *checked* value the mode machine and the rig apply without checking
+again, so an acknowledged command can never be refused later, inside the running loop, for
+its own targets. The limits are the published ones (``SafetyLimits.published``, the float32
+values ``DeviceHello`` carries), so a host asking for exactly a published limit is accepted
+and the controller enforces exactly what was accepted.
+
+Plain Python and numpy: no compiled code, no I/O.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device.axes import AXES
+from device.geometry import Geometry
+from device.limits import LEG_HEADROOM, SafetyLimits
+from device.protocol import messages as msg
+from device.protocol.messages import DeviceMode, NackCode
+from device.trips import Trip
+from device.waveforms import SINE_HZ_MAX, AxisTarget, Waveform
+
+SEGMENT_DURATION_MAX = 3600.0
+"""Longest segment (s)."""
+WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = 50, 2000
+
+
+class CommandError(ValueError):
+    """A command the device refuses; nothing was changed. The service answers it as a NACK
+    with this code, the field at fault and the sentence."""
+
+    def __init__(self, text: str, field: str = "", code: NackCode = NackCode.OUT_OF_RANGE) -> None:
+        super().__init__(text)
+        self.code = code
+        self.field = field
+
+
+@dataclass(frozen=True)
+class CheckedSegment:
+    """A ``StartSegment`` that passed every check: what the mode machine runs."""
+
+    segment_id: int
+    duration: float
+    targets: tuple[AxisTarget, ...]
+    """Six targets relative to home, in axis order."""
+    stiffness: tuple[float, ...]
+    damping: tuple[float, ...]
+    compliant: tuple[bool, ...]
+    rom_low: tuple[float, ...]
+    rom_high: tuple[float, ...]
+    force_limit: float
+    torque_limit: float
+
+
+@dataclass(frozen=True)
+class CheckedImpedance:
+    stiffness: tuple[float, ...]
+    damping: tuple[float, ...]
+    compliant: tuple[bool, ...]
+
+
+@dataclass(frozen=True)
+class Context:
+    """What a command is checked against: the device's published limits and its state."""
+
+    limits: SafetyLimits
+    geometry: Geometry
+    mode: DeviceMode
+    trip: Trip = Trip.NONE
+    telemetry_hz_max: int = 250
+    compliant: tuple[bool, ...] | None = None
+    """The loaded segment's compliant axes (for a live impedance change)."""
+    legs: tuple[float, ...] | None = None
+    """Measured piston displacements (m), for homing."""
+
+
+Checked = msg.Message | CheckedSegment | CheckedImpedance
+
+
+# -- the one entry point of the device service -------------------------------------------
+
+
+def check(command: msg.Message, ctx: Context) -> Checked:
+    """Check one host command; returns what to apply, or raises :class:`CommandError`."""
+    bad = msg.non_finite_field(command)
+    if bad is not None:
+        raise CommandError(f"{bad} must be finite numbers", bad, NackCode.NOT_FINITE)
+    if isinstance(command, msg.Heartbeat | msg.EStop | msg.ReplayEvents | msg.HoldCmd):
+        return command
+    if isinstance(command, msg.Configure):
+        check_configure(command.telemetry_hz, command.watchdog_ms, ctx.telemetry_hz_max)
+        return command
+    if isinstance(command, msg.Rearm):
+        require_mode(ctx.mode, (DeviceMode.ESTOP, DeviceMode.FAULT), "nothing to re-arm")
+        return command
+    if isinstance(command, msg.Release):
+        require_mode(
+            ctx.mode,
+            (
+                DeviceMode.IDLE,
+                DeviceMode.READY,
+                DeviceMode.HOLD,
+                DeviceMode.ESTOP,
+                DeviceMode.FAULT,
+            ),
+            "hold first",
+        )
+        return command
+    check_not_latched(ctx.mode, ctx.trip)
+    if isinstance(command, msg.ArmHome):
+        require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD))
+        if ctx.legs is not None:
+            check_leg_targets(ctx.legs, ctx.geometry, ctx.limits, "homing starts from")
+        return command
+    if isinstance(command, msg.StartSegment):
+        require_mode(ctx.mode, (DeviceMode.READY, DeviceMode.ACTIVE))
+        return check_segment(command, ctx.limits, ctx.geometry)
+    if isinstance(command, msg.SetImpedance):
+        require_mode(ctx.mode, (DeviceMode.ACTIVE, DeviceMode.HOLD), "no segment is loaded")
+        compliant = ctx.compliant if ctx.compliant is not None else (True,) * 6
+        check_impedance(command.stiffness, command.damping, compliant, ctx.limits)
+        return CheckedImpedance(command.stiffness, command.damping, compliant)
+    if isinstance(command, msg.Resume):
+        require_mode(ctx.mode, (DeviceMode.HOLD,))
+        return command
+    raise CommandError(f"{type(command).__name__} is not a command", code=NackCode.UNKNOWN_COMMAND)
+
+
+# -- modes ---------------------------------------------------------------------------------
+
+
+def check_not_latched(mode: DeviceMode, trip: Trip) -> None:
+    if mode in (DeviceMode.ESTOP, DeviceMode.FAULT):
+        raise CommandError(f"{mode.name} ({trip.name}) is latched: re-arm", code=NackCode.LATCHED)
+
+
+def require_mode(mode: DeviceMode, allowed: Sequence[DeviceMode], why: str = "") -> None:
+    if mode not in allowed:
+        names = " or ".join(m.name for m in allowed)
+        text = f"not in {mode.name}: needs {names}"
+        raise CommandError(f"{text} ({why})" if why else text, code=NackCode.WRONG_MODE)
+
+
+# -- values --------------------------------------------------------------------------------
+
+
+def check_configure(telemetry_hz: int, watchdog_ms: int, telemetry_hz_max: int) -> None:
+    if not 1 <= telemetry_hz <= telemetry_hz_max:
+        raise CommandError(
+            f"telemetry_hz {telemetry_hz} outside 1..{telemetry_hz_max}", "telemetry_hz"
+        )
+    if not WATCHDOG_MS_MIN <= watchdog_ms <= WATCHDOG_MS_MAX:
+        raise CommandError(
+            f"watchdog_ms {watchdog_ms} outside {WATCHDOG_MS_MIN}..{WATCHDOG_MS_MAX}",
+            "watchdog_ms",
+        )
+
+
+def _finite(name: str, values: Sequence[float] | NDArray[np.float64]) -> NDArray[np.float64]:
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != (6,):
+        raise CommandError(f"{name} needs 6 values, got {arr.size}", name, NackCode.MALFORMED)
+    if not np.all(np.isfinite(arr)):
+        raise CommandError(f"{name} must be finite numbers", name, NackCode.NOT_FINITE)
+    return arr
+
+
+def check_impedance(
+    stiffness: Sequence[float] | NDArray[np.float64],
+    damping: Sequence[float] | NDArray[np.float64],
+    compliant: Sequence[bool],
+    limits: SafetyLimits,
+) -> None:
+    """K and B per axis within the device's maxima; a compliant axis needs one of them."""
+    K = _finite("stiffness", stiffness)
+    B = _finite("damping", damping)
+    for k, axis in enumerate(AXES):
+        if not 0.0 <= K[k] <= limits.stiffness_max[k]:
+            raise CommandError(
+                f"{axis} stiffness {K[k]:g} outside 0..{limits.stiffness_max[k]:g}", "stiffness"
+            )
+        if not 0.0 <= B[k] <= limits.damping_max[k]:
+            raise CommandError(
+                f"{axis} damping {B[k]:g} outside 0..{limits.damping_max[k]:g}", "damping"
+            )
+        if compliant[k] and K[k] == 0.0 and B[k] == 0.0:
+            raise CommandError(
+                f"{axis} is compliant: stiffness and damping cannot both be zero", "stiffness"
+            )
+
+
+def check_axis_targets(
+    targets: Sequence[AxisTarget],
+    rom_low: Sequence[float],
+    rom_high: Sequence[float],
+    limits: SafetyLimits,
+    where: str = "the range of motion",
+) -> None:
+    """Six waveforms: finite, inside ``rom_low..rom_high``, no faster than the device allows."""
+    if len(targets) != 6:
+        raise CommandError(f"targets need 6 axes, got {len(targets)}", "waveform")
+    for k, (axis, t) in enumerate(zip(AXES, targets, strict=True)):
+        values = (t.center, t.amplitude, t.frequency)
+        if not all(math.isfinite(v) for v in values):
+            raise CommandError(
+                f"{axis} target must be finite numbers", "center", NackCode.NOT_FINITE
+            )
+        if t.kind == Waveform.SINE and not 0.0 <= t.frequency <= SINE_HZ_MAX:
+            raise CommandError(
+                f"{axis} frequency {t.frequency:g} outside 0..{SINE_HZ_MAX:g} Hz", "frequency"
+            )
+        lo, hi = t.extent()
+        if lo < rom_low[k] or hi > rom_high[k]:
+            raise CommandError(
+                f"{axis} waveform spans {lo:.4g}..{hi:.4g}, outside {where} "
+                f"{rom_low[k]:.4g}..{rom_high[k]:.4g}",
+                "center",
+            )
+        speed = t.peak_speed()
+        if speed > limits.axis_speed_max[k]:
+            raise CommandError(
+                f"{axis} waveform peaks at {speed:.3g}/s, above {limits.axis_speed_max[k]:g}/s",
+                "frequency" if t.kind == Waveform.SINE else "ramp_rate",
+            )
+
+
+def check_reachable(
+    targets: Sequence[AxisTarget], geometry: Geometry, limits: SafetyLimits
+) -> None:
+    """Every pose the targets can combine (and home, where each segment starts from) keeps
+    every piston ``LEG_HEADROOM`` inside its stroke-end band.
+
+    Single axes fit in the stroke over their whole range, but extremes of several axes at
+    once may not (full roll and full pitch together need about 109 mm of a 100 mm stroke):
+    such a target is refused here rather than tripping STROKE_END when it is reached. The
+    box of the targets' extents is checked at its corners and edge midpoints.
+    """
+    axes = []
+    for t in targets:
+        lo, hi = t.extent()
+        lo, hi = min(lo, 0.0), max(hi, 0.0)
+        axes.append(sorted({lo, 0.5 * (lo + hi), hi}))
+    poses = np.array(list(itertools.product(*axes)), dtype=np.float64)
+    x = piston_displacements(poses + geometry.home_pose, geometry)
+    lo = limits.stroke_margin + LEG_HEADROOM
+    hi = geometry.stroke - limits.stroke_margin - LEG_HEADROOM
+    worst_low, worst_high = x.min(axis=0), x.max(axis=0)
+    for leg in range(6):
+        if worst_low[leg] < lo or worst_high[leg] > hi:
+            raise CommandError(
+                f"these targets together need leg {leg + 1} at "
+                f"{worst_low[leg] * 1e3:.1f}..{worst_high[leg] * 1e3:.1f} mm, beyond its "
+                f"usable {lo * 1e3:.0f}..{hi * 1e3:.0f} mm",
+                "center",
+            )
+
+
+def check_leg_targets(
+    displacement: Sequence[float] | NDArray[np.float64],
+    geometry: Geometry,
+    limits: SafetyLimits,
+    what: str = "leg displacement",
+) -> NDArray[np.float64]:
+    """Six piston displacements (m) strictly inside the stroke-end trip band."""
+    x = _finite("leg displacement", displacement)
+    m = limits.stroke_margin
+    bad = [i for i in range(6) if not m < x[i] < geometry.stroke - m]
+    if bad:
+        raise CommandError(
+            f"{what}: leg(s) {', '.join(str(i + 1) for i in bad)} outside "
+            f"{m * 1e3:.0f}..{(geometry.stroke - m) * 1e3:.0f} mm",
+            "legs",
+        )
+    return x
+
+
+def check_segment(c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry) -> CheckedSegment:
+    """Every field of a segment against the device's published limits."""
+    if c.segment_id == 0:
+        raise CommandError("segment_id 0 means none; use 1 or more", "segment_id")
+    if not 0.0 < c.duration <= SEGMENT_DURATION_MAX:
+        raise CommandError(
+            f"duration {c.duration:g} s outside (0, {SEGMENT_DURATION_MAX:g}]", "duration"
+        )
+    if not 0.0 < c.force_limit <= limits.force_limit:
+        raise CommandError(
+            f"force_limit {c.force_limit:g} N outside (0, {limits.force_limit:g}]", "force_limit"
+        )
+    if not 0.0 < c.torque_limit <= limits.torque_limit:
+        raise CommandError(
+            f"torque_limit {c.torque_limit:g} N m outside (0, {limits.torque_limit:g}]",
+            "torque_limit",
+        )
+    for k, axis in enumerate(AXES):
+        lo, hi = c.rom_low[k], c.rom_high[k]
+        if not limits.rom_low[k] <= lo <= hi <= limits.rom_high[k]:
+            raise CommandError(
+                f"{axis} range {lo:.4g}..{hi:.4g} is not within the device's "
+                f"{limits.rom_low[k]:.4g}..{limits.rom_high[k]:.4g}",
+                "rom_low" if lo < limits.rom_low[k] or lo > hi else "rom_high",
+            )
+    targets = tuple(segment_targets(c))
+    check_axis_targets(targets, c.rom_low, c.rom_high, limits, "the segment's range")
+    check_reachable(targets, geometry, limits)
+    check_impedance(c.stiffness, c.damping, c.compliant, limits)
+    return CheckedSegment(
+        segment_id=c.segment_id,
+        duration=c.duration,
+        targets=targets,
+        stiffness=tuple(float(v) for v in c.stiffness),
+        damping=tuple(float(v) for v in c.damping),
+        compliant=tuple(bool(v) for v in c.compliant),
+        rom_low=tuple(float(v) for v in c.rom_low),
+        rom_high=tuple(float(v) for v in c.rom_high),
+        force_limit=float(c.force_limit),
+        torque_limit=float(c.torque_limit),
+    )
+
+
+def segment_targets(c: msg.StartSegment) -> list[AxisTarget]:
+    """The six waveforms a segment message describes."""
+    out = []
+    for k in range(6):
+        kind = Waveform(c.waveform[k])
+        if kind == Waveform.SINE:
+            out.append(AxisTarget(kind, c.center[k], c.amplitude[k], c.frequency[k]))
+        elif kind == Waveform.RAMP:
+            out.append(AxisTarget.ramp(c.center[k], c.ramp_end[k], c.ramp_rate[k]))
+        else:
+            out.append(AxisTarget(Waveform.HOLD, c.center[k]))
+    return out
+
+
+# -- kinematics for the checks (numpy; the controller has its own compiled copy) ---------
+
+
+def piston_displacements(poses: NDArray[np.float64], geometry: Geometry) -> NDArray[np.float64]:
+    """(n, 6) piston displacements (m) of (n, 6) absolute poses by inverse kinematics."""
+    poses = np.atleast_2d(poses)
+    roll, pitch, yaw = poses[:, 3], poses[:, 4], poses[:, 5]
+    cr, sr, cp, sp, cy, sy = (
+        np.cos(roll),
+        np.sin(roll),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(yaw),
+        np.sin(yaw),
+    )
+    R = np.empty((poses.shape[0], 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sp, cp * sr, cp * cr
+    joints = np.einsum("nij,lj->nli", R, geometry.platform_joints) + poses[:, None, :3]
+    lengths = np.linalg.norm(joints - geometry.base_joints[None, :, :], axis=2)
+    result: NDArray[np.float64] = lengths - geometry.min_length
+    return result

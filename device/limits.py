@@ -1,0 +1,106 @@
+"""The device's own limits: what it refuses to be asked and what trips it when exceeded.
+
+Plain Python and numpy: the protocol publishes these in ``DeviceHello`` and every layer above
+(the prescription model, the station, the dashboard) reads them from there or from here,
+without the compiled controller. The device runs on exactly the values it publishes:
+:meth:`SafetyLimits.published` rounds every limit to the float32 the wire carries, and the
+controller, the command checks (:mod:`device.commands`) and ``DeviceHello`` all use that one
+copy, so a host that asks for exactly a published limit is never refused by a rounding.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+LEG_HEADROOM = 0.003
+"""Commanded piston positions keep this far inside the stroke-end trip band (m): the
+tracking error of a sine (under 1 mm) and a step's overshoot (under 5 % of 10 mm) fit in
+it, so a target the device accepted never drives a piston into its end stop, and a patient
+who pushes a compliant axis into a corner of the workspace meets a soft wall, not a trip."""
+
+
+def to_float32(value: float) -> float:
+    """``value`` as the wire's float32 carries it, back as a Python float."""
+    return float(np.float32(value))
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """The device's own limits. Commands asking for more are refused; motion beyond trips.
+
+    Angles in radians, lengths in metres. The range of motion fits inside the stroke of the
+    placeholder geometry for every single-axis excursion and stays within normal adult ankle
+    ranges (dorsiflexion about 20 deg, plantarflexion about 45 deg, inversion 30 deg,
+    eversion 20 deg): the narrower of the two wins.
+    """
+
+    # Ranges are relative to the home pose.
+    rom_low: tuple[float, ...] = (-0.03, -0.03, -0.025, -0.35, -0.40, -0.30)
+    rom_high: tuple[float, ...] = (0.03, 0.03, 0.025, 0.35, 0.40, 0.30)
+    rom_trip_margin: tuple[float, ...] = (0.005, 0.005, 0.005, 0.05, 0.05, 0.05)
+    """How far past the range of motion the measured pose may go before a trip (commands are
+    clamped to the range; the margin covers tracking error)."""
+    force_limit: float = 400.0
+    """Largest force magnitude on the foot plate (N)."""
+    torque_limit: float = 60.0
+    """Largest torque on the foot plate about any axis (N m)."""
+    leg_speed_limit: float = 0.40
+    """Largest piston speed (m/s): well above a 7 Hz, 2 deg pitch sine (0.1 m/s)."""
+    stroke_margin: float = 0.002
+    """A piston this close to either end of its stroke trips (m)."""
+    stiffness_max: tuple[float, ...] = (20000.0, 20000.0, 20000.0, 500.0, 500.0, 500.0)
+    """Largest K per axis (N/m, N m/rad)."""
+    damping_max: tuple[float, ...] = (2000.0, 2000.0, 2000.0, 50.0, 50.0, 50.0)
+    """Largest B per axis (N s/m, N m s/rad)."""
+    stiffness_slew: tuple[float, ...] = (20000.0, 20000.0, 20000.0, 200.0, 200.0, 200.0)
+    """Largest rate of change of K in force per axis (per second): a live change from 20 to
+    100 N m/rad takes 0.4 s, so the patient never feels a jump."""
+    damping_slew: tuple[float, ...] = (2000.0, 2000.0, 2000.0, 20.0, 20.0, 20.0)
+    """Largest rate of change of B per axis (per second)."""
+
+    axis_speed_max: tuple[float, ...] = (0.10, 0.10, 0.10, 2.0, 2.0, 2.0)
+    """Fastest target waveform a command may ask for per axis (m/s, rad/s): a 7 Hz, 2 deg
+    pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion."""
+
+    def as_array(self) -> NDArray[np.float64]:
+        """(8, 6) array for the compiled controller: rows as the fields, in order."""
+        return np.array(
+            [
+                self.rom_low,
+                self.rom_high,
+                self.rom_trip_margin,
+                self.stiffness_max,
+                self.damping_max,
+                self.stiffness_slew,
+                self.damping_slew,
+                (
+                    self.force_limit,
+                    self.torque_limit,
+                    self.leg_speed_limit,
+                    self.stroke_margin,
+                    0.0,
+                    0.0,
+                ),
+            ],
+            dtype=np.float64,
+        )
+
+    def published(self) -> SafetyLimits:
+        """These limits rounded to float32, exactly as ``DeviceHello`` carries them."""
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            values[f.name] = (
+                tuple(to_float32(x) for x in v) if isinstance(v, tuple) else to_float32(v)
+            )
+        return SafetyLimits(**values)
+
+
+ROW_ROM_LOW, ROW_ROM_HIGH, ROW_ROM_MARGIN = 0, 1, 2
+ROW_K_MAX, ROW_B_MAX, ROW_K_SLEW, ROW_B_SLEW, ROW_SCALARS = 3, 4, 5, 6, 7
+"""Rows of :meth:`SafetyLimits.as_array`, the compiled controller's copy."""

@@ -1,0 +1,274 @@
+"""The device's mode machine: homing, segment phases, hold and resume, e-stop, release, faults.
+
+::
+
+    IDLE --arm/home--> HOMING --at home--> READY --segment--> ACTIVE --done--> READY
+                                                       ACTIVE <--resume-- HOLD <--hold/watchdog--
+    any --e-stop--> ESTOP;  a tripped limit or a software error --> FAULT;
+    ESTOP/FAULT --re-arm--> IDLE
+
+It acts on commands that :mod:`device.commands` already checked, so it never refuses one;
+it moves the controller only through the rig's methods; it reports every change through the
+``on_event`` callback. The device service owns the loop, the link, the replies and the
+telemetry around it. Valves are closed in every mode but HOMING and ACTIVE, and nothing
+moves again after a stop until the host asks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device.commands import CheckedImpedance, CheckedSegment
+from device.controller import Mode
+from device.protocol.messages import DeviceMode, EventKind
+from device.rig import Rig
+from device.trips import Trip
+from device.waveforms import AxisTarget
+
+HOMING_LEG_SPEED = 0.010
+"""Piston speed while homing (m/s): 5 s across the whole stroke."""
+HOMING_TOLERANCE = 0.4e-3
+"""Every piston this close to mid-stroke counts as home (m)."""
+HOMING_SETTLE = 0.2
+"""...for this long (s)."""
+HOMING_TIMEOUT_EXTRA = 5.0
+"""Seconds allowed beyond the planned homing move before it is a fault."""
+APPROACH_SPEED = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
+"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s."""
+RETURN_SETTLE = 0.1
+"""Time allowed after the move home before a segment counts as done (s)."""
+
+FAULT_TRIPS = (Trip.SENSOR_INVALID, Trip.KINEMATICS, Trip.COMMAND_INVALID, Trip.HOMING)
+"""Trips reported as FAULT events; the others are limits the motion reached (LIMIT)."""
+
+EventSink = Callable[[EventKind, DeviceMode, DeviceMode, int, float, str], None]
+"""``(kind, mode_from, mode_to, code, value, text)``."""
+
+
+@dataclass
+class Segment:
+    plan: CheckedSegment
+    phase: str = "approach"
+    """approach (to the waveform's start), run (the exercise), return (to home)."""
+    phase_end: float = 0.0
+    """Device time the current approach/return move ends."""
+    run_start: float = 0.0
+    paused: float = 0.0
+    """Time spent in HOLD since the run phase started (s)."""
+    hold_start: float = 0.0
+
+
+class ModeMachine:
+    """Modes of one device, on one rig."""
+
+    def __init__(self, rig: Rig, on_event: EventSink) -> None:
+        self.rig = rig
+        self.on_event = on_event
+        self.mode = DeviceMode.IDLE
+        self.homed = False
+        self.segment: Segment | None = None
+        self._homing_start = 0.0
+        self._homing_from = np.zeros(6)
+        self._home_since: float | None = None
+
+    @property
+    def time(self) -> float:
+        return self.rig.time
+
+    @property
+    def trip(self) -> Trip:
+        return self.rig.trip
+
+    # -- commands (checked) --------------------------------------------------------------
+    def arm_home(self) -> None:
+        self._end_segment()
+        self.rig.set_vent(False)
+        s = self.rig.state
+        self._homing_start = self.time
+        self._homing_from = s.leg_x.copy()
+        self._home_since = None
+        self.rig.apply_leg_targets(s.leg_x.copy())
+        self.homed = False
+        self._set_mode(DeviceMode.HOMING, "homing")
+
+    def start_segment(self, plan: CheckedSegment) -> None:
+        self._end_segment()
+        self.rig.apply_impedance(plan.stiffness, plan.damping, plan.compliant)
+        seg = Segment(plan)
+        self._move_to(np.array([t.center for t in plan.targets]), seg)
+        self.segment = seg
+        self._set_mode(DeviceMode.ACTIVE, f"segment {plan.segment_id}")
+
+    def set_impedance(self, c: CheckedImpedance) -> None:
+        self.rig.apply_impedance(c.stiffness, c.damping, c.compliant)
+
+    def resume(self) -> None:
+        seg = self.segment
+        if seg is None:  # checked: HOLD always has a segment; stay safe if not
+            return
+        pause = self.time - seg.hold_start
+        self.rig.shift_trajectory(pause)  # the waveform continues where it paused
+        seg.phase_end += pause
+        if seg.phase == "run":
+            seg.paused += pause
+        self.rig.resume_task()
+        self._set_mode(DeviceMode.ACTIVE, "resumed")
+
+    def hold(
+        self, kind: EventKind = EventKind.MODE_CHANGE, why: str = "hold", value: float = 0.0
+    ) -> None:
+        """ACTIVE -> HOLD, HOMING -> IDLE; anything else is left as it is."""
+        if self.mode == DeviceMode.ACTIVE:
+            self.rig.hold()
+            if self.segment is not None:
+                self.segment.hold_start = self.time
+            self._set_mode(DeviceMode.HOLD, why, kind=kind, value=value)
+        elif self.mode == DeviceMode.HOMING:
+            self.rig.hold()
+            self._set_mode(DeviceMode.IDLE, f"{why}: homing stopped", kind=kind, value=value)
+
+    def estop(self) -> None:
+        self.rig.estop()
+        self.rig.set_vent(False)
+        self._end_segment()
+        self.homed = False
+        if self.mode != DeviceMode.ESTOP:
+            self._set_mode(
+                DeviceMode.ESTOP, "emergency stop", kind=EventKind.ESTOP, code=Trip.ESTOP
+            )
+
+    def rearm(self) -> None:
+        self.rig.rearm()
+        self._set_mode(DeviceMode.IDLE, "re-armed; home before moving")
+
+    def release(self) -> None:
+        self.rig.set_vent(True)
+        self.homed = False
+        if self.mode in (DeviceMode.READY, DeviceMode.HOLD):
+            self._end_segment()
+            self._set_mode(DeviceMode.IDLE, "releasing: the platform sinks; home before moving")
+
+    def fault(self, code: Trip, text: str) -> None:
+        """Latch FAULT now (valves closed at the hardware too), e.g. on a software error."""
+        self.rig.latch_trip(code)
+        self.rig.close_valves_now()
+        self._end_segment()
+        self.homed = False
+        if self.mode != DeviceMode.FAULT:
+            self._set_mode(DeviceMode.FAULT, text, kind=EventKind.FAULT, code=code)
+
+    def watchdog(self, silent_ms: float, limit_ms: float) -> None:
+        if self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING) and silent_ms > limit_ms:
+            self.hold(EventKind.WATCHDOG, f"no valid frame for {silent_ms:.0f} ms", silent_ms)
+
+    # -- supervision, once per pass -------------------------------------------------------
+    def step(self) -> None:
+        if self.rig.mode == Mode.FAULT and self.mode not in (DeviceMode.ESTOP, DeviceMode.FAULT):
+            trip = self.rig.trip
+            self._end_segment()
+            self.homed = False
+            kind = EventKind.FAULT if trip in FAULT_TRIPS else EventKind.LIMIT
+            self._set_mode(DeviceMode.FAULT, f"trip: {trip.name}", kind=kind, code=trip)
+            return
+        if self.mode == DeviceMode.HOMING:
+            self._homing_step()
+        elif self.mode == DeviceMode.ACTIVE and self.segment is not None:
+            self._segment_step(self.segment)
+
+    def segment_time(self) -> float:
+        """Time into the running segment, pauses excluded (0 before its run starts)."""
+        seg = self.segment
+        if seg is None or seg.phase == "approach":
+            return 0.0
+        now = seg.hold_start if self.mode == DeviceMode.HOLD else self.time
+        return min(now - seg.run_start - seg.paused, seg.plan.duration)
+
+    def _homing_step(self) -> None:
+        s = self.rig.state
+        mid = 0.5 * self.rig.geometry.stroke
+        elapsed = self.time - self._homing_start
+        travel = HOMING_LEG_SPEED * elapsed
+        target = np.empty(6)
+        rate = np.empty(6)
+        for i in range(6):
+            d = mid - self._homing_from[i]
+            step = min(abs(d), travel)
+            target[i] = self._homing_from[i] + math.copysign(step, d)
+            rate[i] = 0.0 if step >= abs(d) else math.copysign(HOMING_LEG_SPEED, d)
+        self.rig.apply_leg_targets(target, rate)
+        planned = float(np.max(np.abs(mid - self._homing_from))) / HOMING_LEG_SPEED
+        if np.all(np.abs(s.leg_x - mid) < HOMING_TOLERANCE) and elapsed >= planned:
+            if self._home_since is None:
+                self._home_since = self.time
+            elif self.time - self._home_since >= HOMING_SETTLE:
+                self.rig.hold()
+                self.homed = True
+                self._set_mode(DeviceMode.READY, "at home", kind=EventKind.HOMED)
+        else:
+            self._home_since = None
+            if elapsed > planned + HOMING_TIMEOUT_EXTRA:
+                self.rig.latch_trip(Trip.HOMING)
+
+    def _move_to(self, start: NDArray[np.float64], seg: Segment) -> None:
+        """Ramp every axis from where the command is now to ``start`` (relative to home).
+
+        Built valid: the start point is clipped into the device's range and the ramps run
+        at the approach speeds, below every axis speed limit.
+        """
+        s = self.rig.state
+        home = self.rig.geometry.home_pose
+        now = s.pose_cmd - home - s.x_m if self.rig.mode == Mode.TASK else s.pose - home
+        lim = self.rig.limits
+        now = np.clip(now, lim.rom_low, lim.rom_high)
+        longest = 0.0
+        targets = []
+        for k in range(6):
+            rate = APPROACH_SPEED[k]
+            targets.append(AxisTarget.ramp(float(now[k]), float(start[k]), rate))
+            longest = max(longest, abs(float(start[k]) - float(now[k])) / rate)
+        self.rig.apply_track(targets)
+        seg.phase_end = self.time + longest
+
+    def _segment_step(self, seg: Segment) -> None:
+        t = self.time
+        plan = seg.plan
+        if seg.phase == "approach" and t >= seg.phase_end:
+            self.rig.apply_track(plan.targets)
+            self.rig.narrow_limits(plan.rom_low, plan.rom_high, plan.force_limit, plan.torque_limit)
+            seg.phase = "run"
+            seg.run_start = t
+            seg.paused = 0.0
+        elif seg.phase == "run" and t - seg.run_start - seg.paused >= plan.duration:
+            self.rig.restore_limits()
+            self._move_to(np.zeros(6), seg)
+            seg.phase = "return"
+        elif seg.phase == "return" and t >= seg.phase_end + RETURN_SETTLE:
+            self.rig.hold()
+            self.segment = None
+            self._set_mode(
+                DeviceMode.READY, f"segment {plan.segment_id} done", kind=EventKind.SEGMENT_DONE
+            )
+
+    def _end_segment(self) -> None:
+        self.rig.restore_limits()
+        self.segment = None
+        if self.rig.mode != Mode.TASK:
+            # Nothing is rendered any more: the next segment's K and B start where it asks,
+            # not slewed from this one's. (While running, a new segment slews as it must.)
+            self.rig.release_impedance()
+
+    def _set_mode(
+        self,
+        mode: DeviceMode,
+        text: str,
+        kind: EventKind = EventKind.MODE_CHANGE,
+        code: int = 0,
+        value: float = 0.0,
+    ) -> None:
+        before, self.mode = self.mode, mode
+        self.on_event(kind, before, mode, int(code), value, text)

@@ -1,0 +1,305 @@
+"""Every command is checked once, against exactly the limits the device publishes.
+
+The checks themselves (pure), then the real service on a pty: values at, just inside and just
+outside every published limit (float32 neighbours of the exact bound) are each ACKed or
+NACKed as the one check module says, the service never dies, and accepted segments at the
+extremes of what is allowed run without tripping the device by their own targets.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from device import commands
+from device.client import CommandRefused, DeviceClient, build_segment
+from device.commands import CommandError, Context
+from device.geometry import DEFAULT_GEOMETRY
+from device.hardware import SimulatedHardware
+from device.limits import SafetyLimits
+from device.plant.params import PlantConfig
+from device.protocol import messages as m
+from device.protocol.messages import DeviceMode, NackCode
+from device.rig import Rig
+from device.service import DeviceService, ServiceConfig
+from device.transport import PtyLink
+from device.trips import Trip
+from device.waveforms import Waveform
+
+LIMITS = SafetyLimits().published()
+
+
+def up(x: float) -> float:
+    """The next float32 above ``x`` (what a host can send just past a published bound)."""
+    return float(np.nextafter(np.float32(x), np.float32(np.inf)))
+
+
+def down(x: float) -> float:
+    return float(np.nextafter(np.float32(x), np.float32(-np.inf)))
+
+
+def hello() -> m.DeviceHello:
+    lim = LIMITS
+    return m.DeviceHello(
+        rom_low=lim.rom_low,
+        rom_high=lim.rom_high,
+        force_limit=lim.force_limit,
+        torque_limit=lim.torque_limit,
+    )
+
+
+def segment(**axes_and_fields: object) -> m.StartSegment:
+    base = build_segment(hello(), 1, 5.0, {})
+    return dataclasses.replace(base, **axes_and_fields)  # type: ignore[arg-type]
+
+
+def with_axis(field: str, k: int, value: object, seg: m.StartSegment) -> m.StartSegment:
+    values = list(getattr(seg, field))
+    values[k] = value
+    changed: dict[str, object] = {field: tuple(values)}
+    return dataclasses.replace(seg, **changed)  # type: ignore[arg-type]
+
+
+def ready() -> Context:
+    return Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.READY)
+
+
+def verdict(command: m.Message, ctx: Context) -> NackCode | None:
+    try:
+        commands.check(command, ctx)
+    except CommandError as exc:
+        return exc.code
+    return None
+
+
+def test_the_published_limits_are_float32_and_the_rig_runs_on_them() -> None:
+    rig = Rig(SimulatedHardware(PlantConfig(patient="absent")))
+    assert rig.limits == LIMITS
+    for value in (*LIMITS.rom_high, *LIMITS.stiffness_max, LIMITS.torque_limit):
+        assert float(np.float32(value)) == value
+    assert np.array_equal(rig.params.limits, LIMITS.as_array())
+
+
+@pytest.mark.parametrize("k", range(6))
+def test_a_hold_on_each_range_bound_is_accepted_and_just_past_it_refused(k: int) -> None:
+    for bound, past in (
+        (LIMITS.rom_high[k], up(LIMITS.rom_high[k])),
+        (LIMITS.rom_low[k], down(LIMITS.rom_low[k])),
+    ):
+        seg = with_axis("center", k, bound, segment())
+        assert verdict(seg, ready()) is None, (k, bound)
+        outside = with_axis("center", k, past, segment())
+        assert verdict(outside, ready()) == NackCode.OUT_OF_RANGE
+        wider = with_axis("rom_high" if past > bound else "rom_low", k, past, segment())
+        assert verdict(wider, ready()) == NackCode.OUT_OF_RANGE
+
+
+@pytest.mark.parametrize("k", range(3, 6))
+def test_stiffness_damping_and_speed_bounds(k: int) -> None:
+    compliant = with_axis("compliant", k, True, segment())
+    at_k = with_axis("stiffness", k, LIMITS.stiffness_max[k], compliant)
+    assert verdict(at_k, ready()) is None
+    assert verdict(with_axis("stiffness", k, up(LIMITS.stiffness_max[k]), compliant), ready())
+    at_b = with_axis("damping", k, LIMITS.damping_max[k], compliant)
+    assert verdict(at_b, ready()) is None
+    assert verdict(with_axis("damping", k, up(LIMITS.damping_max[k]), compliant), ready())
+    # A ramp at exactly the axis speed limit is accepted, just above it refused.
+    ramp = with_axis("waveform", k, Waveform.RAMP, segment())
+    ramp = with_axis("ramp_end", k, 0.1, ramp)
+    assert verdict(with_axis("ramp_rate", k, LIMITS.axis_speed_max[k], ramp), ready()) is None
+    too_fast = with_axis("ramp_rate", k, up(LIMITS.axis_speed_max[k]), ramp)
+    with pytest.raises(CommandError) as err:
+        commands.check(too_fast, ready())
+    assert err.value.field == "ramp_rate" and "above" in str(err.value)
+
+
+def test_targets_no_leg_can_reach_together_are_refused_with_the_leg_named() -> None:
+    seg = with_axis("center", 3, LIMITS.rom_high[3], segment())
+    seg = with_axis("center", 4, LIMITS.rom_high[4], seg)
+    with pytest.raises(CommandError) as err:
+        commands.check(seg, ready())
+    assert "leg" in str(err.value) and "mm" in str(err.value)
+    # Each alone is fine: it is the combination the stroke cannot give.
+    assert verdict(with_axis("center", 3, 0.0, seg), ready()) is None
+    assert verdict(with_axis("center", 4, 0.0, seg), ready()) is None
+
+
+def test_modes_are_part_of_the_check() -> None:
+    idle = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.IDLE)
+    assert verdict(segment(), idle) == NackCode.WRONG_MODE
+    latched = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.FAULT, Trip.SOFTWARE)
+    assert verdict(m.ArmHome(), latched) == NackCode.LATCHED
+    assert verdict(m.Rearm(), latched) is None
+    assert verdict(m.SetImpedance(), ready()) == NackCode.WRONG_MODE
+    assert verdict(dataclasses.replace(segment(), duration=math.nan), ready()) == (
+        NackCode.NOT_FINITE
+    )
+
+
+# -- through the real wire -----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def service() -> Iterator[DeviceService]:
+    link = PtyLink()
+    svc = DeviceService(
+        Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=11)), link, ServiceConfig()
+    )
+    thread = threading.Thread(target=svc.run, daemon=True)
+    thread.start()
+    yield svc
+    svc.stop()
+    thread.join(5.0)
+    assert not thread.is_alive()
+    svc.shutdown()
+
+
+def _values(bound: float, sign: float) -> st.SearchStrategy[float]:
+    """At, just inside and just outside a bound, and a few float32 steps either side."""
+    b = np.float32(bound)
+    near = [float(np.nextafter(b, np.float32(sign * np.inf)) if i else b) for i in range(2)]
+    near.append(float(np.nextafter(b, np.float32(-sign * np.inf))))
+    span = 0.05 * abs(bound) + 1e-3
+    lo = float(np.float32(float(bound) - span))
+    hi = float(np.float32(float(bound) + span))
+    return st.sampled_from(near) | st.floats(min_value=lo, max_value=hi, width=32)
+
+
+BOUNDARY = st.one_of(
+    st.tuples(st.just("center"), st.integers(0, 5), st.booleans()).flatmap(
+        lambda t: st.tuples(
+            st.just(t[0]),
+            st.just(t[1]),
+            _values(LIMITS.rom_high[t[1]] if t[2] else LIMITS.rom_low[t[1]], 1 if t[2] else -1),
+        )
+    ),
+    st.integers(3, 5).flatmap(
+        lambda k: st.tuples(st.just("stiffness"), st.just(k), _values(LIMITS.stiffness_max[k], 1))
+    ),
+    st.integers(3, 5).flatmap(
+        lambda k: st.tuples(st.just("damping"), st.just(k), _values(LIMITS.damping_max[k], 1))
+    ),
+    st.tuples(st.just("torque_limit"), st.just(-1), _values(LIMITS.torque_limit, 1)),
+    st.tuples(st.just("force_limit"), st.just(-1), _values(LIMITS.force_limit, 1)),
+)
+
+
+def test_boundary_commands_through_the_wire_match_the_check_and_never_kill_the_service(
+    service: DeviceService,
+) -> None:
+    """StartSegment, SetImpedance and Configure at and around every published bound."""
+
+    async def main() -> None:
+        dev = await DeviceClient.connect(service.link.name)
+        try:
+            assert dev.hello is not None
+            assert dev.hello.stiffness_max == LIMITS.stiffness_max  # what the host is told
+            await dev.arm_home()
+            await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            sent = {"ack": 0, "nack": 0}
+
+            @settings(
+                max_examples=60,
+                suppress_health_check=list(HealthCheck),
+                derandomize=True,
+            )
+            @given(change=BOUNDARY)
+            def one(change: tuple[str, int, float]) -> None:
+                name, k, value = change
+                seg = segment(segment_id=7, duration=0.05)
+                if k >= 0:
+                    seg = with_axis(name, k, value, seg)
+                    if name in ("stiffness", "damping"):
+                        seg = with_axis("compliant", k, True, seg)
+                        seg = with_axis(
+                            "damping" if name == "stiffness" else "stiffness", k, 1.0, seg
+                        )
+                else:
+                    scalar: dict[str, object] = {name: value}
+                    seg = dataclasses.replace(seg, **scalar)  # type: ignore[arg-type]
+                ctx = dataclasses.replace(ready(), mode=service.mode)
+                expected = verdict(seg, ctx)
+
+                async def send() -> NackCode | None:
+                    try:
+                        await dev.start_segment(seg)
+                    except CommandRefused as exc:
+                        return exc.nack.code
+                    return None
+
+                got = asyncio.run_coroutine_threadsafe(send(), loop).result(5.0)
+                assert got == expected, (change, got, expected)
+                sent["nack" if got else "ack"] += 1
+
+            loop = asyncio.get_running_loop()
+            await asyncio.to_thread(one)
+            assert sent["ack"] > 5 and sent["nack"] > 5, sent
+            # Configure and SetImpedance at their bounds.
+            await dev.configure(dev.hello.telemetry_hz_max, dev.hello.watchdog_ms_max)
+            with pytest.raises(CommandRefused):
+                await dev.configure(dev.hello.telemetry_hz_max + 1, 200)
+            await dev.configure(100, dev.hello.watchdog_ms_min)
+            with pytest.raises(CommandRefused):
+                await dev.configure(100, dev.hello.watchdog_ms_min - 1)
+            await dev.configure(100, 200)
+            assert service.software_faults == 0
+            assert service.rig.trip == Trip.NONE
+        finally:
+            await dev.close()
+
+    asyncio.run(main())
+
+
+EXTREMES = {
+    "pitch held at its published high end": {"center": (4, LIMITS.rom_high[4])},
+    "pitch held at its published low end": {"center": (4, LIMITS.rom_low[4])},
+    "roll sine over the whole range at the speed limit": {
+        "waveform": (3, Waveform.SINE),
+        "amplitude": (3, LIMITS.rom_high[3]),
+        "frequency": (3, 0.9999 * LIMITS.axis_speed_max[3] / (2 * math.pi * LIMITS.rom_high[3])),
+    },
+    "yaw ramp end to end at the speed limit": {
+        "waveform": (5, Waveform.RAMP),
+        "center": (5, LIMITS.rom_low[5]),
+        "ramp_end": (5, LIMITS.rom_high[5]),
+        "ramp_rate": (5, LIMITS.axis_speed_max[5]),
+    },
+    "heave held at its published high end": {"center": (2, LIMITS.rom_high[2])},
+}
+
+
+@pytest.mark.parametrize("name", list(EXTREMES))
+def test_an_accepted_extreme_segment_runs_without_tripping(
+    service: DeviceService, name: str
+) -> None:
+    seg = segment(segment_id=9, duration=2.5)
+    for field, (k, value) in EXTREMES[name].items():
+        seg = with_axis(field, k, value, seg)
+    seg = dataclasses.replace(seg, duration=2.5)
+    assert verdict(seg, ready()) is None, "the extreme must be one the device accepts"
+
+    async def main() -> None:
+        dev = await DeviceClient.connect(service.link.name)
+        try:
+            if service.mode == DeviceMode.ACTIVE:  # the last short segment, still returning
+                await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            if service.mode != DeviceMode.READY:
+                await dev.arm_home()
+                await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            await dev.start_segment(seg)
+            await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=2.0)
+            t = await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            assert t.trip == Trip.NONE
+        finally:
+            await dev.close()
+
+    asyncio.run(main())
+    assert service.rig.trip == Trip.NONE and service.mode == DeviceMode.READY
