@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from device.linkbench import TARGETS as LINK_TARGETS
 from device.process import ServiceProcess
 from device.protocol.messages import markdown_table
+from lab.linkbench import TARGETS as LINK_TARGETS
 
 ANKLE = [sys.executable, "-m", "ankle.cli"]
 

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from device import experiments as ex
+from lab import experiments as ex
 
 
 @pytest.mark.parametrize(("leg", "mm"), [(1, 10.0), (4, -10.0), (2, 10.0)])

@@ -16,11 +16,11 @@ from numpy.typing import NDArray
 from device.controller import ControllerConfig, Waveform
 from device.geometry import AXES, AXIS_INDEX
 from device.hardware import SimulatedHardware
-from device.metrics import StepMetrics, sine_response, step_metrics, stiffness_slope
 from device.plant.model import SCRIPT_RAMP
 from device.plant.params import PlantConfig
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.tickloop import COL
+from lab.metrics import StepMetrics, sine_response, step_metrics, stiffness_slope
 
 SETTLE_S = 0.5
 """Time the platform is held at home under control before an experiment starts."""

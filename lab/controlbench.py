@@ -9,39 +9,19 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from device import experiments
 from device.controller import Waveform, controller_tasks
 from device.hardware import SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.rig import AxisTarget, Rig
 from device.scheduler import paper_tasks, schedule
-
-
-@dataclass(frozen=True)
-class Target:
-    key: str
-    label: str
-    bound: float
-    kind: str  # "max", "min" or "eq"
-
-    def met(self, value: float) -> bool:
-        if math.isnan(value):
-            return False
-        if self.kind == "max":
-            return value <= self.bound
-        if self.kind == "min":
-            return value >= self.bound
-        return value == self.bound
-
-    def text(self) -> str:
-        return {"max": "<= ", "min": ">= ", "eq": "= "}[self.kind] + f"{self.bound:g}"
-
+from lab import experiments
+from lab.targets import Target
+from lab.targets import table as targets_table
 
 TARGETS: tuple[Target, ...] = (
     Target("scheduler_max_tasks_per_interrupt", "scheduler: max tasks per interrupt", 2, "eq"),
@@ -146,7 +126,7 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     out["compile_s"] = compile_s
     out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS}
     if plots is not None:
-        from device import plots as figures
+        from lab import plots as figures
 
         trace = experiments.sine("pitch", 2.0, 7.0, cycles=4)
         out["plots"] = [
@@ -158,24 +138,6 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     return out
 
 
-def table(
-    result: dict[str, Any],
-    rows: tuple[tuple[str, str], ...] = ROWS,
-    targets_met: tuple[Target, ...] = TARGETS,
-) -> str:
-    """A benchmark as a Markdown table (what the README shows)."""
-    targets = {t.key: t for t in targets_met}
-    lines = ["| metric | value | target | met |", "|---|---:|---|---|"]
-    for key, label in rows:
-        value = result[key]
-        text = f"{value:.3g}" if isinstance(value, float) else str(value)
-        if isinstance(value, float) and abs(value) >= 1000:
-            text = f"{value:,.0f}"
-        if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
-            text = f"> {text} (top of sweep)"
-        tgt = targets.get(key)
-        lines.append(
-            f"| {label} | {text} | {tgt.text() if tgt else ''} | "
-            f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |"
-        )
-    return "\n".join(lines)
+def table(result: dict[str, Any]) -> str:
+    """The control benchmark as a Markdown table (what the README shows)."""
+    return targets_table(result, ROWS, TARGETS, result.get("invalid"))

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.figure import Figure
 
-from device.experiments import (
+from lab.experiments import (
     ImpedanceResult,
     SineResult,
     StaircaseResult,
