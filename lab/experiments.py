@@ -12,8 +12,10 @@ tripped (its trip code), and which limits it ran into:
   clamps to exactly that value), or the device tripped on RANGE_OF_MOTION. The platform then
   did not follow the experiment's own reference: this invalidates sine, sweep and impedance
   numbers.
-- ``valve_duty``: a chamber's valve was driven at full duty (``slots`` at +-28, the whole
-  4 ms PWM period) for at least :data:`VALVE_SATURATION_S` without a break. The response was
+- ``valve_duty``: a chamber's valve was driven at the largest duty the controller can
+  command (its pressure loop's output at +-100 %: ``slots`` at +-28, the whole 4 ms PWM
+  period, without dead-band compensation; +-21 with it, whose largest duty is
+  ``100 - d_dead`` = 75 %) for at least :data:`VALVE_SATURATION_S` without a break. The response was
   then limited by the valves' flow, not by the loop. This is the device's real large-signal
   behaviour (a 10 mm step's rise is flow-limited by design), so it is reported but does not
   by itself invalidate a number.
@@ -34,12 +36,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from device import pwm
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig
-from device.pwm import PWM_SLOTS
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.safety import SafetyLimits, Trip
 from device.tickloop import COL
@@ -54,9 +56,11 @@ from lab.metrics import (
 SETTLE_S = 0.5
 """Time the platform is held at home under control before an experiment starts."""
 
-VALVE_SATURATION_S = 0.05
-"""A valve at full duty this long without a break (12 PWM periods, longer than the 10-90 %
-rise of a 10 mm step would need if the valves were not the limit) counts as saturated."""
+VALVE_SATURATION_S = 0.012
+"""A valve held at the controller's largest duty this long without a break (three 4 ms PWM
+periods) counts as saturated: longer than any step transient needs (the largest step a leg
+can take, 45 mm, holds its valves there for 8 ms), so the loop was not in control of the
+flow."""
 ROM_TOLERANCE = 1e-9
 """How close (m or rad) the commanded pose must be to a range-of-motion bound to count as
 clamped there; the controller clamps to the bound exactly."""
@@ -109,7 +113,7 @@ class Health:
             parts.append(f"tripped {self.trip}{at}")
         notes = {
             "range_of_motion": "range of motion reached",
-            "valve_duty": f"valves at full duty for >= {VALVE_SATURATION_S * 1e3:.0f} ms",
+            "valve_duty": f"valves at largest duty for >= {VALVE_SATURATION_S * 1e3:.0f} ms",
             "leg_speed": "leg speed limit",
         }
         sat = [notes[k] for k in self.saturated if k in notes]
@@ -140,17 +144,22 @@ class Checked:
         return self.health.valid
 
 
-def _full_duty_runs(t: NDArray[np.float64], slots: NDArray[np.float64]) -> float:
-    """Longest time any chamber's valve stayed at full duty without a break (s)."""
+def full_duty_slots(rig: Rig) -> int:
+    """Slots of the largest duty the rig's controller commands (28, or 21 compensated)."""
+    return int(pwm.duty_slots(pwm.duty(100.0, rig.params.d_dead, rig.params.compensate)))
+
+
+def _full_duty_runs(t: NDArray[np.float64], slots: NDArray[np.float64], full: int) -> float:
+    """Longest time any chamber's valve stayed at ``full`` slots or more without a break (s)."""
     if t.size == 0:
         return 0.0
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     longest = 0.0
     for c in range(slots.shape[1]):
-        full = np.abs(slots[:, c]) >= PWM_SLOTS
-        if not full.any():
+        at_full = np.abs(slots[:, c]) >= full
+        if not at_full.any():
             continue
-        edges = np.diff(np.concatenate(([0], full.astype(np.int8), [0])))
+        edges = np.diff(np.concatenate(([0], at_full.astype(np.int8), [0])))
         starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
         for a, b in zip(starts, ends, strict=True):
             longest = max(longest, float(t[b - 1] - t[a]) + dt)
@@ -185,7 +194,7 @@ def assess(
     if rom:
         saturated.append("range_of_motion")
     slots = log[:, [COL[f"slots{c}"] for c in range(12)]]
-    if _full_duty_runs(log[:, 0], slots) >= VALVE_SATURATION_S:
+    if _full_duty_runs(log[:, 0], slots, full_duty_slots(rig)) >= VALVE_SATURATION_S:
         saturated.append("valve_duty")
     if trip == Trip.LEG_SPEED:
         saturated.append("leg_speed")
