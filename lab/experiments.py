@@ -262,13 +262,14 @@ def check_step(leg: int, mm: float, duration: float = 1.0) -> None:
     leg_index(leg)
     limits = SafetyLimits()
     # From mid-stroke the target must stay inside the stroke the device accepts.
-    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3 - 1e-9
+    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3
     smallest = MIN_STEP_COUNTS * LEG_SENSOR_M * 1e3
-    if not math.isfinite(mm) or not smallest <= abs(mm) <= largest:
+    if not math.isfinite(mm) or not smallest <= abs(mm) < largest:
         raise CommandError(
-            f"step must be {smallest:.2f}..{largest:.0f} mm either way (a 10-90 % rise needs "
-            f"its 10 % point resolved by the {LEG_SENSOR_M * 1e3:.3f} mm leg sensor; the "
-            f"target must stay inside the stroke), got {mm:g}"
+            f"step must be at least {smallest:.2f} and below {largest:g} mm either way "
+            f"(a 10-90 % rise needs its 10 % point resolved by the "
+            f"{LEG_SENSOR_M * 1e3:.3f} mm leg sensor; the target must stay inside the stroke), "
+            f"got {mm:g}"
         )
     if not math.isfinite(duration) or not 0.1 <= duration <= 60.0:
         raise CommandError("duration must be 0.1..60 s")
@@ -324,11 +325,12 @@ def check_staircase(leg: int, step_mm: float, steps: int = STAIR_STEPS) -> None:
     leg_index(leg)
     limits = SafetyLimits()
     smallest = MIN_STAIR_COUNTS * LEG_SENSOR_M * 1e3
-    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3 / steps - 1e-9
-    if not math.isfinite(step_mm) or not smallest <= abs(step_mm) <= largest:
+    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3 / steps
+    if not math.isfinite(step_mm) or not smallest <= abs(step_mm) < largest:
         raise CommandError(
-            f"staircase step must be {smallest:.3f}..{largest:.1f} mm either way (one leg "
-            f"sensor count up to {steps} steps within the half stroke), got {step_mm:g}"
+            f"staircase step must be at least {smallest:.3f} and below {largest:g} mm "
+            f"either way (one leg sensor count up to {steps} steps within the half stroke), "
+            f"got {step_mm:g}"
         )
 
 
