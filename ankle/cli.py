@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from device import cli as device_cli
+from lab import cli as lab_cli
 
 
 def _parser() -> device_cli.Parser:
@@ -43,33 +43,8 @@ def _parser() -> device_cli.Parser:
 
     add_arguments(sub.add_parser("station", help="the patient's home station"))
     device_cli.add_commands(sub)
-    _add_bench_server(sub)
+    lab_cli.add_commands(sub)
     return parser
-
-
-def _add_bench_server(sub: argparse._SubParsersAction[device_cli.Parser]) -> None:
-    """``bench server``, next to the device's ``bench control`` and ``bench link``."""
-    bench = sub.choices["bench"]
-    benches = next(a for a in bench._actions if isinstance(a, argparse._SubParsersAction))
-    p = benches.add_parser(
-        "server", help="live relay: many simulated stations and viewers on a real server"
-    )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument(
-        "--stations", type=device_cli._ranged(int, 1, 2000), default=100, help="default 100"
-    )
-    p.add_argument(
-        "--viewers-per-station", type=device_cli._ranged(int, 1, 20), default=1, help="default 1"
-    )
-    p.add_argument(
-        "--seconds", type=device_cli._ranged(float, 1.0, 3600.0), default=20.0, help="window (s)"
-    )
-    p.add_argument(
-        "--sweep",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="then 25, 50, 100, 150, 200 stations for 5 s each, until p99 > 50 ms (default on)",
-    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -107,18 +82,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         from webui.patient import serve_patient_page
 
         return run_station(args, page=serve_patient_page)
-    if argv[:2] == ["bench", "server"]:
-        try:
-            args = parser.parse_args(argv)
-        except device_cli.UsageError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return device_cli.USAGE_ERROR
-        from server import bench
+    return device_cli.dispatch(parser, argv, _run)
 
-        result = bench.run(args.stations, args.viewers_per_station, args.seconds, args.sweep)
-        print(json.dumps(bench.jsonable(result), indent=2) if args.json else bench.table(result))
-        return 0
-    return device_cli.dispatch(parser, argv)
+
+def _run(args: argparse.Namespace) -> int:
+    if args.command in ("sim", "bench"):
+        return lab_cli.run_command(args)
+    return device_cli.run_command(args)
 
 
 if __name__ == "__main__":

@@ -1,24 +1,19 @@
-"""Command line of the device: ``sim`` experiments, ``bench control``, the console run.
+"""Command line of the device: the device service (``device``) and ``protocol``.
 
 Mounted under the ``ankle`` command by :mod:`ankle.cli`; ``python -m device`` runs it alone
-on the embedded PC. Bad arguments give one line on stderr and exit code 2.
+on the embedded PC (and is how the service is started as a child process). Experiments and
+benchmarks are the lab's (:mod:`lab.cli`). Bad arguments give one line on stderr and exit
+code 2.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, is_dataclass
-from pathlib import Path
 from typing import Any, NoReturn
 
-import numpy as np
-
-from device.geometry import AXES
 from device.hardware import HARDWARE_KINDS
 from device.plant.params import PATIENTS
 
@@ -36,7 +31,7 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
-def _finite_float(text: str) -> float:
+def finite_float(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -46,7 +41,7 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def _ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
+def ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
     def parse(text: str) -> Any:
         try:
             value = kind(text)
@@ -61,62 +56,7 @@ def _ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str],
 
 
 def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
-    """Register ``sim`` and ``bench`` on a parent parser's subcommands."""
-    sim = sub.add_parser("sim", help="experiments on the simulated device (simulated time)")
-    ss = sim.add_subparsers(dest="experiment", required=True, parser_class=Parser)
-
-    p = ss.add_parser("step", help="position step of one leg (paper Fig. 9)")
-    p.add_argument("--leg", type=int, default=1, help="leg number 1..6")
-    p.add_argument("--mm", type=_finite_float, default=10.0, help="step size (mm)")
-    p.add_argument(
-        "--no-deadband-comp",
-        action="store_true",
-        help="drive the valves without dead-band compensation (eq. 2-3 off)",
-    )
-    p.add_argument("--duration", type=_finite_float, default=1.0, help="seconds to record")
-    _outputs(p)
-
-    p = ss.add_parser("sine", help="pose tracking of a sine on one axis (paper Fig. 10)")
-    p.add_argument("--axis", choices=AXES, default="pitch")
-    p.add_argument(
-        "--amplitude", type=_finite_float, default=2.0, help="deg for roll/pitch/yaw, mm for x/y/z"
-    )
-    p.add_argument("--hz", type=_finite_float, default=1.0)
-    _outputs(p)
-
-    p = ss.add_parser("impedance", help="patient pushes against rendered K, B (paper Fig. 12)")
-    p.add_argument("--axis", choices=AXES[3:], default="pitch")
-    p.add_argument("--k", type=_finite_float, default=50.0, help="stiffness (N m/rad)")
-    p.add_argument("--b", type=_finite_float, default=1.0, help="damping (N m s/rad)")
-    p.add_argument("--torque", type=_finite_float, default=10.0, help="patient's peak torque (N m)")
-    _outputs(p)
-
-    p = ss.add_parser("sweep", help="frequency response and -3 dB bandwidth of one axis")
-    p.add_argument("--axis", choices=AXES, default="pitch")
-    p.add_argument("--amplitude", type=_finite_float, default=2.0)
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-
-    p = ss.add_parser("staircase", help="0.3 mm steps up and down: positioning resolution")
-    p.add_argument("--leg", type=int, default=1)
-    p.add_argument("--mm", type=_finite_float, default=0.3)
-    _outputs(p)
-
-    ss.add_parser("params", help="print the plant's parameter table (Markdown)")
-
-    bench = sub.add_parser("bench", help="benchmarks")
-    bs = bench.add_subparsers(dest="bench", required=True, parser_class=Parser)
-    p = bs.add_parser("control", help="the paper's headline results and the real-time factor")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plots", type=Path, help="write PNG figures into this folder")
-    p = bs.add_parser("link", help="serial link: ACK round trip, telemetry, pacing, watchdog")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument(
-        "--seconds", type=_ranged(float, 1.0, 3600.0), default=60.0, help="telemetry window (s)"
-    )
-    p.add_argument(
-        "--watchdog-runs", type=_ranged(int, 1, 1000), default=20, help="link pulls to time"
-    )
-
+    """Register ``protocol`` and ``device`` on a parent parser's subcommands."""
     sub.add_parser("protocol", help="print the serial protocol's messages (Markdown)")
     dev = sub.add_parser(
         "device",
@@ -140,180 +80,30 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         default="pty",
         help="pty (prints the port to open), tcp://HOST:PORT, or a serial port name",
     )
-    dev.add_argument("--baud", type=_ranged(int, 1200, 12_000_000), default=921600)
+    dev.add_argument("--baud", type=ranged(int, 1200, 12_000_000), default=921600)
     dev.add_argument(
-        "--telemetry-hz", type=_ranged(int, 1, 250), default=100, help="1..250 (default 100)"
+        "--telemetry-hz", type=ranged(int, 1, 250), default=100, help="1..250 (default 100)"
     )
     dev.add_argument(
-        "--watchdog-ms", type=_ranged(int, 50, 2000), default=200, help="50..2000 (default 200)"
+        "--watchdog-ms", type=ranged(int, 50, 2000), default=200, help="50..2000 (default 200)"
     )
     dev.add_argument("--patient", choices=PATIENTS, default="relaxed", help="simulated patient")
     dev.add_argument(
         "--patient-torque",
-        type=_ranged(float, 0.0, 20.0),
+        type=ranged(float, 0.0, 20.0),
         default=0.0,
         help="simulated patient pushes in pitch with this peak torque (N m, 0.1 Hz)",
     )
-    dev.add_argument("--seconds", type=_ranged(float, 0.0, 1e9), default=None)
-
-
-def _outputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--csv", type=Path, help="write the trace to this CSV file")
-    p.add_argument("--plot", type=Path, help="write a PNG figure to this file")
-
-
-def _jsonable(obj: Any) -> Any:
-    if is_dataclass(obj) and not isinstance(obj, type):
-        return {k: _jsonable(v) for k, v in asdict(obj).items() if not isinstance(v, np.ndarray)}
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None if math.isnan(obj) else ("inf" if obj > 0 else "-inf")
-    if isinstance(obj, np.floating | np.integer):
-        return _jsonable(obj.item())
-    return obj
-
-
-def _write_csv(path: Path, header: Sequence[str], columns: Sequence[np.ndarray]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for row in zip(*columns, strict=True):
-            w.writerow([f"{float(v):.6g}" for v in row])
+    dev.add_argument("--seconds", type=ranged(float, 0.0, 1e9), default=None)
 
 
 def run_command(args: argparse.Namespace) -> int:
-    """Execute a parsed ``sim`` or ``bench`` command."""
-    from device import experiments as ex
-
+    """Execute a parsed ``device`` or ``protocol`` command."""
     if args.command == "device":
         return _device(args)
-    if args.command == "protocol":
-        from device.protocol.messages import markdown_table
+    from device.protocol.messages import markdown_table
 
-        print(markdown_table(), end="")
-        return 0
-    if args.command == "bench" and args.bench == "link":
-        from device import linkbench
-
-        lresult = linkbench.run(args.seconds, args.watchdog_runs)
-        print(json.dumps(_jsonable(lresult), indent=2) if args.json else linkbench.table(lresult))
-        return 0
-    if args.command == "bench":
-        from device import bench
-
-        result = bench.run(args.plots)
-        print(json.dumps(_jsonable(result), indent=2) if args.json else bench.table(result))
-        return 0
-
-    figure: Callable[[Path], Any] | None = None
-    trace: tuple[list[str], list[np.ndarray]] | None = None
-    data: Any
-    if args.experiment == "params":
-        from device.plant.params import parameter_table_markdown
-
-        print(parameter_table_markdown())
-        return 0
-    if args.experiment == "step":
-        r = ex.step(args.leg, args.mm, not args.no_deadband_comp, args.duration)
-        m = r.metrics
-        text = (
-            f"leg {r.leg} step {r.step_mm:g} mm "
-            f"({'dead-band compensated' if r.compensate else 'uncompensated'}): "
-            f"rise {m.rise_ms:.1f} ms, overshoot {m.overshoot_pct:.2f} %, "
-            f"settling {m.settling_ms:.0f} ms, steady-state error {m.steady_error_mm:.3f} mm"
-        )
-        data = {
-            "leg": r.leg,
-            "step_mm": r.step_mm,
-            "deadband_compensation": r.compensate,
-            **asdict(m),
-        }
-        trace = (
-            [
-                "t_s",
-                "displacement_mm",
-                "lower_bar",
-                "upper_bar",
-                "lower_duty_pct",
-                "upper_duty_pct",
-            ],
-            [r.t, r.displacement_mm, *r.pressure_bar.T, *r.duty.T],
-        )
-        figure = lambda path: _plots().step_figure([r], path)  # noqa: E731
-    elif args.experiment == "sine":
-        r2 = ex.sine(args.axis, args.amplitude, args.hz)
-        unit = "deg" if args.axis in AXES[3:] else "mm"
-        text = (
-            f"{r2.axis} {r2.amplitude:g} {unit} at {r2.frequency:g} Hz: "
-            f"gain {r2.gain_db:+.2f} dB, phase {r2.phase_deg:.1f} deg"
-        )
-        data = {
-            "axis": r2.axis,
-            "amplitude": r2.amplitude,
-            "unit": unit,
-            "hz": r2.frequency,
-            "gain_db": r2.gain_db,
-            "phase_deg": r2.phase_deg,
-        }
-        trace = (["t_s", "command", "response"], [r2.t, r2.command, r2.response])
-        figure = lambda path: _plots().bandwidth_figure(  # noqa: E731
-            r2,
-            ex.SweepResult(
-                r2.axis, r2.amplitude, (r2.frequency,), (r2.gain_db,), (r2.phase_deg,), math.nan
-            ),
-            path,
-        )
-    elif args.experiment == "impedance":
-        r3 = ex.impedance(args.axis, args.k, args.b, args.torque)
-        text = (
-            f"{r3.axis}: K = {r3.stiffness:g} N m/rad, B = {r3.damping:g} N m s/rad: "
-            f"measured stiffness {r3.measured_stiffness:.2f} N m/rad "
-            f"({r3.error_pct:.2f} % error)"
-        )
-        data = {
-            "axis": r3.axis,
-            "k": r3.stiffness,
-            "b": r3.damping,
-            "measured_stiffness": r3.measured_stiffness,
-            "error_pct": r3.error_pct,
-        }
-        trace = (["t_s", "angle_rad", "torque_nm"], [r3.t, r3.angle, r3.torque])
-        figure = lambda path: _plots().impedance_figure(r3, path)  # noqa: E731
-    elif args.experiment == "sweep":
-        r4 = ex.sweep(args.axis, args.amplitude)
-        rows = ", ".join(
-            f"{f:g} Hz {g:+.1f} dB" for f, g in zip(r4.frequencies, r4.gains_db, strict=True)
-        )
-        bw = (
-            f"above {max(r4.frequencies):g} Hz (gain never below -3 dB)"
-            if math.isinf(r4.bandwidth_hz)
-            else f"{r4.bandwidth_hz:.2f} Hz"
-        )
-        text = f"{r4.axis} at {r4.amplitude:g}: -3 dB bandwidth {bw} ({rows})"
-        data = r4
-    else:  # staircase
-        r5 = ex.staircase(args.leg, args.mm)
-        text = (
-            f"leg {r5.leg}, {r5.step_mm:g} mm steps: largest steady error {r5.resolution_mm:.3f} mm"
-        )
-        data = {
-            "leg": r5.leg,
-            "step_mm": r5.step_mm,
-            "resolution_mm": r5.resolution_mm,
-            "errors_mm": list(r5.errors_mm),
-        }
-        trace = (["t_s", "displacement_mm", "target_mm"], [r5.t, r5.displacement_mm, r5.target_mm])
-        figure = lambda path: _plots().staircase_figure(r5, path)  # noqa: E731
-
-    print(json.dumps(_jsonable(data)) if args.json else text)
-    if getattr(args, "csv", None) and trace is not None:
-        _write_csv(args.csv, trace[0], trace[1])
-    if getattr(args, "plot", None) and figure is not None:
-        figure(args.plot)
+    print(markdown_table(), end="")
     return 0
 
 
@@ -339,27 +129,26 @@ def _device(args: argparse.Namespace) -> int:
     return serve(service, args.seconds)
 
 
-def _plots() -> Any:
-    from device import plots
-
-    return plots
-
-
 def main(argv: Sequence[str] | None = None, prog: str = "device") -> int:
     """Entry point of ``python -m device``."""
-    parser = Parser(prog=prog, description="Rutgers Ankle device: simulation and benchmarks")
+    parser = Parser(prog=prog, description="Rutgers Ankle device: the service and its protocol")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     add_commands(sub)
     return dispatch(parser, argv)
 
 
-def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
-    """Parse and run, turning usage and command errors into one line and exit code 2."""
+def dispatch(
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    run: Callable[[argparse.Namespace], int] | None = None,
+) -> int:
+    """Parse and run (``run``, default :func:`run_command`), turning usage and command errors
+    into one line and exit code 2."""
     from device.rig import CommandError
 
     try:
         args = parser.parse_args(argv)
-        return run_command(args)
+        return (run or run_command)(args)
     except (UsageError, CommandError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR

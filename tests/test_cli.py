@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from device.linkbench import TARGETS as LINK_TARGETS
 from device.process import ServiceProcess
 from device.protocol.messages import markdown_table
+from lab.linkbench import TARGETS as LINK_TARGETS
 
 ANKLE = [sys.executable, "-m", "ankle.cli"]
 
@@ -33,6 +33,15 @@ def ankle(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str
         (["sim", "sine", "--axis", "knee"], "invalid choice"),
         (["sim", "sine", "--hz", "100"], "frequency"),
         (["bench", "speed"], "invalid choice"),
+        # Degenerate requests: nothing a sensor could resolve, or nothing at all.
+        (["sim", "step", "--mm", "1e-9"], "leg sensor"),
+        (["sim", "sine", "--amplitude", "1e-9"], "leg sensor counts"),
+        (["sim", "sweep", "--amplitude", "1e-9"], "leg sensor counts"),
+        (["sim", "staircase", "--mm", "0"], "staircase step must be"),
+        (["sim", "impedance", "--torque", "0"], "torque must be"),
+        (["sim", "impedance", "--torque", "100"], "torque must be"),
+        (["sim", "impedance", "--k", "500", "--torque", "0.2"], "leg sensors resolve"),
+        (["sim", "impedance", "--mode", "dynamic", "--hz", "0.5,50"], "frequencies"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: list[str], needle: str) -> None:
@@ -62,12 +71,37 @@ def test_step_prints_metrics_json_and_writes_csv_and_plot(tmp_path: Path) -> Non
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["leg"] == 2 and data["step_mm"] == 5.0
+    assert data["valid"] is True and data["tripped"] is False and data["trip"] is None
+    assert isinstance(data["saturated"], list)
     assert 0 < data["rise_ms"] < 200
     with out_csv.open() as fh:
         rows = list(csv.reader(fh))
     assert rows[0][:2] == ["t_s", "displacement_mm"]
     assert abs(float(rows[-1][1]) - 5.0) < 0.5
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_sine_the_legs_cannot_follow_trips_and_exits_1_without_numbers() -> None:
+    # 5 deg at 20 Hz asks the legs for about 0.55 m/s: above the 0.4 m/s speed limit.
+    r = ankle("sim", "sine", "--amplitude", "5", "--hz", "20", "--json")
+    assert r.returncode == 1, r.stderr
+    data = json.loads(r.stdout)
+    assert data["tripped"] is True and data["trip"] == "LEG_SPEED"
+    assert data["valid"] is False and "leg_speed" in data["saturated"]
+    assert data["gain_db"] is None and data["phase_deg"] is None
+    text = ankle("sim", "sine", "--amplitude", "5", "--hz", "20")
+    assert text.returncode == 1
+    assert text.stdout.startswith("INVALID: tripped LEG_SPEED")
+    assert "dB" not in text.stdout
+
+
+def test_a_patient_pushing_past_the_range_of_motion_is_not_a_stiffness() -> None:
+    # 40 N m against 20 N m/rad would be 2 rad: the command is clamped at the range.
+    r = ankle("sim", "impedance", "--k", "20", "--torque", "40", "--json")
+    assert r.returncode == 1, r.stderr
+    data = json.loads(r.stdout)
+    assert "range_of_motion" in data["saturated"] and data["valid"] is False
+    assert data["measured_stiffness"] is None
 
 
 def test_console_shows_live_telemetry_from_the_service_and_stops_cleanly() -> None:
@@ -150,6 +184,8 @@ def test_bench_control_prints_every_key_and_writes_figures(tmp_path: Path) -> No
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout)
     assert set(result) >= BENCH_KEYS
+    assert result["valid"] is True and result["invalid"] == {}
+    assert all(not e["tripped"] for e in result["experiments"].values())
     # Control targets only: speed is the benchmark's to report, not a test's to assert.
     met = result["targets_met"]
     assert all(met[k] for k in met if k != "realtime_factor"), met

@@ -6,14 +6,16 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("device", "sessions", "station", "server", "webui", "ankle")
+PACKAGES = ("device", "sessions", "station", "server", "webui", "lab", "ankle")
 ALLOWED: dict[str, set[str]] = {
     "device": set(),
     "sessions": {"device"},
     "station": {"device", "sessions"},
     "server": {"device", "sessions"},
     "webui": {"device", "sessions", "server"},
-    "ankle": {"device", "sessions", "station", "server", "webui"},
+    # The lab measures everything; only the composition root may use it.
+    "lab": {"device", "sessions", "station", "server", "webui"},
+    "ankle": {"device", "sessions", "station", "server", "webui", "lab"},
 }
 # Third-party libraries that may be imported only in the named places.
 CONFINED: dict[str, tuple[str, ...]] = {
@@ -57,6 +59,11 @@ def test_confined_libraries_stay_in_their_place(path: Path) -> None:
     for lib, places in CONFINED.items():
         if lib in imports(path):
             assert rel.startswith(places), f"{rel} imports {lib}; only {places} may"
+
+
+def test_only_the_composition_root_imports_the_lab() -> None:
+    users = {p.relative_to(ROOT).parts[0] for p in sources() if "lab" in imports(p)}
+    assert users <= {"lab", "ankle"}, sorted(users)
 
 
 def test_the_checker_sees_an_upward_import(tmp_path: Path) -> None:

@@ -7,7 +7,7 @@ import math
 import subprocess
 import sys
 
-from server import bench
+from lab import serverbench as bench
 
 ARGS = ["bench", "server", "--json", "--stations", "5", "--seconds", "3", "--no-sweep"]
 

@@ -51,8 +51,8 @@ from typing import IO, Any
 
 import numpy as np
 
-from device.bench import Target
-from device.bench import table as bench_table
+from lab.targets import Target
+from lab.targets import table as bench_table
 
 TELEMETRY_HZ = 100
 VIEW_HZ = 50.0
@@ -230,7 +230,7 @@ class ServerProcess:
 
 
 class Worker:
-    """A load generator process (``python -m server.bench stations|viewers``): it reads its
+    """A load generator process (``python -m lab.serverbench stations|viewers``): it reads its
     configuration, connects everything, says ``ready``, then waits for the window."""
 
     def __init__(self, role: str, config: dict[str, Any], log_dir: Path) -> None:
@@ -238,7 +238,7 @@ class Worker:
         self.errors = log_dir / f"{role}.log"
         with self.errors.open("wb") as errors:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "server.bench", role],
+                [sys.executable, "-m", "lab.serverbench", role],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=errors,

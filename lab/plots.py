@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.figure import Figure
 
-from device.experiments import (
+from lab.experiments import (
     ImpedanceResult,
     SineResult,
     StaircaseResult,
@@ -78,16 +78,17 @@ def bandwidth_figure(trace: SineResult, sweep: SweepResult, path: Path) -> Path:
     ax[0].grid(alpha=0.3)
     ax[1].semilogx(sweep.frequencies, sweep.gains_db, "o-")
     ax[1].axhline(-3.0, color="r", lw=0.8, ls=":")
-    if math.isfinite(sweep.bandwidth_hz):
+    if sweep.bandwidth_kind == "measured":
         ax[1].axvline(sweep.bandwidth_hz, color="r", lw=0.8)
     ax[1].set_xlabel("frequency (Hz)")
     ax[1].set_ylabel("gain (dB)")
-    if math.isinf(sweep.bandwidth_hz):
-        title = f"gain stays above -3 dB up to {max(sweep.frequencies):g} Hz"
-    elif math.isnan(sweep.bandwidth_hz):
-        title = "single frequency"
+    stop = f"; {sweep.health.words()} at {sweep.stopped_hz:g} Hz" if sweep.stopped_hz else ""
+    if sweep.bandwidth_kind == "lower_bound":
+        title = f"gain stays above -3 dB up to {sweep.bandwidth_hz:g} Hz{stop}"
+    elif sweep.bandwidth_kind == "unknown":
+        title = "single frequency" if len(sweep.frequencies) == 1 and not stop else f"{stop[2:]}"
     else:
-        title = f"-3 dB bandwidth {sweep.bandwidth_hz:.1f} Hz"
+        title = f"-3 dB bandwidth {sweep.bandwidth_hz:.1f} Hz{stop}"
     ax[1].set_title(title)
     ax[1].grid(alpha=0.3, which="both")
     return _save(fig, path)

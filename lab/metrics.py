@@ -6,6 +6,7 @@ Pure functions of arrays (time in s, signals in SI units), no simulation here.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,3 +97,43 @@ def stiffness_slope(angle: NDArray[np.float64], torque: NDArray[np.float64]) -> 
         raise ValueError("the angle did not change: no stiffness to measure")
     slope, _ = np.polyfit(a, tq, 1)
     return float(slope)
+
+
+Signal = NDArray[np.float64] | Sequence[NDArray[np.float64]]
+
+
+def impedance_fit(
+    t: Signal,
+    angle: Signal,
+    torque: Signal,
+    frequency: float | Sequence[float],
+) -> tuple[float, float, float]:
+    """(K, B, c) of the least-squares fit ``torque = K angle + B rate + c``.
+
+    One window, or several (sequences of arrays, one frequency each; a separate offset per
+    window, their mean returned). The angle and its rate are the fundamental of the measured
+    angle at the window's frequency (a least-squares sine fit), so the sensor's quantisation
+    is not differentiated into the rate.
+    """
+    if isinstance(frequency, float | int):
+        ts, angles, torques, freqs = [t], [angle], [torque], [float(frequency)]
+    else:
+        ts, angles, torques, freqs = list(t), list(angle), list(torque), list(frequency)
+    n = len(freqs)
+    rows, rhs = [], []
+    for w, (tt, a, tq, f) in enumerate(zip(ts, angles, torques, freqs, strict=True)):
+        tt = np.asarray(tt, dtype=np.float64)
+        a = np.asarray(a, dtype=np.float64)
+        wt = 2.0 * math.pi * f * tt
+        basis = np.column_stack([np.sin(wt), np.cos(wt), np.ones_like(tt)])
+        (s, c, _), *_ = np.linalg.lstsq(basis, a, rcond=None)
+        if math.hypot(s, c) == 0.0:
+            raise ValueError("the angle did not move at that frequency: nothing to fit")
+        theta = s * np.sin(wt) + c * np.cos(wt)
+        rate = 2.0 * math.pi * f * (s * np.cos(wt) - c * np.sin(wt))
+        offsets = np.zeros((tt.size, n))
+        offsets[:, w] = 1.0
+        rows.append(np.column_stack([theta, rate, offsets]))
+        rhs.append(np.asarray(tq, dtype=np.float64))
+    sol, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+    return float(sol[0]), float(sol[1]), float(np.mean(sol[2:]))

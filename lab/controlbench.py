@@ -9,39 +9,20 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from device import experiments
 from device.controller import Waveform, controller_tasks
 from device.hardware import SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.rig import AxisTarget, Rig
+from device.safety import Trip
 from device.scheduler import paper_tasks, schedule
-
-
-@dataclass(frozen=True)
-class Target:
-    key: str
-    label: str
-    bound: float
-    kind: str  # "max", "min" or "eq"
-
-    def met(self, value: float) -> bool:
-        if math.isnan(value):
-            return False
-        if self.kind == "max":
-            return value <= self.bound
-        if self.kind == "min":
-            return value >= self.bound
-        return value == self.bound
-
-    def text(self) -> str:
-        return {"max": "<= ", "min": ">= ", "eq": "= "}[self.kind] + f"{self.bound:g}"
-
+from lab import experiments
+from lab.targets import Target
+from lab.targets import table as targets_table
 
 TARGETS: tuple[Target, ...] = (
     Target("scheduler_max_tasks_per_interrupt", "scheduler: max tasks per interrupt", 2, "eq"),
@@ -77,11 +58,12 @@ ROWS: tuple[tuple[str, str], ...] = (
 )
 
 
-def measure_realtime(seconds: float = 10.0) -> tuple[float, float, float]:
-    """(realtime factor, ticks per second, compile seconds) of the full loop.
+def measure_realtime(seconds: float = 10.0) -> tuple[float, float, float, str | None]:
+    """(realtime factor, ticks per second, compile seconds, trip name or None) of the loop.
 
     The loop runs an exercise with every task busy: pitch impedance against a relaxed
-    patient while roll follows a sine.
+    patient while roll follows a sine. A loop that tripped runs with its valves closed and
+    is not the loop being timed: its trip is returned.
     """
     t0 = time.perf_counter()
     rig = Rig(SimulatedHardware(PlantConfig(patient="relaxed")))
@@ -101,16 +83,49 @@ def measure_realtime(seconds: float = 10.0) -> tuple[float, float, float]:
         rig.run(seconds / 3.0, log_hz=0)
         walls.append(time.perf_counter() - t)
     wall = float(np.median(walls)) * 3.0
-    return seconds / wall, seconds * TICK_HZ / wall, compile_s
+    trip = rig.trip.name if rig.trip != Trip.NONE else None
+    return seconds / wall, seconds * TICK_HZ / wall, compile_s, trip
+
+
+# Which rows each experiment's validity governs.
+ROWS_OF: dict[str, tuple[str, ...]] = {
+    "step": ("step_rise_ms", "step_overshoot_pct", "step_settling_ms", "step_steady_error_mm"),
+    "step_no_comp": (
+        "step_rise_ms_no_comp",
+        "step_overshoot_pct_no_comp",
+        "step_settling_ms_no_comp",
+        "step_steady_error_mm_no_comp",
+    ),
+    "staircase": ("resolution_mm",),
+    "pitch_sweep": ("pitch_bandwidth_hz", "pitch_gain_db_7hz", "pitch_peak_gain_db"),
+    "impedance": ("stiffness_pitch_nm_per_rad", "stiffness_error_pct"),
+    "realtime": ("realtime_factor", "ticks_per_s"),
+}
+
+
+def _health(h: experiments.Health) -> dict[str, Any]:
+    return {
+        "tripped": h.tripped,
+        "trip": h.trip,
+        "saturated": list(h.saturated),
+        "valid": h.valid,
+        "invalid_reason": h.reason,
+    }
 
 
 def run(plots: Path | None = None) -> dict[str, Any]:
-    """Run every experiment of the benchmark; returns the JSON-able result."""
-    rt, ticks, compile_s = measure_realtime()
+    """Run every experiment of the benchmark; returns the JSON-able result.
+
+    ``experiments`` holds each experiment's trip and saturation; ``invalid`` maps every row
+    whose experiment was invalid to the reason (its value is then None and its target not
+    met); ``valid`` is whether every experiment was.
+    """
+    rt, ticks, compile_s, rt_trip = measure_realtime()
     out: dict[str, Any] = {
         "scheduler_max_tasks_per_interrupt": schedule(controller_tasks()).max_tasks_per_interrupt,
         "scheduler_max_tasks_paper": schedule(paper_tasks()).max_tasks_per_interrupt,
     }
+    checks: dict[str, dict[str, Any]] = {}
     comp = experiments.step(leg=1, mm=10.0, compensate=True)
     nocomp = experiments.step(leg=1, mm=10.0, compensate=False)
     for suffix, r in (("", comp), ("_no_comp", nocomp)):
@@ -118,21 +133,24 @@ def run(plots: Path | None = None) -> dict[str, Any]:
         out[f"step_overshoot_pct{suffix}"] = r.metrics.overshoot_pct
         out[f"step_settling_ms{suffix}"] = r.metrics.settling_ms
         out[f"step_steady_error_mm{suffix}"] = r.metrics.steady_error_mm
+        checks[f"step{suffix}"] = _health(r.health)
     stairs = experiments.staircase(leg=1, step_mm=0.3)
     out["resolution_mm"] = stairs.resolution_mm
+    checks["staircase"] = _health(stairs.health)
     sw = experiments.sweep("pitch", 2.0)
+    checks["pitch_sweep"] = _health(sw.health) | {
+        "stopped_hz": sw.stopped_hz,
+        "bandwidth_kind": sw.bandwidth_kind,
+    }
     # If the gain never falls below -3 dB the bandwidth is at least the sweep's top
-    # frequency; that lower bound is what is reported (and flagged).
-    out["pitch_bandwidth_above_sweep"] = math.isinf(sw.bandwidth_hz)
-    out["pitch_bandwidth_hz"] = (
-        max(sw.frequencies) if math.isinf(sw.bandwidth_hz) else sw.bandwidth_hz
-    )
-    out["pitch_gain_db_7hz"] = dict(zip(sw.frequencies, sw.gains_db, strict=True)).get(
-        7.0, math.nan
-    )
-    out["pitch_peak_gain_db"] = max(
-        g for f, g in zip(sw.frequencies, sw.gains_db, strict=True) if f <= 7.0
-    )
+    # frequency; that lower bound is what is reported (and flagged). If the sweep stopped
+    # on a trip first, there is no bandwidth: the row is invalid.
+    out["pitch_bandwidth_above_sweep"] = sw.bandwidth_kind == "lower_bound"
+    out["pitch_bandwidth_hz"] = sw.bandwidth_hz
+    gains = {f: g for f, g in zip(sw.frequencies, sw.gains_db, strict=True) if math.isfinite(g)}
+    out["pitch_gain_db_7hz"] = gains.get(7.0, math.nan)
+    below = [g for f, g in gains.items() if f <= 7.0]
+    out["pitch_peak_gain_db"] = max(below) if below else math.nan
     out["pitch_sweep"] = {
         "frequencies_hz": list(sw.frequencies),
         "gains_db": list(sw.gains_db),
@@ -141,12 +159,29 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     imp = experiments.impedance("pitch", k=50.0, b=1.0, torque=10.0)
     out["stiffness_pitch_nm_per_rad"] = imp.measured_stiffness
     out["stiffness_error_pct"] = imp.error_pct
+    checks["impedance"] = _health(imp.health)
     out["realtime_factor"] = rt
     out["ticks_per_s"] = ticks
     out["compile_s"] = compile_s
-    out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS}
+    checks["realtime"] = {
+        "tripped": rt_trip is not None,
+        "trip": rt_trip,
+        "saturated": [],
+        "valid": rt_trip is None,
+        "invalid_reason": f"tripped {rt_trip}" if rt_trip else None,
+    }
+    invalid: dict[str, str] = {}
+    for name, check in checks.items():
+        if not check["valid"]:
+            for key in ROWS_OF[name]:
+                invalid[key] = f"{name}: {check['invalid_reason']}"
+                out[key] = None  # no number for a measurement that is not one
+    out["experiments"] = checks
+    out["invalid"] = invalid
+    out["valid"] = not invalid
+    out["targets_met"] = {t.key: t.key not in invalid and t.met(float(out[t.key])) for t in TARGETS}
     if plots is not None:
-        from device import plots as figures
+        from lab import plots as figures
 
         trace = experiments.sine("pitch", 2.0, 7.0, cycles=4)
         out["plots"] = [
@@ -158,24 +193,6 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     return out
 
 
-def table(
-    result: dict[str, Any],
-    rows: tuple[tuple[str, str], ...] = ROWS,
-    targets_met: tuple[Target, ...] = TARGETS,
-) -> str:
-    """A benchmark as a Markdown table (what the README shows)."""
-    targets = {t.key: t for t in targets_met}
-    lines = ["| metric | value | target | met |", "|---|---:|---|---|"]
-    for key, label in rows:
-        value = result[key]
-        text = f"{value:.3g}" if isinstance(value, float) else str(value)
-        if isinstance(value, float) and abs(value) >= 1000:
-            text = f"{value:,.0f}"
-        if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
-            text = f"> {text} (top of sweep)"
-        tgt = targets.get(key)
-        lines.append(
-            f"| {label} | {text} | {tgt.text() if tgt else ''} | "
-            f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |"
-        )
-    return "\n".join(lines)
+def table(result: dict[str, Any]) -> str:
+    """The control benchmark as a Markdown table (what the README shows)."""
+    return targets_table(result, ROWS, TARGETS, result.get("invalid"))

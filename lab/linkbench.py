@@ -25,13 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from device.bench import Target
-from device.bench import table as bench_table
 from device.client import DeviceClient, build_segment
 from device.console import DEMO_PITCH
 from device.process import ServiceProcess
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
+from lab.targets import Target
+from lab.targets import table as bench_table
 
 TELEMETRY_HZ = 250
 WATCHDOG_MS = 200

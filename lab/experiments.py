@@ -1,0 +1,744 @@
+"""Experiments a researcher runs on the simulated device, all in simulated time.
+
+Each function builds a fresh :class:`~device.rig.Rig` on the plant simulation, runs one
+experiment of the paper (Figures 7, 9, 10, 12) and returns its numbers together with the
+traces, so the CLI, the benchmark, the plots and the tests share one implementation.
+
+Every result says whether its numbers can be trusted (:class:`Health`): whether the device
+tripped (its trip code), and which limits it ran into:
+
+- ``range_of_motion``: in a task-space experiment the commanded pose was clamped at the
+  device's range of motion (``pose_cmd`` equal to a bound of ``rig.limits``; the controller
+  clamps to exactly that value), or the device tripped on RANGE_OF_MOTION. The platform then
+  did not follow the experiment's own reference: this invalidates sine, sweep and impedance
+  numbers.
+- ``valve_duty``: a chamber's valve was driven at the largest duty the controller can
+  command (its pressure loop's output at +-100 %: ``slots`` at +-28, the whole 4 ms PWM
+  period, without dead-band compensation; +-21 with it, whose largest duty is
+  ``100 - d_dead`` = 75 %) for at least :data:`VALVE_SATURATION_S` without a break. The response was
+  then limited by the valves' flow, not by the loop. This is the device's real large-signal
+  behaviour (a 10 mm step's rise is flow-limited by design), so it is reported but does not
+  by itself invalidate a number.
+- ``leg_speed``: the leg speed limit tripped (a LEG_SPEED trip).
+
+A tripped experiment is always invalid: its valves closed mid-run and what follows is the
+held platform, not a response.
+
+Requests that cannot measure anything (below what the sensors resolve, zero, outside the
+device's limits) are refused with :class:`~device.rig.CommandError` before any simulation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device import pwm
+from device.controller import ControllerConfig, Mode, Waveform
+from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
+from device.hardware import SimulatedHardware
+from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
+from device.plant.params import PlantConfig
+from device.rig import AxisTarget, CommandError, Rig, leg_index
+from device.safety import SafetyLimits, Trip
+from device.tickloop import COL
+from lab.metrics import (
+    StepMetrics,
+    impedance_fit,
+    sine_response,
+    step_metrics,
+    stiffness_slope,
+)
+
+SETTLE_S = 0.5
+"""Time the platform is held at home under control before an experiment starts."""
+
+VALVE_SATURATION_S = 0.012
+"""A valve held at the controller's largest duty this long without a break (three 4 ms PWM
+periods) counts as saturated: longer than any step transient needs (the largest step a leg
+can take, 45 mm, holds its valves there for 8 ms), so the loop was not in control of the
+flow."""
+ROM_TOLERANCE = 1e-9
+"""How close (m or rad) the commanded pose must be to a range-of-motion bound to count as
+clamped there; the controller clamps to the bound exactly."""
+
+LEG_SENSOR_M = DEFAULT_GEOMETRY.stroke / 2.0**12
+"""One count of the 12-bit leg position sensor: 0.024 mm (device/plant/params.py)."""
+MIN_STEP_COUNTS = 10
+"""A step's 10 % point must be at least one sensor count for a 10-90 % rise time."""
+MIN_SINE_COUNTS = 10
+"""A sine must move its most-moved leg at least this many counts, so the +-0.5 count
+quantisation is under 5 % of the amplitude (0.4 dB)."""
+MIN_STAIR_COUNTS = 1
+"""A staircase step smaller than one count cannot be told from the previous level."""
+STAIR_STEPS = 8
+"""Steps up (and back down) of the staircase."""
+TORQUE_MIN_NM = 0.1
+"""Smallest patient torque: 75 counts of the torque sensor, 30 times its noise."""
+TORQUE_MAX_NM = 40.0
+"""Largest patient torque: below the 60 N m wrench trip of the force plate."""
+IMPEDANCE_HZ_RANGE = (0.1, 5.0)
+"""Frequencies of the patient's sinusoidal torque: voluntary ankle torque is below 5 Hz;
+below 0.1 Hz a few cycles would take minutes."""
+
+
+@dataclass(frozen=True)
+class Health:
+    """Whether a run's numbers can be trusted, and why not."""
+
+    tripped: bool
+    trip: str | None
+    """Name of the trip code (``LEG_SPEED``, ...), None if the device did not trip."""
+    trip_time_s: float | None
+    """When it tripped, seconds from the start of the measured window (None if before it or
+    not tripped)."""
+    saturated: tuple[str, ...]
+    """Which of ``range_of_motion``, ``valve_duty``, ``leg_speed`` occurred."""
+    valid: bool
+    reason: str | None
+    """Why the measurement is invalid, in words (None when valid)."""
+
+    def words(self) -> str:
+        """What happened, for a person: empty when nothing did."""
+        parts = []
+        if self.tripped:
+            at = (
+                f" {self.trip_time_s:.3f} s into the measurement"
+                if self.trip_time_s is not None
+                else " before the measurement started"
+            )
+            parts.append(f"tripped {self.trip}{at}")
+        notes = {
+            "range_of_motion": "range of motion reached",
+            "valve_duty": f"valves at largest duty for >= {VALVE_SATURATION_S * 1e3:.0f} ms",
+            "leg_speed": "leg speed limit",
+        }
+        sat = [notes[k] for k in self.saturated if k in notes]
+        if sat:
+            parts.append("saturated: " + ", ".join(sat))
+        return "; ".join(parts)
+
+
+class Checked:
+    """A result carrying its :class:`Health`."""
+
+    health: Health
+
+    @property
+    def tripped(self) -> bool:
+        return self.health.tripped
+
+    @property
+    def trip(self) -> str | None:
+        return self.health.trip
+
+    @property
+    def saturated(self) -> tuple[str, ...]:
+        return self.health.saturated
+
+    @property
+    def valid(self) -> bool:
+        return self.health.valid
+
+
+def full_duty_slots(rig: Rig) -> int:
+    """Slots of the largest duty the rig's controller commands (28, or 21 compensated)."""
+    return int(pwm.duty_slots(pwm.duty(100.0, rig.params.d_dead, rig.params.compensate)))
+
+
+def _full_duty_runs(t: NDArray[np.float64], slots: NDArray[np.float64], full: int) -> float:
+    """Longest time any chamber's valve stayed at ``full`` slots or more without a break (s)."""
+    if t.size == 0:
+        return 0.0
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    longest = 0.0
+    for c in range(slots.shape[1]):
+        at_full = np.abs(slots[:, c]) >= full
+        if not at_full.any():
+            continue
+        edges = np.diff(np.concatenate(([0], at_full.astype(np.int8), [0])))
+        starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        for a, b in zip(starts, ends, strict=True):
+            longest = max(longest, float(t[b - 1] - t[a]) + dt)
+    return longest
+
+
+def assess(
+    rig: Rig, log: NDArray[np.float64], invalidating: frozenset[str] = frozenset()
+) -> Health:
+    """The :class:`Health` of a run whose measured window is ``log``.
+
+    ``invalidating`` names the saturations that make this experiment's number meaningless;
+    a trip always does.
+    """
+    trip = rig.trip
+    tripped = trip != Trip.NONE
+    trip_time = None
+    if tripped and log.shape[0]:
+        hit = np.nonzero(log[:, COL["trip"]] != 0)[0]
+        if hit.size and hit[0] > 0:  # a trip already latched at the first row came before
+            trip_time = float(log[hit[0], 0] - log[0, 0])
+    saturated: list[str] = []
+    task = log[:, COL["mode"]] == int(Mode.TASK)
+    rom = trip == Trip.RANGE_OF_MOTION
+    if task.any():
+        home = rig.geometry.home_pose
+        for k, axis in enumerate(AXES):
+            rel = log[task, COL[f"pose_cmd_{axis}"]] - home[k]
+            lo, hi = rig.limits.rom_low[k], rig.limits.rom_high[k]
+            if np.any(rel <= lo + ROM_TOLERANCE) or np.any(rel >= hi - ROM_TOLERANCE):
+                rom = True
+    if rom:
+        saturated.append("range_of_motion")
+    slots = log[:, [COL[f"slots{c}"] for c in range(12)]]
+    if _full_duty_runs(log[:, 0], slots, full_duty_slots(rig)) >= VALVE_SATURATION_S:
+        saturated.append("valve_duty")
+    if trip == Trip.LEG_SPEED:
+        saturated.append("leg_speed")
+    reason = None
+    if tripped:
+        reason = f"tripped {trip.name}"
+    else:
+        bad = [k for k in saturated if k in invalidating]
+        if bad:
+            reason = "saturated: " + ", ".join(b.replace("_", " ") for b in bad)
+    return Health(
+        tripped, trip.name if tripped else None, trip_time, tuple(saturated), reason is None, reason
+    )
+
+
+def _sine_min_amplitude(k: int) -> float:
+    """Smallest amplitude (m or rad) on axis ``k`` that moves a leg MIN_SINE_COUNTS counts."""
+    from device.kinematics import Kinematics
+
+    g = DEFAULT_GEOMETRY
+    jq = Kinematics(g).pose_jacobian(g.home_pose)
+    return MIN_SINE_COUNTS * LEG_SENSOR_M / float(np.max(np.abs(jq[:, k])))
+
+
+def _rig(
+    patient: str = "absent",
+    compensate: bool = True,
+    seed: int = 1,
+    plant: PlantConfig | None = None,
+) -> Rig:
+    cfg = plant if plant is not None else PlantConfig(patient=patient)
+    hw = SimulatedHardware(cfg, seed=seed)
+    return Rig(hw, ControllerConfig(deadband_compensation=compensate))
+
+
+def _settle_at_home(rig: Rig) -> None:
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(SETTLE_S)
+    rig.clear_log()
+
+
+def _unit(k: int) -> tuple[float, str]:
+    """(SI per user unit, user unit) of axis ``k``: deg for rotations, mm for translations."""
+    return (math.radians(1.0), "deg") if k >= 3 else (1e-3, "mm")
+
+
+@dataclass(frozen=True)
+class StepResult(Checked):
+    leg: int
+    step_mm: float
+    compensate: bool
+    metrics: StepMetrics
+    health: Health
+    t: NDArray[np.float64] = field(repr=False)
+    displacement_mm: NDArray[np.float64] = field(repr=False)
+    """Displacement of the stepped leg relative to its start (mm)."""
+    pressure_bar: NDArray[np.float64] = field(repr=False)
+    """(n, 2) gauge pressures of its cap and rod chambers (bar)."""
+    duty: NDArray[np.float64] = field(repr=False)
+    """(n, 2) signed PWM slots of those chambers, as percent of the period."""
+
+
+def check_step(leg: int, mm: float, duration: float = 1.0) -> None:
+    """Refuse a step that cannot be measured (before any simulation)."""
+    leg_index(leg)
+    limits = SafetyLimits()
+    # From mid-stroke the target must stay inside the stroke the device accepts.
+    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3
+    smallest = MIN_STEP_COUNTS * LEG_SENSOR_M * 1e3
+    if not math.isfinite(mm) or not smallest <= abs(mm) < largest:
+        raise CommandError(
+            f"step must be at least {smallest:.2f} and below {largest:g} mm either way "
+            f"(a 10-90 % rise needs its 10 % point resolved by the "
+            f"{LEG_SENSOR_M * 1e3:.3f} mm leg sensor; the target must stay inside the stroke), "
+            f"got {mm:g}"
+        )
+    if not math.isfinite(duration) or not 0.1 <= duration <= 60.0:
+        raise CommandError("duration must be 0.1..60 s")
+
+
+def step(
+    leg: int = 1,
+    mm: float = 10.0,
+    compensate: bool = True,
+    duration: float = 1.0,
+    patient: str = "absent",
+    seed: int = 1,
+) -> StepResult:
+    """Independent joint position step of one leg (paper, Figure 9)."""
+    check_step(leg, mm, duration)
+    i = leg_index(leg)
+    rig = _rig(patient, compensate, seed)
+    _settle_at_home(rig)
+    target = rig.state.leg_target.copy()
+    target[i] += mm * 1e-3
+    rig.move_legs(target)
+    log = rig.run(duration)
+    t = log[:, 0] - log[0, 0]
+    y = log[:, COL[f"leg_x{i}"]]
+    y_start = float(y[0])
+    # Against the commanded target, so a static offset cannot hide in the difference.
+    m = step_metrics(t, y, y_start, float(target[i]))
+    p = log[:, [COL[f"pressure_g{2 * i}"], COL[f"pressure_g{2 * i + 1}"]]] / 1e5
+    d = log[:, [COL[f"slots{2 * i}"], COL[f"slots{2 * i + 1}"]]] * (100.0 / 28.0)
+    health = assess(rig, log)
+    return StepResult(leg, mm, compensate, m, health, t, (y - y_start) * 1e3, p, d)
+
+
+@dataclass(frozen=True)
+class StaircaseResult(Checked):
+    leg: int
+    step_mm: float
+    errors_mm: tuple[float, ...]
+    """Steady error after each step (mm)."""
+    health: Health
+    t: NDArray[np.float64] = field(repr=False)
+    displacement_mm: NDArray[np.float64] = field(repr=False)
+    target_mm: NDArray[np.float64] = field(repr=False)
+
+    @property
+    def resolution_mm(self) -> float:
+        """The largest steady error over the staircase."""
+        return max(self.errors_mm)
+
+
+def check_staircase(leg: int, step_mm: float, steps: int = STAIR_STEPS) -> None:
+    """Refuse a staircase that cannot be measured (before any simulation)."""
+    leg_index(leg)
+    limits = SafetyLimits()
+    smallest = MIN_STAIR_COUNTS * LEG_SENSOR_M * 1e3
+    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3 / steps
+    if not math.isfinite(step_mm) or not smallest <= abs(step_mm) < largest:
+        raise CommandError(
+            f"staircase step must be at least {smallest:.3f} and below {largest:g} mm "
+            f"either way (one leg sensor count up to {steps} steps within the half stroke), "
+            f"got {step_mm:g}"
+        )
+
+
+def staircase(
+    leg: int = 1, step_mm: float = 0.3, steps: int = STAIR_STEPS, dwell: float = 0.5, seed: int = 1
+) -> StaircaseResult:
+    """Small steps up then down: how fine can a leg be placed?"""
+    check_staircase(leg, step_mm, steps)
+    i = leg_index(leg)
+    rig = _rig("absent", True, seed)
+    _settle_at_home(rig)
+    target = rig.state.leg_target.copy()
+    start = float(rig.state.leg_x[i])
+    base = float(target[i])
+    errors: list[float] = []
+    levels = list(range(1, steps + 1)) + list(range(steps - 1, -1, -1))
+    ts, ys, rs = [], [], []
+    for n in levels:
+        target[i] = base + n * step_mm * 1e-3
+        if rig.mode == Mode.FAULT:
+            break  # tripped: no further step would move
+        rig.move_legs(target)
+        log = rig.run(dwell)
+        y = log[:, COL[f"leg_x{i}"]]
+        tail = log[:, 0] >= log[-1, 0] - 0.1
+        errors.append(abs(float(np.mean(y[tail])) - target[i]) * 1e3)
+        ts.append(log[:, 0])
+        ys.append((y - start) * 1e3)
+        rs.append(np.full(y.shape, (target[i] - start) * 1e3))
+    t = np.concatenate(ts)
+    health = assess(rig, rig.log)
+    return StaircaseResult(
+        leg, step_mm, tuple(errors), health, t - t[0], np.concatenate(ys), np.concatenate(rs)
+    )
+
+
+def _axis(axis: str) -> int:
+    if axis not in AXIS_INDEX:
+        raise CommandError(f"unknown axis {axis!r}; axes are {', '.join(AXES)}")
+    return AXIS_INDEX[axis]
+
+
+def _angular(k: int) -> bool:
+    return k >= 3
+
+
+@dataclass(frozen=True)
+class SineResult(Checked):
+    axis: str
+    amplitude: float
+    """In degrees for rotations, mm for translations."""
+    frequency: float
+    gain_db: float
+    phase_deg: float
+    health: Health
+    t: NDArray[np.float64] = field(repr=False)
+    command: NDArray[np.float64] = field(repr=False)
+    response: NDArray[np.float64] = field(repr=False)
+
+
+SINE_HZ_RANGE = (0.05, 20.0)
+"""Sine frequencies: below 0.05 Hz six cycles take minutes; 20 Hz is the device's own limit
+on a sine command."""
+
+
+def check_sine(axis: str, amplitude: float, hz: float) -> None:
+    """Refuse a sine that cannot be measured (before any simulation)."""
+    k = _axis(axis)
+    scale, unit = _unit(k)
+    smallest = _sine_min_amplitude(k) / scale
+    largest = SafetyLimits().rom_high[k] / scale
+    if not (math.isfinite(amplitude) and smallest <= amplitude <= largest):
+        raise CommandError(
+            f"{axis} amplitude must be {smallest:.3g}..{largest:.3g} {unit} (at least "
+            f"{MIN_SINE_COUNTS} leg sensor counts; at most the range of motion), got {amplitude:g}"
+        )
+    lo, hi = SINE_HZ_RANGE
+    if not (math.isfinite(hz) and lo <= hz <= hi):
+        raise CommandError(f"frequency must be {lo:g}..{hi:g} Hz, got {hz:g}")
+
+
+def sine(
+    axis: str = "pitch",
+    amplitude: float = 2.0,
+    hz: float = 1.0,
+    cycles: int = 6,
+    patient: str = "relaxed",
+    seed: int = 1,
+) -> SineResult:
+    """Pose tracking of a sine on one axis (paper, Figure 10). Amplitude in deg or mm."""
+    check_sine(axis, amplitude, hz)
+    k = _axis(axis)
+    scale = _unit(k)[0]
+    rig = _rig(patient, True, seed)
+    _settle_at_home(rig)
+    rig.track({axis: AxisTarget(Waveform.SINE, 0.0, amplitude * scale, hz)})
+    lead = max(1.0 / hz, 0.3)  # let the start-up transient die
+    rig.run(lead)
+    rig.clear_log()
+    log = rig.run(cycles / hz)
+    home = rig.geometry.home_pose[k]
+    command = (log[:, COL[f"pose_cmd_{axis}"]] - home) / scale
+    response = (log[:, COL[f"pose_{axis}"]] - home) / scale
+    t = log[:, 0]
+    health = assess(rig, log, frozenset({"range_of_motion"}))
+    if health.valid:
+        reference = amplitude * np.sin(2.0 * math.pi * hz * (t - rig.state.trajectory[k, 4]))
+        gain, phase = sine_response(t, reference, response, hz)
+    else:
+        gain = phase = math.nan  # the held platform after a trip is no response
+    return SineResult(axis, amplitude, hz, gain, phase, health, t - t[0], command, response)
+
+
+SWEEP_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 15.0)
+
+
+@dataclass(frozen=True)
+class SweepResult(Checked):
+    axis: str
+    amplitude: float
+    frequencies: tuple[float, ...]
+    """The frequencies measured: the sweep stops at the first invalid one (included)."""
+    gains_db: tuple[float, ...]
+    phases_deg: tuple[float, ...]
+    bandwidth_hz: float
+    """First frequency where the gain falls below -3 dB (interpolated) when measured; the
+    last valid frequency when only a lower bound is known; NaN when unknown."""
+    bandwidth_kind: str
+    """``measured``, ``lower_bound`` (the gain stayed above -3 dB up to the top of the sweep
+    or up to where it stopped) or ``unknown`` (the first frequency was already invalid)."""
+    health: Health
+    """Of the sweep as a whole: the first invalid frequency's, or the last one's."""
+    stopped_hz: float | None
+    """The frequency at which the sweep stopped because it tripped or saturated."""
+    requested: tuple[float, ...] = ()
+
+
+def sweep(
+    axis: str = "pitch",
+    amplitude: float = 2.0,
+    frequencies: tuple[float, ...] = SWEEP_HZ,
+    seed: int = 1,
+) -> SweepResult:
+    """Frequency response of one axis and its -3 dB bandwidth.
+
+    Stops at the first frequency whose run tripped or hit the range of motion: a trip is
+    not roll-off. The bandwidth is then measured only if the gain had already fallen below
+    -3 dB; otherwise it is a lower bound (the last valid frequency), or unknown.
+    """
+    for f in frequencies:
+        check_sine(axis, amplitude, f)
+    done: list[float] = []
+    gains: list[float] = []
+    phases: list[float] = []
+    health: Health | None = None
+    stopped: float | None = None
+    for f in frequencies:
+        r = sine(axis, amplitude, f, cycles=max(3, min(12, int(2 * f))), seed=seed)
+        done.append(f)
+        gains.append(r.gain_db)
+        phases.append(r.phase_deg)
+        health = r.health
+        if not r.valid:
+            stopped = f
+            break
+    assert health is not None
+    valid_f = done[:-1] if stopped is not None else done
+    bw, kind = math.nan, "unknown"
+    for n in range(len(valid_f)):
+        if gains[n] < -3.0:
+            if n == 0:
+                bw = valid_f[0]
+            else:
+                f0, f1, g0, g1 = valid_f[n - 1], valid_f[n], gains[n - 1], gains[n]
+                bw = f0 + (f1 - f0) * (-3.0 - g0) / (g1 - g0)
+            kind = "measured"
+            break
+    else:
+        if valid_f:
+            bw, kind = valid_f[-1], "lower_bound"
+    if kind == "measured" and stopped is not None:
+        # The trip came after the gain had fallen: the bandwidth itself was measured.
+        health = Health(
+            health.tripped, health.trip, health.trip_time_s, health.saturated, True, None
+        )
+    return SweepResult(
+        axis,
+        amplitude,
+        tuple(done),
+        tuple(gains),
+        tuple(phases),
+        bw,
+        kind,
+        health,
+        stopped,
+        tuple(frequencies),
+    )
+
+
+@dataclass(frozen=True)
+class ImpedanceResult(Checked):
+    axis: str
+    stiffness: float
+    damping: float
+    measured_stiffness: float
+    error_pct: float
+    health: Health
+    t: NDArray[np.float64] = field(repr=False)
+    angle: NDArray[np.float64] = field(repr=False)
+    """Platform angle (rad) or position (m) from home."""
+    torque: NDArray[np.float64] = field(repr=False)
+    """Measured foot torque (N m) or force (N) on that axis, tare removed."""
+
+
+def check_impedance(axis: str, k: float, b: float, torque: float) -> int:
+    """Refuse an impedance experiment that cannot be measured; returns the axis index."""
+    ax = _axis(axis)
+    if not _angular(ax):
+        raise CommandError("the patient pushes with a torque: choose roll, pitch or yaw")
+    for name, v in (("stiffness", k), ("damping", b), ("torque", torque)):
+        if not math.isfinite(v):
+            raise CommandError(f"{name} must be a finite number")
+    limits = SafetyLimits()
+    if k <= 0.0:
+        raise CommandError("stiffness must be positive to measure it")
+    if k > limits.stiffness_max[ax]:
+        raise CommandError(f"stiffness must be at most {limits.stiffness_max[ax]:g} N m/rad")
+    if b < 0.0:
+        raise CommandError("damping cannot be negative")
+    if b > limits.damping_max[ax]:
+        raise CommandError(f"damping must be at most {limits.damping_max[ax]:g} N m s/rad")
+    if not TORQUE_MIN_NM <= abs(torque) <= TORQUE_MAX_NM:
+        raise CommandError(
+            f"torque must be {TORQUE_MIN_NM:g}..{TORQUE_MAX_NM:g} N m either way (resolved by "
+            f"the force plate; below its {limits.torque_limit:g} N m trip), got {torque:g}"
+        )
+    # The deflection the patient's torque causes must move the legs by enough counts.
+    smallest = _sine_min_amplitude(ax)
+    if abs(torque) / k < smallest:
+        raise CommandError(
+            f"torque {torque:g} N m against K = {k:g} moves {axis} "
+            f"{math.degrees(abs(torque) / k):.3g} deg, below the "
+            f"{math.degrees(smallest):.3g} deg the leg sensors resolve"
+        )
+    return ax
+
+
+def _impedance_rig(ax: int, k: float, b: float, seed: int) -> Rig:
+    rig = _rig("relaxed", True, seed)
+    _settle_at_home(rig)
+    K = np.full(6, 0.0)
+    B = np.full(6, 0.0)
+    K[ax], B[ax] = k, b
+    on = [i == ax for i in range(6)]
+    rig.set_impedance(K, B, on)
+    rig.track({})
+    rig.run(0.3)
+    return rig
+
+
+def impedance(
+    axis: str = "pitch",
+    k: float = 50.0,
+    b: float = 1.0,
+    torque: float = 10.0,
+    ramp_s: float = 4.0,
+    seed: int = 1,
+) -> ImpedanceResult:
+    """The patient pushes with a slow torque ramp against the rendered impedance (Figure 12).
+
+    Returns the stiffness measured as the slope of foot torque against platform angle.
+    """
+    ax = check_impedance(axis, k, b, torque)
+    rig = _impedance_rig(ax, k, b, seed)
+    t0 = rig.time
+    rig.hardware.script_torque(ax, SCRIPT_RAMP, t0, torque / ramp_s, torque)  # type: ignore[attr-defined]
+    rig.clear_log()
+    log = rig.run(ramp_s + 0.5)
+    home = rig.geometry.home_pose[ax]
+    angle = log[:, COL[f"pose_meas_{AXES[ax]}"]] - home
+    tq = log[:, COL[f"wrench_{AXES[ax]}"]] - rig.state.tare[ax]
+    t = log[:, 0] - t0
+    window = (t > 0.15 * ramp_s) & (t < ramp_s)
+    health = assess(rig, log, frozenset({"range_of_motion"}))
+    slope = stiffness_slope(angle[window], tq[window]) if health.valid else math.nan
+    return ImpedanceResult(axis, k, b, slope, abs(slope - k) / k * 100.0, health, t, angle, tq)
+
+
+IMPEDANCE_HZ: tuple[float, ...] = (0.5, 1.0, 2.0)
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """One least-squares fit of torque = K angle + B rate + c."""
+
+    hz: float | None
+    """The patient's torque frequency; None for the joint fit over all of them."""
+    stiffness: float
+    damping: float
+    offset: float
+    patient_stiffness: float
+    """The same fit of the patient's own (active, scripted) torque: what the patient's
+    muscles work against, the rendered impedance plus the passive ankle in parallel."""
+    patient_damping: float
+    law_stiffness: float
+    """The same fit of the measured torque against the commanded pose: the admittance law
+    alone, before the position loop has to follow it."""
+    law_damping: float
+
+
+@dataclass(frozen=True)
+class DynamicImpedanceResult(Checked):
+    """The patient applies a sinusoidal torque at several frequencies (``--mode dynamic``).
+
+    The fit uses the force plate's torque, which is the wrench between foot and plate: the
+    patient's active torque minus what the relaxed ankle's own stiffness and damping (in
+    parallel, device/plant/params.py) take up. It therefore measures the impedance the
+    device renders, K and B, not the patient's. The patient's muscles feel K + K_ankle and
+    B + B_ankle: the same fit of the scripted active torque (``patient_*``, known only in
+    simulation) shows that sum.
+    """
+
+    axis: str
+    stiffness: float
+    damping: float
+    torque: float
+    fits: tuple[FitResult, ...]
+    """One per frequency, then the joint fit (``hz`` None)."""
+    health: Health
+
+    @property
+    def joint(self) -> FitResult:
+        return self.fits[-1]
+
+    @property
+    def stiffness_error_pct(self) -> float:
+        return abs(self.joint.stiffness - self.stiffness) / self.stiffness * 100.0
+
+    @property
+    def damping_error(self) -> float:
+        """Absolute error of B (N m s/rad): B may be 0, so no percentage by default."""
+        return abs(self.joint.damping - self.damping)
+
+    @property
+    def damping_error_pct(self) -> float:
+        return self.damping_error / self.damping * 100.0 if self.damping > 0 else math.nan
+
+
+def check_dynamic(axis: str, k: float, b: float, torque: float, hz: tuple[float, ...]) -> int:
+    ax = check_impedance(axis, k, b, torque)
+    lo, hi = IMPEDANCE_HZ_RANGE
+    if not hz or not all(math.isfinite(f) and lo <= f <= hi for f in hz):
+        raise CommandError(f"patient torque frequencies must be {lo:g}..{hi:g} Hz")
+    return ax
+
+
+def impedance_dynamic(
+    axis: str = "pitch",
+    k: float = 50.0,
+    b: float = 1.0,
+    torque: float = 5.0,
+    hz: tuple[float, ...] = IMPEDANCE_HZ,
+    seed: int = 1,
+) -> DynamicImpedanceResult:
+    """The patient's torque is a sine at each of ``hz`` in turn; K and B are fitted by least
+    squares of the measured torque on angle and angular rate (per frequency and jointly)."""
+    ax = check_dynamic(axis, k, b, torque, hz)
+    rig = _impedance_rig(ax, k, b, seed)
+    home = rig.geometry.home_pose[ax]
+    windows = []
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    for f in hz:
+        t0 = rig.time
+        hw.script_torque(ax, SCRIPT_SINE, t0, torque, f)
+        rig.run(max(1.0 / f, 0.5))  # the transient of the new frequency dies
+        rig.clear_log()
+        cycles = max(3, math.ceil(2.0 * f))
+        log = rig.run(cycles / f)
+        health = assess(rig, log, frozenset({"range_of_motion"}))
+        if not health.valid:
+            hw.script_torque(ax, 0, 0.0, 0.0, 0.0)
+            return DynamicImpedanceResult(axis, k, b, torque, (), health)
+        t = log[:, 0]
+        angle = log[:, COL[f"pose_meas_{AXES[ax]}"]] - home
+        tq = log[:, COL[f"wrench_{AXES[ax]}"]] - rig.state.tare[ax]
+        active = torque * np.sin(2.0 * math.pi * f * (t - t0))
+        command = log[:, COL[f"pose_cmd_{AXES[ax]}"]] - home
+        windows.append((f, t, angle, tq, active, health, command))
+    hw.script_torque(ax, 0, 0.0, 0.0, 0.0)
+    fits = []
+    for f, t, angle, tq, active, _, command in windows:
+        fit = impedance_fit(t, angle, tq, f)
+        pfit = impedance_fit(t, angle, active, f)
+        lfit = impedance_fit(t, command, tq, f)
+        fits.append(FitResult(f, fit[0], fit[1], fit[2], pfit[0], pfit[1], lfit[0], lfit[1]))
+    joint = impedance_fit(
+        [w[1] for w in windows], [w[2] for w in windows], [w[3] for w in windows], list(hz)
+    )
+    pjoint = impedance_fit(
+        [w[1] for w in windows], [w[2] for w in windows], [w[4] for w in windows], list(hz)
+    )
+    ljoint = impedance_fit(
+        [w[1] for w in windows], [w[6] for w in windows], [w[3] for w in windows], list(hz)
+    )
+    fits.append(
+        FitResult(None, *joint, pjoint[0], pjoint[1], ljoint[0], ljoint[1])  # joint fit
+    )
+    saturated = sorted({s for w in windows for s in w[5].saturated})
+    health = Health(False, None, None, tuple(saturated), True, None)
+    return DynamicImpedanceResult(axis, k, b, torque, tuple(fits), health)

@@ -1,0 +1,66 @@
+"""Benchmark targets and the Markdown table every benchmark prints.
+
+A row whose measurement is invalid (its experiment tripped or saturated) shows
+``INVALID (reason)`` instead of a number and never counts as met.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Target:
+    key: str
+    label: str
+    bound: float
+    kind: str  # "max", "min" or "eq"
+
+    def met(self, value: float) -> bool:
+        if math.isnan(value):
+            return False
+        if self.kind == "max":
+            return value <= self.bound
+        if self.kind == "min":
+            return value >= self.bound
+        return value == self.bound
+
+    def text(self) -> str:
+        return {"max": "<= ", "min": ">= ", "eq": "= "}[self.kind] + f"{self.bound:g}"
+
+
+def table(
+    result: dict[str, Any],
+    rows: tuple[tuple[str, str], ...],
+    targets_met: tuple[Target, ...],
+    invalid: dict[str, str] | None = None,
+) -> str:
+    """A benchmark as a Markdown table (what the README shows).
+
+    ``invalid`` maps a row's key to why its number cannot be trusted; such a row shows
+    ``INVALID (reason)`` and its target is not met.
+    """
+    targets = {t.key: t for t in targets_met}
+    bad = invalid or {}
+    lines = ["| metric | value | target | met |", "|---|---:|---|---|"]
+    for key, label in rows:
+        tgt = targets.get(key)
+        if key in bad:
+            lines.append(
+                f"| {label} | INVALID ({bad[key]}) | {tgt.text() if tgt else ''} | "
+                f"{'NO' if tgt else ''} |"
+            )
+            continue
+        value = result[key]
+        text = f"{value:.3g}" if isinstance(value, float) else str(value)
+        if isinstance(value, float) and abs(value) >= 1000:
+            text = f"{value:,.0f}"
+        if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
+            text = f"> {text} (top of sweep)"
+        lines.append(
+            f"| {label} | {text} | {tgt.text() if tgt else ''} | "
+            f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |"
+        )
+    return "\n".join(lines)
