@@ -218,8 +218,8 @@ def _experiment(args: argparse.Namespace) -> int:
     elif args.experiment == "sine":
         ex.check_sine(args.axis, args.amplitude, args.hz)
     elif args.experiment == "sweep":
-        for f in ex.SWEEP_HZ:
-            ex.check_sine(args.axis, args.amplitude, f)
+        # The sweep ends below the device's speed limit; the rest must be measurable.
+        ex.check_sine(args.axis, args.amplitude, ex.SWEEP_HZ[0])
     elif args.experiment == "staircase":
         ex.check_staircase(args.leg, args.mm)
     elif args.experiment == "impedance":
@@ -385,6 +385,13 @@ def _experiment(args: argparse.Namespace) -> int:
             bw = f"not measured, only a lower bound: above {r4.bandwidth_hz:g} Hz"
         else:
             bw = "unknown"
+        if math.isfinite(r4.speed_limit_hz):
+            stop += (
+                f"; the device refuses this amplitude above {r4.speed_limit_hz:.3g} Hz "
+                "(its axis speed limit), so the sweep ends there"
+            )
+            if r4.bandwidth_kind == "lower_bound" and r4.stopped_hz is None:
+                bw = f"above {r4.bandwidth_hz:g} Hz (gain never below -3 dB; lower bound)"
         text = f"{what}: -3 dB bandwidth {bw} ({rows}){stop}"
         data = {
             "axis": r4.axis,
@@ -399,6 +406,7 @@ def _experiment(args: argparse.Namespace) -> int:
             ),
             "bandwidth_kind": r4.bandwidth_kind,
             "stopped_hz": r4.stopped_hz,
+            "speed_limit_hz": r4.speed_limit_hz if math.isfinite(r4.speed_limit_hz) else None,
         }
         # An invalid sweep keeps the gains it measured before it stopped (the stopped
         # frequency's is null): they are valid points, but there is no bandwidth.

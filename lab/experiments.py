@@ -224,10 +224,12 @@ def _rig(
     compensate: bool = True,
     seed: int = 1,
     plant: PlantConfig | None = None,
+    limits: SafetyLimits | None = None,
 ) -> Rig:
     cfg = plant if plant is not None else PlantConfig(patient=patient)
     hw = SimulatedHardware(cfg, seed=seed)
-    return Rig(hw, ControllerConfig(deadband_compensation=compensate))
+    config = ControllerConfig(deadband_compensation=compensate)
+    return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)
 
 
 def _settle_at_home(rig: Rig) -> None:
@@ -396,7 +398,7 @@ SINE_HZ_RANGE = (0.05, 20.0)
 on a sine command."""
 
 
-def check_sine(axis: str, amplitude: float, hz: float) -> None:
+def check_sine(axis: str, amplitude: float, hz: float, limits: SafetyLimits | None = None) -> None:
     """Refuse a sine that cannot be measured (before any simulation)."""
     k = _axis(axis)
     scale, unit = _unit(k)
@@ -410,6 +412,26 @@ def check_sine(axis: str, amplitude: float, hz: float) -> None:
     lo, hi = SINE_HZ_RANGE
     if not (math.isfinite(hz) and lo <= hz <= hi):
         raise CommandError(f"frequency must be {lo:g}..{hi:g} Hz, got {hz:g}")
+    lim = _LIMITS if limits is None else limits
+    fastest = speed_limit_hz(axis, amplitude, lim)
+    if hz > fastest:
+        raise CommandError(
+            f"{axis} {amplitude:g} {unit} at {hz:g} Hz is faster than the device accepts "
+            f"(axis speed limit {lim.axis_speed_max[k]:g} {'rad' if k >= 3 else 'm'}/s: "
+            f"at most {fastest:.3g} Hz at this amplitude)"
+        )
+
+
+_LIMITS = SafetyLimits().published()
+
+
+def speed_limit_hz(axis: str, amplitude: float, limits: SafetyLimits | None = None) -> float:
+    """Highest sine frequency the device accepts at ``amplitude`` (deg or mm): its axis speed
+    limit (``SafetyLimits.axis_speed_max``) bounds the target's peak speed 2 pi f A."""
+    k = _axis(axis)
+    a = amplitude * _unit(k)[0]
+    lim = _LIMITS if limits is None else limits
+    return lim.axis_speed_max[k] / (2.0 * math.pi * a) if a > 0 else math.inf
 
 
 def sine(
@@ -419,12 +441,13 @@ def sine(
     cycles: int = 6,
     patient: str = "relaxed",
     seed: int = 1,
+    limits: SafetyLimits | None = None,
 ) -> SineResult:
     """Pose tracking of a sine on one axis (paper, Figure 10). Amplitude in deg or mm."""
-    check_sine(axis, amplitude, hz)
+    check_sine(axis, amplitude, hz, limits)
     k = _axis(axis)
     scale = _unit(k)[0]
-    rig = _rig(patient, True, seed)
+    rig = _rig(patient, True, seed, limits=limits)
     _settle_at_home(rig)
     rig.track({axis: AxisTarget(Waveform.SINE, 0.0, amplitude * scale, hz)})
     lead = max(1.0 / hz, 0.3)  # let the start-up transient die
@@ -466,6 +489,9 @@ class SweepResult(Checked):
     stopped_hz: float | None
     """The frequency at which the sweep stopped because it tripped or saturated."""
     requested: tuple[float, ...] = ()
+    speed_limit_hz: float = math.inf
+    """Above this frequency the device refuses the sine (its axis speed limit), so the sweep
+    ends below it; inf when every requested frequency was within the limit."""
 
 
 def sweep(
@@ -473,6 +499,7 @@ def sweep(
     amplitude: float = 2.0,
     frequencies: tuple[float, ...] = SWEEP_HZ,
     seed: int = 1,
+    limits: SafetyLimits | None = None,
 ) -> SweepResult:
     """Frequency response of one axis and its -3 dB bandwidth.
 
@@ -480,15 +507,18 @@ def sweep(
     not roll-off. The bandwidth is then measured only if the gain had already fallen below
     -3 dB; otherwise it is a lower bound (the last valid frequency), or unknown.
     """
+    fastest = speed_limit_hz(axis, amplitude, limits)
+    requested = tuple(frequencies)
+    frequencies = tuple(f for f in frequencies if f <= fastest)
     for f in frequencies:
-        check_sine(axis, amplitude, f)
+        check_sine(axis, amplitude, f, limits)
     done: list[float] = []
     gains: list[float] = []
     phases: list[float] = []
     health: Health | None = None
     stopped: float | None = None
     for f in frequencies:
-        r = sine(axis, amplitude, f, cycles=max(3, min(12, int(2 * f))), seed=seed)
+        r = sine(axis, amplitude, f, cycles=max(3, min(12, int(2 * f))), seed=seed, limits=limits)
         done.append(f)
         gains.append(r.gain_db)
         phases.append(r.phase_deg)
@@ -526,7 +556,8 @@ def sweep(
         kind,
         health,
         stopped,
-        tuple(frequencies),
+        requested,
+        fastest if len(frequencies) < len(requested) else math.inf,
     )
 
 

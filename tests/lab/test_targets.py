@@ -8,6 +8,7 @@ import math
 
 import pytest
 
+from device.limits import SafetyLimits
 from lab import experiments as ex
 
 
@@ -41,12 +42,15 @@ def test_rendered_pitch_stiffness_is_within_5_percent(k: float) -> None:
 
 
 def test_a_sweep_stops_at_the_first_trip_and_reports_no_roll_off() -> None:
-    # 5 deg pitch: 7 Hz is followed, 8 Hz needs more than the 0.4 m/s leg speed limit.
-    r = ex.sweep("pitch", 5.0, frequencies=(7.0, 8.0, 10.0))
-    assert r.stopped_hz == 8.0 and r.frequencies == (7.0, 8.0)
+    # Every sine the device accepts stays below its 0.4 m/s leg speed limit, so a rig whose
+    # limit is 0.1 m/s stands in for a device that trips: 2 deg pitch at 2 Hz moves the legs
+    # at about 0.04 m/s, at 6 Hz at about 0.13 m/s.
+    slow = SafetyLimits(leg_speed_limit=0.1)
+    r = ex.sweep("pitch", 2.0, frequencies=(2.0, 6.0, 8.0), limits=slow)
+    assert r.stopped_hz == 6.0 and r.frequencies == (2.0, 6.0)
     assert r.tripped and r.trip == "LEG_SPEED" and not r.valid
     assert math.isnan(r.gains_db[-1])  # the tripped frequency has no gain
-    assert r.bandwidth_kind == "lower_bound" and r.bandwidth_hz == 7.0
+    assert r.bandwidth_kind == "lower_bound" and r.bandwidth_hz == 2.0
 
 
 def test_dynamic_impedance_recovers_k_and_b_on_pitch() -> None:
@@ -64,11 +68,15 @@ def test_dynamic_impedance_recovers_k_and_b_on_pitch() -> None:
     assert 12.0 <= j.patient_stiffness - j.stiffness <= 18.0, j
 
 
+FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0))
+"""A lab rig that accepts targets faster than the device does (its own limit is 0.1 m/s)."""
+
+
 def test_a_flow_limited_sine_says_its_valves_saturated() -> None:
-    r = ex.sine("z", 20.0, 3.0, cycles=3)
+    r = ex.sine("z", 20.0, 3.0, cycles=3, limits=FAST)
     assert "valve_duty" in r.saturated and not r.tripped
     assert r.valid  # the valves' flow limit is the device's real response, not a fault
-    small = ex.sine("z", 2.0, 3.0, cycles=3)
+    small = ex.sine("z", 2.0, 3.0, cycles=3, limits=FAST)
     assert small.saturated == () and small.valid
 
 
