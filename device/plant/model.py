@@ -317,6 +317,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                 if s.fault_now[0, v] >= 0.0:
                     s.valve_open[v] = s.fault_now[0, v]
         supply_draw = 0.0  # kg/s into the chambers through their intakes
+        p_valves = s.supply[0]  # what the intakes see; changes only after the chambers
         # The pose does not change until the integration at the end, so its rotation (and
         # the sines and cosines the integration needs) are computed once.
         cr, sr = math.cos(s.pose[3]), math.sin(s.pose[3])
@@ -347,7 +348,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                     dvol = -area * xd
                 vol = max(vol, 0.2 * p.dead_volume)  # a bottomed piston still leaves its port
                 pc = s.pressure[c]
-                m_in = iso6358_mass_flow(s.supply[0], pc, s.valve_open[2 * c], p)
+                m_in = iso6358_mass_flow(p_valves, pc, s.valve_open[2 * c], p)
                 m_out = iso6358_mass_flow(pc, p.p_atm, s.valve_open[2 * c + 1], p)
                 supply_draw += m_in
                 if faulty and s.fault_now[1, c] > 0.0:  # a leak: an orifice to atmosphere
