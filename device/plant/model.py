@@ -475,7 +475,8 @@ def supply_substep(
     this runs (nor while a fault table waits with no supply fault due); once the supply is
     back within 1 Pa of its setting it is snapped back to it.
     """
-    s.supply[1] = target + (s.supply[1] - target) * math.exp(-dt / p.supply_droop_tau)
+    if s.supply[1] != target:
+        s.supply[1] = target + (s.supply[1] - target) * math.exp(-dt / p.supply_droop_tau)
     upstream = p.p_atm if lost else s.supply[1]
     ps = s.supply[0]
     m_line = iso6358_mass_flow(upstream, ps, p.supply_line_fraction, p)
@@ -541,7 +542,8 @@ def sensor_faults(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> No
     A stuck sensor keeps the first reading it gave from t0 on (in the row's last column,
     NaN until then). An offset is added before the ADC: the result is quantised and clipped
     to the sensor's range, as a real one would be. Healthy channels are untouched, and the
-    random numbers of their noise are the same with or without faults elsewhere.
+    random numbers of their noise are the same with or without faults elsewhere (except
+    after a LEG_NOISE burst, which draws its own numbers from the same generator).
     """
     t = s.time[0]
     for r in range(s.faults.shape[0]):
