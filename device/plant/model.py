@@ -281,8 +281,10 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     (22 for a state and its parameters); per substep these used to cost more than the
     physics. So nothing here allocates (the working arrays live in ``s.scratch``), the
     helpers called per substep take and return numbers and tuples and get inlined, and only
-    the linear solve is a call with arrays. The arithmetic is that of the plain version
-    operation for operation, so the results are bit-identical to it.
+    the linear solve is a call with arrays (and, only while the fault table holds a fault or
+    the supply is recovering from one, the fault helpers). The arithmetic is that of the plain
+    version operation for operation, so the results are bit-identical to it; with no fault
+    they are bit-identical to the plant before faults existed (tests/device/test_plant_faults).
     """
     n = p.substeps
     dt = p.dt / n
