@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device.plant import model
+from device.plant.faults import Fault, FaultKind, fault_row
 from device.plant.params import PlantConfig, PlantParams, build_params
 
 
@@ -63,6 +64,34 @@ class SimulatedHardware(Hardware):
         if axis not in (3, 4, 5):
             raise ValueError("the patient's torque acts about roll (3), pitch (4) or yaw (5)")
         self.state.script[axis, :] = (kind, t0, a, b)
+
+    def inject(self, fault: Fault) -> None:
+        """Add ``fault`` to the plant's fault table; it acts from ``fault.time`` (plant time).
+
+        A fault whose time has passed acts from the next tick. Raises ValueError when the
+        table is full or the fault makes no sense for this plant.
+        """
+        if not isinstance(fault, Fault):
+            raise ValueError(f"inject needs a Fault, not {type(fault).__name__}")
+        if fault.kind == FaultKind.SUPPLY_DROOP:
+            setting = (self.params.p_supply - self.params.p_atm) / 1e5
+            if fault.value >= setting:
+                raise ValueError(
+                    f"supply_droop to {fault.value:g} bar gauge is no droop: "
+                    f"the supply is set to {setting:g} bar gauge"
+                )
+        table = self.state.faults
+        free = [r for r in range(table.shape[0]) if table[r, 0] == 0.0]
+        if not free:
+            raise ValueError(
+                f"the plant's fault table is full ({table.shape[0]} faults); clear_faults() first"
+            )
+        table[free[0], :] = fault_row(fault)
+
+    def clear_faults(self) -> None:
+        """Remove every fault. Sensors read true at once; a stuck valve moves with its coil
+        again; a lost or drooped supply recovers through its line, as a real one would."""
+        self.state.faults[:] = 0.0
 
 
 HARDWARE_KINDS = ("sim", "board")

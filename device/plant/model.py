@@ -15,6 +15,11 @@ One call of :func:`plant_tick` advances the physics by one controller tick (1/70
 - patient: spring-damper of the strapped leg and passive ankle, the shank's preload and a
   scripted active torque (relaxed, resisting, pushing).
 
+- faults (``device.plant.faults``): a fixed table of rows (kind, t0, channel, value in SI,
+  t_end, held reading) acting while t0 <= t < t_end. Physical faults (supply, stuck valves,
+  leaks) act in :func:`plant_tick`; sensor faults only change what :func:`read_sensors`
+  reports, never the physics. An empty table costs one comparison per tick.
+
 Chamber ``2 i`` is the cap (lower) side of leg ``i`` and ``2 i + 1`` its rod (upper) side;
 valve ``2 c`` is the intake and ``2 c + 1`` the exhaust of chamber ``c``.
 """
@@ -48,6 +53,7 @@ from device.kinematics import (
     v3_scale,
     v3_sub,
 )
+from device.plant.faults import FAULT_COLUMNS, MAX_FAULTS, FaultKind
 from device.plant.params import PlantParams
 
 
@@ -66,12 +72,32 @@ class PlantState(NamedTuple):
     leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
     script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
     scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick, not state (see there)
+    supply: NDArray[np.float64]  # (2,) Pa abs: valve manifold, regulator output
+    faults: NDArray[np.float64]  # (MAX_FAULTS, FAULT_COLUMNS) fault table, filled from row 0
+    fault_now: NDArray[np.float64]  # (2, 24) per tick: valve armature override (-1 none), leak
 
 
 SCRIPT_NONE = 0
 SCRIPT_CONSTANT = 1  # a after t0
 SCRIPT_RAMP = 2  # a * (t - t0) after t0, limited to |b|
 SCRIPT_SINE = 3  # a * sin(2 pi b (t - t0)) after t0
+
+# Fault kinds as plain integers: compile-time constants for numba.
+F_SUPPLY_LOSS = int(FaultKind.SUPPLY_LOSS)
+F_SUPPLY_DROOP = int(FaultKind.SUPPLY_DROOP)
+F_PRESSURE_OPEN = int(FaultKind.PRESSURE_OPEN)
+F_PRESSURE_SHORT = int(FaultKind.PRESSURE_SHORT)
+F_PRESSURE_STUCK = int(FaultKind.PRESSURE_STUCK)
+F_PRESSURE_OFFSET = int(FaultKind.PRESSURE_OFFSET)
+F_LEG_STUCK = int(FaultKind.LEG_STUCK)
+F_LEG_OFFSET = int(FaultKind.LEG_OFFSET)
+F_LEG_NOISE = int(FaultKind.LEG_NOISE)
+F_FT_DEAD = int(FaultKind.FT_DEAD)
+F_FT_SATURATED = int(FaultKind.FT_SATURATED)
+F_FT_OFFSET = int(FaultKind.FT_OFFSET)
+F_VALVE_STUCK_OPEN = int(FaultKind.VALVE_STUCK_OPEN)
+F_VALVE_STUCK_CLOSED = int(FaultKind.VALVE_STUCK_CLOSED)
+F_CHAMBER_LEAK = int(FaultKind.CHAMBER_LEAK)
 
 
 def new_state(params: PlantParams) -> PlantState:
@@ -89,6 +115,9 @@ def new_state(params: PlantParams) -> PlantState:
         leg_force=np.zeros(6),
         script=np.zeros((6, 4)),
         scratch=np.zeros((2, 6, 7)),
+        supply=np.full(2, params.p_supply),
+        faults=np.zeros((MAX_FAULTS, FAULT_COLUMNS)),
+        fault_now=np.zeros((2, 24)),
     )
     static_pressures(s, params)
     return s
@@ -252,8 +281,10 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     (22 for a state and its parameters); per substep these used to cost more than the
     physics. So nothing here allocates (the working arrays live in ``s.scratch``), the
     helpers called per substep take and return numbers and tuples and get inlined, and only
-    the linear solve is a call with arrays. The arithmetic is that of the plain version
-    operation for operation, so the results are bit-identical to it.
+    the linear solve is a call with arrays (and, only while the fault table holds a fault or
+    the supply is recovering from one, the fault helpers). The arithmetic is that of the plain
+    version operation for operation, so the results are bit-identical to it; with no fault
+    they are bit-identical to the plant before faults existed (tests/device/test_plant_faults).
     """
     n = p.substeps
     dt = p.dt / n
@@ -264,12 +295,31 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     f = s.scratch[0, :, 6]  # net force on each leg
     MW = s.scratch[1]  # [M | W]: mass matrix and generalised forces, solved in place
     W = MW[:, 6]
+    # Faults: with an empty table and a healthy supply this is the whole cost.
+    faulty = s.faults[0, 0] != 0.0 or s.supply[0] != p.p_supply or s.supply[1] != p.p_supply
+    supply_lost = False
+    regulator = p.p_supply
+    supply_dynamic = False  # the supply side is a volume behind a line, not an ideal source
+    if faulty:
+        supply_lost, regulator = physical_faults(s, p)
+        supply_dynamic = (
+            supply_lost
+            or regulator != p.p_supply
+            or s.supply[0] != p.p_supply
+            or s.supply[1] != p.p_supply
+        )
     for _ in range(n):
         for v in range(24):  # valves_substep, spelled out to keep s and p out of a call
             s.valve_timer[v] += dt
             s.valve_open[v] = valve_opening(
                 s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], p.valve_delay, valve_rate
             )
+        if faulty:
+            for v in range(24):  # a stuck armature, whatever the coil
+                if s.fault_now[0, v] >= 0.0:
+                    s.valve_open[v] = s.fault_now[0, v]
+        supply_draw = 0.0  # kg/s into the chambers through their intakes
+        p_valves = s.supply[0]  # what the intakes see; changes only after the chambers
         # The pose does not change until the integration at the end, so its rotation (and
         # the sines and cosines the integration needs) are computed once.
         cr, sr = math.cos(s.pose[3]), math.sin(s.pose[3])
@@ -300,8 +350,11 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                     dvol = -area * xd
                 vol = max(vol, 0.2 * p.dead_volume)  # a bottomed piston still leaves its port
                 pc = s.pressure[c]
-                m_in = iso6358_mass_flow(p.p_supply, pc, s.valve_open[2 * c], p)
+                m_in = iso6358_mass_flow(p_valves, pc, s.valve_open[2 * c], p)
                 m_out = iso6358_mass_flow(pc, p.p_atm, s.valve_open[2 * c + 1], p)
+                supply_draw += m_in
+                if faulty and s.fault_now[1, c] > 0.0:  # a leak: an orifice to atmosphere
+                    m_out += iso6358_mass_flow(pc, p.p_atm, s.fault_now[1, c], p)
                 inflow = (p.alpha_in if m_in > 0.0 else p.alpha_out) * m_in
                 outflow = (p.alpha_out if m_out > 0.0 else p.alpha_in) * m_out
                 dp = rt / vol * (inflow - outflow) - p.alpha_work * pc * dvol / vol
@@ -317,6 +370,8 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
             elif x > p.stroke:
                 force -= p.stop_k * (x - p.stroke) + p.stop_c * max(xd, 0.0)
             f[i] = force
+        if supply_dynamic:
+            supply_substep(s, p, supply_lost, regulator, supply_draw, dt)
         # Generalised forces on the platform (base frame, about the ankle).
         r = m3_vec(R, p.body_com)
         patient_wrench(s, p, W)
@@ -376,6 +431,72 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
 
 
 @njit
+def physical_faults(s: PlantState, p: PlantParams) -> tuple[bool, float]:
+    """Fill ``s.fault_now`` for this tick; return (supply hose off, regulator's target).
+
+    Row 0 of ``fault_now``: the armature position a stuck valve is held at (-1: free).
+    Row 1: each chamber's leak to atmosphere as a fraction of one valve's conductance.
+    """
+    t = s.time[0]
+    for v in range(24):
+        s.fault_now[0, v] = -1.0
+        s.fault_now[1, v] = 0.0
+    lost = False
+    target = p.p_supply
+    for r in range(s.faults.shape[0]):
+        kind = int(s.faults[r, 0])
+        if kind == 0:
+            break
+        if t < s.faults[r, 1] or t >= s.faults[r, 4]:
+            continue
+        ch = int(s.faults[r, 2])
+        value = s.faults[r, 3]
+        if kind == F_SUPPLY_LOSS:
+            lost = True
+        elif kind == F_SUPPLY_DROOP:
+            target = min(target, p.p_atm + value)
+        elif kind == F_VALVE_STUCK_OPEN:
+            s.fault_now[0, ch] = 1.0
+        elif kind == F_VALVE_STUCK_CLOSED:
+            s.fault_now[0, ch] = 0.0
+        elif kind == F_CHAMBER_LEAK:
+            s.fault_now[1, ch] += value
+    return lost, target
+
+
+@njit
+def supply_substep(
+    s: PlantState, p: PlantParams, lost: bool, target: float, draw: float, dt: float
+) -> None:
+    """The supply side behind the regulator, once a fault has touched it.
+
+    The regulator's output follows ``target`` with the droop time constant; the valve
+    manifold (``supply_volume``) fills from it through the supply line (an ISO 6358 orifice)
+    and feeds the intakes (``draw``, kg/s; negative when chambers blow back). With the hose
+    off the line's far end is the atmosphere. Healthy, the regulator is ideal and none of
+    this runs (nor while a fault table waits with no supply fault due); once the supply is
+    back within 1 Pa of its setting it is snapped back to it.
+    """
+    if s.supply[1] != target:
+        s.supply[1] = target + (s.supply[1] - target) * math.exp(-dt / p.supply_droop_tau)
+    upstream = p.p_atm if lost else s.supply[1]
+    ps = s.supply[0]
+    m_line = iso6358_mass_flow(upstream, ps, p.supply_line_fraction, p)
+    net = m_line - draw
+    alpha = p.alpha_in if net > 0.0 else p.alpha_out
+    ps += alpha * p.gas_r * p.temperature / p.supply_volume * net * dt
+    s.supply[0] = max(1000.0, ps)
+    if (
+        not lost
+        and target == p.p_supply
+        and abs(s.supply[0] - p.p_supply) < 1.0
+        and abs(s.supply[1] - p.p_supply) < 1.0
+    ):
+        s.supply[0] = p.p_supply
+        s.supply[1] = p.p_supply
+
+
+@njit
 def _quantise(value: float, lsb: float) -> float:
     return lsb * math.floor(value / lsb + 0.5)
 
@@ -385,7 +506,7 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     """Sample every sensor with noise and quantisation into ``out`` (see device.signals)."""
     for c in range(12):
         out[c] = _quantise(s.pressure[c] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
-    out[12] = _quantise(p.p_supply + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
+    out[12] = _quantise(s.supply[0] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
     R = m3_rotation(s.pose[3], s.pose[4], s.pose[5])
     for i in range(6):
         length = leg_vector(v3(s.pose, 0), R, row3(p.base, i), row3(p.plat, i))[0]
@@ -412,6 +533,62 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     for k in range(3):
         out[19 + k] = _quantise(Fb[k] + np.random.normal(0.0, p.force_noise), p.force_lsb)
         out[22 + k] = _quantise(Mb[k] + np.random.normal(0.0, p.torque_noise), p.torque_lsb)
+    if s.faults[0, 0] != 0.0:
+        sensor_faults(s, p, out)
+
+
+@njit
+def sensor_faults(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
+    """Replace healthy readings in ``out`` by what the faulty sensors report.
+
+    A stuck sensor keeps the first reading it gave from t0 on (in the row's last column,
+    NaN until then). An offset is added before the ADC: the result is quantised and clipped
+    to the sensor's range, as a real one would be. Healthy channels are untouched, and the
+    random numbers of their noise are the same with or without faults elsewhere (except
+    after a LEG_NOISE burst, which draws its own numbers from the same generator).
+    """
+    t = s.time[0]
+    for r in range(s.faults.shape[0]):
+        kind = int(s.faults[r, 0])
+        if kind == 0:
+            break
+        if t < s.faults[r, 1] or t >= s.faults[r, 4]:
+            continue
+        ch = int(s.faults[r, 2])
+        value = s.faults[r, 3]
+        if kind == F_PRESSURE_OPEN:
+            out[ch] = 0.0
+        elif kind == F_PRESSURE_SHORT:
+            out[ch] = p.pressure_top
+        elif kind == F_PRESSURE_OFFSET:
+            out[ch] = min(max(_quantise(out[ch] + value, p.pressure_lsb), 0.0), p.pressure_top)
+        elif kind == F_PRESSURE_STUCK:
+            out[ch] = _held(s.faults, r, out[ch])
+        elif kind == F_LEG_STUCK:
+            out[13 + ch] = _held(s.faults, r, out[13 + ch])
+        elif kind == F_LEG_OFFSET:
+            out[13 + ch] = min(max(_quantise(out[13 + ch] + value, p.leg_lsb), 0.0), p.stroke)
+        elif kind == F_LEG_NOISE:
+            x = out[13 + ch] + np.random.normal(0.0, value)
+            out[13 + ch] = min(max(_quantise(x, p.leg_lsb), 0.0), p.stroke)
+        elif kind == F_FT_DEAD or kind == F_FT_SATURATED or kind == F_FT_OFFSET:  # noqa: SIM109
+            lo, hi = (0, 6) if ch < 0 else (ch, ch + 1)
+            for k in range(lo, hi):
+                if kind == F_FT_DEAD:
+                    out[19 + k] = 0.0
+                elif kind == F_FT_SATURATED:
+                    out[19 + k] = p.ft_range[k]
+                else:
+                    lsb = p.force_lsb if k < 3 else p.torque_lsb
+                    out[19 + k] = _quantise(out[19 + k] + value, lsb)
+
+
+@njit
+def _held(table: NDArray[np.float64], row: int, reading: float) -> float:
+    """A stuck sensor's reading: the first one it gave while stuck, kept in the row."""
+    if math.isnan(table[row, 5]):
+        table[row, 5] = reading
+    return float(table[row, 5])
 
 
 @njit

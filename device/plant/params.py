@@ -41,6 +41,24 @@ _ROWS: tuple[Param, ...] = (
     ),
     Param("atmosphere", 1.01325e5, "Pa abs", "standard atmosphere"),
     Param(
+        "supply_volume",
+        50.0e-6,
+        "m3",
+        "supply side behind the regulator: manifold of the 12 intake valves (about 20 cm3) plus 1 m of 6 mm bore hose (28 cm3). Only faults use it: healthy, the regulator holds the supply",
+    ),
+    Param(
+        "supply_line_conductance",
+        2.0,
+        "dm3/(s bar)",
+        "ISO 6358 C of 1 m of 6 mm hose with a 1/4 in quick coupling (about 2; same b as the valves). With supply_volume: choked blowdown time constant V/(C rho0 R T) = 25 ms when the hose comes off",
+    ),
+    Param(
+        "supply_droop_time_constant",
+        0.5,
+        "s",
+        "a regulator sagging to a lower output (compressor tank drawn below its set point) changes over seconds; 0.5 s is the fast end, a harsher test",
+    ),
+    Param(
         "temperature",
         293.15,
         "K",
@@ -187,8 +205,21 @@ _ROWS: tuple[Param, ...] = (
     Param("leg_noise", 5.0e-6, "m", "5 um rms noise of the linear position sensor"),
     Param("force_resolution", 1.0 / 16.0, "N", "6-axis sensor of the Mini45 class"),
     Param("force_noise", 0.05, "N", "rms force noise"),
+    Param(
+        "force_range_xy",
+        145.0,
+        "N",
+        "full scale of Fx, Fy: ATI Mini45 calibration SI-145-5, the one whose resolution (1/16 N, 1/752 N m) this table uses. Used only by faults: healthy readings are not clipped",
+    ),
+    Param("force_range_z", 290.0, "N", "full scale of Fz (Mini45 SI-145-5)"),
     Param("torque_resolution", 1.0 / 752.0, "N m", "6-axis sensor of the Mini45 class"),
     Param("torque_noise", 0.003, "N m", "rms torque noise"),
+    Param(
+        "torque_range",
+        5.0,
+        "N m",
+        "full scale of Tx, Ty, Tz (Mini45 SI-145-5); below the torques of a resisting patient, so healthy readings are not clipped",
+    ),
     Param(
         "sensor_below_ankle",
         0.08,
@@ -213,6 +244,9 @@ class PlantParams(NamedTuple):
 
     p_supply: float
     p_atm: float
+    supply_volume: float  # m3, the supply side behind the regulator (faults only)
+    supply_line_fraction: float  # supply line's ISO 6358 C / a valve's C
+    supply_droop_tau: float  # s
     temperature: float
     gas_r: float
     alpha_in: float
@@ -253,6 +287,7 @@ class PlantParams(NamedTuple):
     plat: NDArray[np.float64]  # (6,3)
     sensor_origin: NDArray[np.float64]  # (3,) task frame
     pressure_lsb: float
+    pressure_top: float  # Pa, the ADC's top code: what a shorted transducer reads
     pressure_noise: float
     leg_lsb: float
     leg_noise: float
@@ -260,6 +295,7 @@ class PlantParams(NamedTuple):
     force_noise: float
     torque_lsb: float
     torque_noise: float
+    ft_range: NDArray[np.float64]  # (6,) full scale of Fx Fy Fz Tx Ty Tz (faults only)
     gravity: float
     dt: float  # one tick (s)
     substeps: int
@@ -359,6 +395,9 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
     return PlantParams(
         p_supply=v("supply_pressure"),
         p_atm=p_atm,
+        supply_volume=v("supply_volume"),
+        supply_line_fraction=v("supply_line_conductance") / v("valve_conductance"),
+        supply_droop_tau=v("supply_droop_time_constant"),
         temperature=t,
         gas_r=v("gas_constant"),
         alpha_in=v("alpha_in"),
@@ -399,6 +438,7 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
         plat=np.ascontiguousarray(g.platform_joints),
         sensor_origin=np.array([0.0, 0.0, -v("sensor_below_ankle")]),
         pressure_lsb=v("pressure_range") / 4096.0,
+        pressure_top=v("pressure_range") / 4096.0 * 4095.0,
         pressure_noise=v("pressure_noise"),
         leg_lsb=g.stroke / 2.0 ** v("leg_sensor_bits"),
         leg_noise=v("leg_noise"),
@@ -406,6 +446,9 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
         force_noise=v("force_noise"),
         torque_lsb=v("torque_resolution"),
         torque_noise=v("torque_noise"),
+        ft_range=np.array(
+            [v("force_range_xy")] * 2 + [v("force_range_z")] + [v("torque_range")] * 3
+        ),
         gravity=v("gravity"),
         dt=1.0 / TICK_HZ,
         substeps=config.substeps,
