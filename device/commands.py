@@ -81,6 +81,8 @@ class Context:
     """The loaded segment's compliant axes (for a live impedance change)."""
     legs: tuple[float, ...] | None = None
     """Measured piston displacements (m), for homing."""
+    supply_low: bool = False
+    """The air supply is below its low mark: motion commands wait until it recovers."""
 
 
 Checked = msg.Message | CheckedSegment | CheckedImpedance
@@ -116,6 +118,11 @@ def check(command: msg.Message, ctx: Context) -> Checked:
         )
         return command
     check_not_latched(ctx.mode, ctx.trip)
+    if ctx.supply_low and isinstance(command, msg.ArmHome | msg.StartSegment | msg.Resume):
+        raise CommandError(
+            "the air supply is low: nothing moves until it is back (check the compressor)",
+            code=NackCode.SUPPLY_LOW,
+        )
     if isinstance(command, msg.ArmHome):
         require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD))
         if ctx.legs is not None:

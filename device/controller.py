@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from device import impedance, position_loop, pressure_loop, pwm, safety
+from device import impedance, position_loop, pressure_loop, pwm, safety, supervision
 from device._jit import njit, njit_inline
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.kinematics import (
@@ -57,6 +57,7 @@ from device.limits import LEG_HEADROOM
 from device.plant.params import PARAMETERS, TICK_HZ
 from device.safety import SafetyLimits, Trip
 from device.scheduler import Schedule, Task, schedule
+from device.supervision import SupervisionConfig, SupervisionParams
 from device.waveforms import Waveform as Waveform  # re-exported: older callers import it here
 
 # Task ids: indices into the task list handed to the scheduler.
@@ -77,6 +78,8 @@ class Mode(IntEnum):
 I_TICK, I_MODE, I_TRIP, I_FK_FAIL, I_TRIPS, I_SENSOR_READS = 0, 1, 2, 3, 4, 5
 I_VENT = 6
 """1: release (slow vent through the exhausts) while IDLE or FAULT; 0: hold."""
+I_TRIP_CHANNEL = 7
+"""Sensor, chamber or leg the latched trip names (-1: none), see device.supervision."""
 N_ISTATE = 8
 
 
@@ -168,6 +171,15 @@ class ControllerConfig:
     open at 1.0 ms (7 slots): 8 slots open it fully whatever the valve's delay between 0.7
     and 1.0 ms. A pulse that only cracks the valve (6 slots) would rest on that delay: a
     slower valve would not vent at all and trap the foot."""
+    supervision: SupervisionConfig = SupervisionConfig(
+        ft_force_full_scale=PARAMETERS["force_range_xy"].value,
+        ft_torque_full_scale=PARAMETERS["torque_range"].value,
+    )
+    """Thresholds of the sensor and supply supervision (device.supervision). The force
+    sensor's full scale is its data sheet's, as for any fitted sensor."""
+    dead_volume: float = PARAMETERS["dead_volume"].value
+    """Chamber volume at the end of the stroke, tube included (m3): as built, for judging
+    how much air a chamber holds (device.supervision.check_valves)."""
     vent_every_periods: int = 4
     """...once every this many PWM periods. Measured on the plant from a hold at home (about
     5 bar in every chamber, relaxed foot): every chamber below 0.2 bar after 2.6 s and no leg
@@ -187,7 +199,6 @@ class ControllerParams(NamedTuple):
     p_atm: float
     p_min: float
     p_max: float
-    p_sensor_max: float
     kp_pos: float
     kd_pos: float
     max_error: float
@@ -213,6 +224,9 @@ class ControllerParams(NamedTuple):
     dt_tick: float
     dt_sensor: float
     dt_control: float
+    dead_volume: float
+    area_annulus: float
+    sup: SupervisionParams
 
 
 class ControllerState(NamedTuple):
@@ -242,6 +256,8 @@ class ControllerState(NamedTuple):
     u: NDArray[np.float64]  # (12,) control input (percent)
     slots: NDArray[np.int64]  # (12,) signed PWM slots
     valves: NDArray[np.uint8]  # (24,)
+    monitor: NDArray[np.float64]  # supervision's memory (device.supervision M_*)
+    counters: NDArray[np.int64]  # supervision's counters (device.supervision C_*)
 
 
 def build_params(
@@ -275,7 +291,6 @@ def build_params(
         p_atm=config.atmosphere,
         p_min=config.critical_ratio * p_supply_abs - config.atmosphere,
         p_max=config.supply_pressure,
-        p_sensor_max=1.0e6,
         kp_pos=config.position_kp,
         kd_pos=config.position_kd,
         max_error=config.position_kd * config.approach_speed / config.position_kp,
@@ -301,6 +316,9 @@ def build_params(
         dt_tick=dt_tick,
         dt_sensor=SENSOR_PERIOD * dt_tick,
         dt_control=CONTROL_PERIOD * dt_tick,
+        dead_volume=config.dead_volume,
+        area_annulus=area_ann,
+        sup=supervision.build(config.supervision, config.atmosphere, CONTROL_PERIOD * dt_tick),
     )
     return params, sched
 
@@ -334,19 +352,23 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         u=np.zeros(12),
         slots=np.zeros(12, dtype=np.int64),
         valves=np.zeros(24, dtype=np.uint8),
+        monitor=np.zeros(supervision.N_MONITOR),
+        counters=np.zeros(supervision.N_COUNTERS, dtype=np.int64),
     )
     state.trajectory[:, 1] = home
+    state.istate[I_TRIP_CHANNEL] = -1
     return state
 
 
 @njit
-def trip(s: ControllerState, code: int) -> None:
+def trip(s: ControllerState, code: int, channel: int = -1) -> None:
     """Latch a fault: valves close at this very tick's duty update or the next."""
     if s.istate[I_MODE] != Mode.FAULT:
         s.istate[I_TRIPS] += 1
     s.istate[I_MODE] = Mode.FAULT
     if s.istate[I_TRIP] == 0:
         s.istate[I_TRIP] = code
+        s.istate[I_TRIP_CHANNEL] = channel
     for c in range(12):
         s.slots[c] = 0
         s.integral[c] = 0.0
@@ -401,8 +423,17 @@ def duty_update(s: ControllerState, p: ControllerParams) -> None:
 @njit
 def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     s.istate[I_SENSOR_READS] += 1
-    code = safety.check_sensors(sensors, p.p_sensor_max, p.stroke, p.limits)
-    if code == Trip.SENSOR_INVALID or (code != Trip.NONE and moving(s)):
+    code = safety.check_sensors(sensors, p.stroke, p.limits)
+    if code == Trip.SENSOR_INVALID:
+        trip(s, code)
+        return
+    fault, channel = supervision.check_reading(
+        s.monitor, s.counters, sensors, p.sup, moving(s), s.leg_target
+    )
+    if fault != Trip.NONE:
+        trip(s, fault, channel)
+        return
+    if code != Trip.NONE and moving(s):
         trip(s, code)
         return
     for k in range(25):
@@ -429,6 +460,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.slots[up] = 0
         s.integral[lo] = 0.0
         s.integral[up] = 0.0
+        s.counters[supervision.C_WINDOW + lo] = 0
+        s.counters[supervision.C_WINDOW + up] = 0
         return
     dP = position_loop.pd(
         s.leg_target[leg],
@@ -453,12 +486,28 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     u_u, s.integral[up] = pressure_loop.pi_step(
         e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control, near
     )
+    supply = s.sensors[12]
+    x = s.leg_x[leg]
+    for c in (lo, up):
+        # Driven: a pulse at least as long as the valve's response time, so it moved air.
+        driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
+        if supervision.check_frozen(s.monitor, s.counters, c, s.sensors[c], driven, p.sup):
+            trip(s, Trip.PRESSURE_SENSOR, c)
+            return
     for c, u in ((lo, u_l), (up, u_u)):
         s.u[c] = u
-        if abs(u) <= p.hold_band:
-            s.slots[c] = 0
-        else:
-            s.slots[c] = pwm.duty_slots(pwm.duty(u, p.d_dead, p.compensate))
+        n = 0
+        if abs(u) > p.hold_band:
+            n = pwm.duty_slots(pwm.duty(u, p.d_dead, p.compensate))
+        if n > 0 and not supervision.intake_allowed(supply, s.pressure[c], p.sup):
+            n = 0  # an intake would vent this chamber backwards into a falling supply
+        s.slots[c] = n
+        volume = p.dead_volume + (p.area_cap * x if c == lo else p.area_annulus * (p.stroke - x))
+        if supervision.check_valves(
+            s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
+        ):
+            trip(s, Trip.VALVE, c)
+            return
 
 
 @njit
@@ -597,6 +646,14 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     if leg_forces_for_wrench(J, W, f):
         for i in range(6):
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
+        if moving(s) and p.load_compensation:
+            # Each leg's measured pneumatic force against the force that holds the load.
+            for i in range(6):
+                pushed = s.pressure[2 * i] * p.area_cap - s.pressure[2 * i + 1] * p.area_annulus
+                residual = pushed - s.compensation[i] * p.area_cap
+                if supervision.check_balance(s.monitor, s.counters, i, residual, p.sup):
+                    trip(s, Trip.FORCE_BALANCE, i)
+                    return
 
 
 @njit_inline

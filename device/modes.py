@@ -27,7 +27,7 @@ from device.commands import CheckedImpedance, CheckedSegment
 from device.controller import Mode
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
-from device.trips import Trip
+from device.trips import Trip, event_text
 from device.waveforms import AxisTarget
 
 HOMING_LEG_SPEED = 0.010
@@ -43,7 +43,20 @@ APPROACH_SPEED = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
 RETURN_SETTLE = 0.1
 """Time allowed after the move home before a segment counts as done (s)."""
 
-FAULT_TRIPS = (Trip.SENSOR_INVALID, Trip.KINEMATICS, Trip.COMMAND_INVALID, Trip.HOMING)
+FAULT_TRIPS = (
+    Trip.SENSOR_INVALID,
+    Trip.KINEMATICS,
+    Trip.COMMAND_INVALID,
+    Trip.HOMING,
+    Trip.SOFTWARE,
+    Trip.PRESSURE_SENSOR,
+    Trip.SUPPLY_LOSS,
+    Trip.SUPPLY_HIGH,
+    Trip.LEG_SENSOR,
+    Trip.FORCE_SENSOR,
+    Trip.FORCE_BALANCE,
+    Trip.VALVE,
+)
 """Trips reported as FAULT events; the others are limits the motion reached (LIMIT)."""
 
 EventSink = Callable[[EventKind, DeviceMode, DeviceMode, int, float, str], None]
@@ -173,7 +186,16 @@ class ModeMachine:
             self._end_segment()
             self.homed = False
             kind = EventKind.FAULT if trip in FAULT_TRIPS else EventKind.LIMIT
-            self._set_mode(DeviceMode.FAULT, f"trip: {trip.name}", kind=kind, code=trip)
+            text = event_text(trip, self.rig.trip_channel)
+            self._set_mode(DeviceMode.FAULT, text, kind=kind, code=trip)
+            return
+        if self.rig.supply_low and self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING):
+            supply = float(self.rig.state.sensors[12]) - self.rig.config.atmosphere
+            self.hold(
+                EventKind.SUPPLY_LOW,
+                f"air supply low ({supply / 1e5:.1f} bar): held until it recovers",
+                supply,
+            )
             return
         if self.mode == DeviceMode.HOMING:
             self._homing_step()

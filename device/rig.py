@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from device import commands, safety, tickloop
+from device import commands, safety, supervision, tickloop
 from device import controller as ctl
 from device.axes import AXES
 from device.commands import CommandError as CommandError
@@ -137,6 +137,7 @@ class Rig:
     def _start_motion(self) -> None:
         s = self.state
         if self.mode == Mode.IDLE:
+            supervision.reset_motion(s.monitor, s.counters)
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
             s.leg_target[:] = s.leg_x
@@ -248,10 +249,21 @@ class Rig:
         self.state.valves[:] = 0
         self.hardware.write_valves(self.state.valves)
 
+    @property
+    def trip_channel(self) -> int:
+        """The sensor, chamber or leg the latched trip names, -1 if none."""
+        return int(self.state.istate[ctl.I_TRIP_CHANNEL])
+
+    @property
+    def supply_low(self) -> bool:
+        """The air supply is below its low mark: hold, and start nothing, until it recovers."""
+        return bool(self.state.counters[supervision.C_LOW_FLAG])
+
     def rearm(self) -> None:
         """Clear a latched fault into IDLE; motion needs a new command."""
         s = self.state
         s.istate[ctl.I_TRIP] = 0
+        s.istate[ctl.I_TRIP_CHANNEL] = -1
         s.istate[ctl.I_MODE] = Mode.IDLE
         s.integral[:] = 0.0
         s.slots[:] = 0

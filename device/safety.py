@@ -55,15 +55,10 @@ def all_finite(values: NDArray[np.float64]) -> bool:
 
 
 @njit
-def check_sensors(
-    sensors: NDArray[np.float64], p_max: float, stroke: float, limits: NDArray[np.float64]
-) -> int:
+def check_sensors(sensors: NDArray[np.float64], stroke: float, limits: NDArray[np.float64]) -> int:
     """Trip code for a fresh sensor vector (0 if fine)."""
     if not all_finite(sensors):
         return Trip.SENSOR_INVALID
-    for c in range(13):
-        if sensors[c] < 0.0 or sensors[c] > p_max:
-            return Trip.PRESSURE_RANGE
     margin = limits[ROW_SCALARS, 3]
     for i in range(6):
         x = sensors[13 + i]

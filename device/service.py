@@ -287,6 +287,7 @@ class DeviceService:
             telemetry_hz_max=self.telemetry_hz_max,
             compliant=seg.plan.compliant if seg is not None else None,
             legs=tuple(self.rig.state.leg_x.tolist()),
+            supply_low=self.rig.supply_low,
         )
 
     def _apply(self, c: commands.Checked) -> None:

@@ -16,8 +16,8 @@ class Trip(IntEnum):
     NONE = 0
     SENSOR_INVALID = 1
     """A sensor read NaN or infinity."""
-    PRESSURE_RANGE = 2
-    """A chamber or the supply read outside its physical range."""
+    PRESSURE_SENSOR = 2
+    """A pressure transducer (chamber or supply) reads what air cannot do: open or short."""
     RANGE_OF_MOTION = 3
     """The measured pose left the range of motion (plus margin)."""
     WRENCH_LIMIT = 4
@@ -36,12 +36,25 @@ class Trip(IntEnum):
     """Homing did not reach the home pose in time."""
     SOFTWARE = 11
     """The device software raised an error inside a pass of its loop."""
+    SUPPLY_LOSS = 12
+    """The air supply fell below its loss mark while the platform moved."""
+    SUPPLY_HIGH = 13
+    """The air supply rose above its high mark while the platform moved."""
+    LEG_SENSOR = 14
+    """A leg length sensor jumped, or froze while its leg was driven."""
+    FORCE_SENSOR = 15
+    """The foot's force/torque sensor is saturated, dead (all zeros) or frozen."""
+    FORCE_BALANCE = 16
+    """A leg's chamber forces disagree with the platform's load."""
+    VALVE = 17
+    """A chamber's pressure did not answer its valves."""
 
 
 TRIP_TEXT: dict[Trip, str] = {
     Trip.NONE: "no fault",
     Trip.SENSOR_INVALID: "a sensor gave no number (NaN or infinity): check its wiring and ADC",
-    Trip.PRESSURE_RANGE: "a pressure reading is outside what the air can do: check transducers",
+    Trip.PRESSURE_SENSOR: "a pressure transducer reads what air cannot do (open wire or "
+    "short): check that transducer and its cable",
     Trip.RANGE_OF_MOTION: "the platform left its range of motion",
     Trip.WRENCH_LIMIT: "the force or torque on the foot plate went over its limit",
     Trip.LEG_SPEED: "a leg moved faster than the speed limit",
@@ -52,6 +65,17 @@ TRIP_TEXT: dict[Trip, str] = {
     Trip.HOMING: "homing did not reach the home pose in time: check air supply and legs",
     Trip.SOFTWARE: "the device software failed inside its control loop: valves closed; "
     "report the event text to the maintainer",
+    Trip.SUPPLY_LOSS: "the air supply was lost while moving: check the compressor, its hose "
+    "and the regulator",
+    Trip.SUPPLY_HIGH: "the air supply is above its high mark: check the regulator",
+    Trip.LEG_SENSOR: "a leg length sensor jumped or stopped changing while its leg was "
+    "driven: check that sensor and its cable",
+    Trip.FORCE_SENSOR: "the foot's force/torque sensor is saturated, dead or frozen: check "
+    "its cable, power and amplifier",
+    Trip.FORCE_BALANCE: "a leg's chamber forces disagree with the load on the platform: "
+    "check that leg's pressure transducers, valves and tubes for a leak",
+    Trip.VALVE: "a chamber's pressure did not follow its valves: a valve stuck open or "
+    "closed, a frozen pressure reading or a blocked tube",
 }
 """For the technician: what tripped and where to look. Events carry the code; hosts show this."""
 
@@ -62,3 +86,25 @@ def describe(code: int) -> str:
         return TRIP_TEXT[Trip(code)]
     except ValueError:
         return f"unknown trip code {code}"
+
+
+def where(trip: int, channel: int) -> str:
+    """The part a trip names, in a technician's words ('' when it names none)."""
+    if channel < 0:
+        return ""
+    if trip in (Trip.PRESSURE_SENSOR, Trip.VALVE):
+        if channel == 12:
+            return "supply transducer"
+        side = "cap" if channel % 2 == 0 else "rod"
+        return f"chamber {channel + 1} (leg {channel // 2 + 1}, {side} side)"
+    if trip in (Trip.LEG_SENSOR, Trip.FORCE_BALANCE):
+        return f"leg {channel + 1}"
+    return ""
+
+
+def event_text(trip: int, channel: int, limit: int = 120) -> str:
+    """What a FAULT event says: the code, the part, and the sentence when it fits."""
+    part = where(trip, channel)
+    head = f"{Trip(trip).name}" + (f" on {part}" if part else "")
+    full = f"{head}: {describe(trip)}"
+    return full if len(full.encode()) <= limit else head

@@ -82,6 +82,9 @@ class EventKind(IntEnum):
     """The segment ran its full duration; the device is READY."""
     HOMED = 6
     ESTOP = 7
+    SUPPLY_LOW = 8
+    """The air supply fell below its low mark: ACTIVE went to HOLD (value: supply, Pa gauge);
+    motion is refused until it recovers."""
 
 
 class NackCode(IntEnum):
@@ -100,6 +103,8 @@ class NackCode(IntEnum):
     """Arm/home first."""
     DEVICE_FAULT = 8
     """The device failed while applying the command and is now in FAULT (trip SOFTWARE)."""
+    SUPPLY_LOW = 9
+    """The air supply is below its low mark: nothing moves until it recovers."""
 
 
 _STRUCT_KIND = {

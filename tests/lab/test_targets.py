@@ -73,7 +73,7 @@ FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0))
 
 
 def test_a_flow_limited_sine_says_its_valves_saturated() -> None:
-    r = ex.sine("z", 20.0, 3.0, cycles=3, limits=FAST)
+    r = ex.sine("z", 22.0, 3.0, cycles=3, limits=FAST)
     assert "valve_duty" in r.saturated and not r.tripped
     assert r.valid  # the valves' flow limit is the device's real response, not a fault
     small = ex.sine("z", 2.0, 3.0, cycles=3, limits=FAST)

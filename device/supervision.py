@@ -1,0 +1,409 @@
+"""The controller distrusts its own sensors and its air: plausibility and cross-checks.
+
+Run inside the interrupt handler, beside the limit checks of :mod:`device.safety`. Each check
+returns a trip code and the channel at fault (0 and -1 when all is well); the controller
+latches the trip (all valves closed) and the mode machine reports it with the sentence from
+:mod:`device.trips`. Every threshold is a field of :class:`SupervisionConfig` with the reason
+for its value; the README's fault table is built from the same numbers.
+
+What is watched, and how:
+
+- each pressure transducer (12 chambers and the supply) against what air can do: a reading
+  near 0 bar absolute is an open wire (a chamber never falls far below the atmosphere it
+  exhausts to), one at the top of the transducer's range a short;
+- the supply: below a low mark the mode machine holds the exercise (and refuses new motion
+  until it recovers); below a loss mark, or above a high mark, a moving device trips. An
+  intake valve is never opened into a chamber whose pressure is above the supply's, which
+  would vent the chamber backwards into a failing supply line;
+- the force/torque sensor: any channel at its full scale (saturated), all six channels
+  reading exactly zero (dead: a live sensor always shows noise), or all six unchanged bit for
+  bit (frozen);
+- each leg length sensor: a jump between two reads that no leg can make (unplugged, noisy
+  wiper), or a reading that stays bit for bit constant while the leg is driven hard toward a
+  target millimetres away (stuck);
+- each chamber against its valves: an intake held open for most of several PWM periods
+  must raise the chamber's pressure, an exhaust lower it (a stuck valve, a stuck pressure
+  reading, a large leak or a blocked port fails this);
+- each leg's force balance: the pneumatic force its two pressures make must match, averaged
+  over tens of milliseconds, the force that holds the platform's weight and the foot's
+  measured wrench (a wrong pressure or force reading, a leak, a valve that does not do what
+  it is told).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device._jit import njit
+from device.trips import Trip
+
+# Slots of ControllerState.monitor (floats) and .counters (ints).
+M_FT_PREV = 0  # 6: last force/torque reading
+M_LEG_PREV = 6  # 6: last leg reading
+M_P_START = 12  # 12: chamber air (p V, Pa abs m3) at the start of its valve window
+M_RESIDUAL = 24  # 6: filtered force-balance residual per leg (N)
+M_P_LAST = 30  # 12: chamber reading at the previous control period (Pa abs)
+M_P_READ = 42  # 13: pressure readings of the previous read (Pa abs)
+N_MONITOR = 56
+
+C_FT_SAME = 0
+C_FT_ZERO = 1
+C_FT_SAT = 2
+C_LEG_SAME = 3  # 6
+C_WINDOW = 9  # 12: PWM periods in the current valve window
+C_INTAKE = 21  # 12: intake slots commanded in the window
+C_EXHAUST = 33  # 12: exhaust slots commanded in the window
+C_RESIDUAL = 45  # 6: control periods with the residual above its threshold
+C_SUPPLY_LOW = 51
+C_SUPPLY_LOSS = 52
+C_SUPPLY_HIGH = 53
+C_SUPPLY_OK = 54
+C_LOW_FLAG = 55
+"""1 while the supply is below its low mark (the mode machine holds and refuses motion)."""
+C_CHANNEL = 56
+"""Channel of the latest supervision trip: chamber 0-11, supply 12, leg 0-5, F/T 0-5."""
+C_READS = 57
+C_P_SAME = 58  # 12: driven control periods a chamber's reading stayed the same
+N_COUNTERS = 72
+
+
+@dataclass(frozen=True)
+class SupervisionConfig:
+    """Thresholds of the sensor and supply supervision, SI units (pressures Pa)."""
+
+    pressure_full_scale: float = 1.0e6
+    """The transducers' range (Pa absolute): 0-10 bar, as the device's are specified."""
+    pressure_open_below: float = 0.3e5
+    """Below this (Pa absolute) a reading is an open wire: a chamber exhausts to 1 bar
+    absolute and, even when the piston pulls a closed chamber, stays above about 0.6 bar; the
+    supply is above the atmosphere whenever there is air. 0.3 bar leaves room for both."""
+    pressure_jump: float = 0.8e5
+    """A reading that changes more than this between two reads (1 ms) is a sensor fault
+    (Pa): a fully open valve moves a chamber at most about 0.1 bar per millisecond at mid
+    stroke and 0.4 bar at the end of its stroke, where the chamber is smallest."""
+    pressure_short_above: float = 0.97e6
+    """At or above this (Pa absolute) a reading is a short to the supply rail: 97 % of full
+    scale, above the supply's high mark and anything a chamber reaches (at most the supply
+    plus what the 400 N force limit adds on one piston, about 8 bar)."""
+    supply_low: float = 4.5e5
+    """Gauge supply below which an exercise is held (Pa): 1.5 bar under the nominal 6 bar, far
+    below a regulator's droop under flow (0.2-0.5 bar), and above the chambers' working
+    pressures (about 5 bar), so the platform still holds its load on trapped air."""
+    supply_resume: float = 5.0e5
+    """...and above which it counts as recovered (Pa, hysteresis)."""
+    supply_loss: float = 3.5e5
+    """Gauge supply below which a moving device trips SUPPLY_LOSS (Pa): below the chambers'
+    working pressure, so intakes can no longer fill them."""
+    supply_high: float = 8.0e5
+    """Gauge supply above which a moving device trips SUPPLY_HIGH (Pa): the regulator failed;
+    the valves and cylinders are rated 10 bar."""
+    supply_low_reads: int = 20
+    """Reads (1 kHz) below the low mark before the hold: 20 ms, longer than a flow transient."""
+    supply_resume_reads: int = 200
+    """Reads above the resume mark before motion is allowed again (0.2 s)."""
+    supply_trip_reads: int = 3
+    """Reads past the loss or high mark before the trip: 3 ms, against a single bad sample."""
+    intake_margin: float = 0.05e5
+    """An intake opens only while the supply is this much above the chamber (Pa): 20
+    transducer counts, well above their noise; below it an intake passes next to nothing
+    anyway, and with a falling supply it would let the chamber's air out backwards."""
+    ft_force_full_scale: float = 1500.0
+    """The force/torque sensor's force range (N), per channel."""
+    ft_torque_full_scale: float = 80.0
+    """...and torque range (N m) per channel."""
+    ft_saturated_fraction: float = 0.99
+    ft_saturated_reads: int = 1
+    """One read at full scale is enough: the device trips on force long before a healthy
+    reading could get there."""
+    ft_zero_reads: int = 5
+    """All six channels exactly 0 for this many reads is a dead sensor: with about one count
+    of noise on each channel, six zeros at once happen about once in a thousand reads, five
+    times in a row practically never."""
+    ft_frozen_reads: int = 20
+    """All six channels unchanged bit for bit for this many reads (20 ms) is a frozen sensor."""
+    leg_jump: float = 1.0e-3
+    """A leg reading that moves more than this between two reads (1 ms) is a sensor fault:
+    1 m/s, 2.5 times the leg speed limit, 40 sensor counts."""
+    leg_stuck_error: float = 1.0e-3
+    """A leg driven toward a target this far away (m)..."""
+    leg_stuck_reads: int = 25
+    """...whose reading stays bit for bit the same for this many reads (25 ms) is stuck:
+    1 mm of error pushes a healthy leg with about 6 N beyond its load, four times the
+    breakaway friction of its glass/graphite piston, which moves it by more than a sensor
+    count (24 um) within a few milliseconds."""
+    pressure_frozen_periods: int = 10
+    """A chamber reading unchanged bit for bit over this many control periods in a row in
+    each of which a valve of it was open at least the valve's response time (d_dead of
+    eq. 1) is frozen (40 ms). Such a pulse moves a chamber by about 0.06 bar or 25
+    transducer counts; a shorter one may pass no air at all (without dead-band compensation
+    most pulses at rest are that short)."""
+    valve_window_periods: int = 5
+    """PWM periods (4 ms each) in which a chamber must answer its valves (20 ms)."""
+    valve_duty_fraction: float = 0.5
+    """An intake (or exhaust) energised for at least this share of the window, the other
+    never, ..."""
+    valve_min_change: float = 0.1e5
+    """...must move the chamber's pressure at least this much the right way (Pa). A valve
+    open half of 20 ms moves a chamber by about a bar; 0.1 bar is 40 pressure counts."""
+    valve_headroom: float = 0.5e5
+    """...unless the chamber is already within this of where that valve can take it (Pa):
+    the supply for an intake, the atmosphere for an exhaust."""
+    residual_cutoff_hz: float = 5.0
+    """Low-pass on the force-balance residual: a leg's accelerating force in a step or a fast
+    sine is brief and alternating, a wrong reading or a leak persists."""
+    residual_limit: float = 30.0
+    """Filtered residual (N) above which a leg's force balance is wrong: about 0.6 bar on a
+    cap chamber. The largest healthy residual measured on the nominal plant is about 10 N
+    (10 and 20 mm leg steps, pitch sines up to the axis speed limit, a resisting patient);
+    the margin leaves room for stiffer seals and a platform mass a kilogram off."""
+    residual_periods: int = 5
+    """Control periods (4 ms) the filtered residual must stay above the limit (20 ms)."""
+
+
+class SupervisionParams(NamedTuple):
+    atm: float
+    open_below: float
+    short_above: float
+    pressure_jump: float
+    supply_low: float
+    supply_resume: float
+    supply_loss: float
+    supply_high: float
+    supply_low_reads: int
+    supply_resume_reads: int
+    supply_trip_reads: int
+    intake_margin: float
+    ft_force_sat: float
+    ft_torque_sat: float
+    ft_saturated_reads: int
+    ft_zero_reads: int
+    ft_frozen_reads: int
+    leg_jump: float
+    leg_stuck_error: float
+    leg_stuck_reads: int
+    pressure_frozen_periods: int
+    valve_window: int
+    valve_slots: int
+    valve_min_change: float
+    valve_headroom: float
+    residual_alpha: float
+    residual_limit: float
+    residual_periods: int
+
+
+def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> SupervisionParams:
+    return SupervisionParams(
+        atm=atmosphere,
+        open_below=config.pressure_open_below,
+        short_above=config.pressure_short_above,
+        pressure_jump=config.pressure_jump,
+        supply_low=config.supply_low,
+        supply_resume=config.supply_resume,
+        supply_loss=config.supply_loss,
+        supply_high=config.supply_high,
+        supply_low_reads=config.supply_low_reads,
+        supply_resume_reads=config.supply_resume_reads,
+        supply_trip_reads=config.supply_trip_reads,
+        intake_margin=config.intake_margin,
+        ft_force_sat=config.ft_saturated_fraction * config.ft_force_full_scale,
+        ft_torque_sat=config.ft_saturated_fraction * config.ft_torque_full_scale,
+        ft_saturated_reads=config.ft_saturated_reads,
+        ft_zero_reads=config.ft_zero_reads,
+        ft_frozen_reads=config.ft_frozen_reads,
+        leg_jump=config.leg_jump,
+        leg_stuck_error=config.leg_stuck_error,
+        leg_stuck_reads=config.leg_stuck_reads,
+        pressure_frozen_periods=config.pressure_frozen_periods,
+        valve_window=config.valve_window_periods,
+        valve_slots=math.ceil(config.valve_duty_fraction * 28 * config.valve_window_periods),
+        valve_min_change=config.valve_min_change,
+        valve_headroom=config.valve_headroom,
+        residual_alpha=1.0 - math.exp(-2.0 * math.pi * config.residual_cutoff_hz * control_dt),
+        residual_limit=config.residual_limit,
+        residual_periods=config.residual_periods,
+    )
+
+
+@njit
+def check_reading(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    sensors: NDArray[np.float64],
+    q: SupervisionParams,
+    moving: bool,
+    leg_target: NDArray[np.float64],
+) -> tuple[int, int]:
+    """Checks of one fresh sensor vector (1 kHz): (trip code, channel), (0, -1) if fine."""
+    counters[C_READS] += 1
+    first = counters[C_READS] == 1
+    # Pressure transducers: open wire, short or a jump no air makes, whatever the mode.
+    for c in range(13):
+        if sensors[c] < q.open_below or sensors[c] > q.short_above:
+            return Trip.PRESSURE_SENSOR, c
+        if not first and abs(sensors[c] - monitor[M_P_READ + c]) > q.pressure_jump:
+            return Trip.PRESSURE_SENSOR, c
+    for c in range(13):
+        monitor[M_P_READ + c] = sensors[c]
+    # The supply.
+    supply = sensors[12] - q.atm
+    counters[C_SUPPLY_LOSS] = counters[C_SUPPLY_LOSS] + 1 if supply < q.supply_loss else 0
+    counters[C_SUPPLY_HIGH] = counters[C_SUPPLY_HIGH] + 1 if supply > q.supply_high else 0
+    counters[C_SUPPLY_LOW] = counters[C_SUPPLY_LOW] + 1 if supply < q.supply_low else 0
+    counters[C_SUPPLY_OK] = counters[C_SUPPLY_OK] + 1 if supply > q.supply_resume else 0
+    if counters[C_SUPPLY_LOW] >= q.supply_low_reads:
+        counters[C_LOW_FLAG] = 1
+    elif counters[C_SUPPLY_OK] >= q.supply_resume_reads:
+        counters[C_LOW_FLAG] = 0
+    if moving and counters[C_SUPPLY_LOSS] >= q.supply_trip_reads:
+        return Trip.SUPPLY_LOSS, 12
+    if moving and counters[C_SUPPLY_HIGH] >= q.supply_trip_reads:
+        return Trip.SUPPLY_HIGH, 12
+    # The force/torque sensor.
+    saturated = False
+    zero = True
+    same = not first
+    for k in range(6):
+        v = sensors[19 + k]
+        limit = q.ft_force_sat if k < 3 else q.ft_torque_sat
+        if abs(v) >= limit:
+            saturated = True
+        if v != 0.0:
+            zero = False
+        if v != monitor[M_FT_PREV + k]:
+            same = False
+        monitor[M_FT_PREV + k] = v
+    counters[C_FT_SAT] = counters[C_FT_SAT] + 1 if saturated else 0
+    counters[C_FT_ZERO] = counters[C_FT_ZERO] + 1 if zero else 0
+    counters[C_FT_SAME] = counters[C_FT_SAME] + 1 if same else 0
+    if (
+        counters[C_FT_SAT] >= q.ft_saturated_reads
+        or counters[C_FT_ZERO] >= q.ft_zero_reads
+        or counters[C_FT_SAME] >= q.ft_frozen_reads
+    ):
+        return Trip.FORCE_SENSOR, -1
+    # Leg length sensors.
+    for i in range(6):
+        x = sensors[13 + i]
+        prev = monitor[M_LEG_PREV + i]
+        monitor[M_LEG_PREV + i] = x
+        if first:
+            continue
+        if abs(x - prev) > q.leg_jump:
+            return Trip.LEG_SENSOR, i
+        if moving and x == prev and abs(leg_target[i] - x) > q.leg_stuck_error:
+            counters[C_LEG_SAME + i] += 1
+            if counters[C_LEG_SAME + i] >= q.leg_stuck_reads:
+                return Trip.LEG_SENSOR, i
+        else:
+            counters[C_LEG_SAME + i] = 0
+    return Trip.NONE, -1
+
+
+@njit
+def intake_allowed(supply_abs: float, chamber_gauge: float, q: SupervisionParams) -> bool:
+    """Whether an intake may open: the supply must be above the chamber (else the chamber
+    vents backwards into the supply line)."""
+    return supply_abs - q.atm > chamber_gauge + q.intake_margin
+
+
+@njit
+def check_valves(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    c: int,
+    slots: int,
+    pressure: float,
+    volume: float,
+    supply: float,
+    q: SupervisionParams,
+) -> bool:
+    """One PWM period of chamber ``c`` (gauge pressure, its volume in m3, gauge supply) with
+    ``slots`` about to be driven (+ intake, - exhaust). True when, over the window just
+    ended, the chamber did not answer its valves.
+
+    The air in the chamber is judged, not its pressure: ``p V`` (absolute pressure times the
+    volume from the measured piston) rises only by an intake and falls only by an exhaust,
+    whatever the piston does, where the pressure alone stays flat while a moving piston
+    makes room for what an intake brings.
+    """
+    air = (pressure + q.atm) * volume
+    n = counters[C_WINDOW + c]
+    failed = False
+    if n >= q.valve_window:
+        intake, exhaust = counters[C_INTAKE + c], counters[C_EXHAUST + c]
+        change = (air - monitor[M_P_START + c]) / volume
+        if intake >= q.valve_slots and exhaust == 0 and pressure < supply - q.valve_headroom:
+            failed = change < q.valve_min_change
+        elif exhaust >= q.valve_slots and intake == 0 and pressure > q.valve_headroom:
+            failed = -change < q.valve_min_change
+        n = 0
+    if n == 0:
+        monitor[M_P_START + c] = air
+        counters[C_INTAKE + c] = 0
+        counters[C_EXHAUST + c] = 0
+    counters[C_INTAKE + c] += max(0, slots)
+    counters[C_EXHAUST + c] += max(0, -slots)
+    counters[C_WINDOW + c] = n + 1
+    return failed
+
+
+@njit
+def check_frozen(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    c: int,
+    reading: float,
+    driven: bool,
+    q: SupervisionParams,
+) -> bool:
+    """Chamber ``c``'s raw reading at a control period, and whether its valves were driven in
+    the period before. True when it stayed frozen through enough driven periods."""
+    same = reading == monitor[M_P_LAST + c]
+    monitor[M_P_LAST + c] = reading
+    if not same:
+        counters[C_P_SAME + c] = 0
+    elif driven:
+        counters[C_P_SAME + c] += 1
+    return bool(counters[C_P_SAME + c] >= q.pressure_frozen_periods)
+
+
+@njit
+def reset_valve_windows(counters: NDArray[np.int64]) -> None:
+    for c in range(12):
+        counters[C_WINDOW + c] = 0
+
+
+@njit
+def check_balance(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    leg: int,
+    residual: float,
+    q: SupervisionParams,
+) -> bool:
+    """Filter one leg's force-balance residual (N); True when it stayed over the limit."""
+    r = monitor[M_RESIDUAL + leg]
+    r += q.residual_alpha * (residual - r)
+    monitor[M_RESIDUAL + leg] = r
+    if abs(r) > q.residual_limit:
+        counters[C_RESIDUAL + leg] += 1
+    else:
+        counters[C_RESIDUAL + leg] = 0
+    return bool(counters[C_RESIDUAL + leg] >= q.residual_periods)
+
+
+@njit
+def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> None:
+    """Forget what motion-bound checks accumulated (a new motion starts from a hold)."""
+    for i in range(6):
+        counters[C_LEG_SAME + i] = 0
+        counters[C_RESIDUAL + i] = 0
+        monitor[M_RESIDUAL + i] = 0.0
+    for c in range(12):
+        counters[C_P_SAME + c] = 0
+    reset_valve_windows(counters)

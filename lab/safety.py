@@ -1,0 +1,412 @@
+"""The device's safety, measured: injected faults, healthy runs, boundary commands.
+
+Everything runs the real controller against the plant in simulated time (``Rig``), except
+the boundary-command run, which goes through the real device service over a pty.
+
+- **Fault matrix**: every fault kind of :mod:`device.plant.faults`, injected in three
+  situations (holding at home, in the middle of a pitch exercise, while the patient pushes
+  against the rendered stiffness). Each is *detected* when the controller latches a trip
+  (or, for a drooping supply, raises its low-supply flag, on which the mode machine holds).
+  Detection time is from the injection to that moment; the excursion is how far the true
+  platform moved from where it was at the injection, until 0.5 s after it.
+- **Healthy runs**: every exercise of the library on a healthy plant, several seeds: any trip
+  is a false trip.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from device import supervision
+from device.axes import AXES, AXIS_INDEX
+from device.controller import Mode
+from device.hardware import SimulatedHardware
+from device.plant.faults import Fault, FaultKind
+from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
+from device.plant.params import PlantConfig
+from device.rig import Rig
+from device.tickloop import COL
+from device.trips import Trip
+from device.waveforms import AxisTarget, Waveform
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
+
+SCENARIOS = ("holding", "exercise", "pushing")
+AFTER_S = 0.5
+"""How long each run goes on after the injection (s)."""
+
+# One representative channel and value per kind (0-based channels, see device.plant.faults).
+FAULTS: dict[FaultKind, tuple[int, float]] = {
+    FaultKind.SUPPLY_LOSS: (-1, 0.0),
+    FaultKind.SUPPLY_DROOP: (-1, 3.5),
+    FaultKind.PRESSURE_OPEN: (4, 0.0),
+    FaultKind.PRESSURE_SHORT: (4, 0.0),
+    FaultKind.PRESSURE_STUCK: (4, 0.0),
+    FaultKind.PRESSURE_OFFSET: (4, 1.5),
+    FaultKind.LEG_STUCK: (2, 0.0),
+    FaultKind.LEG_OFFSET: (2, 3.0),
+    FaultKind.LEG_NOISE: (2, 0.5),
+    FaultKind.FT_DEAD: (-1, 0.0),
+    FaultKind.FT_SATURATED: (-1, 0.0),
+    FaultKind.FT_OFFSET: (2, 80.0),
+    FaultKind.VALVE_STUCK_OPEN: (8, 0.0),
+    FaultKind.VALVE_STUCK_CLOSED: (9, 0.0),
+    FaultKind.CHAMBER_LEAK: (4, 0.5),
+}
+
+
+@dataclass(frozen=True)
+class FaultRun:
+    kind: str
+    scenario: str
+    seed: int
+    detected: bool
+    trip: str
+    channel: int
+    detect_ms: float
+    """From the injection to the trip (or the low-supply flag); NaN if never."""
+    excursion_deg: float
+    excursion_mm: float
+    notes: str = ""
+
+
+def _rig(patient: str, seed: int) -> Rig:
+    return Rig(SimulatedHardware(PlantConfig(patient=patient), seed=seed))
+
+
+def _start(rig: Rig, scenario: str) -> None:
+    """Put the rig in the scenario, running, 0.5 s before the injection."""
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(0.5, log_hz=0)
+    if scenario == "holding":
+        return
+    K, B = np.zeros(6), np.zeros(6)
+    K[4], B[4] = (30.0, 1.0) if scenario == "exercise" else (50.0, 1.0)
+    compliant = [k == 4 for k in range(6)]
+    rig.set_impedance(K, B, compliant)
+    if scenario == "exercise":
+        rig.track({"pitch": AxisTarget(Waveform.SINE, 0.0, math.radians(8.0), 0.5)})
+    else:
+        rig.track({})
+        hw = rig.hardware
+        assert isinstance(hw, SimulatedHardware)
+        hw.script_torque(4, SCRIPT_RAMP, rig.time, 10.0, 8.0)  # up to 8 N m in 0.8 s
+
+
+def _run(kind: FaultKind | None, scenario: str, seed: int) -> tuple[Rig, np.ndarray, float]:
+    """One scenario with ``kind`` injected (or none): (rig, true pose log, detection s)."""
+    rig = _rig("relaxed", seed)
+    _start(rig, scenario)
+    rig.run(0.5 if scenario != "holding" else 0.1, log_hz=0)
+    rig.clear_log()
+    t0 = rig.time
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    if kind is not None:
+        channel, value = FAULTS[kind]
+        duration = 0.3 if kind == FaultKind.LEG_NOISE else math.inf
+        hw.inject(Fault(kind, float(hw.state.time[0]), channel, value, duration))
+    detect = math.nan
+    step = 0.001
+    for _ in range(round(AFTER_S / step)):
+        rig.run(step, log_hz=1000.0)
+        if math.isnan(detect) and (rig.mode == Mode.FAULT or rig.supply_low):
+            detect = rig.time - t0
+    pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
+    return rig, pose, detect
+
+
+def excursion(faulty: np.ndarray, healthy: np.ndarray, detect_row: int | None) -> np.ndarray:
+    """Largest motion the fault caused, per axis: the departure from the same run without
+    the fault up to the detection, then any drift from where the platform was at the
+    detection (after it the valves are closed and the healthy run goes on moving)."""
+    n = min(len(faulty), len(healthy))
+    end = n if detect_row is None else min(detect_row + 1, n)
+    before = np.abs(faulty[:end] - healthy[:end]).max(axis=0)
+    if detect_row is None or detect_row >= n:
+        whole: np.ndarray = before
+        return whole
+    after = np.abs(faulty[detect_row:] - faulty[detect_row]).max(axis=0)
+    result: np.ndarray = np.maximum(before, after)
+    return result
+
+
+def run_fault(kind: FaultKind, scenario: str, seed: int = 1) -> FaultRun:
+    _, healthy, _ = _run(None, scenario, seed)
+    rig, pose, detect = _run(kind, scenario, seed)
+    row = None if math.isnan(detect) else round(detect * 1000.0)
+    moved = excursion(pose, healthy, row)
+    trip = rig.trip
+    held = rig.supply_low and trip == Trip.NONE
+    return FaultRun(
+        kind=kind.name,
+        scenario=scenario,
+        seed=seed,
+        detected=not math.isnan(detect),
+        trip="SUPPLY_LOW (hold)" if held else trip.name,
+        channel=rig.trip_channel,
+        detect_ms=detect * 1e3,
+        excursion_deg=float(np.degrees(moved[3:].max())),
+        excursion_mm=float(moved[:3].max() * 1e3),
+    )
+
+
+@dataclass(frozen=True)
+class HealthyRun:
+    exercise: str
+    patient: str
+    seed: int
+    seconds: float
+    trip: str
+    """NONE unless the healthy run tripped (a false trip)."""
+    supply_low: bool
+    residual_max_n: float
+    """Largest filtered force-balance residual seen (N): the margin to its limit."""
+
+
+def _library_targets(
+    kind: ExerciseKind,
+) -> tuple[dict[str, AxisTarget], np.ndarray, np.ndarray, list[bool]]:
+    template = EXERCISE_LIBRARY[kind]
+    body = template.defaults
+    targets: dict[str, AxisTarget] = {}
+    K, B = np.zeros(6), np.zeros(6)
+    compliant = [False] * 6
+    for a in body.axes:
+        k = AXIS_INDEX[a.axis]
+        if a.waveform == "sine":
+            targets[a.axis] = AxisTarget(
+                Waveform.SINE, math.radians(a.center), math.radians(a.amplitude), a.frequency
+            )
+        else:
+            targets[a.axis] = AxisTarget(Waveform.HOLD, math.radians(a.center))
+        if template.compliant:
+            K[k], B[k], compliant[k] = a.stiffness, a.damping, True
+    return targets, K, B, compliant
+
+
+def healthy_runs(
+    seeds: tuple[int, ...] = (1, 2, 3),
+    seconds: float = 10.0,
+    progress: Callable[[str], None] | None = None,
+) -> list[HealthyRun]:
+    """Every exercise of the library, a relaxed and a resisting patient who also pushes
+    (a 0.3 Hz torque on each prescribed axis), on a healthy plant: any trip is false."""
+    runs = []
+    total = len(EXERCISE_LIBRARY) * 2 * len(seeds)
+    for kind in EXERCISE_LIBRARY:
+        targets, K, B, compliant = _library_targets(kind)
+        for patient in ("relaxed", "resisting"):
+            for seed in seeds:
+                rig = _rig(patient, seed)
+                rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+                rig.run(0.5, log_hz=0)
+                if any(compliant):
+                    rig.set_impedance(K, B, compliant)
+                rig.track(targets)
+                hw = rig.hardware
+                assert isinstance(hw, SimulatedHardware)
+                for axis in targets:
+                    hw.script_torque(AXIS_INDEX[axis], SCRIPT_SINE, rig.time + 0.5, 5.0, 0.3)
+                worst = 0.0
+                for _ in range(round(seconds / 0.05)):
+                    rig.run(0.05, log_hz=0)
+                    residual = rig.state.monitor[
+                        supervision.M_RESIDUAL : supervision.M_RESIDUAL + 6
+                    ]
+                    worst = max(worst, float(np.abs(residual).max()))
+                    if rig.mode == Mode.FAULT:
+                        break
+                runs.append(
+                    HealthyRun(
+                        kind.value, patient, seed, seconds, rig.trip.name, rig.supply_low, worst
+                    )
+                )
+                if progress is not None:
+                    progress(f"healthy {len(runs)}/{total}: {kind.value}, {patient}")
+    return runs
+
+
+def fault_matrix(
+    seeds: tuple[int, ...] = (1,), progress: Callable[[str], None] | None = None
+) -> list[FaultRun]:
+    runs = []
+    total = len(FAULTS) * len(SCENARIOS) * len(seeds)
+    for kind in FAULTS:
+        for scenario in SCENARIOS:
+            for seed in seeds:
+                r = run_fault(kind, scenario, seed)
+                runs.append(r)
+                if progress is not None:
+                    progress(f"faults {len(runs)}/{total}: {kind.name} while {scenario}")
+    return runs
+
+
+# -- boundary commands through the real service ----------------------------------------
+
+
+def _near(bound: float, rng: np.random.Generator) -> float:
+    """A float32 at, just inside, just outside or a little off ``bound``."""
+    b = np.float32(bound)
+    choice = int(rng.integers(0, 4))
+    if choice == 0:
+        return float(b)
+    if choice == 1:
+        return float(np.nextafter(b, np.float32(np.inf)))
+    if choice == 2:
+        return float(np.nextafter(b, np.float32(-np.inf)))
+    return float(np.float32(bound * (1.0 + rng.uniform(-0.05, 0.05))))
+
+
+def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
+    """Segments, impedance changes and configurations at and around every published bound,
+    sent to the real service over a pty. Returns (sent, mismatched with the check module,
+    service deaths, trips the accepted commands caused)."""
+    import asyncio
+    import dataclasses
+    import threading
+
+    from device import commands
+    from device.client import CommandRefused, DeviceClient, build_segment
+    from device.protocol.messages import DeviceMode
+    from device.service import DeviceService, ServiceConfig
+    from device.transport import PtyLink
+
+    link = PtyLink()
+    service = DeviceService(_rig("relaxed", seed), link, ServiceConfig())
+    thread = threading.Thread(target=service.run, daemon=True)
+    thread.start()
+    rng = np.random.default_rng(seed)
+    lim = service.rig.limits
+    mismatched = sent = 0
+
+    async def main() -> None:
+        nonlocal mismatched, sent
+        dev = await DeviceClient.connect(link.name)
+        try:
+            assert dev.hello is not None
+            await dev.arm_home()
+            await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+            base = build_segment(dev.hello, 1, 0.05, {})
+            for n in range(count):
+                seg = base
+                k = int(rng.integers(0, 6))
+                which = int(rng.integers(0, 5))
+
+                def put(name: str, value: object, seg: object = seg, k: int = k) -> object:
+                    values = list(getattr(seg, name))
+                    values[k] = value
+                    return dataclasses.replace(seg, **{name: tuple(values)})  # type: ignore[type-var]
+
+                if which == 0:
+                    seg = put("center", _near(lim.rom_high[k], rng))  # type: ignore[assignment]
+                elif which == 1:
+                    seg = put("center", _near(lim.rom_low[k], rng))  # type: ignore[assignment]
+                elif which in (2, 3):
+                    field_ = "stiffness" if which == 2 else "damping"
+                    top = lim.stiffness_max[k] if which == 2 else lim.damping_max[k]
+                    seg = put("compliant", True)  # type: ignore[assignment]
+                    seg = put(field_, _near(top, rng), seg)  # type: ignore[assignment]
+                    other = "damping" if which == 2 else "stiffness"
+                    seg = put(other, 1.0, seg)  # type: ignore[assignment]
+                else:
+                    seg = dataclasses.replace(seg, torque_limit=_near(lim.torque_limit, rng))
+                seg = dataclasses.replace(seg, segment_id=n + 1)
+                ctx = commands.Context(lim, service.rig.geometry, service.mode, service.rig.trip)
+                try:
+                    commands.check(seg, ctx)
+                    expected = True
+                except commands.CommandError:
+                    expected = False
+                try:
+                    await dev.start_segment(seg)
+                    got = True
+                except CommandRefused:
+                    got = False
+                sent += 1
+                mismatched += expected != got
+                if service.mode == DeviceMode.FAULT:
+                    break
+                if got:
+                    await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+            for hz, ms in (
+                (dev.hello.telemetry_hz_max, 200),
+                (dev.hello.telemetry_hz_max + 1, 200),
+            ):
+                sent += 1
+                try:
+                    await dev.configure(hz, ms)
+                    mismatched += hz > dev.hello.telemetry_hz_max
+                except CommandRefused:
+                    mismatched += hz <= dev.hello.telemetry_hz_max
+        finally:
+            await dev.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        alive = thread.is_alive()
+        service.stop()
+        thread.join(5.0)
+        service.shutdown()
+    deaths = int(not alive) + service.software_faults
+    trips = int(service.rig.trip != Trip.NONE)
+    return sent, mismatched, deaths, trips
+
+
+# -- the stiffness-damping grid --------------------------------------------------------
+
+
+def kb_point(axis: int, k: float, b: float, patient: str, seed: int = 1) -> tuple[bool, float]:
+    """Render K, B on one rotational axis; a 2 N m push for 0.1 s; (stable, p-p in deg of
+    the last second). Unstable: a trip, or more than 0.2 deg peak to peak in the last second
+    after a slow trend is removed (a soft setting still returning from the push)."""
+    from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
+
+    rig = _rig(patient, seed)
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(0.5, log_hz=0)
+    K, B = np.zeros(6), np.zeros(6)
+    K[axis], B[axis] = k, b
+    rig.set_impedance(K, B, [i == axis for i in range(6)])
+    rig.track({})
+    rig.run(0.5, log_hz=0)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.script_torque(axis, SCRIPT_CONSTANT, rig.time, 2.0, 0.0)
+    rig.run(0.1, log_hz=0)
+    hw.script_torque(axis, SCRIPT_NONE, 0.0, 0.0, 0.0)
+    rig.run(2.0, log_hz=0)
+    rig.clear_log()
+    log = rig.run(1.0, log_hz=500.0)
+    if rig.mode == Mode.FAULT:
+        return False, math.nan
+    angle = np.degrees(log[:, COL[f"pose_{AXES[axis]}"]])
+    t = log[:, 0] - log[0, 0]
+    trend = np.polyval(np.polyfit(t, angle, 2), t)
+    pp = float(np.ptp(angle - trend))
+    return pp <= 0.2, pp
+
+
+def main() -> None:
+    t = time.perf_counter()
+    for h in healthy_runs():
+        print(
+            f"{h.exercise:16s} {h.patient:9s} seed {h.seed} trip {h.trip} "
+            f"low {h.supply_low} residual {h.residual_max_n:.1f} N"
+        )
+    for r in fault_matrix():
+        print(
+            f"{r.kind:20s} {r.scenario:9s} {'yes' if r.detected else 'NO ':3s} "
+            f"{r.trip:18s} ch {r.channel:2d} {r.detect_ms:7.1f} ms "
+            f"{r.excursion_deg:6.2f} deg {r.excursion_mm:6.2f} mm"
+        )
+    print(f"{time.perf_counter() - t:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
