@@ -122,6 +122,7 @@ class Rig:
         if self.mode == Mode.IDLE:
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
+            s.v_m[:] = 0.0
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
 
@@ -182,6 +183,7 @@ class Rig:
             # adds beyond that drives the impedance.
             self.state.tare[:] = self.state.wrench
             self.state.x_m[:] = 0.0
+            self.state.v_m[:] = 0.0
         self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def set_impedance(
