@@ -165,6 +165,26 @@ class ControllerConfig:
     sensor_below_ankle: float = PARAMETERS["sensor_below_ankle"].value
     load_compensation: bool = True
     """Feed the measured foot wrench forward into ``G_p`` (see device.position_loop)."""
+    virtual_inertia: tuple[float, ...] = (0.0, 0.0, 0.0, 0.03, 0.03, 0.03)
+    """Virtual inertia J per axis (kg; kg m2) added to the rendered compliance:
+    ``J ddX_m + B dX_m + K X_m = F`` (device.impedance). Chosen by the device, not by the
+    therapist; 0 keeps the first-order compliance of eq. (16). Without it (measured with
+    lab_envelope.py, findings.md) roll, pitch and yaw oscillate at 20-45 Hz or trip the
+    speed limit whenever B is below 0.3-2 N m s/rad at K <= 50: the first-order
+    admittance asks for motion (and a rate feed-forward F/B) far faster than the legs
+    follow, while the foot's inertia closes the loop through the force sensor. 0.03 kg m2
+    (about the platform's own inertia about the ankle, 3-4 times a foot's) brings the least
+    stable B to 0.05-0.5 for every K and patient; 0.02 is as good with a foot but lets a
+    push on an empty plate trip the speed limit up to B = 1; 0.05 and 0.1 need more
+    damping at low K (the virtual mass rings on the ankle's stiffness at 2-7 Hz).
+    Translations: not measured, left at 0."""
+    virtual_frequency_max: float = 12.0
+    """On an axis with a virtual inertia, the inertia grows with the stiffness so that the
+    virtual natural frequency ``sqrt(K/J)`` stays at or below this (Hz): ``J = max(J_axis,
+    K / (2 pi f)^2)``; 0 keeps J at ``virtual_inertia``. With a fixed 0.03 kg m2 the virtual
+    resonance reaches 17-20 Hz at K = 350-500, where the position loop lags and the
+    resisting foot oscillates at 21-26 Hz unless B >= 0.5; capped at 12 Hz (J = 0.088 kg
+    m2 at K = 500) no foot needed more than B = 0, no empty plate more than 0.1."""
     vent_pulse_slots: int = 8
     """Release (``I_VENT``): slots (of 28) that every exhaust valve is energised in a venting
     PWM period, intakes shut. The armature moves only after 0.8 ms (5.6 slots) and is fully
@@ -217,6 +237,8 @@ class ControllerParams(NamedTuple):
     gravity: float
     sensor_origin: NDArray[np.float64]
     load_compensation: bool
+    virtual_inertia: NDArray[np.float64]
+    virtual_omega2: float
     vent_pulse_slots: int
     vent_every_periods: int
     limits: NDArray[np.float64]
@@ -242,6 +264,7 @@ class ControllerState(NamedTuple):
     pose_cmd: NDArray[np.float64]
     pose_cmd_rate: NDArray[np.float64]
     x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
+    v_m: NDArray[np.float64]  # (6,) its rate (state of the virtual inertia)
     stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
     damping: NDArray[np.float64]  # (6,) B in force
     stiffness_target: NDArray[np.float64]
@@ -269,6 +292,12 @@ def build_params(
         raise ValueError(f"vent_pulse_slots must be 0..{pwm.PWM_SLOTS}")
     if config.vent_every_periods < 1:
         raise ValueError("vent_every_periods must be 1 or more")
+    if len(config.virtual_inertia) != 6 or not all(
+        math.isfinite(j) and j >= 0.0 for j in config.virtual_inertia
+    ):
+        raise ValueError("virtual_inertia needs 6 finite values >= 0")
+    if not (math.isfinite(config.virtual_frequency_max) and config.virtual_frequency_max >= 0.0):
+        raise ValueError("virtual_frequency_max must be a finite value >= 0")
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0
@@ -309,6 +338,8 @@ def build_params(
         gravity=9.81,
         sensor_origin=np.array([0.0, 0.0, -config.sensor_below_ankle]),
         load_compensation=config.load_compensation,
+        virtual_inertia=np.array(config.virtual_inertia, dtype=np.float64),
+        virtual_omega2=(2.0 * math.pi * config.virtual_frequency_max) ** 2,
         vent_pulse_slots=int(config.vent_pulse_slots),
         vent_every_periods=int(config.vent_every_periods),
         limits=limits.as_array(),
@@ -338,6 +369,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         pose_cmd=home.copy(),
         pose_cmd_rate=np.zeros(6),
         x_m=np.zeros(6),
+        v_m=np.zeros(6),
         stiffness=np.zeros(6),
         damping=np.zeros(6),
         stiffness_target=np.zeros(6),
@@ -587,19 +619,45 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             )
             x_d, v_d = waveform(s.trajectory[k], t, p.sine_fade_in)
             v_m = 0.0
+            j_k = p.virtual_inertia[k]
+            if j_k > 0.0 and p.virtual_omega2 > 0.0:
+                j_k = max(j_k, s.stiffness[k] / p.virtual_omega2)
             if s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0):
-                s.x_m[k], v_m = impedance.compliance_step(
-                    s.x_m[k], s.wrench[k] - s.tare[k], s.stiffness[k], s.damping[k], p.dt_control
-                )
+                if j_k > 0.0:
+                    s.x_m[k], s.v_m[k] = impedance.inertial_compliance_step(
+                        s.x_m[k],
+                        s.v_m[k],
+                        s.wrench[k] - s.tare[k],
+                        j_k,
+                        s.stiffness[k],
+                        s.damping[k],
+                        p.dt_control,
+                    )
+                    v_m = s.v_m[k]
+                else:
+                    s.x_m[k], v_m = impedance.compliance_step(
+                        s.x_m[k],
+                        s.wrench[k] - s.tare[k],
+                        s.stiffness[k],
+                        s.damping[k],
+                        p.dt_control,
+                    )
             else:
                 s.x_m[k] = 0.0
+                s.v_m[k] = 0.0
             x_c = x_d + s.x_m[k]
             lo, hi = p.limits[safety.ROW_ROM_LOW, k], p.limits[safety.ROW_ROM_HIGH, k]
             home = p.home_pose[k]
+            clamped = False
             if x_c - home < lo:
-                x_c, v_d, v_m = home + lo, 0.0, 0.0
+                x_c, v_d, v_m, clamped = home + lo, 0.0, 0.0, True
             elif x_c - home > hi:
-                x_c, v_d, v_m = home + hi, 0.0, 0.0
+                x_c, v_d, v_m, clamped = home + hi, 0.0, 0.0, True
+            if clamped and j_k > 0.0:
+                # The range of motion is an inelastic wall for the virtual inertia: it stops
+                # there instead of coasting on beyond what the platform may show.
+                s.x_m[k] = x_c - x_d
+                s.v_m[k] = 0.0
             s.pose_cmd[k] = x_c
             s.pose_cmd_rate[k] = v_d + v_m
         leg_vectors(s.pose_cmd, p.base, p.plat, L, U, A)

@@ -7,12 +7,21 @@ feels ``F = K (X_c - X_d) + B (dX_c/dt - dX_d/dt)``: eq. (17) with the paper's s
 the device pushes back with ``-F``.
 
 Each axis is integrated exactly over one control period for constant ``F`` (a first-order
-lag of time constant ``B/K``), so any K and B are stable at 250 Hz.
+lag of time constant ``B/K``), so the discrete update is stable for any K and B at 250 Hz.
+That is NOT the stability of the loop: the admittance ``X_m/F`` is fed to a position loop
+(about 6 Hz bandwidth, several ms of valve and filter delay) and the foot wrench it measures
+depends on where the platform goes. With a small B (or B = 0) the admittance's bandwidth
+``K/B`` (or its instantaneous jump ``F/K``) far exceeds what the legs can follow and the
+coupled loop oscillates or trips (see ``lab_envelope.py`` and ``findings.md``). The device
+therefore adds a virtual inertia J per axis (``inertial_compliance_step``):
+``J ddX_m + B dX_m + K X_m = F``, which rolls the admittance off at high frequency.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from device._jit import njit
 
@@ -33,3 +42,69 @@ def compliance_step(x_m: float, force: float, k: float, b: float, dt: float) -> 
     target = force / k
     x_new = target + (x_m - target) * math.exp(-k * dt / b)
     return x_new, (force - k * x_new) / b
+
+
+@njit
+def _mat3_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3x3 product written out (numba's ``@`` needs BLAS from scipy, not installed)."""
+    c = np.zeros((3, 3))
+    for r in range(3):
+        for k in range(3):
+            arc = a[r, k]
+            for q in range(3):
+                c[r, q] += arc * b[k, q]
+    return c
+
+
+@njit
+def _expm3_augmented(
+    j: float, b: float, k: float, dt: float
+) -> tuple[float, float, float, float, float, float]:
+    """exp(M dt) of M = [[0, 1, 0], [-k/j, -b/j, 1/j], [0, 0, 0]] by scaling and squaring.
+
+    Returns (phi00, phi01, phi10, phi11, gamma0, gamma1): the exact zero-order-hold map
+    ``[x, v]' = Phi [x, v] + Gamma F`` of ``j a + b v + k x = F`` over ``dt``.
+    """
+    m = np.zeros((3, 3))
+    m[0, 1] = dt
+    m[1, 0] = -k / j * dt
+    m[1, 1] = -b / j * dt
+    m[1, 2] = dt / j
+    norm = 0.0
+    for r in range(3):
+        s = 0.0
+        for c in range(3):
+            s += abs(m[r, c])
+        norm = max(norm, s)
+    squarings = 0
+    while norm > 0.25:
+        norm *= 0.5
+        squarings += 1
+    scale = 0.5**squarings
+    for r in range(3):
+        for c in range(3):
+            m[r, c] *= scale
+    e = np.eye(3)
+    term = np.eye(3)
+    for n in range(1, 14):  # ||m|| <= 0.25: 0.25^14 / 14! is far below machine precision
+        term = _mat3_mul(term, m) / n
+        e = e + term
+    for _ in range(squarings):
+        e = _mat3_mul(e, e)
+    return e[0, 0], e[0, 1], e[1, 0], e[1, 1], e[0, 2], e[1, 2]
+
+
+@njit
+def inertial_compliance_step(
+    x_m: float, v_m: float, force: float, j: float, k: float, b: float, dt: float
+) -> tuple[float, float]:
+    """Advance one axis of ``j ddX_m + b dX_m + k X_m = F`` by ``dt``; returns (X_m, dX_m/dt).
+
+    The virtual inertia ``j > 0`` is the device's, not the therapist's: it limits the
+    acceleration and so the bandwidth of the admittance ``X_m / F`` to what the position
+    loop can follow (see findings of the stability envelope). Exact for constant ``F`` over
+    the step (zero-order hold), so any ``j, k, b >= 0`` is integrated stably: the discrete
+    map has the continuous system's eigenvalues ``exp(lambda dt)``.
+    """
+    p00, p01, p10, p11, g0, g1 = _expm3_augmented(j, b, k, dt)
+    return p00 * x_m + p01 * v_m + g0 * force, p10 * x_m + p11 * v_m + g1 * force

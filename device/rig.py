@@ -140,6 +140,7 @@ class Rig:
             supervision.reset_motion(s.monitor, s.counters)
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
+            s.v_m[:] = 0.0
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
 
@@ -176,6 +177,7 @@ class Rig:
             # adds beyond that drives the impedance.
             self.state.tare[:] = self.state.wrench
             self.state.x_m[:] = 0.0
+            self.state.v_m[:] = 0.0
         self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def apply_impedance(

@@ -70,3 +70,43 @@ def test_compliance_step_is_the_exact_first_order_solution() -> None:
     assert x == pytest.approx(0.1 + 0.01)
     x, _ = impedance.compliance_step(0.0, 5.0, 50.0, 0.0, 0.004)  # pure stiffness
     assert x == pytest.approx(0.1)
+
+
+def _rk4_mass_spring(j: float, b: float, k: float, f: float, x: float, v: float, dt: float):
+    n = 2000
+    h = dt / n
+
+    def d(x: float, v: float) -> tuple[float, float]:
+        return v, (f - b * v - k * x) / j
+
+    for _ in range(n):
+        a1 = d(x, v)
+        a2 = d(x + h / 2 * a1[0], v + h / 2 * a1[1])
+        a3 = d(x + h / 2 * a2[0], v + h / 2 * a2[1])
+        a4 = d(x + h * a3[0], v + h * a3[1])
+        x += h / 6 * (a1[0] + 2 * a2[0] + 2 * a3[0] + a4[0])
+        v += h / 6 * (a1[1] + 2 * a2[1] + 2 * a3[1] + a4[1])
+    return x, v
+
+
+@pytest.mark.parametrize(
+    ("j", "b", "k"),
+    [(0.03, 0.0, 500.0), (0.03, 0.1, 0.0), (0.01, 1.0, 50.0), (0.1, 10.0, 2.0), (0.088, 0.0, 0.0)],
+)
+def test_inertial_compliance_step_is_exact(j: float, b: float, k: float) -> None:
+    x, v = impedance.inertial_compliance_step(0.01, 0.2, 3.0, j, k, b, 0.004)
+    xr, vr = _rk4_mass_spring(j, b, k, 3.0, 0.01, 0.2, 0.004)
+    assert x == pytest.approx(xr, rel=1e-9, abs=1e-12)
+    assert v == pytest.approx(vr, rel=1e-9, abs=1e-12)
+
+
+def test_inertial_compliance_settles_at_force_over_k_and_conserves_undamped_energy() -> None:
+    x, v = 0.0, 0.0
+    for _ in range(2000):
+        x, v = impedance.inertial_compliance_step(x, v, 10.0, 0.03, 50.0, 1.0, 0.004)
+    assert x == pytest.approx(0.2)
+    assert v == pytest.approx(0.0, abs=1e-9)
+    x, v = 0.1, 0.0  # B = 0: the exact map neither adds nor removes energy
+    for _ in range(5000):
+        x, v = impedance.inertial_compliance_step(x, v, 0.0, 0.03, 500.0, 0.0, 0.004)
+    assert 0.5 * 500.0 * x**2 + 0.5 * 0.03 * v**2 == pytest.approx(0.5 * 500.0 * 0.01, rel=1e-9)

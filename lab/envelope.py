@@ -1,0 +1,474 @@
+"""Stability envelope of the rendered impedance on the rotational axes (K-B map).
+
+Per point: a fresh rig on the simulated plant (seed fixed), settled at home; impedance set
+compliant on one axis only; hold (``rig.track({})``) for ``PRE`` s with no push at all
+(spontaneous oscillation shows here); a patient torque pulse of ``PULSE_NM`` for
+``PULSE_S`` on that axis (the scripted torque acts for the absent patient too: it is part of
+the plant's patient wrench and the force sensor measures it); then ``POST`` s.
+
+Recorded: trip code and time, peak-to-peak of the true platform angle in the last 1 s
+(2-3 s after the pulse, when a correctly rendered soft setting has finished drifting back:
+checked for K = 0, B = 10 on a relaxed ankle, about 0.04 deg of drift), the same after a
+quadratic detrend (oscillation only), the commanded angle's p-p (also detrended), the mean
+gap between the commanded and the true angle (a platform that "walks" away from its
+command), whether it already oscillated or tripped before the push, and the dominant
+frequency of the angle (the last 1 s, or the last 0.5 s before a trip).
+
+Unstable (the brief's criterion, with the p-p taken after a quadratic detrend so that the
+correct slow return of a soft setting, e.g. K = 2, B = 5 with no foot, tau = B/K = 2.5 s,
+is not counted as oscillation): tripped at any time, or detrended p-p > 0.2 deg in the last
+1 s. Marginal (stricter, used for the envelope): also the command chattering (commanded
+angle p-p > 0.5 deg in the last 1 s: the position loop is driven at 60-125 Hz, which the
+platform filters but the legs and valves do not), the platform walking more than 0.5 deg
+away from its command, or a push that tripped the speed limit at once (see run_point).
+
+Usage (from the worktree, PYTHONPATH=. and an own XDG_CACHE_HOME):
+    python lab_envelope.py [--axes roll,pitch,yaw] [--patients relaxed,resisting,absent]
+        [--J <kg m2>] [--fmax <Hz>] [--K ...] [--B ...] [--pulse 2.0] [--json out.json]
+        (no --J: the device's default virtual inertia; --J 0: none, the old compliance)
+    python lab_envelope.py --stiffness [--J 0]     # experiments.impedance under this J
+    python lab_envelope.py --verify [--json ...]   # run the recommended envelopes
+    python lab_envelope.py --markdown results/map_default.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+
+import numpy as np
+
+from device.controller import ControllerConfig
+from device.geometry import AXIS_INDEX
+from device.hardware import SimulatedHardware
+from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
+from device.plant.params import PlantConfig
+from device.rig import Rig
+from device.safety import Trip
+from device.tickloop import COL
+
+K_GRID = (0, 2, 5, 10, 20, 50, 100, 200, 350, 500)
+B_GRID = (0, 0.05, 0.1, 0.2, 0.3, 0.5, 1, 2, 5, 10)
+PATIENTS = ("relaxed", "resisting", "absent")
+ROT_AXES = ("roll", "pitch", "yaw")
+
+SETTLE = 0.5
+PRE = 0.5
+PULSE_NM = 2.0
+PULSE_S = 0.1
+POST = 3.0
+PP_LIMIT_DEG = 0.2
+CMD_PP_LIMIT_DEG = 0.5
+WALK_LIMIT_DEG = 0.5
+SPEED_TRIP_S = 0.2
+SPEED_TRIP_MAX_HZ = 3.0
+LOG_HZ = 1000.0
+
+
+def _config(J: float | None, fmax: float | None = None) -> ControllerConfig:
+    if J is None:
+        return ControllerConfig()  # the device's default virtual inertia
+    # Virtual inertia on the rotations only (the brief concerns roll, pitch, yaw).
+    return ControllerConfig(
+        virtual_inertia=(0.0, 0.0, 0.0, J, J, J), virtual_frequency_max=fmax or 0.0
+    )
+
+
+def dominant_hz(y: np.ndarray, fs: float) -> float:
+    n = len(y)
+    if n < 16:
+        return float("nan")
+    t = np.arange(n)
+    y = y - np.polyval(np.polyfit(t, y, 1), t)
+    w = np.hanning(n)
+    nfft = max(4096, 1 << (n - 1).bit_length())
+    spec = np.abs(np.fft.rfft(y * w, nfft))
+    f = np.fft.rfftfreq(nfft, 1.0 / fs)
+    band = (f >= 0.5) & (f <= 200.0)
+    return float(f[band][np.argmax(spec[band])])
+
+
+def run_point(
+    axis: str,
+    patient: str,
+    K: float,
+    B: float,
+    J: float | None = None,
+    pulse: float = PULSE_NM,
+    seed: int = 1,
+    fmax: float | None = None,
+) -> dict:
+    """One point; a push that trips the speed limit at once is retried with a quarter push.
+
+    A LEG_SPEED trip within ``SPEED_TRIP_S`` of the push, with no oscillation before the push
+    and a monotonic run-up to it (dominant frequency of the last 0.5 s under
+    ``SPEED_TRIP_MAX_HZ``), is the admittance asking for a speed the legs may not reach (up
+    to F/B rad/s, or impulse/J with a virtual inertia), not an oscillation: it is reported
+    (``speed_trip``, counted as marginal) and the point is classified on the retry.
+    """
+    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax)
+    r["speed_trip"] = False
+    if (
+        r["trip"] == "LEG_SPEED"
+        and 0.0 <= r["trip_t"] < SPEED_TRIP_S
+        and r["pre_pp_deg"] < PP_LIMIT_DEG
+        and r["f_hz"] < SPEED_TRIP_MAX_HZ
+    ):
+        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax)
+        r2["speed_trip"] = True
+        r2["first_trip_t"] = r["trip_t"]
+        r2["marginal"] = True
+        return r2
+    return r
+
+
+def _run_point(
+    axis: str,
+    patient: str,
+    K: float,
+    B: float,
+    J: float | None,
+    pulse: float,
+    seed: int,
+    fmax: float | None = None,
+) -> dict:
+    ax = AXIS_INDEX[axis]
+    rig = Rig(SimulatedHardware(PlantConfig(patient=patient), seed=seed), _config(J, fmax))
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(SETTLE, log_hz=0)
+    rig.clear_log()
+    Kv, Bv = np.zeros(6), np.zeros(6)
+    Kv[ax], Bv[ax] = K, B
+    rig.set_impedance(Kv, Bv, [i == ax for i in range(6)])
+    rig.track({})
+    rig.run(PRE, log_hz=LOG_HZ)
+    t_pulse = rig.time
+    rig.hardware.script_torque(ax, SCRIPT_CONSTANT, t_pulse, pulse, 0.0)
+    rig.run(PULSE_S, log_hz=LOG_HZ)
+    rig.hardware.script_torque(ax, SCRIPT_NONE, 0.0, 0.0, 0.0)
+    rig.run(POST, log_hz=LOG_HZ)
+    log = rig.log
+    t = log[:, 0]
+    home = rig.geometry.home_pose[ax]
+    ang = np.degrees(log[:, COL[f"pose_{axis}"]] - home)
+    trip_col = log[:, COL["trip"]]
+    tripped = bool(np.any(trip_col != 0))
+    trip_t = float("nan")
+    trip_name = "NONE"
+    if tripped:
+        i_trip = int(np.argmax(trip_col != 0))
+        trip_t = float(t[i_trip] - t_pulse)
+        trip_name = Trip(int(trip_col[i_trip])).name
+        seg = ang[max(0, i_trip - 500) : i_trip]
+        pp_raw = pp_det = cmd_pp = walk = float("nan")
+    else:
+        seg = ang[t >= t[-1] - 1.0]
+        pp_raw = float(np.ptp(seg))
+        x = np.arange(len(seg))
+        pp_det = float(np.ptp(seg - np.polyval(np.polyfit(x, seg, 2), x)))
+        cmd = np.degrees(log[:, COL[f"pose_cmd_{axis}"]] - home)[t >= t[-1] - 1.0]
+        cmd_pp = float(np.ptp(cmd - np.polyval(np.polyfit(x, cmd, 2), x)))
+        walk = float(np.mean(seg) - np.mean(cmd))
+    f = dominant_hz(seg, LOG_HZ)
+    # Spontaneous: oscillation (or trip) before the push.
+    pre = ang[t < t_pulse]
+    pre_trip = tripped and trip_t < 0
+    pre_pp = float(np.ptp(pre[len(pre) // 2 :])) if len(pre) else float("nan")
+    unstable = tripped or pp_det > PP_LIMIT_DEG
+    marginal = unstable or cmd_pp > CMD_PP_LIMIT_DEG or abs(walk) > WALK_LIMIT_DEG
+    return {
+        "axis": axis,
+        "patient": patient,
+        "pulse_nm": pulse,
+        "K": K,
+        "B": B,
+        "J": float(rig.params.virtual_inertia[ax]),
+        "J_eff": float(
+            max(rig.params.virtual_inertia[ax], K / rig.params.virtual_omega2)
+            if rig.params.virtual_inertia[ax] > 0 and rig.params.virtual_omega2 > 0
+            else rig.params.virtual_inertia[ax]
+        ),
+        "unstable": unstable,
+        "marginal": marginal,
+        "tripped": tripped,
+        "trip": trip_name,
+        "trip_t": trip_t,
+        "spontaneous": pre_trip or pre_pp > PP_LIMIT_DEG,
+        "pre_pp_deg": pre_pp,
+        "pp_raw_deg": pp_raw,
+        "pp_det_deg": pp_det,
+        "cmd_pp_deg": cmd_pp,
+        "walk_deg": walk,
+        "f_hz": f,
+        "peak_deg": float(np.max(np.abs(ang))),
+    }
+
+
+def b_min_table(results: list[dict], key: str = "unstable") -> dict:
+    """Per axis, patient, K: the least grid B above which every grid B is stable."""
+    out: dict = {}
+    for r in results:
+        out.setdefault(r["axis"], {}).setdefault(r["patient"], {}).setdefault(r["K"], {})[
+            r["B"]
+        ] = r[key]
+    table: dict = {}
+    for axis, pats in out.items():
+        for pat, ks in pats.items():
+            for K, bs in ks.items():
+                bmin = None
+                for B in sorted(bs, reverse=True):
+                    if bs[B]:
+                        break
+                    bmin = B
+                table.setdefault(axis, {}).setdefault(pat, {})[K] = bmin
+    return table
+
+
+def stiffness_check(
+    J: float | None, fmax: float | None, cases: tuple = (("pitch", 50.0, 1.0, 10.0),)
+) -> list[dict]:
+    """The paper's stiffness rendering (experiments.impedance, Figure 12) under this J."""
+    import device.experiments as ex
+
+    original = ex.ControllerConfig
+    base = _config(J, fmax)
+
+    def patched(**kw: object) -> ControllerConfig:
+        return dataclasses.replace(base, **kw)
+
+    ex.ControllerConfig = patched  # type: ignore[assignment]
+    try:
+        out = []
+        for axis, k, b, tq in cases:
+            r = ex.impedance(axis, k=k, b=b, torque=tq)
+            out.append(
+                {
+                    "axis": axis,
+                    "K": k,
+                    "B": b,
+                    "torque": tq,
+                    "J": J,
+                    "fmax": fmax,
+                    "measured": r.measured_stiffness,
+                    "error_pct": r.error_pct,
+                }
+            )
+        return out
+    finally:
+        ex.ControllerConfig = original
+
+
+def markdown(path: str, key: str = "b_min_strict") -> str:
+    """Markdown table of a saved map: per axis and patient, B_min for each K, then the max."""
+    with open(path) as fh:
+        d = json.load(fh)
+    tab = d[key]
+    Ks = sorted({float(k) for pats in tab.values() for row in pats.values() for k in row})
+    lines = ["| axis | patient | " + " | ".join(f"K={k:g}" for k in Ks) + " |"]
+    lines.append("|---|---|" + "---|" * len(Ks))
+    for axis, pats in tab.items():
+        worst: dict = {}
+        for pat, row in pats.items():
+            vals = {float(k): v for k, v in row.items()}
+            cells = []
+            for k in Ks:
+                v = vals.get(k)
+                cells.append("none" if v is None else f"{v:g}")
+                w = worst.get(k, 0.0)
+                worst[k] = math.inf if v is None or w == math.inf else max(w, v)
+            lines.append(f"| {axis} | {pat} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {axis} | **all** | "
+            + " | ".join(f"**{'none' if worst[k] == math.inf else f'{worst[k]:g}'}**" for k in Ks)
+            + " |"
+        )
+    return "\n".join(lines)
+
+
+# Recommended least damping (N m s/rad) per axis: (K from, B_min) steps, 2x the measured
+# boundary (strict criterion, worst of the three patients), held until the next step.
+ENVELOPE = {
+    "no_virtual_inertia": {
+        "roll": ((0, 4.0), (100, 2.0), (200, 0.1)),
+        "pitch": ((0, 2.0), (100, 1.0), (200, 0.1)),
+        "yaw": ((0, 1.0), (50, 0.6), (100, 0.1)),
+    },
+    "virtual_inertia": {  # the device default: J = max(0.03, K / (2 pi 12 Hz)^2)
+        "roll": ((0, 1.0), (5, 0.6), (50, 0.2)),
+        "pitch": ((0, 1.0), (5, 0.6), (50, 0.2)),
+        "yaw": ((0, 0.6), (50, 0.2)),
+    },
+}
+
+
+def envelope_b(kind: str, axis: str, K: float) -> float:
+    b = math.inf
+    for k_from, b_min in ENVELOPE[kind][axis]:
+        if k_from <= K:
+            b = b_min
+    return b
+
+
+def verify(kind: str, seeds: tuple = (1, 2), heavy: bool = False) -> list[dict]:
+    """Run every patient at B = envelope(K) on grid and in-between K, several seeds."""
+    global PlantConfig
+    J = 0.0 if kind == "no_virtual_inertia" else None
+    Ks = (0, 1, 2, 3, 5, 7, 10, 20, 35, 50, 75, 100, 150, 200, 275, 350, 425, 500)
+    original = PlantConfig
+    if heavy:  # a heavier foot (x1.5 mass, x2 inertia): more inertia fed back by the sensor
+
+        def PlantConfig(patient: str) -> original:  # type: ignore[no-redef]  # noqa: N802
+            return original(patient=patient).with_overrides(
+                foot_mass=1.6,
+                foot_inertia_pitch=0.008,
+                foot_inertia_roll=0.002,
+                foot_inertia_yaw=0.008,
+            )
+
+    try:
+        out = []
+        for axis in ROT_AXES:
+            for pat in PATIENTS:
+                for K in Ks:
+                    B = envelope_b(kind, axis, K)
+                    for seed in seeds:
+                        r = run_point(axis, pat, float(K), B, J, seed=seed)
+                        r["seed"], r["heavy_foot"] = seed, heavy
+                        out.append(r)
+        return out
+    finally:
+        PlantConfig = original
+
+
+def fmt(v) -> str:
+    return "-" if v is None else (f"{v:g}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--axes", default=",".join(ROT_AXES))
+    ap.add_argument("--patients", default=",".join(PATIENTS))
+    ap.add_argument("--K", default=",".join(str(k) for k in K_GRID))
+    ap.add_argument("--B", default=",".join(str(b) for b in B_GRID))
+    ap.add_argument(
+        "--J", type=float, default=None, help="virtual inertia (kg m2); default: the device's"
+    )
+    ap.add_argument("--pulse", type=float, default=PULSE_NM)
+    ap.add_argument(
+        "--fmax", type=float, default=None, help="cap on sqrt(K/J) (Hz): J grows with K"
+    )
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument(
+        "--stiffness",
+        action="store_true",
+        help="only run the stiffness-rendering check (experiments.impedance) under this J",
+    )
+    ap.add_argument("--verify", action="store_true", help="check the recommended envelope")
+    ap.add_argument("--markdown", default=None, help="print a saved map (JSON) as tables")
+    a = ap.parse_args(argv)
+    if a.markdown:
+        for key in ("b_min", "b_min_strict"):
+            print(f"\n{key}:\n")
+            print(markdown(a.markdown, key))
+        return 0
+    if a.verify:
+        res = []
+        for kind in ("virtual_inertia", "no_virtual_inertia"):
+            for heavy in (False, True):
+                rs = verify(kind, heavy=heavy)
+                res += rs
+                bad = [r for r in rs if r["marginal"]]
+                worst = max(
+                    rs, key=lambda r: r["pp_det_deg"] if r["pp_det_deg"] == r["pp_det_deg"] else 9
+                )
+                print(
+                    f"{kind:20s} heavy_foot={heavy}: {len(rs)} runs, {len(bad)} failing the "
+                    f"strict criterion; largest p-p {worst['pp_det_deg']:.3f} deg "
+                    f"({worst['axis']} {worst['patient']} K={worst['K']:g} B={worst['B']:g})"
+                )
+                for r in bad:
+                    print(
+                        f"   FAIL {r['axis']} {r['patient']} K={r['K']:g} B={r['B']:g} "
+                        f"seed={r['seed']} "
+                        f"trip={r['trip']} pp={r['pp_det_deg']:.3f} cmd={r['cmd_pp_deg']:.3f} "
+                        f"walk={r['walk_deg']:.2f} speed_trip={r['speed_trip']} f={r['f_hz']:.1f}"
+                    )
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump(res, fh, indent=1, default=str)
+        return 0
+    if a.stiffness:
+        cases = (
+            *((ax, 50.0, 1.0, 10.0) for ax in ROT_AXES),
+            ("pitch", 20.0, 1.0, 6.0),  # the cases of tests/device/test_targets.py
+            ("pitch", 100.0, 1.0, 10.0),
+            ("pitch", 10.0, 1.0, 3.0),
+            ("pitch", 200.0, 1.0, 10.0),
+            ("pitch", 500.0, 1.0, 10.0),
+            ("pitch", 50.0, 0.3, 10.0),
+        )
+        res = stiffness_check(a.J, a.fmax, cases)
+        for r in res:
+            print(
+                f"{r['axis']:5s} K={r['K']:5g} B={r['B']:4g} J={r['J']} fmax={r['fmax']}: "
+                f"measured {r['measured']:.2f} N m/rad, error {r['error_pct']:.2f} %"
+            )
+        json.dump(res, sys.stdout)
+        print()
+        return 0
+    Ks = [float(x) for x in a.K.split(",")]
+    Bs = [float(x) for x in a.B.split(",")]
+    results = []
+    t0 = time.time()
+    for axis in a.axes.split(","):
+        for pat in a.patients.split(","):
+            for K in Ks:
+                for B in Bs:
+                    if K == 0 and B == 0:
+                        continue  # refused by the device
+                    r = run_point(axis, pat, K, B, a.J, a.pulse, fmax=a.fmax)
+                    results.append(r)
+                    if not a.quiet:
+                        print(
+                            f"{axis:5s} {pat:9s} K={K:5g} B={B:5g} "
+                            f"{'UNST' if r['unstable'] else ('marg' if r['marginal'] else 'ok  ')}"
+                            f"{'S' if r['speed_trip'] else ' '} trip={r['trip']:15s} "
+                            f"t={r['trip_t']:6.3f} pp={r['pp_raw_deg']:7.3f} "
+                            f"det={r['pp_det_deg']:7.3f} "
+                            f"cmd={r['cmd_pp_deg']:7.3f} walk={r['walk_deg']:7.2f} "
+                            f"pre={r['pre_pp_deg']:6.3f} f={r['f_hz']:6.1f}",
+                            flush=True,
+                        )
+    table = b_min_table(results)
+    strict = b_min_table(results, "marginal")
+    print(f"\n# wall {time.time() - t0:.0f} s, J={a.J}, fmax={a.fmax}")
+    for name, tab in (("unstable (brief)", table), ("marginal (strict)", strict)):
+        print(f"B_min on the grid, criterion {name}: least B from which all larger grid B pass")
+        print("axis  patient    " + " ".join(f"{k:>6g}" for k in Ks))
+        for axis, pats in tab.items():
+            for pat, row in pats.items():
+                print(f"{axis:5s} {pat:9s}  " + " ".join(f"{fmt(row.get(k)):>6s}" for k in Ks))
+    payload = {
+        "J": a.J,
+        "fmax": a.fmax,
+        "pulse_nm": a.pulse,
+        "results": results,
+        "b_min": table,
+        "b_min_strict": strict,
+    }
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(payload, fh, indent=1, default=str)
+    else:
+        json.dump(payload["b_min"], sys.stdout, default=str)
+        print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
