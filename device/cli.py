@@ -95,6 +95,25 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="simulated patient pushes in pitch with this peak torque (N m, 0.1 Hz)",
     )
     dev.add_argument("--seconds", type=ranged(float, 0.0, 1e9), default=None)
+    dev.add_argument(
+        "--fault",
+        type=fault_spec,
+        action="append",
+        default=[],
+        metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
+        help="simulation only: inject a plant fault at TIME s after the start (repeatable), "
+        "e.g. supply_loss@30 or pressure_open@12:4",
+    )
+
+
+def fault_spec(text: str) -> Any:
+    """argparse type of ``--fault``: a :class:`device.plant.faults.Fault`."""
+    from device.plant.faults import parse_fault
+
+    try:
+        return parse_fault(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -123,6 +142,16 @@ def _device(args: argparse.Namespace) -> int:
         return 1
     if isinstance(hardware, SimulatedHardware) and args.patient_torque > 0:
         hardware.script_torque(4, SCRIPT_SINE, 1.0, args.patient_torque, 0.1)
+    if args.fault and not isinstance(hardware, SimulatedHardware):
+        print("error: --fault injects into the plant simulation: use --sim", file=sys.stderr)
+        return USAGE_ERROR
+    for fault in args.fault:
+        assert isinstance(hardware, SimulatedHardware)
+        try:
+            hardware.inject(fault)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return USAGE_ERROR
     if args.hardware == "sim":
         print("ankle device: preparing the simulated device (first start compiles ~20 s)...")
     service = DeviceService(Rig(hardware), link, ServiceConfig(args.telemetry_hz, args.watchdog_ms))

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from device.axes import AXES
 from device.geometry import Geometry
-from device.limits import LEG_HEADROOM, SafetyLimits
+from device.limits import LEG_HEADROOM, SafetyLimits, to_float32
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, NackCode
 from device.trips import Trip
@@ -83,6 +83,8 @@ class Context:
     """Measured piston displacements (m), for homing."""
     supply_low: bool = False
     """The air supply is below its low mark: motion commands wait until it recovers."""
+    service: bool = False
+    """The device needs service (a SERVICE event): nothing new moves until a re-arm."""
 
 
 Checked = msg.Message | CheckedSegment | CheckedImpedance
@@ -102,7 +104,8 @@ def check(command: msg.Message, ctx: Context) -> Checked:
         check_configure(command.telemetry_hz, command.watchdog_ms, ctx.telemetry_hz_max)
         return command
     if isinstance(command, msg.Rearm):
-        require_mode(ctx.mode, (DeviceMode.ESTOP, DeviceMode.FAULT), "nothing to re-arm")
+        if not ctx.service:
+            require_mode(ctx.mode, (DeviceMode.ESTOP, DeviceMode.FAULT), "nothing to re-arm")
         return command
     if isinstance(command, msg.Release):
         require_mode(
@@ -122,6 +125,11 @@ def check(command: msg.Message, ctx: Context) -> Checked:
         raise CommandError(
             "the air supply is low: nothing moves until it is back (check the compressor)",
             code=NackCode.SUPPLY_LOW,
+        )
+    if ctx.service and isinstance(command, msg.ArmHome | msg.StartSegment | msg.Resume):
+        raise CommandError(
+            "the device needs service (see its SERVICE event): a technician re-arms it",
+            code=NackCode.SERVICE_NEEDED,
         )
     if isinstance(command, msg.ArmHome):
         require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD))
@@ -202,6 +210,13 @@ def check_impedance(
         if compliant[k] and K[k] == 0.0 and B[k] == 0.0:
             raise CommandError(
                 f"{axis} is compliant: stiffness and damping cannot both be zero", "stiffness"
+            )
+        least = limits.damping_min_at(k, float(K[k]))
+        if compliant[k] and to_float32(B[k]) < least:  # as the wire carries it
+            raise CommandError(
+                f"{axis} damping {B[k]:g} is below {least:g}, the least the device renders "
+                f"stably at stiffness {K[k]:g}",
+                "damping",
             )
 
 

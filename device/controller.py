@@ -494,6 +494,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.integral[up] = 0.0
         s.counters[supervision.C_WINDOW + lo] = 0
         s.counters[supervision.C_WINDOW + up] = 0
+        s.counters[supervision.C_AIR + lo] = 0
+        s.counters[supervision.C_AIR + up] = 0
         return
     dP = position_loop.pd(
         s.leg_target[leg],
@@ -540,6 +542,11 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         ):
             trip(s, Trip.VALVE, c)
             return
+        if supervision.check_air(
+            s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
+        ):
+            if s.counters[supervision.C_SERVICE] == 0:
+                s.counters[supervision.C_SERVICE] = c + 1
 
 
 @njit
@@ -617,6 +624,10 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             s.damping[k] = safety.slew(
                 s.damping[k], s.damping_target[k], p.limits[safety.ROW_B_SLEW, k], p.dt_control
             )
+            if s.compliant[k] > 0.5:
+                # K and B slew apart: never render a pair outside the stable envelope on
+                # the way from one accepted pair to the next.
+                s.damping[k] = max(s.damping[k], safety.damping_min(p.limits, k, s.stiffness[k]))
             x_d, v_d = waveform(s.trajectory[k], t, p.sine_fade_in)
             v_m = 0.0
             j_k = p.virtual_inertia[k]

@@ -67,8 +67,36 @@ class SafetyLimits:
     """Fastest target waveform a command may ask for per axis (m/s, rad/s): a 7 Hz, 2 deg
     pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion."""
 
+    envelope_stiffness: tuple[float, ...] = (0.0, 5.0, 50.0)
+    """The stable stiffness-damping envelope, in three bands of K: the lower edge of each
+    (N/m, N m/rad). Band i holds for ``envelope_stiffness[i] <= K`` up to the next edge."""
+    damping_min: tuple[float, ...] = (
+        0.0, 0.0, 0.0,
+        0.0, 0.0, 0.0,
+        0.0, 0.0, 0.0,
+        1.0, 0.6, 0.2,
+        1.0, 0.6, 0.2,
+        0.6, 0.6, 0.2,
+    )  # fmt: skip
+    """Least damping B per axis and K band (axis-major, 3 bands each; N s/m, N m s/rad): a
+    compliant axis renders K and B only with B at least this. Measured on the plant over a
+    grid of K 0-500 N m/rad and B 0-10 N m s/rad with a relaxed, a resisting and no foot
+    (``python -m lab.envelope``, docs/envelope.md), with the controller's virtual inertia:
+    twice the worst boundary found. Below it the loop oscillates at 2-8 Hz with a foot, or a
+    push on an empty plate asks the legs for more than their speed limit. Translations are
+    not measured (no exercise renders them)."""
+
+    def damping_min_at(self, axis: int, stiffness: float) -> float:
+        """The least damping the device renders stably on ``axis`` at ``stiffness``."""
+        band = 0
+        for i, edge in enumerate(self.envelope_stiffness):
+            if stiffness >= edge:
+                band = i
+        return self.damping_min[3 * axis + band]
+
     def as_array(self) -> NDArray[np.float64]:
-        """(8, 6) array for the compiled controller: rows as the fields, in order."""
+        """(12, 6) array for the compiled controller: the fields in order, then the least
+        damping of each K band (3 rows) and the bands' lower edges."""
         return np.array(
             [
                 self.rom_low,
@@ -86,6 +114,10 @@ class SafetyLimits:
                     0.0,
                     0.0,
                 ),
+                self.damping_min[0::3],
+                self.damping_min[1::3],
+                self.damping_min[2::3],
+                (*self.envelope_stiffness, 0.0, 0.0, 0.0),
             ],
             dtype=np.float64,
         )
@@ -103,4 +135,6 @@ class SafetyLimits:
 
 ROW_ROM_LOW, ROW_ROM_HIGH, ROW_ROM_MARGIN = 0, 1, 2
 ROW_K_MAX, ROW_B_MAX, ROW_K_SLEW, ROW_B_SLEW, ROW_SCALARS = 3, 4, 5, 6, 7
+ROW_B_MIN, ROW_ENVELOPE_K = 8, 11
+"""Rows 8-10: least damping per axis of K bands 0-2; row 11: the bands' lower edges."""
 """Rows of :meth:`SafetyLimits.as_array`, the compiled controller's copy."""

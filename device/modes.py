@@ -27,7 +27,7 @@ from device.commands import CheckedImpedance, CheckedSegment
 from device.controller import Mode
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
-from device.trips import Trip, event_text
+from device.trips import Trip, event_text, where
 from device.waveforms import AxisTarget
 
 HOMING_LEG_SPEED = 0.010
@@ -56,6 +56,7 @@ FAULT_TRIPS = (
     Trip.FORCE_SENSOR,
     Trip.FORCE_BALANCE,
     Trip.VALVE,
+    Trip.AIR_BALANCE,
 )
 """Trips reported as FAULT events; the others are limits the motion reached (LIMIT)."""
 
@@ -85,6 +86,7 @@ class ModeMachine:
         self.mode = DeviceMode.IDLE
         self.homed = False
         self.segment: Segment | None = None
+        self._service_reported = False
         self._homing_start = 0.0
         self._homing_from = np.zeros(6)
         self._home_since: float | None = None
@@ -157,7 +159,8 @@ class ModeMachine:
 
     def rearm(self) -> None:
         self.rig.rearm()
-        self._set_mode(DeviceMode.IDLE, "re-armed; home before moving")
+        if self.mode in (DeviceMode.ESTOP, DeviceMode.FAULT):
+            self._set_mode(DeviceMode.IDLE, "re-armed; home before moving")
 
     def release(self) -> None:
         self.rig.set_vent(True)
@@ -189,6 +192,21 @@ class ModeMachine:
             text = event_text(trip, self.rig.trip_channel)
             self._set_mode(DeviceMode.FAULT, text, kind=kind, code=trip)
             return
+        chamber = self.rig.service_chamber
+        if chamber >= 0 and not self._service_reported:
+            self._service_reported = True
+            part = where(Trip.AIR_BALANCE, chamber)
+            self.on_event(
+                EventKind.SERVICE,
+                self.mode,
+                self.mode,
+                int(Trip.AIR_BALANCE),
+                float(chamber),
+                f"AIR_BALANCE on {part}: a leak or a stuck valve; this segment ends under "
+                "control, then service",
+            )
+        elif chamber < 0:
+            self._service_reported = False
         if self.rig.supply_low and self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING):
             supply = float(self.rig.state.sensors[12]) - self.rig.config.atmosphere
             self.hold(

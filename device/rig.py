@@ -257,6 +257,11 @@ class Rig:
         return int(self.state.istate[ctl.I_TRIP_CHANNEL])
 
     @property
+    def service_chamber(self) -> int:
+        """The chamber whose air did not add up with its valves (-1: none): needs service."""
+        return int(self.state.counters[supervision.C_SERVICE]) - 1
+
+    @property
     def supply_low(self) -> bool:
         """The air supply is below its low mark: hold, and start nothing, until it recovers."""
         return bool(self.state.counters[supervision.C_LOW_FLAG])
@@ -266,6 +271,7 @@ class Rig:
         s = self.state
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
+        s.counters[supervision.C_SERVICE] = 0
         s.istate[ctl.I_MODE] = Mode.IDLE
         s.integral[:] = 0.0
         s.slots[:] = 0

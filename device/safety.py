@@ -16,7 +16,9 @@ from numpy.typing import NDArray
 from device._jit import njit
 from device.limits import (
     ROW_B_MAX,
+    ROW_B_MIN,
     ROW_B_SLEW,
+    ROW_ENVELOPE_K,
     ROW_K_MAX,
     ROW_K_SLEW,
     ROW_ROM_HIGH,
@@ -29,7 +31,9 @@ from device.trips import Trip
 
 __all__ = [  # the limits' rows and types, for the compiled controller that reads them here
     "ROW_B_MAX",
+    "ROW_B_MIN",
     "ROW_B_SLEW",
+    "ROW_ENVELOPE_K",
     "ROW_K_MAX",
     "ROW_K_SLEW",
     "ROW_ROM_HIGH",
@@ -42,6 +46,7 @@ __all__ = [  # the limits' rows and types, for the compiled controller that read
     "check_leg_speed",
     "check_pose",
     "check_sensors",
+    "damping_min",
     "slew",
 ]
 
@@ -99,3 +104,13 @@ def slew(current: float, target: float, max_rate: float, dt: float) -> float:
     if target < current - step:
         return current - step
     return target
+
+
+@njit
+def damping_min(limits: NDArray[np.float64], axis: int, stiffness: float) -> float:
+    """The least damping the envelope allows on ``axis`` at ``stiffness``."""
+    band = 0
+    for i in range(3):
+        if stiffness >= limits[ROW_ENVELOPE_K, i]:
+            band = i
+    return float(limits[ROW_B_MIN + band, axis])

@@ -288,6 +288,7 @@ class DeviceService:
             compliant=seg.plan.compliant if seg is not None else None,
             legs=tuple(self.rig.state.leg_x.tolist()),
             supply_low=self.rig.supply_low,
+            service=self.rig.service_chamber >= 0,
         )
 
     def _apply(self, c: commands.Checked) -> None:
@@ -437,6 +438,8 @@ class DeviceService:
             torque_limit=lim.torque_limit,
             leg_speed_limit=lim.leg_speed_limit,
             segment_duration_max=SEGMENT_DURATION_MAX,
+            envelope_stiffness=lim.envelope_stiffness,
+            damping_min=lim.damping_min,
         )
 
 

@@ -49,7 +49,10 @@ M_P_START = 12  # 12: chamber air (p V, Pa abs m3) at the start of its valve win
 M_RESIDUAL = 24  # 6: filtered force-balance residual per leg (N)
 M_P_LAST = 30  # 12: chamber reading at the previous control period (Pa abs)
 M_P_READ = 42  # 13: pressure readings of the previous read (Pa abs)
-N_MONITOR = 56
+M_AIR_START = 56  # 12: chamber air (p V) at the start of its balance window
+M_AIR_EXPECT = 68  # 12: air its intake was told to bring in the window (Pa m3)
+M_AIR_OUT = 80  # 12: air its exhaust was told to let out in the window (Pa m3)
+N_MONITOR = 92
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -69,7 +72,13 @@ C_CHANNEL = 56
 """Channel of the latest supervision trip: chamber 0-11, supply 12, leg 0-5, F/T 0-5."""
 C_READS = 57
 C_P_SAME = 58  # 12: driven control periods a chamber's reading stayed the same
-N_COUNTERS = 72
+C_AIR = 70  # 12: control periods in the current air-balance window
+C_SERVICE = 82
+"""Chamber + 1 whose air did not add up (0: none): the device needs service. Not a trip:
+closing every valve would let a leaking chamber, or one whose intake is stuck open, move
+its leg with nothing to stop it, while the loop holds it. So the running segment finishes
+under control and nothing new starts until a technician re-arms (device.modes)."""
+N_COUNTERS = 84
 
 
 @dataclass(frozen=True)
@@ -153,6 +162,31 @@ class SupervisionConfig:
     valve_headroom: float = 0.5e5
     """...unless the chamber is already within this of where that valve can take it (Pa):
     the supply for an intake, the atmosphere for an exhaust."""
+    air_window_periods: int = 50
+    """Control periods (4 ms) over which a chamber's air is balanced against its valves
+    (0.2 s): long enough to average the minimum-pulse dither out."""
+    air_per_slot: float = 0.02
+    """Air (p V, Pa m3) one slot (1/7 ms) of an open valve moves, in or out, at working
+    pressures: ISO 6358 flow of C = 0.3 dm3/(s bar) from 7 to 5 bar (about 2 g/s) times
+    R T. A rough figure on purpose: the check asks only for a fraction of it."""
+    air_one_sided: float = 0.25
+    """Only a window in which the valves moved air essentially one way (the other way at most
+    this share) is judged: in the dither of a held chamber the two ways nearly cancel and
+    their difference says nothing."""
+    air_headroom: float = 1.5e5
+    """A window is judged only while the chamber is this far (Pa) below the supply (intake)
+    or above the atmosphere (exhaust), where a valve's flow is within about half of the
+    figure above."""
+    air_open_after_slots: int = 6
+    """Slots of each pulse that pass no air: the armature's delay (0.8 ms)."""
+    air_min_expected: float = 3.0
+    """Only a window whose valves were told to move at least this much air (Pa m3, about a
+    tenth of a chamber at mid stroke) is judged: the dither alone moves far less."""
+    air_min_fraction: float = 0.2
+    """...and the chamber's measured air (p V with V from the measured piston) must have
+    changed by at least this share of it, the same way. A leak takes what the intake brings;
+    a stuck valve does not pass it; a leg sensor that stopped hides the volume the piston
+    really makes."""
     residual_cutoff_hz: float = 5.0
     """Low-pass on the force-balance residual: a leg's accelerating force in a step or a fast
     sine is brief and alternating, a wrong reading or a leak persists."""
@@ -187,6 +221,13 @@ class SupervisionParams(NamedTuple):
     leg_stuck_error: float
     leg_stuck_reads: int
     pressure_frozen_periods: int
+    air_window: int
+    air_per_slot: float
+    air_one_sided: float
+    air_headroom: float
+    air_open_after: int
+    air_min_expected: float
+    air_min_fraction: float
     valve_window: int
     valve_slots: int
     valve_min_change: float
@@ -219,6 +260,13 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
         leg_stuck_error=config.leg_stuck_error,
         leg_stuck_reads=config.leg_stuck_reads,
         pressure_frozen_periods=config.pressure_frozen_periods,
+        air_window=config.air_window_periods,
+        air_per_slot=config.air_per_slot,
+        air_one_sided=config.air_one_sided,
+        air_headroom=config.air_headroom,
+        air_open_after=config.air_open_after_slots,
+        air_min_expected=config.air_min_expected,
+        air_min_fraction=config.air_min_fraction,
         valve_window=config.valve_window_periods,
         valve_slots=math.ceil(config.valve_duty_fraction * 28 * config.valve_window_periods),
         valve_min_change=config.valve_min_change,
@@ -373,6 +421,52 @@ def check_frozen(
 
 
 @njit
+def check_air(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    c: int,
+    slots: int,
+    pressure: float,
+    volume: float,
+    supply: float,
+    q: SupervisionParams,
+) -> bool:
+    """Balance chamber ``c``'s air (gauge ``pressure`` and ``supply``, ``volume`` from the
+    measured piston)
+    against what its valves were told to move, over a window of control periods. True when
+    the valves moved a lot of air one way, hardly any the other, and the chamber's measured
+    air did not follow (a leak, a stuck valve, a leg sensor that stopped)."""
+    air = (pressure + q.atm) * volume
+    n = counters[C_AIR + c]
+    failed = False
+    if n >= q.air_window:
+        into = monitor[M_AIR_EXPECT + c]
+        out = monitor[M_AIR_OUT + c]
+        expected = into - out
+        one_sided = min(into, out) <= q.air_one_sided * max(into, out)
+        measured = air - monitor[M_AIR_START + c]
+        # Only where the flow is near its estimate: an intake far enough below the supply, an
+        # exhaust far enough above the atmosphere (near either the flow dwindles).
+        where_ok = (
+            pressure < supply - q.air_headroom if expected > 0.0 else pressure > q.air_headroom
+        )
+        if one_sided and where_ok and abs(expected) >= q.air_min_expected:
+            failed = measured * math.copysign(1.0, expected) < q.air_min_fraction * abs(expected)
+        n = 0
+    if n == 0:
+        monitor[M_AIR_START + c] = air
+        monitor[M_AIR_EXPECT + c] = 0.0
+        monitor[M_AIR_OUT + c] = 0.0
+    moved = max(0, abs(slots) - q.air_open_after) * q.air_per_slot
+    if slots > 0:
+        monitor[M_AIR_EXPECT + c] += moved
+    else:
+        monitor[M_AIR_OUT + c] += moved
+    counters[C_AIR + c] = n + 1
+    return failed
+
+
+@njit
 def reset_valve_windows(counters: NDArray[np.int64]) -> None:
     for c in range(12):
         counters[C_WINDOW + c] = 0
@@ -406,4 +500,5 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
         monitor[M_RESIDUAL + i] = 0.0
     for c in range(12):
         counters[C_P_SAME + c] = 0
+        counters[C_AIR + c] = 0
     reset_valve_windows(counters)

@@ -48,6 +48,9 @@ class Trip(IntEnum):
     """A leg's chamber forces disagree with the platform's load."""
     VALVE = 17
     """A chamber's pressure did not answer its valves."""
+    AIR_BALANCE = 18
+    """A chamber's air did not add up with what its valves moved over 0.2 s (reported in a
+    SERVICE event, not latched as a trip: see device.supervision.C_SERVICE)."""
 
 
 TRIP_TEXT: dict[Trip, str] = {
@@ -76,6 +79,8 @@ TRIP_TEXT: dict[Trip, str] = {
     "check that leg's pressure transducers, valves and tubes for a leak",
     Trip.VALVE: "a chamber's pressure did not follow its valves: a valve stuck open or "
     "closed, a frozen pressure reading or a blocked tube",
+    Trip.AIR_BALANCE: "a chamber's air does not add up with what its valves moved: a leak "
+    "in its tube, fitting or seal, a valve stuck, or its leg's length sensor stuck",
 }
 """For the technician: what tripped and where to look. Events carry the code; hosts show this."""
 
@@ -92,7 +97,7 @@ def where(trip: int, channel: int) -> str:
     """The part a trip names, in a technician's words ('' when it names none)."""
     if channel < 0:
         return ""
-    if trip in (Trip.PRESSURE_SENSOR, Trip.VALVE):
+    if trip in (Trip.PRESSURE_SENSOR, Trip.VALVE, Trip.AIR_BALANCE):
         if channel == 12:
             return "supply transducer"
         side = "cap" if channel % 2 == 0 else "rod"

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
-from device.limits import SafetyLimits
+from device.limits import SafetyLimits, to_float32
 
 Axis = RotationAxis
 """A prescribed axis: one of the ankle's rotations (``device.axes``, the project's one table)."""
@@ -39,7 +39,8 @@ ANATOMICAL_DEG: dict[str, tuple[float, float]] = {
 }
 """Normal adult active ranges (AAOS), conservative: a prescription never goes past them."""
 
-_DEVICE = SafetyLimits()
+_DEVICE = SafetyLimits().published()
+"""The device's limits as it publishes them in its HELLO (float32)."""
 
 
 def device_range_deg(axis: str) -> tuple[float, float]:
@@ -84,6 +85,17 @@ class ExerciseKind(StrEnum):
     ROM_ASSESSMENT = "rom_assessment"
     """Nearly free platform: the patient moves as far as they can; the range is recorded."""
 
+
+COMPLIANT_KINDS = frozenset(
+    {
+        ExerciseKind.STRENGTH,
+        ExerciseKind.FLEXIBILITY,
+        ExerciseKind.BALANCE,
+        ExerciseKind.ROM_ASSESSMENT,
+    }
+)
+"""Exercises in which the platform yields to the foot (renders K and B); in the others it
+holds or moves the foot and does not give way."""
 
 Waveform = Literal["hold", "sine", "ramp"]
 
@@ -225,6 +237,21 @@ class PrescriptionBody(BaseModel):
             raise ValueError(f"each axis may appear once; got {names}")
         return self
 
+    @model_validator(mode="after")
+    def _stable(self) -> PrescriptionBody:
+        """Where the platform yields, K and B must lie in the device's stable envelope."""
+        if self.exercise not in COMPLIANT_KINDS:
+            return self
+        for a in self.axes:
+            least = _DEVICE.damping_min_at(AXIS_INDEX[a.axis], a.stiffness)
+            if to_float32(a.damping) < least:  # as the device receives it
+                raise ValueError(
+                    f"{a.axis} damping {a.damping:g} N·m·s/rad is below {least:g}, the least "
+                    f"the platform renders steadily at a stiffness of {a.stiffness:g} N·m/rad: "
+                    "raise the damping"
+                )
+        return self
+
     def total_s(self) -> float:
         """Exercise time including rests between sets."""
         return self.sets * self.repetitions * self.repetition_s + (self.sets - 1) * self.rest_s
@@ -251,12 +278,12 @@ def _axis(axis: Axis, **kw: float | str) -> AxisPrescription:
 EXERCISE_LIBRARY: dict[ExerciseKind, ExerciseTemplate] = {}
 
 
-def _template(kind: ExerciseKind, name: str, purpose: str, compliant: bool, **body: object) -> None:
+def _template(kind: ExerciseKind, name: str, purpose: str, **body: object) -> None:
     EXERCISE_LIBRARY[kind] = ExerciseTemplate(
         kind=kind,
         name=name,
         purpose=purpose,
-        compliant=compliant,
+        compliant=kind in COMPLIANT_KINDS,
         defaults=PrescriptionBody.model_validate({"exercise": kind, "title": name, **body}),
     )
 
@@ -265,7 +292,6 @@ _template(
     ExerciseKind.STRENGTH,
     "Strength (resistive)",
     "Push the foot down and pull it up against the platform's springiness.",
-    True,
     axes=[_axis("pitch", stiffness=40.0, damping=2.0)],
     sets=3,
     repetitions=10,
@@ -277,7 +303,6 @@ _template(
     ExerciseKind.FLEXIBILITY,
     "Flexibility (range of motion)",
     "The platform slowly takes the foot towards the ends of its range and back.",
-    True,
     axes=[
         _axis("pitch", stiffness=60.0, damping=3.0, waveform="sine", amplitude=12.0, frequency=0.1)
     ],
@@ -291,7 +316,6 @@ _template(
     ExerciseKind.PASSIVE_ROM,
     "Passive range of motion",
     "The platform moves a relaxed foot through its range; it does not give way.",
-    False,
     axes=[
         _axis("pitch", stiffness=0.0, damping=0.0, waveform="sine", amplitude=10.0, frequency=0.1)
     ],
@@ -305,7 +329,6 @@ _template(
     ExerciseKind.ISOMETRIC,
     "Isometric",
     "The platform holds still; the patient pushes against it without moving.",
-    False,
     axes=[_axis("pitch", stiffness=0.0, damping=0.0)],
     sets=3,
     repetitions=5,
@@ -317,7 +340,6 @@ _template(
     ExerciseKind.BALANCE,
     "Balance",
     "A soft platform in roll and pitch: keep it level.",
-    True,
     axes=[_axis("roll", stiffness=15.0, damping=1.0), _axis("pitch", stiffness=15.0, damping=1.0)],
     sets=2,
     repetitions=3,
@@ -329,8 +351,7 @@ _template(
     ExerciseKind.ROM_ASSESSMENT,
     "Range of motion assessment",
     "A nearly free platform: move as far as you can in each direction; the range is recorded.",
-    True,
-    axes=[_axis("pitch", stiffness=5.0, damping=0.5), _axis("roll", stiffness=5.0, damping=0.5)],
+    axes=[_axis("pitch", stiffness=5.0, damping=0.8), _axis("roll", stiffness=5.0, damping=0.8)],
     sets=1,
     repetitions=2,
     repetition_s=15.0,

@@ -85,6 +85,9 @@ class EventKind(IntEnum):
     SUPPLY_LOW = 8
     """The air supply fell below its low mark: ACTIVE went to HOLD (value: supply, Pa gauge);
     motion is refused until it recovers."""
+    SERVICE = 9
+    """A chamber's air does not add up (code AIR_BALANCE, a leak or a stuck valve): the
+    running segment finishes under control, nothing new starts until a re-arm."""
 
 
 class NackCode(IntEnum):
@@ -105,6 +108,8 @@ class NackCode(IntEnum):
     """The device failed while applying the command and is now in FAULT (trip SOFTWARE)."""
     SUPPLY_LOW = 9
     """The air supply is below its low mark: nothing moves until it recovers."""
+    SERVICE_NEEDED = 10
+    """The device found a fault that needs a technician (a SERVICE event): re-arm after."""
 
 
 _STRUCT_KIND = {
@@ -260,6 +265,18 @@ class DeviceHello(Message, type_=HANDSHAKE_TYPE, sender="device"):
     torque_limit: float = wire("f", unit="N m", doc="Largest torque on the foot plate.")
     leg_speed_limit: float = wire("f", unit="m/s")
     segment_duration_max: float = wire("f", unit="s")
+    envelope_stiffness: tuple[float, ...] = wire(
+        "f",
+        3,
+        unit="N/m, N m/rad",
+        doc="Stable stiffness-damping envelope: the lower edges of its three bands of K.",
+    )
+    damping_min: tuple[float, ...] = wire(
+        "f",
+        18,
+        unit="N s/m, N m s/rad",
+        doc="Least B per axis (axis-major) in each band of K; a compliant axis needs B >= it.",
+    )
 
 
 class Telemetry(Message, type_=2, sender="device"):
@@ -401,7 +418,7 @@ class EStop(Message, type_=23, sender="host"):
 
 
 class Rearm(Message, type_=24, sender="host"):
-    """ESTOP or FAULT -> IDLE; homing is needed before motion."""
+    """ESTOP or FAULT -> IDLE, or clears a need for service; homing is needed before motion."""
 
 
 class Release(Message, type_=25, sender="host"):

@@ -105,6 +105,8 @@ def test_a_hold_on_each_range_bound_is_accepted_and_just_past_it_refused(k: int)
 @pytest.mark.parametrize("k", range(3, 6))
 def test_stiffness_damping_and_speed_bounds(k: int) -> None:
     compliant = with_axis("compliant", k, True, segment())
+    # Damped enough for any stiffness: the envelope's largest least damping.
+    compliant = with_axis("damping", k, max(LIMITS.damping_min), compliant)
     at_k = with_axis("stiffness", k, LIMITS.stiffness_max[k], compliant)
     assert verdict(at_k, ready()) is None
     assert verdict(with_axis("stiffness", k, up(LIMITS.stiffness_max[k]), compliant), ready())

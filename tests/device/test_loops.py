@@ -72,7 +72,9 @@ def test_compliance_step_is_the_exact_first_order_solution() -> None:
     assert x == pytest.approx(0.1)
 
 
-def _rk4_mass_spring(j: float, b: float, k: float, f: float, x: float, v: float, dt: float):
+def _rk4_mass_spring(
+    j: float, b: float, k: float, f: float, x: float, v: float, dt: float
+) -> tuple[float, float]:
     n = 2000
     h = dt / n
 

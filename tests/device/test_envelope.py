@@ -1,0 +1,108 @@
+"""The stable stiffness-damping envelope: published, enforced once, and stable inside.
+
+The device publishes, per axis and band of stiffness, the least damping it renders stably
+(measured in docs/envelope.md). A compliant K and B below it is refused with the bound in
+the sentence; in the controller a live change never renders a pair outside it on the way;
+and every point on the envelope's edge, on every rotational axis, with a relaxed and a
+resisting patient, stays still after a push.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from device import commands
+from device.commands import CommandError, Context
+from device.geometry import DEFAULT_GEOMETRY
+from device.hardware import SimulatedHardware
+from device.limits import SafetyLimits
+from device.plant.params import PlantConfig
+from device.protocol.messages import DeviceMode, NackCode
+from device.rig import Rig
+from lab import safety
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
+
+LIMITS = SafetyLimits().published()
+
+
+def test_the_envelope_has_a_least_damping_for_every_stiffness_band() -> None:
+    for axis in (3, 4, 5):
+        for k in (0.0, 4.9, 5.0, 49.0, 50.0, 500.0):
+            assert LIMITS.damping_min_at(axis, k) > 0.0
+        # Softer needs more damping, never less.
+        assert LIMITS.damping_min_at(axis, 0.0) >= LIMITS.damping_min_at(axis, 500.0)
+
+
+@pytest.mark.parametrize("axis", [3, 4, 5])
+def test_a_damping_below_the_envelope_is_refused_with_its_bound(axis: int) -> None:
+    k = 10.0
+    least = LIMITS.damping_min_at(axis, k)
+    K, B = [0.0] * 6, [0.0] * 6
+    K[axis], B[axis] = k, least * 0.9
+    compliant = tuple(i == axis for i in range(6))
+    with pytest.raises(CommandError) as err:
+        commands.check_impedance(K, B, compliant, LIMITS)
+    assert err.value.field == "damping" and f"{least:g}" in str(err.value)
+    B[axis] = least
+    commands.check_impedance(K, B, compliant, LIMITS)
+    # A non-compliant axis renders nothing: no envelope applies to it.
+    commands.check_impedance(K, [0.0] * 6, (False,) * 6, LIMITS)
+
+
+def test_a_live_change_below_the_envelope_is_a_nack_naming_the_bound() -> None:
+    from device.protocol import messages as m
+
+    ctx = dataclasses.replace(
+        Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.ACTIVE),
+        compliant=(False, False, False, False, True, False),
+    )
+    low = m.SetImpedance(stiffness=(0, 0, 0, 0, 2.0, 0), damping=(0, 0, 0, 0, 0.1, 0))
+    with pytest.raises(CommandError) as err:
+        commands.check(low, ctx)
+    assert err.value.code == NackCode.OUT_OF_RANGE and "least the device renders" in str(err.value)
+
+
+def test_the_controller_never_renders_a_pair_outside_on_the_way() -> None:
+    """From soft and damped to stiff and lightly damped: B falls faster than K rises, and
+    the damping in force waits for the stiffness."""
+    rig = Rig(SimulatedHardware(PlantConfig(patient="relaxed")))
+    rig.move_legs(np.full(6, 0.05))
+    rig.run(0.3, log_hz=0)
+    K, B = np.zeros(6), np.zeros(6)
+    K[4], B[4] = 2.0, 1.0
+    on = [i == 4 for i in range(6)]
+    rig.set_impedance(K, B, on)
+    rig.track({})
+    rig.run(0.3, log_hz=0)
+    K[4], B[4] = 100.0, 0.2
+    rig.set_impedance(K, B, on)
+    for _ in range(150):
+        rig.run(0.004, log_hz=0)
+        k, b = float(rig.state.stiffness[4]), float(rig.state.damping[4])
+        assert b >= LIMITS.damping_min_at(4, k) - 1e-12, (k, b)
+    assert rig.state.stiffness[4] == pytest.approx(100.0)
+    assert rig.state.damping[4] == pytest.approx(0.2)
+
+
+def test_the_prescription_refuses_a_compliant_axis_below_the_envelope() -> None:
+    body = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump()
+    body["axes"][0] |= {"stiffness": 2.0, "damping": 0.3}
+    with pytest.raises(ValueError, match="least the platform renders steadily"):
+        PrescriptionBody.model_validate(body)
+    for template in EXERCISE_LIBRARY.values():  # every library default is inside
+        PrescriptionBody.model_validate(template.defaults.model_dump())
+
+
+EDGE = [0.0, 2.0, 10.0, 50.0, 200.0, 500.0]
+
+
+@pytest.mark.parametrize("patient", ["relaxed", "resisting"])
+@pytest.mark.parametrize("axis", [3, 4, 5], ids=["roll", "pitch", "yaw"])
+def test_every_point_on_the_envelopes_edge_is_stable(axis: int, patient: str) -> None:
+    for k in EDGE:
+        b = LIMITS.damping_min_at(axis, k)
+        stable, pp = safety.kb_point(axis, k, b, patient)
+        assert stable, (axis, k, b, patient, pp)
