@@ -279,6 +279,7 @@ class ControllerState(NamedTuple):
     u: NDArray[np.float64]  # (12,) control input (percent)
     slots: NDArray[np.int64]  # (12,) signed PWM slots
     valves: NDArray[np.uint8]  # (24,)
+    impedance_map: NDArray[np.float64]  # (6, 9) per axis: J, K, B and their step's map
     monitor: NDArray[np.float64]  # supervision's memory (device.supervision M_*)
     counters: NDArray[np.int64]  # supervision's counters (device.supervision C_*)
 
@@ -384,6 +385,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         u=np.zeros(12),
         slots=np.zeros(12, dtype=np.int64),
         valves=np.zeros(24, dtype=np.uint8),
+        impedance_map=np.full((6, 9), -1.0),
         monitor=np.zeros(supervision.N_MONITOR),
         counters=np.zeros(supervision.N_COUNTERS, dtype=np.int64),
     )
@@ -408,19 +410,19 @@ def trip(s: ControllerState, code: int, channel: int = -1) -> None:
         s.valves[v] = 0
 
 
-@njit
+@njit_inline
 def moving(s: ControllerState) -> bool:
     m = int(s.istate[I_MODE])
     return m == Mode.JOINT or m == Mode.TASK
 
 
-@njit
+@njit_inline
 def venting(s: ControllerState) -> bool:
     """Whether this tick releases: the vent flag set while IDLE or FAULT."""
     return s.istate[I_VENT] == 1 and not moving(s)
 
 
-@njit
+@njit_inline
 def vent_valves(s: ControllerState, p: ControllerParams) -> None:
     """Release pattern: every exhaust open for the first ``vent_pulse_slots`` slots of its
     leg's PWM period, one period in ``vent_every_periods``; every intake closed."""
@@ -436,7 +438,7 @@ def vent_valves(s: ControllerState, p: ControllerParams) -> None:
             s.valves[2 * c + 1] = exhaust
 
 
-@njit
+@njit_inline
 def duty_update(s: ControllerState, p: ControllerParams) -> None:
     if venting(s):
         vent_valves(s, p)
@@ -452,7 +454,7 @@ def duty_update(s: ControllerState, p: ControllerParams) -> None:
             s.valves[2 * c + 1] = exhaust
 
 
-@njit
+@njit_inline
 def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     s.istate[I_SENSOR_READS] += 1
     code = safety.check_sensors(sensors, p.stroke, p.limits)
@@ -484,7 +486,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
             trip(s, code)
 
 
-@njit
+@njit_inline
 def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     lo, up = 2 * leg, 2 * leg + 1
     if not moving(s):
@@ -635,15 +637,18 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 j_k = max(j_k, s.stiffness[k] / p.virtual_omega2)
             if s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0):
                 if j_k > 0.0:
-                    s.x_m[k], s.v_m[k] = impedance.inertial_compliance_step(
-                        s.x_m[k],
-                        s.v_m[k],
-                        s.wrench[k] - s.tare[k],
-                        j_k,
-                        s.stiffness[k],
-                        s.damping[k],
-                        p.dt_control,
-                    )
+                    z = s.impedance_map[k]
+                    if z[0] != j_k or z[1] != s.stiffness[k] or z[2] != s.damping[k]:
+                        # J, K and B change only while they slew: the exact map of the step
+                        # is kept between changes instead of taken again every period.
+                        m = impedance.step_map(j_k, s.stiffness[k], s.damping[k], p.dt_control)
+                        z[0], z[1], z[2] = j_k, s.stiffness[k], s.damping[k]
+                        for i in range(6):
+                            z[3 + i] = m[i]
+                    f_k = s.wrench[k] - s.tare[k]
+                    x_k, v_k = s.x_m[k], s.v_m[k]
+                    s.x_m[k] = z[3] * x_k + z[4] * v_k + z[7] * f_k
+                    s.v_m[k] = z[5] * x_k + z[6] * v_k + z[8] * f_k
                     v_m = s.v_m[k]
                 else:
                     s.x_m[k], v_m = impedance.compliance_step(

@@ -108,3 +108,13 @@ def inertial_compliance_step(
     """
     p00, p01, p10, p11, g0, g1 = _expm3_augmented(j, b, k, dt)
     return p00 * x_m + p01 * v_m + g0 * force, p10 * x_m + p11 * v_m + g1 * force
+
+
+@njit
+def step_map(
+    j: float, k: float, b: float, dt: float
+) -> tuple[float, float, float, float, float, float]:
+    """The map of :func:`inertial_compliance_step` for ``j, k, b``: (phi00, phi01, phi10,
+    phi11, gamma0, gamma1), so that X_m' = phi00 X_m + phi01 V_m + gamma0 F and
+    V_m' = phi10 X_m + phi11 V_m + gamma1 F. The controller keeps it while J, K, B hold."""
+    return _expm3_augmented(j, b, k, dt)

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from device._jit import njit
+from device._jit import njit, njit_inline
 from device.limits import (
     ROW_B_MAX,
     ROW_B_MIN,
@@ -106,7 +106,7 @@ def slew(current: float, target: float, max_rate: float, dt: float) -> float:
     return target
 
 
-@njit
+@njit_inline
 def damping_min(limits: NDArray[np.float64], axis: int, stiffness: float) -> float:
     """The least damping the envelope allows on ``axis`` at ``stiffness``."""
     band = 0

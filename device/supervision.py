@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from device._jit import njit
+from device._jit import njit, njit_inline
 from device.trips import Trip
 
 # Slots of ControllerState.monitor (floats) and .counters (ints).
@@ -277,7 +277,7 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
     )
 
 
-@njit
+@njit_inline
 def check_reading(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -352,14 +352,14 @@ def check_reading(
     return Trip.NONE, -1
 
 
-@njit
+@njit_inline
 def intake_allowed(supply_abs: float, chamber_gauge: float, q: SupervisionParams) -> bool:
     """Whether an intake may open: the supply must be above the chamber (else the chamber
     vents backwards into the supply line)."""
     return supply_abs - q.atm > chamber_gauge + q.intake_margin
 
 
-@njit
+@njit_inline
 def check_valves(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -400,7 +400,7 @@ def check_valves(
     return failed
 
 
-@njit
+@njit_inline
 def check_frozen(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -420,7 +420,7 @@ def check_frozen(
     return bool(counters[C_P_SAME + c] >= q.pressure_frozen_periods)
 
 
-@njit
+@njit_inline
 def check_air(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -472,7 +472,7 @@ def reset_valve_windows(counters: NDArray[np.int64]) -> None:
         counters[C_WINDOW + c] = 0
 
 
-@njit
+@njit_inline
 def check_balance(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
