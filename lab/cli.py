@@ -10,6 +10,7 @@ import argparse
 import csv
 import json
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, is_dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from device.cli import Parser, finite_float, ranged
+from device.cli import Parser, fault_spec, finite_float, ranged
 from device.geometry import AXES
 from device.rig import CommandError
 
@@ -75,6 +76,7 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     p.add_argument("--axis", choices=AXES, default="pitch")
     p.add_argument("--amplitude", type=finite_float, default=2.0)
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    _faults(p)
 
     p = ss.add_parser("staircase", help="0.3 mm steps up and down: positioning resolution")
     p.add_argument("--leg", type=int, default=1)
@@ -96,6 +98,11 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     p.add_argument(
         "--watchdog-runs", type=ranged(int, 1, 1000), default=20, help="link pulls to time"
     )
+    p = bs.add_parser(
+        "safety",
+        help="injected faults, healthy runs, boundary commands and the stiffness-damping edge",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
     p = bs.add_parser(
         "server", help="live relay: many simulated stations and viewers on a real server"
     )
@@ -121,7 +128,20 @@ def _frequencies(text: str) -> tuple[float, ...]:
     return values
 
 
+def _faults(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--fault",
+        type=fault_spec,
+        action="append",
+        default=[],
+        metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
+        help="inject a plant fault at TIME s of simulated time (the 0.5 s settle at home "
+        "included; repeatable), e.g. leg_stuck@0.8:2",
+    )
+
+
 def _outputs(p: argparse.ArgumentParser) -> None:
+    _faults(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--csv", type=Path, help="write the trace to this CSV file")
     p.add_argument("--plot", type=Path, help="write a PNG figure to this file")
@@ -183,7 +203,19 @@ def run_command(args: argparse.Namespace) -> int:
     return _experiment(args)
 
 
+def _progress(line: str) -> None:
+    """One progress line on stderr, rewritten in place (stdout stays the result)."""
+    print(f"\r\x1b[2K{line}", end="", file=sys.stderr, flush=True)
+
+
 def _bench(args: argparse.Namespace) -> int:
+    if args.bench == "safety":
+        from lab import safety
+
+        sfresult = safety.run(progress=_progress)
+        print(file=sys.stderr)
+        print(json.dumps(_jsonable(sfresult), indent=2) if args.json else safety.table(sfresult))
+        return 0
     if args.bench == "server":
         from lab import serverbench
 
@@ -210,6 +242,13 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _experiment(args: argparse.Namespace) -> int:
+    from lab import experiments as ex
+
+    with ex.injected(tuple(getattr(args, "fault", ()))):
+        return _run_experiment(args)
+
+
+def _run_experiment(args: argparse.Namespace) -> int:
     from lab import experiments as ex
 
     # Refuse what cannot be measured before anything is simulated (CommandError: exit 2).

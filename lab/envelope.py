@@ -14,7 +14,7 @@ gap between the commanded and the true angle (a platform that "walks" away from 
 command), whether it already oscillated or tripped before the push, and the dominant
 frequency of the angle (the last 1 s, or the last 0.5 s before a trip).
 
-Unstable (the brief's criterion, with the p-p taken after a quadratic detrend so that the
+Unstable (the basic criterion, with the p-p taken after a quadratic detrend so that the
 correct slow return of a soft setting, e.g. K = 2, B = 5 with no foot, tau = B/K = 2.5 s,
 is not counted as oscillation): tripped at any time, or detrended p-p > 0.2 deg in the last
 1 s. Marginal (stricter, used for the envelope): also the command chattering (commanded
@@ -22,13 +22,13 @@ angle p-p > 0.5 deg in the last 1 s: the position loop is driven at 60-125 Hz, w
 platform filters but the legs and valves do not), the platform walking more than 0.5 deg
 away from its command, or a push that tripped the speed limit at once (see run_point).
 
-Usage (from the worktree, PYTHONPATH=. and an own XDG_CACHE_HOME):
-    python lab_envelope.py [--axes roll,pitch,yaw] [--patients relaxed,resisting,absent]
+Usage:
+    python -m lab.envelope [--axes roll,pitch,yaw] [--patients relaxed,resisting,absent]
         [--J <kg m2>] [--fmax <Hz>] [--K ...] [--B ...] [--pulse 2.0] [--json out.json]
         (no --J: the device's default virtual inertia; --J 0: none, the old compliance)
-    python lab_envelope.py --stiffness [--J 0]     # experiments.impedance under this J
-    python lab_envelope.py --verify [--json ...]   # run the recommended envelopes
-    python lab_envelope.py --markdown results/map_default.json
+    python -m lab.envelope --stiffness [--J 0]     # experiments.impedance under this J
+    python -m lab.envelope --verify [--json ...]   # run the recommended envelopes
+    python -m lab.envelope --markdown map.json     # the B_min tables of a saved map
 """
 
 from __future__ import annotations
@@ -39,6 +39,9 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
+from typing import Any
+from unittest import mock
 
 import numpy as np
 
@@ -68,11 +71,24 @@ SPEED_TRIP_S = 0.2
 SPEED_TRIP_MAX_HZ = 3.0
 LOG_HZ = 1000.0
 
+Point = dict[str, Any]
+"""One measured point (see _run_point for its keys)."""
+BMinTable = dict[str, dict[str, dict[float, float | None]]]
+"""Per axis, patient, K: the least grid B (None: no grid B passes)."""
+
+
+def _standard_plant(patient: str) -> PlantConfig:
+    return PlantConfig(patient=patient)
+
+
+# The plant each point runs on; verify(heavy=True) swaps in a heavier foot.
+_plant_config: Callable[[str], PlantConfig] = _standard_plant
+
 
 def _config(J: float | None, fmax: float | None = None) -> ControllerConfig:
     if J is None:
         return ControllerConfig()  # the device's default virtual inertia
-    # Virtual inertia on the rotations only (the brief concerns roll, pitch, yaw).
+    # Virtual inertia on the rotations only (the ankle's axes).
     return ControllerConfig(
         virtual_inertia=(0.0, 0.0, 0.0, J, J, J), virtual_frequency_max=fmax or 0.0
     )
@@ -101,7 +117,7 @@ def run_point(
     pulse: float = PULSE_NM,
     seed: int = 1,
     fmax: float | None = None,
-) -> dict:
+) -> Point:
     """One point; a push that trips the speed limit at once is retried with a quarter push.
 
     A LEG_SPEED trip within ``SPEED_TRIP_S`` of the push, with no oscillation before the push
@@ -135,9 +151,10 @@ def _run_point(
     pulse: float,
     seed: int,
     fmax: float | None = None,
-) -> dict:
+) -> Point:
     ax = AXIS_INDEX[axis]
-    rig = Rig(SimulatedHardware(PlantConfig(patient=patient), seed=seed), _config(J, fmax))
+    hw = SimulatedHardware(_plant_config(patient), seed=seed)
+    rig = Rig(hw, _config(J, fmax))
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE, log_hz=0)
     rig.clear_log()
@@ -147,9 +164,9 @@ def _run_point(
     rig.track({})
     rig.run(PRE, log_hz=LOG_HZ)
     t_pulse = rig.time
-    rig.hardware.script_torque(ax, SCRIPT_CONSTANT, t_pulse, pulse, 0.0)
+    hw.script_torque(ax, SCRIPT_CONSTANT, t_pulse, pulse, 0.0)
     rig.run(PULSE_S, log_hz=LOG_HZ)
-    rig.hardware.script_torque(ax, SCRIPT_NONE, 0.0, 0.0, 0.0)
+    hw.script_torque(ax, SCRIPT_NONE, 0.0, 0.0, 0.0)
     rig.run(POST, log_hz=LOG_HZ)
     log = rig.log
     t = log[:, 0]
@@ -208,18 +225,18 @@ def _run_point(
     }
 
 
-def b_min_table(results: list[dict], key: str = "unstable") -> dict:
+def b_min_table(results: list[Point], key: str = "unstable") -> BMinTable:
     """Per axis, patient, K: the least grid B above which every grid B is stable."""
-    out: dict = {}
+    out: dict[str, dict[str, dict[float, dict[float, bool]]]] = {}
     for r in results:
         out.setdefault(r["axis"], {}).setdefault(r["patient"], {}).setdefault(r["K"], {})[
             r["B"]
         ] = r[key]
-    table: dict = {}
+    table: BMinTable = {}
     for axis, pats in out.items():
         for pat, ks in pats.items():
             for K, bs in ks.items():
-                bmin = None
+                bmin: float | None = None
                 for B in sorted(bs, reverse=True):
                     if bs[B]:
                         break
@@ -229,20 +246,21 @@ def b_min_table(results: list[dict], key: str = "unstable") -> dict:
 
 
 def stiffness_check(
-    J: float | None, fmax: float | None, cases: tuple = (("pitch", 50.0, 1.0, 10.0),)
-) -> list[dict]:
+    J: float | None,
+    fmax: float | None,
+    cases: tuple[tuple[str, float, float, float], ...] = (("pitch", 50.0, 1.0, 10.0),),
+) -> list[Point]:
     """The paper's stiffness rendering (experiments.impedance, Figure 12) under this J."""
-    import device.experiments as ex
+    import lab.experiments as ex
 
-    original = ex.ControllerConfig
     base = _config(J, fmax)
 
-    def patched(**kw: object) -> ControllerConfig:
-        return dataclasses.replace(base, **kw)
+    # The only ControllerConfig call in lab.experiments (its _rig) passes just this keyword.
+    def patched(*, deadband_compensation: bool) -> ControllerConfig:
+        return dataclasses.replace(base, deadband_compensation=deadband_compensation)
 
-    ex.ControllerConfig = patched  # type: ignore[assignment]
-    try:
-        out = []
+    with mock.patch.object(ex, "ControllerConfig", patched):
+        out: list[Point] = []
         for axis, k, b, tq in cases:
             r = ex.impedance(axis, k=k, b=b, torque=tq)
             out.append(
@@ -258,8 +276,6 @@ def stiffness_check(
                 }
             )
         return out
-    finally:
-        ex.ControllerConfig = original
 
 
 def markdown(path: str, key: str = "b_min_strict") -> str:
@@ -271,7 +287,7 @@ def markdown(path: str, key: str = "b_min_strict") -> str:
     lines = ["| axis | patient | " + " | ".join(f"K={k:g}" for k in Ks) + " |"]
     lines.append("|---|---|" + "---|" * len(Ks))
     for axis, pats in tab.items():
-        worst: dict = {}
+        worst: dict[float, float] = {}
         for pat, row in pats.items():
             vals = {float(k): v for k, v in row.items()}
             cells = []
@@ -291,7 +307,7 @@ def markdown(path: str, key: str = "b_min_strict") -> str:
 
 # Recommended least damping (N m s/rad) per axis: (K from, B_min) steps, 2x the measured
 # boundary (strict criterion, worst of the three patients), held until the next step.
-ENVELOPE = {
+ENVELOPE: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
     "no_virtual_inertia": {
         "roll": ((0, 4.0), (100, 2.0), (200, 0.1)),
         "pitch": ((0, 2.0), (100, 1.0), (200, 0.1)),
@@ -313,24 +329,25 @@ def envelope_b(kind: str, axis: str, K: float) -> float:
     return b
 
 
-def verify(kind: str, seeds: tuple = (1, 2), heavy: bool = False) -> list[dict]:
+def verify(kind: str, seeds: tuple[int, ...] = (1, 2), heavy: bool = False) -> list[Point]:
     """Run every patient at B = envelope(K) on grid and in-between K, several seeds."""
-    global PlantConfig
+    global _plant_config
     J = 0.0 if kind == "no_virtual_inertia" else None
     Ks = (0, 1, 2, 3, 5, 7, 10, 20, 35, 50, 75, 100, 150, 200, 275, 350, 425, 500)
-    original = PlantConfig
+    original = _plant_config
     if heavy:  # a heavier foot (x1.5 mass, x2 inertia): more inertia fed back by the sensor
 
-        def PlantConfig(patient: str) -> original:  # type: ignore[no-redef]  # noqa: N802
-            return original(patient=patient).with_overrides(
+        def heavy_plant(patient: str) -> PlantConfig:
+            return original(patient).with_overrides(
                 foot_mass=1.6,
                 foot_inertia_pitch=0.008,
                 foot_inertia_roll=0.002,
                 foot_inertia_yaw=0.008,
             )
 
+        _plant_config = heavy_plant
     try:
-        out = []
+        out: list[Point] = []
         for axis in ROT_AXES:
             for pat in PATIENTS:
                 for K in Ks:
@@ -341,10 +358,10 @@ def verify(kind: str, seeds: tuple = (1, 2), heavy: bool = False) -> list[dict]:
                         out.append(r)
         return out
     finally:
-        PlantConfig = original
+        _plant_config = original
 
 
-def fmt(v) -> str:
+def fmt(v: float | None) -> str:
     return "-" if v is None else (f"{v:g}")
 
 
@@ -447,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
     table = b_min_table(results)
     strict = b_min_table(results, "marginal")
     print(f"\n# wall {time.time() - t0:.0f} s, J={a.J}, fmax={a.fmax}")
-    for name, tab in (("unstable (brief)", table), ("marginal (strict)", strict)):
+    for name, tab in (("unstable (basic)", table), ("marginal (strict)", strict)):
         print(f"B_min on the grid, criterion {name}: least B from which all larger grid B pass")
         print("axis  patient    " + " ".join(f"{k:>6g}" for k in Ks))
         for axis, pats in tab.items():

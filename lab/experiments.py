@@ -30,7 +30,9 @@ device's limits) are refused with :class:`~device.rig.CommandError` before any s
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +42,7 @@ from device import pwm
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
+from device.plant.faults import Fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig
 from device.rig import AxisTarget, CommandError, Rig, leg_index
@@ -219,6 +222,21 @@ def _sine_min_amplitude(k: int) -> float:
     return MIN_SINE_COUNTS * LEG_SENSOR_M / float(np.max(np.abs(jq[:, k])))
 
 
+_FAULTS: list[Fault] = []
+
+
+@contextlib.contextmanager
+def injected(faults: tuple[Fault, ...]) -> Iterator[None]:
+    """Inject ``faults`` into the plant of every experiment run inside (their times are
+    simulated seconds from the rig's start, the settle at home included)."""
+    before = list(_FAULTS)
+    _FAULTS[:] = list(faults)
+    try:
+        yield
+    finally:
+        _FAULTS[:] = before
+
+
 def _rig(
     patient: str = "absent",
     compensate: bool = True,
@@ -229,6 +247,8 @@ def _rig(
     cfg = plant if plant is not None else PlantConfig(patient=patient)
     hw = SimulatedHardware(cfg, seed=seed)
     config = ControllerConfig(deadband_compensation=compensate)
+    for fault in _FAULTS:
+        hw.inject(fault)
     return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)
 
 

@@ -119,3 +119,77 @@ def impedance_figure(r: ImpedanceResult, path: Path) -> Path:
     for a in ax:
         a.grid(alpha=0.3)
     return _save(fig, path)
+
+
+def read_envelope_map(path: Path) -> dict[tuple[str, float, float], bool]:
+    """A K-B map written by ``python -m lab.envelope`` (one line per axis, patient, K, B):
+    (axis, K, B) -> stable for every patient in it."""
+    stable: dict[tuple[str, float, float], bool] = {}
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if len(parts) < 6 or not parts[2].startswith("K="):
+            continue
+        axis = parts[0]
+        rest = " ".join(parts[2:])
+        k = float(rest.split("K=")[1].split()[0])
+        b = float(rest.split("B=")[1].split()[0])
+        ok = rest.split("B=")[1].split()[1] == "ok"
+        key = (axis, k, b)
+        stable[key] = stable.get(key, True) and ok
+    return stable
+
+
+def envelope_figure(
+    with_inertia: dict[tuple[str, float, float], bool],
+    without: dict[tuple[str, float, float], bool],
+    path: Path,
+) -> Path:
+    """Per rotational axis: the measured K-B map (stable for a relaxed, a resisting and no
+    foot, or not) with and without the virtual inertia, and the published envelope."""
+    from device.axes import AXIS_INDEX
+    from device.limits import SafetyLimits
+
+    lim = SafetyLimits().published()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), sharey=True)
+    for ax, name in zip(axes, ("roll", "pitch", "yaw"), strict=True):
+        for data, dx, label in ((without, 0.88, "without"), (with_inertia, 1.12, "with")):
+            pts = [(k, b, ok) for (a, k, b), ok in data.items() if a == name]
+            for ok in (True, False):
+                ks = [max(k, 0.5) * dx for k, b, s in pts if s == ok]
+                bs = [max(b, 0.02) for k, b, s in pts if s == ok]
+                ax.scatter(
+                    ks,
+                    bs,
+                    marker=("o" if ok else "x"),
+                    s=14,
+                    color=("tab:green" if ok else "tab:red"),
+                    alpha=(1.0 if label == "with" else 0.35),
+                    label=f"{'stable' if ok else 'oscillates or trips'} ({label} virtual inertia)",
+                )
+        edges = [max(e, 0.5) for e in lim.envelope_stiffness]
+        values = [lim.damping_min_at(AXIS_INDEX[name], e) for e in lim.envelope_stiffness]
+        ax.step(
+            [*edges, 600.0],
+            [*values, values[-1]],
+            where="post",
+            color="black",
+            lw=2,
+            label="published envelope: least B",
+        )
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(name)
+        ax.set_xlabel("stiffness K (N m/rad; 0 drawn at 0.5)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("damping B (N m s/rad; 0 drawn at 0.02)")
+    fig.suptitle(
+        "Rendered K and B after a 2 N m push: stable for a relaxed, a resisting and no foot, "
+        "or not (docs/envelope.md)"
+    )
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles[:5], labels[:5], loc="lower center", ncol=3, fontsize=8)
+    fig.subplots_adjust(bottom=0.3, top=0.85, wspace=0.08)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -15,10 +15,12 @@ the boundary-command run, which goes through the real device service over a pty.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,6 +35,8 @@ from device.rig import Rig
 from device.tickloop import COL
 from device.trips import Trip
 from device.waveforms import AxisTarget, Waveform
+from lab.targets import Target
+from lab.targets import table as render
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 
 SCENARIOS = ("holding", "exercise", "pushing")
@@ -114,7 +118,8 @@ def _run(kind: FaultKind | None, scenario: str, seed: int) -> tuple[Rig, np.ndar
     step = 0.001
     for _ in range(round(AFTER_S / step)):
         rig.run(step, log_hz=1000.0)
-        if math.isnan(detect) and (rig.mode == Mode.FAULT or rig.supply_low):
+        noticed = rig.mode == Mode.FAULT or rig.supply_low or rig.service_chamber >= 0
+        if math.isnan(detect) and noticed:
             detect = rig.time - t0
     pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
     return rig, pose, detect
@@ -139,16 +144,22 @@ def run_fault(kind: FaultKind, scenario: str, seed: int = 1) -> FaultRun:
     _, healthy, _ = _run(None, scenario, seed)
     rig, pose, detect = _run(kind, scenario, seed)
     row = None if math.isnan(detect) else round(detect * 1000.0)
+    if rig.mode != Mode.FAULT and not rig.supply_low:
+        row = None  # nothing stopped it (a service warning): compare the whole run
     moved = excursion(pose, healthy, row)
     trip = rig.trip
     held = rig.supply_low and trip == Trip.NONE
+    service = rig.service_chamber >= 0 and trip == Trip.NONE
+    name = "SUPPLY_LOW (hold)" if held else trip.name
+    if service:
+        name = "AIR_BALANCE (service)"
     return FaultRun(
         kind=kind.name,
         scenario=scenario,
         seed=seed,
         detected=not math.isnan(detect),
-        trip="SUPPLY_LOW (hold)" if held else trip.name,
-        channel=rig.trip_channel,
+        trip=name,
+        channel=rig.service_chamber if service else rig.trip_channel,
         detect_ms=detect * 1e3,
         excursion_deg=float(np.degrees(moved[3:].max())),
         excursion_mm=float(moved[:3].max() * 1e3),
@@ -164,6 +175,8 @@ class HealthyRun:
     trip: str
     """NONE unless the healthy run tripped (a false trip)."""
     supply_low: bool
+    service: bool
+    """The device asked for service (a chamber's air did not add up): a false alarm here."""
     residual_max_n: float
     """Largest filtered force-balance residual seen (N): the margin to its limit."""
 
@@ -223,7 +236,14 @@ def healthy_runs(
                         break
                 runs.append(
                     HealthyRun(
-                        kind.value, patient, seed, seconds, rig.trip.name, rig.supply_low, worst
+                        kind.value,
+                        patient,
+                        seed,
+                        seconds,
+                        rig.trip.name,
+                        rig.supply_low,
+                        rig.service_chamber >= 0,
+                        worst,
                     )
                 )
                 if progress is not None:
@@ -331,8 +351,8 @@ def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
                 mismatched += expected != got
                 if service.mode == DeviceMode.FAULT:
                     break
-                if got:
-                    await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+            # The last accepted segment runs to its end: the device must come back READY.
+            await dev.wait_for_mode(DeviceMode.READY, timeout=60.0)
             for hz, ms in (
                 (dev.hello.telemetry_hz_max, 200),
                 (dev.hello.telemetry_hz_max + 1, 200),
@@ -392,12 +412,145 @@ def kb_point(axis: int, k: float, b: float, patient: str, seed: int = 1) -> tupl
     return pp <= 0.2, pp
 
 
+# -- the benchmark ------------------------------------------------------------------------
+
+TARGETS: tuple[Target, ...] = (
+    Target("faults_undetected", "faults not detected", 0, "eq"),
+    Target("detect_ms_max", "detection time, worst (ms)", 50.0, "max"),
+    Target("excursion_deg_max", "excursion after injection, worst (deg)", 2.0, "max"),
+    Target("excursion_mm_max", "excursion after injection, worst (mm)", 3.0, "max"),
+    Target("false_trips", "false trips over the healthy runs", 0, "eq"),
+    Target("service_deaths", "service deaths in the boundary run", 0, "eq"),
+    Target("boundary_mismatches", "boundary answers unlike the check module", 0, "eq"),
+    Target("kb_grid_unstable", "unstable points on the envelope's edge", 0, "eq"),
+)
+
+ROWS: tuple[tuple[str, str], ...] = (
+    ("faults_total", "faults injected (kind x situation)"),
+    ("faults_detected", "faults detected"),
+    ("faults_undetected", "faults not detected"),
+    ("detect_ms_max", "detection time, worst (ms)"),
+    ("detect_ms_p50", "detection time, median (ms)"),
+    ("excursion_deg_max", "excursion after injection, worst (deg)"),
+    ("excursion_mm_max", "excursion after injection, worst (mm)"),
+    ("healthy_seconds", "healthy exercise time simulated (s)"),
+    ("false_trips", "false trips over the healthy runs"),
+    ("residual_max_n", "largest healthy force-balance residual (N, limit 30)"),
+    ("boundary_commands", "boundary commands sent to the service"),
+    ("boundary_mismatches", "boundary answers unlike the check module"),
+    ("service_deaths", "service deaths in the boundary run"),
+    ("kb_grid_points", "K-B points on the envelope's edge"),
+    ("kb_grid_unstable", "unstable points on the envelope's edge"),
+)
+
+KB_STIFFNESS = (0.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 350.0, 500.0)
+
+
+def kb_grid(
+    patients: tuple[str, ...] = ("relaxed", "resisting", "absent"),
+    progress: Callable[[str], None] | None = None,
+) -> list[tuple[str, float, float, str, bool, float]]:
+    """Every rotational axis, every grid K, at the least damping the envelope allows."""
+    from device.limits import SafetyLimits
+
+    lim = SafetyLimits().published()
+    out = []
+    total = 3 * len(KB_STIFFNESS) * len(patients)
+    for axis in (3, 4, 5):
+        for k in KB_STIFFNESS:
+            b = lim.damping_min_at(axis, k)
+            for patient in patients:
+                stable, pp = kb_point(axis, k, b, patient)
+                out.append((AXES[axis], k, b, patient, stable, pp))
+                if progress is not None:
+                    progress(f"K-B edge {len(out)}/{total}: {AXES[axis]} K {k:g} B {b:g}")
+    return out
+
+
+def run(
+    progress: Callable[[str], None] | None = None, seeds: tuple[int, ...] = (1, 2)
+) -> dict[str, Any]:
+    """Everything ``ankle bench safety`` measures, as one JSON-able object."""
+    started = time.perf_counter()
+    faults = fault_matrix(seeds=(1,), progress=progress)
+    healthy = healthy_runs(seeds=seeds, progress=progress)
+    if progress is not None:
+        progress("boundary commands through the service")
+    sent, mismatched, deaths, boundary_trips = boundary_run()
+    grid = kb_grid(progress=progress)
+    detected = [f for f in faults if f.detected]
+    times = sorted(f.detect_ms for f in detected)
+    out: dict[str, Any] = {
+        "faults_total": len(faults),
+        "faults_detected": len(detected),
+        "faults_undetected": len(faults) - len(detected),
+        "detect_ms_max": max(times) if times else math.nan,
+        "detect_ms_p50": float(np.median(times)) if times else math.nan,
+        "excursion_deg_max": max(f.excursion_deg for f in faults),
+        "excursion_mm_max": max(f.excursion_mm for f in faults),
+        "healthy_seconds": sum(h.seconds for h in healthy),
+        "false_trips": sum(h.trip != Trip.NONE.name or h.supply_low or h.service for h in healthy),
+        "residual_max_n": max(h.residual_max_n for h in healthy),
+        "boundary_commands": sent,
+        "boundary_mismatches": mismatched,
+        "service_deaths": deaths,
+        "boundary_trips": boundary_trips,
+        "kb_grid_points": len(grid),
+        "kb_grid_unstable": sum(not g[4] for g in grid),
+        "faults": [dataclasses.asdict(f) for f in faults],
+        "healthy": [dataclasses.asdict(h) for h in healthy],
+        "false_trip_runs": [
+            dataclasses.asdict(h)
+            for h in healthy
+            if h.trip != Trip.NONE.name or h.supply_low or h.service
+        ],
+        "kb_grid": [
+            {"axis": a, "k": k, "b": b, "patient": pt, "stable": st, "pp_deg": pp}
+            for a, k, b, pt, st, pp in grid
+        ],
+        "wall_s": time.perf_counter() - started,
+    }
+    out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS}
+    return out
+
+
+def fault_table(result: dict[str, Any]) -> str:
+    """One row per fault kind: how it was detected, the worst time and motion."""
+    lines = [
+        "| fault | trip | detected | worst detection (ms) | worst excursion (deg / mm) |",
+        "|---|---|---|---:|---:|",
+    ]
+    by_kind: dict[str, list[dict[str, Any]]] = {}
+    for f in result["faults"]:
+        by_kind.setdefault(f["kind"], []).append(f)
+    for kind, runs in by_kind.items():
+        lines.append(_fault_row(kind, runs))
+    return "\n".join(lines)
+
+
+def _fault_row(kind: str, runs: list[dict[str, Any]]) -> str:
+    found = [r for r in runs if r["detected"]]
+    trips = sorted({r["trip"] for r in found})
+    where = "all" if len(found) == len(runs) else ", ".join(r["scenario"] for r in found) or "none"
+    worst = f"{max(r['detect_ms'] for r in found):.0f}" if found else "-"
+    deg = max(r["excursion_deg"] for r in runs)
+    mm = max(r["excursion_mm"] for r in runs)
+    return (
+        f"| {kind.lower()} | {', '.join(trips) or '-'} | {len(found)} of {len(runs)} ({where}) "
+        f"| {worst} | {deg:.2f} / {mm:.2f} |"
+    )
+
+
+def table(result: dict[str, Any]) -> str:
+    return render(result, ROWS, TARGETS) + "\n\n" + fault_table(result)
+
+
 def main() -> None:
     t = time.perf_counter()
     for h in healthy_runs():
         print(
             f"{h.exercise:16s} {h.patient:9s} seed {h.seed} trip {h.trip} "
-            f"low {h.supply_low} residual {h.residual_max_n:.1f} N"
+            f"low {h.supply_low} service {h.service} residual {h.residual_max_n:.1f} N"
         )
     for r in fault_matrix():
         print(
