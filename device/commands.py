@@ -104,7 +104,10 @@ def check(command: msg.Message, ctx: Context) -> Checked:
         check_configure(command.telemetry_hz, command.watchdog_ms, ctx.telemetry_hz_max)
         return command
     if isinstance(command, msg.Rearm):
-        if not ctx.service:
+        if ctx.service and ctx.mode not in (DeviceMode.ESTOP, DeviceMode.FAULT):
+            # Clearing a need for service: only while nothing moves.
+            require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY), "stop first")
+        else:
             require_mode(ctx.mode, (DeviceMode.ESTOP, DeviceMode.FAULT), "nothing to re-arm")
         return command
     if isinstance(command, msg.Release):

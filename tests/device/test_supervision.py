@@ -103,6 +103,10 @@ def test_a_service_warning_stops_new_motion_until_a_technician_rearms() -> None:
         assert err.value.code == NackCode.SERVICE_NEEDED
     commands.check(m.Rearm(), ctx)  # allowed in READY only because service is needed
     commands.check(m.HoldCmd(), ctx)
+    moving = Context(ctx.limits, ctx.geometry, DeviceMode.ACTIVE, service=True)
+    with pytest.raises(CommandError) as err:
+        commands.check(m.Rearm(), moving)  # never while a segment runs
+    assert err.value.code == NackCode.WRONG_MODE
 
 
 def test_healthy_exercises_do_not_trip_the_supervision() -> None:
