@@ -8,13 +8,16 @@ whose lifetime is the app's.
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi.responses import Response
 from fastapi.staticfiles import StaticFiles
 
+from device.axes import AXIS_INDEX, ROTATION_AXES
 from server.app import create_app as create_server_app
 from server.config import Settings
 from server.routes import API_PREFIX
@@ -48,5 +51,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(replay.router, prefix=API_PREFIX)
     app.include_router(pages.router)
     app.include_router(vendor_router)
+
+    @app.get("/static/js/axes.js", include_in_schema=False)
+    def axes_module() -> Response:
+        """The ankle's axes for the pages' scripts, from the project's one table."""
+        rotations = list(ROTATION_AXES)
+        body = (
+            "// Generated from device/axes.py, the project's one table of axes.\n"
+            f"export const AXES = {json.dumps(rotations)};\n"
+            f"export const AXIS_INDEX = {json.dumps({a: AXIS_INDEX[a] for a in rotations})};\n"
+        )
+        return Response(body, media_type="text/javascript", headers={"Cache-Control": "no-cache"})
+
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app

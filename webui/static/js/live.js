@@ -1,13 +1,12 @@
 // The live session: the 3D view (viser, in an iframe), status, charts, HOLD, and live
 // stiffness and damping changes answered by the device's own ACK or NACK.
 import { api, ApiError, clearErrors, el, fmt, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
+import { AXES, AXIS_INDEX } from "./axes.js";
 
 await requireSignIn();
 renderHeader();
 
 const stationId = pathId(2);
-const AXES = ["roll", "pitch", "yaw"];
-const AXIS_INDEX = { roll: 3, pitch: 4, yaw: 5 };
 const COLOURS = { roll: "#c0392b", pitch: "#1f5fbf", yaw: "#2e8b57" };
 const LEG_COLOURS = ["#c0392b", "#e67e22", "#b7950b", "#2e8b57", "#1f5fbf", "#8e44ad"];
 const WINDOW_S = 10;

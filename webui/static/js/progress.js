@@ -3,8 +3,9 @@
 // has a caption that says what it shows in words and a data table behind it.
 
 import { el, fmt } from "./api.js";
+import { AXES } from "./axes.js";
 
-export const AXES = ["roll", "pitch", "yaw"];
+export { AXES };
 const AXIS_STYLE = {
   // Colour and marker both differ, so the lines stay apart without colour vision.
   roll: { color: "#1f5fbf", point: "circle" },
