@@ -52,33 +52,31 @@ M_P_READ = 42  # 13: pressure readings of the previous read (Pa abs)
 M_AIR_START = 56  # 12: chamber air (p V) at the start of its balance window
 M_AIR_EXPECT = 68  # 12: air its intake was told to bring in the window (Pa m3)
 M_AIR_OUT = 80  # 12: air its exhaust was told to let out in the window (Pa m3)
-N_MONITOR = 92
+M_VALVE_IN = 92  # 12: intake slots commanded in the valve window
+M_VALVE_OUT = 104  # 12: exhaust slots commanded in the valve window
+N_MONITOR = 116
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
 C_FT_SAT = 2
 C_LEG_SAME = 3  # 6
 C_WINDOW = 9  # 12: PWM periods in the current valve window
-C_INTAKE = 21  # 12: intake slots commanded in the window
-C_EXHAUST = 33  # 12: exhaust slots commanded in the window
-C_RESIDUAL = 45  # 6: control periods with the residual above its threshold
-C_SUPPLY_LOW = 51
-C_SUPPLY_LOSS = 52
-C_SUPPLY_HIGH = 53
-C_SUPPLY_OK = 54
-C_LOW_FLAG = 55
+C_RESIDUAL = 21  # 6: control periods with the residual above its threshold
+C_SUPPLY_LOW = 27
+C_SUPPLY_LOSS = 28
+C_SUPPLY_HIGH = 29
+C_SUPPLY_OK = 30
+C_LOW_FLAG = 31
 """1 while the supply is below its low mark (the mode machine holds and refuses motion)."""
-C_CHANNEL = 56
-"""Channel of the latest supervision trip: chamber 0-11, supply 12, leg 0-5, F/T 0-5."""
-C_READS = 57
-C_P_SAME = 58  # 12: driven control periods a chamber's reading stayed the same
-C_AIR = 70  # 12: control periods in the current air-balance window
-C_SERVICE = 82
+C_READS = 32
+C_P_SAME = 33  # 12: driven control periods a chamber's reading stayed the same
+C_AIR = 45  # 12: control periods in the current air-balance window
+C_SERVICE = 57
 """Chamber + 1 whose air did not add up (0: none): the device needs service. Not a trip:
 closing every valve would let a leaking chamber, or one whose intake is stuck open, move
 its leg with nothing to stop it, while the loop holds it. So the running segment finishes
 under control and nothing new starts until a technician re-arms (device.modes)."""
-N_COUNTERS = 84
+N_COUNTERS = 58
 
 
 @dataclass(frozen=True)
@@ -360,6 +358,39 @@ def intake_allowed(supply_abs: float, chamber_gauge: float, q: SupervisionParams
 
 
 @njit_inline
+def _window(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    count_at: int,
+    start_at: int,
+    in_at: int,
+    out_at: int,
+    c: int,
+    length: int,
+    air: float,
+    into: float,
+    out: float,
+) -> tuple[bool, float, float, float]:
+    """One control period of chamber ``c``'s accounting window: what went in and out, and the
+    chamber's air at its start. Returns (ended, in, out, air change) of the window that just
+    ended; a new one starts with this period's ``into`` and ``out``."""
+    n = counters[count_at + c]
+    ended = n >= length
+    total_in, total_out = monitor[in_at + c], monitor[out_at + c]
+    change = air - monitor[start_at + c]
+    if ended:
+        n = 0
+    if n == 0:
+        monitor[start_at + c] = air
+        monitor[in_at + c] = 0.0
+        monitor[out_at + c] = 0.0
+    monitor[in_at + c] += into
+    monitor[out_at + c] += out
+    counters[count_at + c] = n + 1
+    return ended, total_in, total_out, change
+
+
+@njit_inline
 def check_valves(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -380,23 +411,17 @@ def check_valves(
     makes room for what an intake brings.
     """
     air = (pressure + q.atm) * volume
-    n = counters[C_WINDOW + c]
+    ended, intake, exhaust, moved = _window(
+        monitor, counters, C_WINDOW, M_P_START, M_VALVE_IN, M_VALVE_OUT, c, q.valve_window,
+        air, max(0, slots), max(0, -slots),
+    )  # fmt: skip
     failed = False
-    if n >= q.valve_window:
-        intake, exhaust = counters[C_INTAKE + c], counters[C_EXHAUST + c]
-        change = (air - monitor[M_P_START + c]) / volume
+    if ended:
+        change = moved / volume
         if intake >= q.valve_slots and exhaust == 0 and pressure < supply - q.valve_headroom:
             failed = change < q.valve_min_change
         elif exhaust >= q.valve_slots and intake == 0 and pressure > q.valve_headroom:
             failed = -change < q.valve_min_change
-        n = 0
-    if n == 0:
-        monitor[M_P_START + c] = air
-        counters[C_INTAKE + c] = 0
-        counters[C_EXHAUST + c] = 0
-    counters[C_INTAKE + c] += max(0, slots)
-    counters[C_EXHAUST + c] += max(0, -slots)
-    counters[C_WINDOW + c] = n + 1
     return failed
 
 
@@ -432,19 +457,20 @@ def check_air(
     q: SupervisionParams,
 ) -> bool:
     """Balance chamber ``c``'s air (gauge ``pressure`` and ``supply``, ``volume`` from the
-    measured piston)
-    against what its valves were told to move, over a window of control periods. True when
+    measured piston) against what its valves were told to move, over a window of control
+    periods. True when
     the valves moved a lot of air one way, hardly any the other, and the chamber's measured
     air did not follow (a leak, a stuck valve, a leg sensor that stopped)."""
     air = (pressure + q.atm) * volume
-    n = counters[C_AIR + c]
+    moved = max(0, abs(slots) - q.air_open_after) * q.air_per_slot
+    ended, into, out, measured = _window(
+        monitor, counters, C_AIR, M_AIR_START, M_AIR_EXPECT, M_AIR_OUT, c, q.air_window,
+        air, moved if slots > 0 else 0.0, moved if slots < 0 else 0.0,
+    )  # fmt: skip
     failed = False
-    if n >= q.air_window:
-        into = monitor[M_AIR_EXPECT + c]
-        out = monitor[M_AIR_OUT + c]
+    if ended:
         expected = into - out
         one_sided = min(into, out) <= q.air_one_sided * max(into, out)
-        measured = air - monitor[M_AIR_START + c]
         # Only where the flow is near its estimate: an intake far enough below the supply, an
         # exhaust far enough above the atmosphere (near either the flow dwindles).
         where_ok = (
@@ -452,17 +478,6 @@ def check_air(
         )
         if one_sided and where_ok and abs(expected) >= q.air_min_expected:
             failed = measured * math.copysign(1.0, expected) < q.air_min_fraction * abs(expected)
-        n = 0
-    if n == 0:
-        monitor[M_AIR_START + c] = air
-        monitor[M_AIR_EXPECT + c] = 0.0
-        monitor[M_AIR_OUT + c] = 0.0
-    moved = max(0, abs(slots) - q.air_open_after) * q.air_per_slot
-    if slots > 0:
-        monitor[M_AIR_EXPECT + c] += moved
-    else:
-        monitor[M_AIR_OUT + c] += moved
-    counters[C_AIR + c] = n + 1
     return failed
 
 

@@ -101,7 +101,9 @@ def _start(rig: Rig, scenario: str) -> None:
         hw.script_torque(4, SCRIPT_RAMP, rig.time, 10.0, 8.0)  # up to 8 N m in 0.8 s
 
 
-def _run(kind: FaultKind | None, scenario: str, seed: int) -> tuple[Rig, np.ndarray, float]:
+def _run(
+    kind: FaultKind | None, scenario: str, seed: int, channel: int | None = None
+) -> tuple[Rig, np.ndarray, float]:
     """One scenario with ``kind`` injected (or none): (rig, true pose log, detection s)."""
     rig = _rig("relaxed", seed)
     _start(rig, scenario)
@@ -111,7 +113,8 @@ def _run(kind: FaultKind | None, scenario: str, seed: int) -> tuple[Rig, np.ndar
     hw = rig.hardware
     assert isinstance(hw, SimulatedHardware)
     if kind is not None:
-        channel, value = FAULTS[kind]
+        default, value = FAULTS[kind]
+        channel = default if channel is None else channel
         duration = 0.3 if kind == FaultKind.LEG_NOISE else math.inf
         hw.inject(Fault(kind, float(hw.state.time[0]), channel, value, duration))
     detect = math.nan
@@ -140,9 +143,12 @@ def excursion(faulty: np.ndarray, healthy: np.ndarray, detect_row: int | None) -
     return result
 
 
-def run_fault(kind: FaultKind, scenario: str, seed: int = 1) -> FaultRun:
+def run_fault(
+    kind: FaultKind, scenario: str, seed: int = 1, channel: int | None = None
+) -> FaultRun:
+    """``kind`` injected in ``scenario`` on ``channel`` (default: the one of FAULTS)."""
     _, healthy, _ = _run(None, scenario, seed)
-    rig, pose, detect = _run(kind, scenario, seed)
+    rig, pose, detect = _run(kind, scenario, seed, channel)
     row = None if math.isnan(detect) else round(detect * 1000.0)
     if rig.mode != Mode.FAULT and not rig.supply_low:
         row = None  # nothing stopped it (a service warning): compare the whole run
@@ -382,34 +388,14 @@ def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
 
 
 def kb_point(axis: int, k: float, b: float, patient: str, seed: int = 1) -> tuple[bool, float]:
-    """Render K, B on one rotational axis; a 2 N m push for 0.1 s; (stable, p-p in deg of
-    the last second). Unstable: a trip, or more than 0.2 deg peak to peak in the last second
-    after a slow trend is removed (a soft setting still returning from the push)."""
-    from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
+    """Render K, B on one rotational axis and push it (2 N m for 0.1 s), measured as
+    ``lab.envelope`` measures its maps: (stable, detrended peak to peak of the last second in
+    degrees). Stable by the stricter of its criteria: no trip (a push the legs cannot follow
+    included), at most 0.2 deg, no chattering command, no walk away from it."""
+    from lab import envelope
 
-    rig = _rig(patient, seed)
-    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
-    rig.run(0.5, log_hz=0)
-    K, B = np.zeros(6), np.zeros(6)
-    K[axis], B[axis] = k, b
-    rig.set_impedance(K, B, [i == axis for i in range(6)])
-    rig.track({})
-    rig.run(0.5, log_hz=0)
-    hw = rig.hardware
-    assert isinstance(hw, SimulatedHardware)
-    hw.script_torque(axis, SCRIPT_CONSTANT, rig.time, 2.0, 0.0)
-    rig.run(0.1, log_hz=0)
-    hw.script_torque(axis, SCRIPT_NONE, 0.0, 0.0, 0.0)
-    rig.run(2.0, log_hz=0)
-    rig.clear_log()
-    log = rig.run(1.0, log_hz=500.0)
-    if rig.mode == Mode.FAULT:
-        return False, math.nan
-    angle = np.degrees(log[:, COL[f"pose_{AXES[axis]}"]])
-    t = log[:, 0] - log[0, 0]
-    trend = np.polyval(np.polyfit(t, angle, 2), t)
-    pp = float(np.ptp(angle - trend))
-    return pp <= 0.2, pp
+    point = envelope.run_point(AXES[axis], patient, k, b, seed=seed)
+    return not point["marginal"], float(point["pp_det_deg"])
 
 
 # -- the benchmark ------------------------------------------------------------------------

@@ -43,6 +43,23 @@ def test_a_sensor_or_supply_fault_trips_at_once_and_the_platform_stays(
     assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
 
 
+@pytest.mark.parametrize(
+    ("kind", "channels", "trip"),
+    [
+        (FaultKind.PRESSURE_OPEN, range(13), Trip.PRESSURE_SENSOR),
+        (FaultKind.PRESSURE_STUCK, range(12), Trip.PRESSURE_SENSOR),
+        (FaultKind.LEG_OFFSET, range(6), Trip.LEG_SENSOR),
+    ],
+    ids=lambda v: getattr(v, "name", ""),
+)
+def test_every_channel_is_watched_and_named(kind: FaultKind, channels: range, trip: Trip) -> None:
+    """Not only the channel of the matrix: every transducer, every leg, mid-exercise."""
+    for channel in channels:
+        run = safety.run_fault(kind, "exercise", seed=channel + 2, channel=channel)
+        assert run.detected and run.trip == trip.name and run.channel == channel, run
+        assert run.detect_ms <= 50.0 and run.excursion_mm <= 1.0, run
+
+
 def test_a_drooping_supply_holds_the_exercise_before_it_can_no_longer_carry_the_foot() -> None:
     for scenario in safety.SCENARIOS:
         run = safety.run_fault(FaultKind.SUPPLY_DROOP, scenario)
