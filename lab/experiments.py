@@ -48,6 +48,7 @@ from device.plant.params import PlantConfig
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.safety import SafetyLimits, Trip
 from device.tickloop import COL
+from device.waveforms import SINE_HZ_MAX
 from lab.metrics import (
     StepMetrics,
     impedance_fit,
@@ -413,9 +414,9 @@ class SineResult(Checked):
     response: NDArray[np.float64] = field(repr=False)
 
 
-SINE_HZ_RANGE = (0.05, 20.0)
-"""Sine frequencies: below 0.05 Hz six cycles take minutes; 20 Hz is the device's own limit
-on a sine command."""
+SINE_HZ_RANGE = (0.05, SINE_HZ_MAX)
+"""Sine frequencies: below 0.05 Hz six cycles take minutes; the top is the device's own
+limit on a sine command."""
 
 
 def check_sine(axis: str, amplitude: float, hz: float, limits: SafetyLimits | None = None) -> None:
