@@ -104,6 +104,71 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="simulation only: inject a plant fault at TIME s after the start (repeatable), "
         "e.g. supply_loss@30 or pressure_open@12:4",
     )
+    add_plant_options(dev, seed_default=0)
+
+
+def add_plant_options(
+    p: argparse.ArgumentParser, seed_default: int = 1, seed_help: str | None = None
+) -> None:
+    """``--plant KEY=VALUE``, ``--plant-draw N`` and ``--seed N``: which simulated plant."""
+    p.add_argument(
+        "--plant",
+        type=plant_spec,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="simulation only: change one plant parameter from its nominal value "
+        "(repeatable; `ankle sim params` lists the keys, units and plausible ranges); "
+        "KEY unit picks another unit of the build (per-valve and per-sensor spreads)",
+    )
+    p.add_argument(
+        "--plant-draw",
+        type=ranged(int, 0, 2**31 - 1),
+        default=None,
+        metavar="N",
+        help="simulation only: start from plant N of the ensemble (`ankle bench control "
+        "--ensemble` names its worst plants so); --plant changes apply on top",
+    )
+    p.add_argument(
+        "--seed",
+        type=ranged(int, 0, 2**31 - 1),
+        default=seed_default,
+        help=seed_help
+        or f"simulation only: seed of the sensor noise and valve jitter (default {seed_default})",
+    )
+
+
+def plant_spec(text: str) -> tuple[str, float]:
+    """argparse type of ``--plant``: ``KEY=VALUE`` with a known key and a usable value."""
+    from device.plant.params import PARAMETERS, check_override
+
+    key, sep, value = text.partition("=")
+    key = key.strip().replace("-", "_")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    if key != "unit" and key not in PARAMETERS:
+        raise argparse.ArgumentTypeError(
+            f"unknown plant parameter {key!r}; `ankle sim params` lists them"
+        )
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{key} needs a number, got {value!r}") from None
+    try:
+        check_override(key, number)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return key, number
+
+
+def plant_config(args: argparse.Namespace, patient: str = "relaxed") -> Any:
+    """The :class:`~device.plant.params.PlantConfig` that ``add_plant_options`` asked for."""
+    from device.plant.params import PlantConfig, draw_plant
+
+    base = PlantConfig(patient=patient)
+    if getattr(args, "plant_draw", None) is not None:
+        base = draw_plant(args.plant_draw, patient)
+    return base.changed(tuple(getattr(args, "plant", ())))
 
 
 def fault_spec(text: str) -> Any:
@@ -129,13 +194,18 @@ def run_command(args: argparse.Namespace) -> int:
 def _device(args: argparse.Namespace) -> int:
     from device.hardware import HardwareError, SimulatedHardware, open_hardware
     from device.plant.model import SCRIPT_SINE
-    from device.plant.params import PlantConfig
     from device.rig import Rig
     from device.service import DeviceService, ServiceConfig, serve
     from device.transport import LinkError, open_link
 
     try:
-        hardware = open_hardware(args.hardware, PlantConfig(patient=args.patient))
+        if args.hardware != "sim" and (args.plant or args.plant_draw is not None):
+            print(
+                "error: --plant and --plant-draw change the plant simulation: use --sim",
+                file=sys.stderr,
+            )
+            return USAGE_ERROR
+        hardware = open_hardware(args.hardware, plant_config(args, args.patient), args.seed)
         link = open_link(args.link, args.baud)
     except (HardwareError, LinkError) as exc:
         print(f"error: {exc.args[-1]}", file=sys.stderr)

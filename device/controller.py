@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 
 from device import impedance, position_loop, pressure_loop, pwm, safety, supervision
 from device._jit import njit, njit_inline
+from device.calibration import Calibration
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.kinematics import (
     FK_MAX_ITERATIONS,
@@ -54,7 +55,7 @@ from device.kinematics import (
     twist_jacobian,
 )
 from device.limits import LEG_HEADROOM
-from device.plant.params import PARAMETERS, TICK_HZ
+from device.plant.params import PARAMETERS, TICK_HZ, nominal_dead_volume
 from device.safety import SafetyLimits, Trip
 from device.scheduler import Schedule, Task, schedule
 from device.supervision import SupervisionConfig, SupervisionParams
@@ -106,12 +107,15 @@ class ControllerConfig:
     """Outer-loop proportional gain (Pa of differential per m): 0.12 bar/mm. A higher gain
     rings the heavy modes of the platform the coupled legs carry (worst overshoot over 40
     steps 1.5 % at 0.135 bar/mm); below about 0.10 bar/mm the 10-90 % rise passes 90 ms."""
-    position_kd: float = 3.3e5
+    position_kd: float = 2.8e5
     """Outer-loop derivative gain (Pa per m/s). The approach is nearly first order with
-    time constant Kd/Kp (27 ms; 10-90 % rise about 2.2 Kd/Kp). Below about 3.0e5 the
-    overshoot passes 2 %; from about 3.8e5 on the light modes of the platform (heave and
-    pitch, about 0.8 kg per leg) oscillate at 25-30 Hz, because the velocity estimate, the
-    250 Hz loop and the valves delay the damping force by several milliseconds."""
+    time constant Kd/Kp (23 ms; 10-90 % rise about 2.2 Kd/Kp). The plant's delays decide
+    the upper end: sensor latency and filters, the valves, and the tubes (a pressure change
+    at the valves reaches the piston 1.5 ms later) delay the damping force by several
+    milliseconds, and the light modes of the platform (heave and pitch, about 0.8 kg per
+    leg) then oscillate at 25-30 Hz. The wave-1 value, 3.3e5, tripped the leg speed limit
+    on legs 4 and 6 of the nominal plant once those delays were modelled; 2.8e5 tripped on
+    none of six drawn plants (steps of both signs on legs 1, 4 and 6)."""
     pressure_kp: float = 4.5e-3
     """Inner PI proportional gain (percent of duty per Pa): full duty at 0.22 bar error.
     Much lower and the legs ring after a step; much higher and the loop pushes through the
@@ -123,6 +127,37 @@ class ControllerConfig:
     in size, so with P alone the loop settles into a pulse pattern whose mean differential
     sits about 0.02 bar off target: a steady offset of 0.15-0.2 mm. The integral shifts
     the switching point until the pattern averages to the target (offset < 0.05 mm)."""
+    position_ki: float = 3.0e8
+    """Outer-loop integral gain (Pa of differential per m s): integral time Kp/Ki = 40 ms.
+    The PD of eq. (14) holds a leg where its force balances whatever the load compensation
+    G_p got wrong: a platform heavier than its model, a transducer's zero error, friction.
+    Each of these is a few newtons, and 0.12 bar/mm leaves a steady error of 0.2-2 mm on
+    plausible builds (an ensemble of drawn plants); the integral takes it out. A leg held
+    by 5 N of Coulomb friction short of its target waits for the integral to break it
+    free: with 1.2e8 that took up to 300 ms, with 3e8 150 ms; the integral runs only near
+    the target and at low speed (below), so a faster one did not raise the overshoot."""
+    position_integral_band: float = 0.7e-3
+    """While any axis renders an impedance (TASK mode with a compliant axis) the integral
+    sees only the part of the error beyond this band (m). Acting on every error its slow
+    pole and the admittance's (an integrator at K = 0) made a foot oscillate at 2-5 Hz at
+    the envelope's edge (lab/envelope.py); held altogether, a stiff-sealed leg stuck by
+    friction during a slow push until its error tripped the stuck-sensor check. Beyond the
+    band it still breaks such a leg free; what it learnt holding the platform still
+    compensates the model's errors. Measured: 0.5 mm let a resisting foot oscillate at
+    13.7 Hz at yaw K = 200, B = 0.2; 1.0 mm let a stiff-sealed leg trip the stuck-sensor
+    check in a slow push; 0.6 and 0.7 mm passed both, and a frozen leg sensor moved the
+    platform at most 1.4 deg, 3.3 mm before its trip."""
+    position_integral_zone: float = 2.0e-3
+    """The outer integral runs only while the leg is this close to its target (m)..."""
+    position_integral_speed: float = 5.0e-3
+    """...and slower than this (m/s), relative to its target's rate: while a step's approach
+    runs into the zone the error is still one-sided and large, and integrating it winds up
+    an overshoot that takes the slow integral a second to unwind."""
+    position_integral_max: float = 0.3e5
+    """Bound of the outer integral (Pa of differential, about 15 N on a leg): above what any
+    drawn plant needed (a kilogram of platform mass is under 2 N a leg, the stiffest seal's
+    breakaway 10 N), and no more: it is also how hard the integral can push a leg whose
+    sensor lies (the ensemble's steps did not change between 1 bar and this bound)."""
     pressure_integral_zone: float = 0.8e-3
     """The inner integral only runs while the leg is this close to its target (m). During a
     move the pressure errors are large and one-sided; integrating them leaves a wrong trim
@@ -197,7 +232,11 @@ class ControllerConfig:
     )
     """Thresholds of the sensor and supply supervision (device.supervision). The force
     sensor's full scale is its data sheet's, as for any fitted sensor."""
-    dead_volume: float = PARAMETERS["dead_volume"].value
+    calibration: Calibration = Calibration()
+    """This unit's zeros (device.identify), subtracted from every reading before it is used;
+    the default subtracts nothing. Sensor faults are judged on the raw readings (an open
+    transducer reads 0 V whatever its zero)."""
+    dead_volume: float = nominal_dead_volume()
     """Chamber volume at the end of the stroke, tube included (m3): as built, for judging
     how much air a chamber holds (device.supervision.check_valves)."""
     vent_every_periods: int = 4
@@ -222,6 +261,11 @@ class ControllerParams(NamedTuple):
     kp_pos: float
     kd_pos: float
     max_error: float
+    ki_pos: float
+    pos_i_zone: float
+    pos_i_speed: float
+    pos_i_band: float
+    pos_i_max: float
     kp_p: float
     ki_p: float
     i_zone: float
@@ -249,6 +293,7 @@ class ControllerParams(NamedTuple):
     dead_volume: float
     area_annulus: float
     sup: SupervisionParams
+    sensor_zero: NDArray[np.float64]  # (25,) subtracted from each reading
 
 
 class ControllerState(NamedTuple):
@@ -275,7 +320,7 @@ class ControllerState(NamedTuple):
     leg_target_rate: NDArray[np.float64]
     compensation: NDArray[np.float64]  # (6,) G_p (Pa)
     p_desired: NDArray[np.float64]  # (12,)
-    integral: NDArray[np.float64]  # (12,)
+    integral: NDArray[np.float64]  # (18,) per chamber (inner PI), then per leg (outer, Pa)
     u: NDArray[np.float64]  # (12,) control input (percent)
     slots: NDArray[np.int64]  # (12,) signed PWM slots
     valves: NDArray[np.uint8]  # (24,)
@@ -324,6 +369,11 @@ def build_params(
         kp_pos=config.position_kp,
         kd_pos=config.position_kd,
         max_error=config.position_kd * config.approach_speed / config.position_kp,
+        ki_pos=config.position_ki,
+        pos_i_zone=config.position_integral_zone,
+        pos_i_speed=config.position_integral_speed,
+        pos_i_band=config.position_integral_band,
+        pos_i_max=config.position_integral_max,
         kp_p=config.pressure_kp,
         ki_p=config.pressure_ki,
         i_zone=config.pressure_integral_zone,
@@ -351,6 +401,7 @@ def build_params(
         dead_volume=config.dead_volume,
         area_annulus=area_ann,
         sup=supervision.build(config.supervision, config.atmosphere, CONTROL_PERIOD * dt_tick),
+        sensor_zero=config.calibration.sensor_zero(),
     )
     return params, sched
 
@@ -381,7 +432,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         leg_target_rate=np.zeros(6),
         compensation=np.zeros(6),
         p_desired=np.zeros(12),
-        integral=np.zeros(12),
+        integral=np.zeros(18),
         u=np.zeros(12),
         slots=np.zeros(12, dtype=np.int64),
         valves=np.zeros(24, dtype=np.uint8),
@@ -405,6 +456,7 @@ def trip(s: ControllerState, code: int, channel: int = -1) -> None:
         s.istate[I_TRIP_CHANNEL] = channel
     for c in range(12):
         s.slots[c] = 0
+    for c in range(18):
         s.integral[c] = 0.0
     for v in range(24):
         s.valves[v] = 0
@@ -457,26 +509,33 @@ def duty_update(s: ControllerState, p: ControllerParams) -> None:
 @njit_inline
 def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     s.istate[I_SENSOR_READS] += 1
-    code = safety.check_sensors(sensors, p.stroke, p.limits)
-    if code == Trip.SENSOR_INVALID:
-        trip(s, code)
+    if not safety.all_finite(sensors):
+        trip(s, Trip.SENSOR_INVALID)
         return
+    # Sensor faults are judged on the raw readings; the leg targets move into their frame.
+    targets_raw = np.empty(6)
+    for i in range(6):
+        targets_raw[i] = s.leg_target[i] + p.sensor_zero[13 + i]
     fault, channel = supervision.check_reading(
-        s.monitor, s.counters, sensors, p.sup, moving(s), s.leg_target
+        s.monitor, s.counters, sensors, p.sup, moving(s), targets_raw
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)
         return
+    calibrated = np.empty(25)
+    for k in range(25):
+        calibrated[k] = sensors[k] - p.sensor_zero[k]
+    code = safety.check_sensors(calibrated, p.stroke, p.limits)
     if code != Trip.NONE and moving(s):
         trip(s, code)
         return
     for k in range(25):
-        s.sensors[k] = sensors[k]
+        s.sensors[k] = calibrated[k]
     for c in range(12):
-        s.pressure[c] = sensors[c] - p.p_atm
+        s.pressure[c] = calibrated[c] - p.p_atm
     first = s.istate[I_SENSOR_READS] == 1
     for i in range(6):
-        x = sensors[13 + i]
+        x = calibrated[13 + i]
         rate = 0.0 if first else (x - s.leg_x[i]) / p.dt_sensor
         s.leg_rate[i] += p.leg_alpha * (rate - s.leg_rate[i])
         s.leg_x[i] = x
@@ -494,11 +553,32 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.slots[up] = 0
         s.integral[lo] = 0.0
         s.integral[up] = 0.0
+        s.integral[12 + leg] = 0.0
+        s.monitor[supervision.M_PUSH + leg] = 0.0
         s.counters[supervision.C_WINDOW + lo] = 0
         s.counters[supervision.C_WINDOW + up] = 0
         s.counters[supervision.C_AIR + lo] = 0
         s.counters[supervision.C_AIR + up] = 0
         return
+    # While an axis renders an impedance the integral sees only the error beyond a band.
+    rendering = False
+    if s.istate[I_MODE] == Mode.TASK:
+        for k in range(6):
+            if s.compliant[k] > 0.5:
+                rendering = True
+    error = s.leg_target[leg] - s.leg_x[leg]
+    if rendering:  # only what friction holds back beyond the band
+        error = math.copysign(max(0.0, abs(error) - p.pos_i_band), error)
+    s.integral[12 + leg] = position_loop.integrate(
+        s.integral[12 + leg],
+        error,
+        s.leg_target_rate[leg] - s.leg_rate[leg],
+        p.ki_pos,
+        p.dt_control,
+        p.pos_i_zone,
+        p.pos_i_speed,
+        p.pos_i_max,
+    )
     dP = position_loop.pd(
         s.leg_target[leg],
         s.leg_x[leg],
@@ -506,9 +586,10 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.leg_rate[leg],
         p.kp_pos,
         p.kd_pos,
-        s.compensation[leg],
+        s.compensation[leg] + s.integral[12 + leg],
         p.max_error,
     )
+    s.monitor[supervision.M_PUSH + leg] = (dP - s.compensation[leg]) * p.area_cap
     r = p.area_ratio
     P_l, P_u = pressure_loop.distribute(dP, s.pressure[lo], s.pressure[up], r, p.p_min, p.p_max)
     s.p_desired[lo] = P_l

@@ -54,7 +54,7 @@ class SimulatedHardware(Hardware):
         model.read_sensors(self.state, self.params, out)
 
     def write_valves(self, valves: NDArray[np.uint8]) -> None:
-        model.write_valves(self.state, valves)
+        model.write_valves(self.state, self.params, valves)
 
     def wait_tick(self) -> None:
         model.plant_tick(self.state, self.params)

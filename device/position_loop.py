@@ -40,3 +40,22 @@ def pd(
     """
     error = min(max_error, max(-max_error, target - measured))
     return kp * error + kd * (target_rate - measured_rate) + compensation
+
+
+@njit
+def integrate(
+    integral: float,
+    error: float,
+    rate_error: float,
+    ki: float,
+    dt: float,
+    zone: float,
+    speed: float,
+    bound: float,
+) -> float:
+    """The outer loop's integral (Pa) after one control period: it runs only while the
+    error is within ``zone`` (m) and the rate error within ``speed`` (m/s), and stays within
+    +-``bound`` (an extension of the paper; see ControllerConfig.position_ki)."""
+    if abs(error) < zone and abs(rate_error) < speed:
+        integral += ki * error * dt
+    return min(bound, max(-bound, integral))

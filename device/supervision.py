@@ -54,7 +54,8 @@ M_AIR_EXPECT = 68  # 12: air its intake was told to bring in the window (Pa m3)
 M_AIR_OUT = 80  # 12: air its exhaust was told to let out in the window (Pa m3)
 M_VALVE_IN = 92  # 12: intake slots commanded in the valve window
 M_VALVE_OUT = 104  # 12: exhaust slots commanded in the valve window
-N_MONITOR = 116
+M_PUSH = 116  # 6: force (N) the position loop last commanded beyond the load, per leg
+N_MONITOR = 122
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -136,13 +137,21 @@ class SupervisionConfig:
     leg_jump: float = 1.0e-3
     """A leg reading that moves more than this between two reads (1 ms) is a sensor fault:
     1 m/s, 2.5 times the leg speed limit, 40 sensor counts."""
+    leg_stuck_force: float = 15.0
+    """A leg the position loop pushes this hard (N) beyond its load, or..."""
     leg_stuck_error: float = 1.0e-3
-    """A leg driven toward a target this far away (m)..."""
-    leg_stuck_reads: int = 25
-    """...whose reading stays bit for bit the same for this many reads (25 ms) is stuck:
-    1 mm of error pushes a healthy leg with about 6 N beyond its load, four times the
-    breakaway friction of its glass/graphite piston, which moves it by more than a sensor
-    count (24 um) within a few milliseconds."""
+    """...whose reading is this far (m) from its target, ..."""
+    leg_stuck_reads: int = 33
+    """...and whose reading stays bit for bit the same for this many reads (33 ms) is
+    stuck. 15 N is half as much again as the largest breakaway friction of a plausible
+    cylinder (5 N Coulomb, breakaway ratio 2; device/plant/params.py): a healthy leg pushed
+    that hard moves by more than a sensor count (24 um) within a few milliseconds. The push
+    is the loop's own command (proportional, derivative and integral terms). The error rule
+    is the faster one when the target runs away from a frozen reading. A stiff-sealed leg
+    held by stick-slip friction at the reversal of a slow sine sits 1 mm from its target
+    for up to about 30 ms: 25 reads (the wave-1 rule) tripped two of twelve drawn plants in
+    a 2 deg pitch sweep, 33 none; each read more lets a frozen reading move the platform
+    further before the trip (lab/safety.py measures how far)."""
     pressure_frozen_periods: int = 10
     """A chamber reading unchanged bit for bit over this many control periods in a row in
     each of which a valve of it was open at least the valve's response time (d_dead of
@@ -216,6 +225,7 @@ class SupervisionParams(NamedTuple):
     ft_zero_reads: int
     ft_frozen_reads: int
     leg_jump: float
+    leg_stuck_force: float
     leg_stuck_error: float
     leg_stuck_reads: int
     pressure_frozen_periods: int
@@ -255,6 +265,7 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
         ft_zero_reads=config.ft_zero_reads,
         ft_frozen_reads=config.ft_frozen_reads,
         leg_jump=config.leg_jump,
+        leg_stuck_force=config.leg_stuck_force,
         leg_stuck_error=config.leg_stuck_error,
         leg_stuck_reads=config.leg_stuck_reads,
         pressure_frozen_periods=config.pressure_frozen_periods,
@@ -341,7 +352,11 @@ def check_reading(
             continue
         if abs(x - prev) > q.leg_jump:
             return Trip.LEG_SENSOR, i
-        if moving and x == prev and abs(leg_target[i] - x) > q.leg_stuck_error:
+        driven = (
+            abs(monitor[M_PUSH + i]) > q.leg_stuck_force
+            or abs(leg_target[i] - x) > q.leg_stuck_error
+        )
+        if moving and x == prev and driven:
             counters[C_LEG_SAME + i] += 1
             if counters[C_LEG_SAME + i] >= q.leg_stuck_reads:
                 return Trip.LEG_SENSOR, i
@@ -513,6 +528,7 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
         counters[C_LEG_SAME + i] = 0
         counters[C_RESIDUAL + i] = 0
         monitor[M_RESIDUAL + i] = 0.0
+        monitor[M_PUSH + i] = 0.0
     for c in range(12):
         counters[C_P_SAME + c] = 0
         counters[C_AIR + c] = 0

@@ -88,7 +88,7 @@ def run_sim(
         if ctl.sensors_due(cs, cp):
             model.read_sensors(ps, pp, sensors)
         ctl.controller_tick(cs, cp, sensors)
-        model.write_valves(ps, cs.valves)
+        model.write_valves(ps, pp, cs.valves)
         model.plant_tick(ps, pp)
         if decimation > 0 and n % decimation == 0 and rows < log.shape[0]:
             log_row(log[rows], cs, ps, pp)

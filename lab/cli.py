@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from device.cli import Parser, fault_spec, finite_float, ranged
+from device.cli import Parser, add_plant_options, fault_spec, finite_float, ranged
 from device.geometry import AXES
 from device.rig import CommandError
 
@@ -83,13 +83,31 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     p.add_argument("--mm", type=finite_float, default=0.3)
     _outputs(p)
 
-    ss.add_parser("params", help="print the plant's parameter table (Markdown)")
+    p = ss.add_parser(
+        "params", help="list the plant's parameters: nominal value, plausible range, unit"
+    )
+    p.add_argument(
+        "--markdown", action="store_true", help="the whole table with reasons (docs/plant.md)"
+    )
 
     bench = sub.add_parser("bench", help="benchmarks")
     bs = bench.add_subparsers(dest="bench", required=True, parser_class=Parser)
     p = bs.add_parser("control", help="the paper's headline results and the real-time factor")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plots", type=Path, help="write PNG figures into this folder")
+    p.add_argument(
+        "--ensemble",
+        type=ranged(int, 0, 10000),
+        default=0,
+        metavar="N",
+        help="also run the experiments on N plants drawn from the parameter table's ranges "
+        "(draws SEED .. SEED+N-1) and report nominal, median and worst",
+    )
+    add_plant_options(
+        p,
+        seed_default=0,
+        seed_help="the ensemble's first plant: draws SEED .. SEED+N-1 (default 0)",
+    )
     p = bs.add_parser("link", help="serial link: ACK round trip, telemetry, pacing, watchdog")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
@@ -138,6 +156,7 @@ def _faults(p: argparse.ArgumentParser) -> None:
         help="inject a plant fault at TIME s of simulated time (the 0.5 s settle at home "
         "included; repeatable), e.g. leg_stuck@0.8:2",
     )
+    add_plant_options(p)
 
 
 def _outputs(p: argparse.ArgumentParser) -> None:
@@ -196,9 +215,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "bench":
         return _bench(args)
     if args.experiment == "params":
-        from device.plant.params import parameter_table_markdown
+        from device.plant.params import parameter_lines, parameter_table_markdown
 
-        print(parameter_table_markdown())
+        print(parameter_table_markdown() if args.markdown else "\n".join(parameter_lines()))
         return 0
     return _experiment(args)
 
@@ -233,8 +252,15 @@ def _bench(args: argparse.Namespace) -> int:
         print(json.dumps(_jsonable(lresult), indent=2) if args.json else linkbench.table(lresult))
         return 0
     from lab import controlbench
+    from lab import experiments as ex
 
-    result = controlbench.run(args.plots)
+    choice = ex.PlantChoice(args.plant_draw, tuple(args.plant), None)
+    try:
+        choice.config("relaxed")
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    result = controlbench.run(args.plots, choice, args.ensemble, args.seed, _progress)
+    print(file=sys.stderr)
     print(json.dumps(_jsonable(result), indent=2) if args.json else controlbench.table(result))
     if not result["valid"] and not args.json:
         print("INVALID: " + "; ".join(f"{k}: {v}" for k, v in result["invalid"].items()))
@@ -244,7 +270,12 @@ def _bench(args: argparse.Namespace) -> int:
 def _experiment(args: argparse.Namespace) -> int:
     from lab import experiments as ex
 
-    with ex.injected(tuple(getattr(args, "fault", ()))):
+    choice = ex.PlantChoice(args.plant_draw, tuple(args.plant), args.seed)
+    try:
+        choice.config("relaxed")
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    with ex.injected(tuple(getattr(args, "fault", ()))), ex.on_plant(choice):
         return _run_experiment(args)
 
 
@@ -468,6 +499,10 @@ def _run_experiment(args: argparse.Namespace) -> int:
         trace = (["t_s", "displacement_mm", "target_mm"], [r5.t, r5.displacement_mm, r5.target_mm])
         figure = lambda path: _plots().staircase_figure(r5, path)  # noqa: E731
 
+    plant = ex.current_plant()
+    data["plant"] = plant.describe()
+    if plant.draw is not None or plant.changes:
+        text += f" [on {plant.describe()}]"
     if not health.valid:
         if args.json:
             print(json.dumps(_jsonable(_nulled(data, measured) | _health(health))))

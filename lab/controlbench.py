@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ TARGETS: tuple[Target, ...] = (
     Target("resolution_mm", "0.3 mm staircase: largest steady error (mm)", 0.3, "max"),
     Target("pitch_bandwidth_hz", "pitch -3 dB bandwidth at 2 deg (Hz)", 7.0, "min"),
     Target("stiffness_error_pct", "rendered pitch stiffness at 50 N m/rad: error (%)", 5.0, "max"),
+    Target("damping_error_pct", "rendered pitch damping at 1 N m s/rad: error (%)", 5.0, "max"),
     Target("realtime_factor_cpu", "real-time factor, full 7 kHz loop, CPU time", 50.0, "min"),
 )
 
@@ -52,6 +54,8 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("pitch_peak_gain_db", "pitch largest gain below 7 Hz (dB)"),
     ("stiffness_pitch_nm_per_rad", "rendered pitch stiffness, K = 50 (N m/rad)"),
     ("stiffness_error_pct", "rendered pitch stiffness: error (%)"),
+    ("damping_pitch_nm_s_per_rad", "rendered pitch damping, B = 1 (N m s/rad; 0.5-2 Hz fit)"),
+    ("damping_error_pct", "rendered pitch damping: error (%)"),
     ("realtime_factor_cpu", "real-time factor, full 7 kHz loop, CPU time"),
     ("realtime_factor", "real-time factor, full 7 kHz loop, wall clock"),
     ("ticks_per_s", "ticks per wall second"),
@@ -107,6 +111,7 @@ ROWS_OF: dict[str, tuple[str, ...]] = {
     "staircase": ("resolution_mm",),
     "pitch_sweep": ("pitch_bandwidth_hz", "pitch_gain_db_7hz", "pitch_peak_gain_db"),
     "impedance": ("stiffness_pitch_nm_per_rad", "stiffness_error_pct"),
+    "impedance_dynamic": ("damping_pitch_nm_s_per_rad", "damping_error_pct"),
     "realtime": ("realtime_factor", "realtime_factor_cpu", "ticks_per_s"),
 }
 
@@ -121,13 +126,42 @@ def _health(h: experiments.Health) -> dict[str, Any]:
     }
 
 
-def run(plots: Path | None = None) -> dict[str, Any]:
+def run(
+    plots: Path | None = None,
+    plant: experiments.PlantChoice | None = None,
+    ensemble_n: int = 0,
+    ensemble_seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """Run every experiment of the benchmark; returns the JSON-able result.
 
     ``experiments`` holds each experiment's trip and saturation; ``invalid`` maps every row
     whose experiment was invalid to the reason (its value is then None and its target not
-    met); ``valid`` is whether every experiment was.
+    met); ``valid`` is whether every experiment was. ``plant`` runs the benchmark on a
+    changed plant; ``ensemble_n`` plants drawn from ``ensemble_seed`` on are measured too
+    (lab.ensemble).
     """
+    choice = plant if plant is not None else experiments.PlantChoice()
+    with experiments.on_plant(choice):
+        out = _run(plots, progress)
+    out["plant"] = choice.describe()
+    if ensemble_n > 0:
+        from lab import ensemble
+
+        if progress:
+            progress("ensemble: the nominal plant")
+        nominal = ensemble.measure(choice)
+        result = ensemble.run(ensemble_n, ensemble_seed, nominal, progress)
+        out.update(result)
+        out["targets_met"].update(
+            {t.key: out[t.key] is not None and t.met(float(out[t.key])) for t in ensemble.TARGETS}
+        )
+    return out
+
+
+def _run(plots: Path | None, progress: Callable[[str], None] | None) -> dict[str, Any]:
+    if progress:
+        progress("control: real-time factor")
     rt, ticks, compile_s, rt_trip, rt_cpu = measure_realtime()
     out: dict[str, Any] = {
         "scheduler_max_tasks_per_interrupt": schedule(controller_tasks()).max_tasks_per_interrupt,
@@ -168,6 +202,12 @@ def run(plots: Path | None = None) -> dict[str, Any]:
     out["stiffness_pitch_nm_per_rad"] = imp.measured_stiffness
     out["stiffness_error_pct"] = imp.error_pct
     checks["impedance"] = _health(imp.health)
+    if progress:
+        progress("control: rendered damping")
+    dyn = experiments.impedance_dynamic("pitch", k=50.0, b=1.0)
+    out["damping_pitch_nm_s_per_rad"] = dyn.joint.damping if dyn.fits else None
+    out["damping_error_pct"] = dyn.damping_error_pct if dyn.fits else None
+    checks["impedance_dynamic"] = _health(dyn.health)
     out["realtime_factor"] = rt
     out["realtime_factor_cpu"] = rt_cpu
     out["ticks_per_s"] = ticks
@@ -204,4 +244,11 @@ def run(plots: Path | None = None) -> dict[str, Any]:
 
 def table(result: dict[str, Any]) -> str:
     """The control benchmark as a Markdown table (what the README shows)."""
-    return targets_table(result, ROWS, TARGETS, result.get("invalid"))
+    text = targets_table(result, ROWS, TARGETS, result.get("invalid"))
+    if result.get("plant") and result["plant"] != "nominal plant":
+        text = f"On the {result['plant']}:\n\n{text}"
+    if result.get("ensemble_n"):
+        from lab import ensemble
+
+        text += "\n\n" + ensemble.table(result)
+    return text

@@ -33,18 +33,20 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from device import pwm
+from device.calibration import Calibration
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
+from device.identify import identify
 from device.plant.faults import Fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
-from device.plant.params import PlantConfig
+from device.plant.params import PlantConfig, draw_plant
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.safety import SafetyLimits, Trip
 from device.tickloop import COL
@@ -52,6 +54,7 @@ from device.waveforms import SINE_HZ_MAX
 from lab.metrics import (
     StepMetrics,
     impedance_fit,
+    impedance_fit_inertia,
     sine_response,
     step_metrics,
     stiffness_slope,
@@ -238,6 +241,61 @@ def injected(faults: tuple[Fault, ...]) -> Iterator[None]:
         _FAULTS[:] = before
 
 
+@dataclass(frozen=True)
+class PlantChoice:
+    """Which plant the experiments run on (:func:`on_plant`)."""
+
+    draw: int | None = None
+    """Plant ``draw`` of the ensemble (device.plant.params.draw_plant); None: nominal."""
+    changes: tuple[tuple[str, float], ...] = ()
+    """Parameter changes on top (``("unit", n)`` picks another unit)."""
+    seed: int | None = None
+    """Seed of the sensor noise and valve jitter; None: each experiment's own."""
+    calibrate: bool = True
+    """Identify the unit first (device.identify) and run the controller with its
+    calibration, as the device does at start-up; False: uncalibrated, as wave 1 ran."""
+
+    def config(self, patient: str) -> PlantConfig:
+        base = PlantConfig(patient=patient) if self.draw is None else draw_plant(self.draw, patient)
+        return base.changed(self.changes)
+
+    def describe(self) -> str:
+        parts = [] if self.draw is None else [f"ensemble plant {self.draw}"]
+        parts += [f"{k}={v:g}" for k, v in self.changes]
+        return ", ".join(parts) or "nominal plant"
+
+
+_PLANT: list[PlantChoice] = [PlantChoice()]
+_CALIBRATIONS: dict[tuple[object, ...], Calibration] = {}
+
+
+def calibration_of(cfg: PlantConfig) -> Calibration:
+    """The unit's start-up identification (device.identify), run once per unit on a twin of
+    its plant with nobody on the plate, so that each experiment still starts at rest at
+    home. The zeros are properties of the unit, the same on the twin."""
+    key = (cfg.overrides, cfg.unit, cfg.substeps, id(cfg.geometry))
+    if key not in _CALIBRATIONS:
+        twin = SimulatedHardware(replace(cfg, patient="absent"), seed=0)
+        _CALIBRATIONS[key] = identify(twin)
+    return _CALIBRATIONS[key]
+
+
+@contextlib.contextmanager
+def on_plant(choice: PlantChoice) -> Iterator[None]:
+    """Run every experiment inside on ``choice``'s plant (and noise seed)."""
+    choice.config("relaxed")  # refuse a bad change before anything runs
+    before = _PLANT[0]
+    _PLANT[0] = choice
+    try:
+        yield
+    finally:
+        _PLANT[0] = before
+
+
+def current_plant() -> PlantChoice:
+    return _PLANT[0]
+
+
 def _rig(
     patient: str = "absent",
     compensate: bool = True,
@@ -245,9 +303,12 @@ def _rig(
     plant: PlantConfig | None = None,
     limits: SafetyLimits | None = None,
 ) -> Rig:
-    cfg = plant if plant is not None else PlantConfig(patient=patient)
-    hw = SimulatedHardware(cfg, seed=seed)
+    choice = _PLANT[0]
+    cfg = plant if plant is not None else choice.config(patient)
+    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
     config = ControllerConfig(deadband_compensation=compensate)
+    if choice.calibrate:
+        config = replace(config, calibration=calibration_of(cfg))
     for fault in _FAULTS:
         hw.inject(fault)
     return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)
@@ -691,6 +752,9 @@ class FitResult:
     """The same fit of the measured torque against the commanded pose: the admittance law
     alone, before the position loop has to follow it."""
     law_damping: float
+    inertia: float = math.nan
+    """Joint fit over two or more frequencies only: the inertia J (kg m2) fitted beside K
+    and B (lab.metrics.impedance_fit_inertia); the device renders a virtual one."""
 
 
 @dataclass(frozen=True)
@@ -779,17 +843,27 @@ def impedance_dynamic(
         pfit = impedance_fit(t, angle, active, f)
         lfit = impedance_fit(t, command, tq, f)
         fits.append(FitResult(f, fit[0], fit[1], fit[2], pfit[0], pfit[1], lfit[0], lfit[1]))
-    joint = impedance_fit(
-        [w[1] for w in windows], [w[2] for w in windows], [w[3] for w in windows], list(hz)
-    )
-    pjoint = impedance_fit(
-        [w[1] for w in windows], [w[2] for w in windows], [w[4] for w in windows], list(hz)
-    )
-    ljoint = impedance_fit(
-        [w[1] for w in windows], [w[6] for w in windows], [w[3] for w in windows], list(hz)
-    )
-    fits.append(
-        FitResult(None, *joint, pjoint[0], pjoint[1], ljoint[0], ljoint[1])  # joint fit
+    several = len(set(hz)) >= 2
+
+    def joint_fit(values: int) -> tuple[float, float, float, float]:
+        """(K, B, c, J) over every window of ``windows[i][values]`` against the angle (or
+        the command, for the law's fit): with an inertia beside K and B when the windows
+        span two or more frequencies."""
+        angles = [w[6] if values == 6 else w[2] for w in windows]
+        torques = [w[4] if values == 4 else w[3] for w in windows]
+        times = [w[1] for w in windows]
+        if several:
+            k_, b_, j_, c_ = impedance_fit_inertia(times, angles, torques, list(hz))
+            return k_, b_, c_, j_
+        k_, b_, c_ = impedance_fit(times, angles, torques, list(hz))
+        return k_, b_, c_, math.nan
+
+    k_j, b_j, c_j, j_j = joint_fit(3)
+    joint = (k_j, b_j, c_j)
+    pjoint = joint_fit(4)
+    ljoint = joint_fit(6)
+    fits.append(  # the joint fit
+        FitResult(None, *joint, pjoint[0], pjoint[1], ljoint[0], ljoint[1], inertia=j_j)
     )
     saturated = sorted({s for w in windows for s in w[5].saturated})
     health = Health(False, None, None, tuple(saturated), True, None)

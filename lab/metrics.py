@@ -109,6 +109,34 @@ def impedance_fit(
     frequency: float | Sequence[float],
 ) -> tuple[float, float, float]:
     """(K, B, c) of the least-squares fit ``torque = K angle + B rate + c``.
+    See :func:`impedance_fit_inertia`."""
+    k, b, _, c = _fit(t, angle, torque, frequency, inertia=False)
+    return k, b, c
+
+
+def impedance_fit_inertia(
+    t: Signal,
+    angle: Signal,
+    torque: Signal,
+    frequency: Sequence[float],
+) -> tuple[float, float, float, float]:
+    """(K, B, J, c) of ``torque = K angle + B rate + J acceleration + c`` over windows at two
+    or more frequencies: at one frequency an inertia is indistinguishable from a lower
+    stiffness (``K - J w^2``), so a fit without J reports the device's virtual inertia as
+    a stiffness error that grows with frequency."""
+    if isinstance(frequency, float | int) or len(set(frequency)) < 2:
+        raise ValueError("an inertia needs windows at two or more frequencies")
+    return _fit(t, angle, torque, frequency, inertia=True)
+
+
+def _fit(
+    t: Signal,
+    angle: Signal,
+    torque: Signal,
+    frequency: float | Sequence[float],
+    inertia: bool,
+) -> tuple[float, float, float, float]:
+    """The least-squares fit of :func:`impedance_fit` (J is NaN without ``inertia``).
 
     One window, or several (sequences of arrays, one frequency each; a separate offset per
     window, their mean returned). The angle and its rate are the fundamental of the measured
@@ -133,7 +161,12 @@ def impedance_fit(
         rate = 2.0 * math.pi * f * (s * np.cos(wt) - c * np.sin(wt))
         offsets = np.zeros((tt.size, n))
         offsets[:, w] = 1.0
-        rows.append(np.column_stack([theta, rate, offsets]))
+        columns = [theta, rate]
+        if inertia:
+            columns.append(-((2.0 * math.pi * f) ** 2) * theta)  # the angle's acceleration
+        rows.append(np.column_stack([*columns, offsets]))
         rhs.append(np.asarray(tq, dtype=np.float64))
     sol, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
-    return float(sol[0]), float(sol[1]), float(np.mean(sol[2:]))
+    j = float(sol[2]) if inertia else math.nan
+    first = 3 if inertia else 2
+    return float(sol[0]), float(sol[1]), j, float(np.mean(sol[first:]))

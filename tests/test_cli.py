@@ -175,10 +175,29 @@ def test_bench_link_prints_every_key() -> None:
     assert 0 < data["service_cpu_pct"] < 100
 
 
-def test_params_prints_the_table() -> None:
+def test_params_lists_every_key_with_its_nominal_value_and_range() -> None:
     r = ankle("sim", "params")
     assert r.returncode == 0
-    assert "| `valve_conductance` |" in r.stdout
+    line = next(x for x in r.stdout.splitlines() if x.startswith("valve_conductance "))
+    assert line.split()[1:5] == ["0.3", "0.24", "..", "0.37"]
+    assert "gas_constant" in r.stdout and "fixed" in r.stdout
+    r = ankle("sim", "params", "--markdown")
+    assert "| `valve_conductance` | 0.3 | 0.24 .. 0.37 |" in r.stdout
+
+
+def test_a_changed_plant_is_refused_when_it_makes_no_sense() -> None:
+    for bad in ("bogus=1", "bore=-1", "leg_delay=nan", "tube_length", "unit=1.5"):
+        r = ankle("sim", "step", "--plant", bad)
+        assert r.returncode == 2, bad
+        assert "plant" in r.stderr or "unit" in r.stderr or "KEY=VALUE" in r.stderr, r.stderr
+
+
+def test_a_step_runs_on_a_drawn_and_changed_plant_and_says_so() -> None:
+    r = ankle("sim", "step", "--plant-draw", "3", "--plant", "friction_coulomb=4", "--json")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert data["plant"] == "ensemble plant 3, friction_coulomb=4"
+    assert data["rise_ms"] > 0
 
 
 BENCH_KEYS = {
@@ -192,6 +211,8 @@ BENCH_KEYS = {
     "pitch_bandwidth_hz",
     "stiffness_pitch_nm_per_rad",
     "stiffness_error_pct",
+    "damping_pitch_nm_s_per_rad",
+    "damping_error_pct",
     "realtime_factor",
     "realtime_factor_cpu",
     "ticks_per_s",
@@ -207,7 +228,11 @@ def test_bench_control_prints_every_key_and_writes_figures(tmp_path: Path) -> No
     assert result["valid"] is True and result["invalid"] == {}
     assert all(not e["tripped"] for e in result["experiments"].values())
     # Control targets only: speed is the benchmark's to report, not a test's to assert.
+    # One is open in issue 12 and must be reported as not met until it is: the rendered
+    # damping (the position loop's lag adds about 0.3-0.5 N m s/rad to B = 1).
+    known_unmet = {"damping_error_pct"}
     met = result["targets_met"]
-    assert all(met[k] for k in met if k != "realtime_factor_cpu"), met
+    assert all(met[k] for k in met if k not in known_unmet | {"realtime_factor_cpu"}), met
+    assert not any(met[k] for k in known_unmet), "met now: move it out of known_unmet"
     assert result["realtime_factor"] > 0 and result["realtime_factor_cpu"] > 0
     assert len(list(tmp_path.glob("*.png"))) == 4

@@ -54,7 +54,7 @@ from device.kinematics import (
     v3_sub,
 )
 from device.plant.faults import FAULT_COLUMNS, MAX_FAULTS, FaultKind
-from device.plant.params import PlantParams
+from device.plant.params import SENSOR_RING, TUBE_RING, PlantParams
 
 
 class PlantState(NamedTuple):
@@ -72,9 +72,18 @@ class PlantState(NamedTuple):
     leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
     script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
     scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick, not state (see there)
-    supply: NDArray[np.float64]  # (2,) Pa abs: valve manifold, regulator output
+    supply: NDArray[np.float64]  # (4,) manifold, regulator output (Pa abs), its set point
+    # (Pa abs, sagging only under a SUPPLY_DROOP fault), flow in the supply line (kg/s)
     faults: NDArray[np.float64]  # (MAX_FAULTS, FAULT_COLUMNS) fault table, filled from row 0
     fault_now: NDArray[np.float64]  # (2, 24) per tick: valve armature override (-1 none), leak
+    valve_delay_now: NDArray[np.float64]  # (24,) s: delay of each valve's current switching
+    valve_switches: NDArray[np.float64]  # (24,) times each coil was energised
+    air: NDArray[np.float64]  # (2,) kg: through the supply line, into the chambers
+    tube: NDArray[np.float64]  # (TUBE_RING, 12) valve flow on its way down each tube (kg/s)
+    in_flight: NDArray[np.float64]  # (12,) that flow's sum over the tube's delay (kg)
+    sensor_history: NDArray[np.float64]  # (SENSOR_RING, 26) time and true value per read
+    sensor_filter: NDArray[np.float64]  # (25,) each channel's filter output
+    rings: NDArray[np.int64]  # (3,) tube head, sensor-history head, reads so far
 
 
 SCRIPT_NONE = 0
@@ -115,9 +124,17 @@ def new_state(params: PlantParams) -> PlantState:
         leg_force=np.zeros(6),
         script=np.zeros((6, 4)),
         scratch=np.zeros((2, 6, 7)),
-        supply=np.full(2, params.p_supply),
+        supply=np.array([params.p_supply, params.p_supply, params.p_supply, 0.0]),
         faults=np.zeros((MAX_FAULTS, FAULT_COLUMNS)),
         fault_now=np.zeros((2, 24)),
+        valve_delay_now=params.valve_close_delay.copy(),
+        valve_switches=np.zeros(24),
+        air=np.zeros(2),
+        tube=np.zeros((TUBE_RING, 12)),
+        in_flight=np.zeros(12),
+        sensor_history=np.zeros((SENSOR_RING, 26)),
+        sensor_filter=np.zeros(25),
+        rings=np.zeros(3, dtype=np.int64),
     )
     static_pressures(s, params)
     return s
@@ -172,14 +189,10 @@ def iso6358_mass_flow(p_up: float, p_down: float, open_fraction: float, p: Plant
     )
 
 
-@njit
-def valves_substep(s: PlantState, p: PlantParams, dt: float) -> None:
-    rate = dt / p.valve_travel
-    for v in range(24):
-        s.valve_timer[v] += dt
-        s.valve_open[v] = valve_opening(
-            s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], p.valve_delay, rate
-        )
+@njit_inline
+def laminar_leak(p_up: float, p_down: float, k: float) -> float:
+    """Mass flow (kg/s) through a leak path that is laminar: ``k (p_up^2 - p_down^2)``."""
+    return k * (p_up * p_up - p_down * p_down)
 
 
 @njit
@@ -195,8 +208,11 @@ def valve_opening(
 
 
 @njit_inline
-def write_valves(s: PlantState, command: NDArray[np.uint8]) -> None:
-    """Energise (1) or release (0) the 24 coils; open-open is refused (both released)."""
+def write_valves(s: PlantState, p: PlantParams, command: NDArray[np.uint8]) -> None:
+    """Energise (1) or release (0) the 24 coils; open-open is refused (both released).
+
+    Each switching waits its valve's own delay for that direction, plus jitter drawn then.
+    """
     for c in range(12):
         intake = 1.0 if command[2 * c] else 0.0
         exhaust = 1.0 if command[2 * c + 1] else 0.0
@@ -207,6 +223,12 @@ def write_valves(s: PlantState, command: NDArray[np.uint8]) -> None:
             if new != s.valve_cmd[v]:
                 s.valve_cmd[v] = new
                 s.valve_timer[v] = 0.0
+                delay = p.valve_open_delay[v] if new > 0.5 else p.valve_close_delay[v]
+                if new > 0.5:
+                    s.valve_switches[v] += 1.0
+                if p.valve_jitter > 0.0:
+                    delay += p.valve_jitter * np.random.normal()
+                s.valve_delay_now[v] = max(0.0, delay)
 
 
 @njit
@@ -295,24 +317,18 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     f = s.scratch[0, :, 6]  # net force on each leg
     MW = s.scratch[1]  # [M | W]: mass matrix and generalised forces, solved in place
     W = MW[:, 6]
-    # Faults: with an empty table and a healthy supply this is the whole cost.
-    faulty = s.faults[0, 0] != 0.0 or s.supply[0] != p.p_supply or s.supply[1] != p.p_supply
+    # Faults: with an empty table this is the whole cost.
+    faulty = s.faults[0, 0] != 0.0
     supply_lost = False
-    regulator = p.p_supply
-    supply_dynamic = False  # the supply side is a volume behind a line, not an ideal source
+    set_point = p.p_supply
     if faulty:
-        supply_lost, regulator = physical_faults(s, p)
-        supply_dynamic = (
-            supply_lost
-            or regulator != p.p_supply
-            or s.supply[0] != p.p_supply
-            or s.supply[1] != p.p_supply
-        )
+        supply_lost, set_point = physical_faults(s, p)
+    regulator_tick(s, p, set_point)
     for _ in range(n):
-        for v in range(24):  # valves_substep, spelled out to keep s and p out of a call
+        for v in range(24):  # the valves' armatures, spelled out to keep s and p out of a call
             s.valve_timer[v] += dt
             s.valve_open[v] = valve_opening(
-                s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], p.valve_delay, valve_rate
+                s.valve_open[v], s.valve_cmd[v], s.valve_timer[v], s.valve_delay_now[v], valve_rate
             )
         if faulty:
             for v in range(24):  # a stuck armature, whatever the coil
@@ -320,6 +336,10 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                     s.valve_open[v] = s.fault_now[0, v]
         supply_draw = 0.0  # kg/s into the chambers through their intakes
         p_valves = s.supply[0]  # what the intakes see; changes only after the chambers
+        # Valve flow enters a tube now and reaches its cylinder tube_steps substeps later.
+        tube_head = s.rings[0]
+        tube_tail = (tube_head - p.tube_steps) % TUBE_RING
+        s.rings[0] = (tube_head + 1) % TUBE_RING
         # The pose does not change until the integration at the end, so its rotation (and
         # the sines and cosines the integration needs) are computed once.
         cr, sr = math.cos(s.pose[3]), math.sin(s.pose[3])
@@ -337,6 +357,8 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
             xd = 0.0
             for k in range(6):
                 xd += J[i, k] * s.twist[k]
+            # Across the piston, cap side to rod side, from the pressures before this substep.
+            m_piston = laminar_leak(s.pressure[2 * i], s.pressure[2 * i + 1], p.piston_leak)
             # Chambers: cap side grows with x, rod side shrinks.
             for side in range(2):
                 c = 2 * i + side
@@ -344,20 +366,37 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                     area = p.area_cap
                     vol = p.dead_volume + area * x
                     dvol = area * xd
+                    m_leak = m_piston  # out of this chamber
                 else:
                     area = p.area_annulus
                     vol = p.dead_volume + area * (p.stroke - x)
                     dvol = -area * xd
+                    m_leak = -m_piston
                 vol = max(vol, 0.2 * p.dead_volume)  # a bottomed piston still leaves its port
                 pc = s.pressure[c]
-                m_in = iso6358_mass_flow(p_valves, pc, s.valve_open[2 * c], p)
-                m_out = iso6358_mass_flow(pc, p.p_atm, s.valve_open[2 * c + 1], p)
+                # The valves see the pressure at their end of the tube: the cylinder's plus
+                # what has passed them and is still on its way.
+                pv = pc + rt / vol * s.in_flight[c]
+                a_in = s.valve_open[2 * c] * p.valve_scale[2 * c]
+                a_out = s.valve_open[2 * c + 1] * p.valve_scale[2 * c + 1]
+                if a_in > 0.0:
+                    m_in = iso6358_mass_flow(p_valves, pv, a_in, p)
+                else:  # a closed seat still passes a little
+                    m_in = laminar_leak(p_valves, pv, p.seat_leak)
+                if a_out > 0.0:
+                    m_out = iso6358_mass_flow(pv, p.p_atm, a_out, p)
+                else:
+                    m_out = laminar_leak(pv, p.p_atm, p.seat_leak)
                 supply_draw += m_in
-                if faulty and s.fault_now[1, c] > 0.0:  # a leak: an orifice to atmosphere
-                    m_out += iso6358_mass_flow(pc, p.p_atm, s.fault_now[1, c], p)
                 inflow = (p.alpha_in if m_in > 0.0 else p.alpha_out) * m_in
                 outflow = (p.alpha_out if m_out > 0.0 else p.alpha_in) * m_out
-                dp = rt / vol * (inflow - outflow) - p.alpha_work * pc * dvol / vol
+                s.tube[tube_head, c] = inflow - outflow
+                valve_term = s.tube[tube_tail, c]
+                s.in_flight[c] += (inflow - outflow - valve_term) * dt
+                if faulty and s.fault_now[1, c] > 0.0:  # a leak: an orifice to atmosphere
+                    m_leak += iso6358_mass_flow(pc, p.p_atm, s.fault_now[1, c], p)
+                leak_term = (p.alpha_out if m_leak > 0.0 else p.alpha_in) * m_leak
+                dp = rt / vol * (valve_term - leak_term) - p.alpha_work * pc * dvol / vol
                 s.pressure[c] = max(1000.0, pc + dp * dt)
             force = (s.pressure[2 * i] - p.p_atm) * p.area_cap - (
                 s.pressure[2 * i + 1] - p.p_atm
@@ -370,8 +409,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
             elif x > p.stroke:
                 force -= p.stop_k * (x - p.stroke) + p.stop_c * max(xd, 0.0)
             f[i] = force
-        if supply_dynamic:
-            supply_substep(s, p, supply_lost, regulator, supply_draw, dt)
+        supply_substep(s, p, supply_lost, supply_draw, dt)
         # Generalised forces on the platform (base frame, about the ankle).
         r = m3_vec(R, p.body_com)
         patient_wrench(s, p, W)
@@ -432,7 +470,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
 
 @njit
 def physical_faults(s: PlantState, p: PlantParams) -> tuple[bool, float]:
-    """Fill ``s.fault_now`` for this tick; return (supply hose off, regulator's target).
+    """Fill ``s.fault_now`` for this tick; return (supply hose off, regulator's set point).
 
     Row 0 of ``fault_now``: the armature position a stuck valve is held at (-1: free).
     Row 1: each chamber's leak to atmosphere as a fraction of one valve's conductance.
@@ -464,36 +502,34 @@ def physical_faults(s: PlantState, p: PlantParams) -> tuple[bool, float]:
     return lost, target
 
 
-@njit
-def supply_substep(
-    s: PlantState, p: PlantParams, lost: bool, target: float, draw: float, dt: float
-) -> None:
-    """The supply side behind the regulator, once a fault has touched it.
+@njit_inline
+def regulator_tick(s: PlantState, p: PlantParams, set_point: float) -> None:
+    """Once a tick: the regulator's set point (which sags only under a SUPPLY_DROOP fault,
+    and recovers, with the droop time constant) and its output, which follows the set point
+    less its droop under the flow it delivers, with the regulator's response time."""
+    if s.supply[2] != set_point:
+        s.supply[2] = set_point + (s.supply[2] - set_point) * math.exp(-p.dt / p.supply_droop_tau)
+        if abs(s.supply[2] - set_point) < 1.0:
+            s.supply[2] = set_point
+    target = s.supply[2] - p.regulator_droop * max(s.supply[3], 0.0)
+    s.supply[1] = target + (s.supply[1] - target) * math.exp(-p.dt / p.regulator_tau)
 
-    The regulator's output follows ``target`` with the droop time constant; the valve
-    manifold (``supply_volume``) fills from it through the supply line (an ISO 6358 orifice)
-    and feeds the intakes (``draw``, kg/s; negative when chambers blow back). With the hose
-    off the line's far end is the atmosphere. Healthy, the regulator is ideal and none of
-    this runs (nor while a fault table waits with no supply fault due); once the supply is
-    back within 1 Pa of its setting it is snapped back to it.
-    """
-    if s.supply[1] != target:
-        s.supply[1] = target + (s.supply[1] - target) * math.exp(-dt / p.supply_droop_tau)
+
+@njit_inline
+def supply_substep(s: PlantState, p: PlantParams, lost: bool, draw: float, dt: float) -> None:
+    """The valve manifold (``supply_volume``) fills from the regulator's output through the
+    supply line (an ISO 6358 orifice) and feeds the intakes (``draw``, kg/s; negative when
+    chambers blow back). With the hose off the line's far end is the atmosphere."""
     upstream = p.p_atm if lost else s.supply[1]
     ps = s.supply[0]
     m_line = iso6358_mass_flow(upstream, ps, p.supply_line_fraction, p)
+    s.supply[3] = m_line
+    s.air[0] += m_line * dt
+    s.air[1] += draw * dt
     net = m_line - draw
     alpha = p.alpha_in if net > 0.0 else p.alpha_out
     ps += alpha * p.gas_r * p.temperature / p.supply_volume * net * dt
     s.supply[0] = max(1000.0, ps)
-    if (
-        not lost
-        and target == p.p_supply
-        and abs(s.supply[0] - p.p_supply) < 1.0
-        and abs(s.supply[1] - p.p_supply) < 1.0
-    ):
-        s.supply[0] = p.p_supply
-        s.supply[1] = p.p_supply
 
 
 @njit
@@ -502,16 +538,22 @@ def _quantise(value: float, lsb: float) -> float:
 
 
 @njit
-def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
-    """Sample every sensor with noise and quantisation into ``out`` (see device.signals)."""
-    for c in range(12):
-        out[c] = _quantise(s.pressure[c] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
-    out[12] = _quantise(s.supply[0] + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
+def true_readings(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
+    """What every sensor would read if it were perfect, now, into ``out``."""
+    out[12] = s.supply[0]
     R = m3_rotation(s.pose[3], s.pose[4], s.pose[5])
+    rt = p.gas_r * p.temperature
     for i in range(6):
-        length = leg_vector(v3(s.pose, 0), R, row3(p.base, i), row3(p.plat, i))[0]
-        x = length - p.min_length + np.random.normal(0.0, p.leg_noise)
-        out[13 + i] = min(max(_quantise(x, p.leg_lsb), 0.0), p.stroke)
+        x = leg_vector(v3(s.pose, 0), R, row3(p.base, i), row3(p.plat, i))[0] - p.min_length
+        out[13 + i] = x
+        for side in range(2):
+            c = 2 * i + side
+            out[c] = s.pressure[c]
+            if p.sensor_at_valves:  # what is on its way down the tube is already here
+                vol = p.dead_volume + (
+                    p.area_cap * x if side == 0 else p.area_annulus * (p.stroke - x)
+                )
+                out[c] += rt / max(vol, 0.2 * p.dead_volume) * s.in_flight[c]
     # The force plate carries the foot: the patient's wrench, the foot's weight and the
     # foot's inertia, moved from the ankle to the sensor origin and into the sensor's frame.
     W = np.empty(6)
@@ -531,8 +573,73 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     Fb = m3_t_vec(R, F)
     Mb = m3_t_vec(R, Ms)
     for k in range(3):
-        out[19 + k] = _quantise(Fb[k] + np.random.normal(0.0, p.force_noise), p.force_lsb)
-        out[22 + k] = _quantise(Mb[k] + np.random.normal(0.0, p.torque_noise), p.torque_lsb)
+        out[19 + k] = Fb[k]
+        out[22 + k] = Mb[k]
+
+
+@njit
+def delayed(history: NDArray[np.float64], head: int, n: int, column: int, t: float) -> float:
+    """A channel's true value at time ``t``, linear between the reads kept in ``history``
+    (rows: time, then the 25 channels; ``head`` the newest of ``n`` rows)."""
+    if t >= history[head, 0]:
+        return float(history[head, column])
+    rows = history.shape[0]
+    newer = head
+    for j in range(1, n):
+        older = (head - j) % rows
+        t_old = history[older, 0]
+        if t_old <= t:
+            t_new = history[newer, 0]
+            span = t_new - t_old
+            if span <= 0.0:
+                return float(history[newer, column])
+            f = (t - t_old) / span
+            return float(
+                history[older, column] + f * (history[newer, column] - history[older, column])
+            )
+        newer = older
+    return float(history[newer, column])  # older than the oldest kept: the oldest
+
+
+@njit
+def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
+    """Sample every sensor into ``out`` (see device.signals).
+
+    Each channel is the true value ``sensor_delay`` ago (linear between reads), through a
+    first-order filter (``sensor_tau``, advanced by the time since the last read), with its
+    unit's span and zero errors, noise and quantisation, clipped to its range. The filter
+    acts on the reads, so it is exact for signals slow beside the read rate (1 kHz).
+    """
+    true_readings(s, p, out)
+    t = s.time[0]
+    rows = s.sensor_history.shape[0]
+    head = s.rings[1]
+    reads = s.rings[2]
+    previous_t = s.sensor_history[(head - 1) % rows, 0]
+    s.sensor_history[head, 0] = t
+    for k in range(25):
+        s.sensor_history[head, 1 + k] = out[k]
+    n = min(reads + 1, rows)
+    for k in range(25):
+        value = delayed(s.sensor_history, head, n, 1 + k, t - p.sensor_delay[k])
+        if reads == 0:
+            s.sensor_filter[k] = value
+        elif t > previous_t:
+            a = 1.0 - math.exp(-(t - previous_t) / p.sensor_tau[k])
+            s.sensor_filter[k] += a * (value - s.sensor_filter[k])
+        y = s.sensor_filter[k] * p.sensor_gain[k] + p.sensor_offset[k]
+        if k < 13:
+            y = _quantise(y + np.random.normal(0.0, p.pressure_noise), p.pressure_lsb)
+            out[k] = min(max(y, 0.0), p.pressure_top)
+        elif k < 19:
+            y = _quantise(y + np.random.normal(0.0, p.leg_noise), p.leg_lsb)
+            out[k] = min(max(y, p.leg_low), p.leg_high)
+        elif k < 22:
+            out[k] = _quantise(y + np.random.normal(0.0, p.force_noise), p.force_lsb)
+        else:
+            out[k] = _quantise(y + np.random.normal(0.0, p.torque_noise), p.torque_lsb)
+    s.rings[1] = (head + 1) % rows
+    s.rings[2] = reads + 1
     if s.faults[0, 0] != 0.0:
         sensor_faults(s, p, out)
 
@@ -567,10 +674,12 @@ def sensor_faults(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> No
         elif kind == F_LEG_STUCK:
             out[13 + ch] = _held(s.faults, r, out[13 + ch])
         elif kind == F_LEG_OFFSET:
-            out[13 + ch] = min(max(_quantise(out[13 + ch] + value, p.leg_lsb), 0.0), p.stroke)
+            out[13 + ch] = min(
+                max(_quantise(out[13 + ch] + value, p.leg_lsb), p.leg_low), p.leg_high
+            )
         elif kind == F_LEG_NOISE:
             x = out[13 + ch] + np.random.normal(0.0, value)
-            out[13 + ch] = min(max(_quantise(x, p.leg_lsb), 0.0), p.stroke)
+            out[13 + ch] = min(max(_quantise(x, p.leg_lsb), p.leg_low), p.leg_high)
         elif kind == F_FT_DEAD or kind == F_FT_SATURATED or kind == F_FT_OFFSET:  # noqa: SIM109
             lo, hi = (0, 6) if ch < 0 else (ch, ch + 1)
             for k in range(lo, hi):

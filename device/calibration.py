@@ -1,0 +1,107 @@
+"""A unit's calibration: the zeros its start-up identification measured (device.identify).
+
+Plain Python (no numba): the service, the protocol and the station read it. Saved as JSON,
+loaded by the device (``ankle device --calibration FILE``), applied by the controller to
+every reading (``ControllerConfig.calibration``) and reported in ``DeviceHello``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device import signals
+
+LEG_ZERO_MAX = 3.0e-3
+"""A leg zero beyond this (m) is not an offset but a fault (a bent rod, a slipped sensor):
+the identification refuses it rather than let the controller trust it."""
+PRESSURE_ZERO_MAX = 0.3e5
+"""A chamber transducer more than this (Pa) off the atmosphere while vented is faulty."""
+
+
+class IdentificationError(RuntimeError):
+    """The unit could not be identified; the sentence says why and what to check."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """This unit's zeros, subtracted from its readings by the controller."""
+
+    leg_zero: tuple[float, ...] = (0.0,) * 6
+    """What each leg sensor reads at its lower end stop (m)."""
+    pressure_zero: tuple[float, ...] = (0.0,) * 12
+    """What each chamber transducer reads above the atmosphere when vented (Pa)."""
+    ft_zero: tuple[float, ...] = (0.0,) * 6
+    """What the force/torque sensor reads with nothing on the plate (N, N m)."""
+    identified_at: str = ""
+    """When (ISO 8601, UTC); empty for the uncalibrated default."""
+    notes: tuple[str, ...] = field(default=())
+
+    def sensor_zero(self) -> NDArray[np.float64]:
+        """Per channel of :mod:`device.signals`: what to subtract from each reading."""
+        z = np.zeros(signals.N_SENSORS)
+        z[signals.SENSOR_PRESSURE : signals.SENSOR_PRESSURE + 12] = self.pressure_zero
+        z[signals.SENSOR_LEG : signals.SENSOR_LEG + 6] = self.leg_zero
+        z[signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6] = self.ft_zero
+        return z
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+    @classmethod
+    def from_json(cls, text: str) -> Calibration:
+        try:
+            data = json.loads(text)
+            cal = cls(
+                leg_zero=_floats(data["leg_zero"], 6, "leg_zero"),
+                pressure_zero=_floats(data["pressure_zero"], 12, "pressure_zero"),
+                ft_zero=_floats(data["ft_zero"], 6, "ft_zero"),
+                identified_at=str(data.get("identified_at", "")),
+                notes=tuple(str(n) for n in data.get("notes", ())),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise IdentificationError(f"not a calibration file: {exc}") from None
+        cal.check()
+        return cal
+
+    def save(self, path: Path) -> None:
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(self.to_json())
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> Calibration:
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise IdentificationError(f"cannot read the calibration {path}: {exc}") from None
+        return cls.from_json(text)
+
+    def check(self) -> None:
+        """Refuse zeros no healthy unit has (IdentificationError names the channel)."""
+        for i, z in enumerate(self.leg_zero):
+            if abs(z) > LEG_ZERO_MAX:
+                raise IdentificationError(
+                    f"leg {i + 1} sensor reads {z * 1e3:+.2f} mm at its end stop (more than "
+                    f"{LEG_ZERO_MAX * 1e3:g} mm): check the sensor's mounting"
+                )
+        for c, z in enumerate(self.pressure_zero):
+            if abs(z) > PRESSURE_ZERO_MAX:
+                raise IdentificationError(
+                    f"chamber {c} transducer reads {z / 1e5:+.2f} bar vented (more than "
+                    f"{PRESSURE_ZERO_MAX / 1e5:g} bar): check the transducer and its valves"
+                )
+
+
+def _floats(values: object, n: int, name: str) -> tuple[float, ...]:
+    if not isinstance(values, list | tuple) or len(values) != n:
+        raise ValueError(f"{name} needs {n} numbers")
+    out = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) for v in out):
+        raise ValueError(f"{name} must be finite")
+    return out

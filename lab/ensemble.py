@@ -1,0 +1,198 @@
+"""The control benchmark on many plausible plants: ``ankle bench control --ensemble N``.
+
+Each plant is drawn from the ranges of the parameter table (``device.plant.params.draw_plant``:
+every ranged parameter uniform in its range, and the per-valve and per-sensor spreads of
+its unit), and the benchmark's experiments run on it unchanged. For every metric the result
+names the nominal plant's value, the median and the worst over the ensemble, and the plant
+that gave the worst, with the command that runs it again.
+
+A plant on which an experiment tripped or saturated gives no number for that experiment's
+metrics: it counts in ``trips`` (or ``invalid``) and its metric's worst is then ``None`` (not
+met), never the number of a run that was not one.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+from lab import experiments
+from lab.targets import Target
+
+
+@dataclass(frozen=True)
+class Metric:
+    key: str
+    label: str
+    experiment: str
+    worst: str  # "max": larger is worse; "min": smaller is worse
+    target: float
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("step_rise_ms", "10 mm step: rise 10-90 % (ms)", "step", "max", 90.0),
+    Metric("step_overshoot_pct", "10 mm step: overshoot (%)", "step", "max", 5.0),
+    Metric("step_steady_error_mm", "10 mm step: steady error (mm)", "step", "max", 0.3),
+    Metric("resolution_mm", "0.3 mm staircase: largest steady error (mm)", "staircase", "max", 0.3),
+    Metric("pitch_bandwidth_hz", "pitch -3 dB at 2 deg (Hz)", "pitch_sweep", "min", 7.0),
+    Metric("stiffness_error_pct", "rendered K = 50: error (%)", "impedance", "max", 5.0),
+    Metric("damping_error_pct", "rendered B = 1: error (%)", "impedance_dynamic", "max", 5.0),
+)
+
+TARGETS: tuple[Target, ...] = (
+    *(Target(f"ensemble_worst_{m.key}", m.label, m.target, m.worst) for m in METRICS),
+    Target("ensemble_trips", "trips over the ensemble", 0, "eq"),
+)
+
+
+def measure(choice: experiments.PlantChoice) -> dict[str, Any]:
+    """Every metric of :data:`METRICS` on one plant, with each experiment's health."""
+    out: dict[str, Any] = {"plant": choice.describe(), "draw": choice.draw}
+    health: dict[str, dict[str, Any]] = {}
+    with experiments.on_plant(choice):
+        step = experiments.step(leg=1, mm=10.0)
+        out["step_rise_ms"] = step.metrics.rise_ms
+        out["step_overshoot_pct"] = step.metrics.overshoot_pct
+        out["step_steady_error_mm"] = step.metrics.steady_error_mm
+        health["step"] = _health(step.health)
+        stairs = experiments.staircase(leg=1, step_mm=0.3)
+        out["resolution_mm"] = stairs.resolution_mm
+        health["staircase"] = _health(stairs.health)
+        sweep = experiments.sweep("pitch", 2.0)
+        out["pitch_bandwidth_hz"] = sweep.bandwidth_hz
+        out["pitch_bandwidth_lower_bound"] = sweep.bandwidth_kind == "lower_bound"
+        health["pitch_sweep"] = _health(sweep.health)
+        if sweep.stopped_hz is not None:
+            health["pitch_sweep"]["valid"] = False
+            health["pitch_sweep"]["reason"] = f"stopped at {sweep.stopped_hz:g} Hz"
+        imp = experiments.impedance("pitch", k=50.0, b=1.0, torque=10.0)
+        out["stiffness_error_pct"] = imp.error_pct
+        health["impedance"] = _health(imp.health)
+        dyn = experiments.impedance_dynamic("pitch", k=50.0, b=1.0)
+        out["damping_error_pct"] = dyn.damping_error_pct if dyn.fits else math.nan
+        health["impedance_dynamic"] = _health(dyn.health)
+    for m in METRICS:
+        if not health[m.experiment]["valid"]:
+            out[m.key] = None
+    out["experiments"] = health
+    out["trips"] = sorted({h["trip"] for h in health.values() if h["trip"]})
+    return out
+
+
+def _health(h: experiments.Health) -> dict[str, Any]:
+    return {"valid": h.valid, "trip": h.trip, "reason": h.reason, "saturated": list(h.saturated)}
+
+
+def _measure_draw(draw: int) -> dict[str, Any]:
+    return measure(experiments.PlantChoice(draw=draw))
+
+
+def run(
+    n: int,
+    seed: int = 0,
+    nominal: dict[str, Any] | None = None,
+    progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """Draw plants ``seed`` .. ``seed + n - 1`` and measure each; summarise every metric.
+
+    ``nominal`` is the nominal plant's :func:`measure` (measured here if not given).
+    """
+    if n < 1:
+        raise ValueError("an ensemble needs at least one plant")
+    nominal = nominal if nominal is not None else measure(experiments.PlantChoice())
+    draws = list(range(seed, seed + n))
+    jobs = workers if workers is not None else min(2, os.cpu_count() or 1)
+    plants: list[dict[str, Any]] = []
+    if jobs > 1 and n > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            for r in pool.map(_measure_draw, draws):
+                plants.append(r)
+                if progress:
+                    progress(f"ensemble: plant {len(plants)}/{n} measured")
+    else:
+        for d in draws:
+            plants.append(_measure_draw(d))
+            if progress:
+                progress(f"ensemble: plant {len(plants)}/{n} measured")
+    return summarise(plants, nominal, seed)
+
+
+def summarise(
+    plants: list[dict[str, Any]], nominal: dict[str, Any], seed: int = 0
+) -> dict[str, Any]:
+    out: dict[str, Any] = {"ensemble_n": len(plants), "ensemble_seed": seed}
+    summary: dict[str, Any] = {}
+    for m in METRICS:
+        values = [(p[m.key], p["draw"]) for p in plants if p[m.key] is not None]
+        values = [(v, d) for v, d in values if math.isfinite(v)]
+        missing = [p["draw"] for p in plants if p[m.key] is None or not math.isfinite(p[m.key])]
+        pick = max if m.worst == "max" else min
+        worst = pick(values) if values else (math.nan, None)
+        row = {
+            "nominal": nominal.get(m.key),
+            "median": statistics.median(v for v, _ in values) if values else None,
+            "worst": worst[0] if values and not missing else None,
+            "worst_measured": worst[0] if values else None,
+            "worst_plant": worst[1] if values else None,
+            "no_number_on": missing,
+            "target": m.target,
+        }
+        worst_plant: int | None = missing[0] if missing else worst[1]
+        row["worst_plant"] = worst_plant
+        if worst_plant is not None:
+            row["again"] = _again(m.experiment, worst_plant)
+        summary[m.key] = row
+        out[f"ensemble_worst_{m.key}"] = row["worst"]
+    trips = [(p["draw"], t) for p in plants for t in p["trips"]]
+    out["ensemble_trips"] = len(trips)
+    out["ensemble_tripped_plants"] = sorted({d for d, _ in trips})
+    out["ensemble"] = summary
+    out["ensemble_plants"] = plants
+    return out
+
+
+def _again(experiment: str, draw: int) -> str:
+    command = {
+        "step": "ankle sim step --leg 1 --mm 10",
+        "staircase": "ankle sim staircase --leg 1 --mm 0.3",
+        "pitch_sweep": "ankle sim sweep --axis pitch --amplitude 2",
+        "impedance": "ankle sim impedance --axis pitch --k 50 --b 1",
+        "impedance_dynamic": "ankle sim impedance --axis pitch --k 50 --b 1 --mode dynamic",
+    }[experiment]
+    return f"{command} --plant-draw {draw}"
+
+
+def table(result: dict[str, Any]) -> str:
+    """Nominal, median and worst side by side (what the README shows)."""
+    lines = [
+        f"Ensemble of {result['ensemble_n']} plants (draws {result['ensemble_seed']}.."
+        f"{result['ensemble_seed'] + result['ensemble_n'] - 1}); trips: {result['ensemble_trips']}",
+        "",
+        "| metric | nominal | median | worst | worst plant | target | met |",
+        "|---|---:|---:|---:|---:|---|---|",
+    ]
+    for m in METRICS:
+        row = result["ensemble"][m.key]
+
+        def f(v: Any) -> str:
+            return "no number" if v is None else f"{v:.3g}"
+
+        worst = f(row["worst"])
+        if row["no_number_on"]:
+            worst = f"none on {len(row['no_number_on'])} plants (tripped or saturated)"
+        target = ("<= " if m.worst == "max" else ">= ") + f"{m.target:g}"
+        met = row["worst"] is not None and (
+            row["worst"] <= m.target if m.worst == "max" else row["worst"] >= m.target
+        )
+        plant = "" if row["worst_plant"] is None else str(row["worst_plant"])
+        lines.append(
+            f"| {m.label} | {f(row['nominal'])} | {f(row['median'])} | {worst} | {plant} | "
+            f"{target} | {'yes' if met else 'NO'} |"
+        )
+    return "\n".join(lines)

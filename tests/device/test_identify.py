@@ -1,0 +1,100 @@
+"""Start-up identification: the unit's zeros, measured through the hardware interface."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from device.calibration import Calibration, IdentificationError
+from device.controller import ControllerConfig
+from device.hardware import SimulatedHardware
+from device.identify import identify
+from device.plant.params import PlantConfig, draw_plant
+from device.rig import Rig
+
+
+@pytest.mark.parametrize("unit", [0, 5])
+def test_identification_recovers_the_planted_zeros(unit: int) -> None:
+    cfg = replace(draw_plant(unit), patient="absent") if unit else PlantConfig(patient="absent")
+    hw = SimulatedHardware(cfg, seed=2)
+    cal = identify(hw)
+    planted = hw.params.sensor_offset
+    gain = hw.params.sensor_gain
+    # Legs: the zero within 20 um (noise of the mean, the bumper's few um, one count's
+    # rounding); planted zeros are up to 1 mm.
+    assert np.abs(np.array(cal.leg_zero) - planted[13:19]).max() < 20e-6
+    # Chambers: the zero plus the span error at one atmosphere (0.5-2 % of 1 bar).
+    expected = planted[:12] + (gain[:12] - 1.0) * hw.params.p_atm
+    assert np.abs(np.array(cal.pressure_zero) - expected).max() < 300.0
+    # Force/torque: nothing on the plate, so the reading is the zero.
+    assert np.abs(np.array(cal.ft_zero[:3]) - planted[19:22]).max() < 0.3
+    assert np.abs(np.array(cal.ft_zero[3:]) - planted[22:25]).max() < 0.02
+    assert cal.identified_at
+    assert not hw.state.valve_cmd.any()  # left every valve closed
+
+
+def test_identification_pulls_a_stiff_sealed_platform_down_level() -> None:
+    # Breakaway friction of six stiff seals outweighs the platform: it would not sink alone.
+    cfg = PlantConfig(
+        patient="absent",
+        overrides=(
+            ("friction_coulomb", 5.0),
+            ("friction_breakaway_ratio", 2.0),
+            ("platform_mass", 2.0),
+        ),
+    )
+    hw = SimulatedHardware(cfg, seed=1)
+    cal = identify(hw)
+    assert np.abs(hw.state.pose[3:]).max() < 1e-3  # level, not tilted or twisted
+    assert np.abs(np.array(cal.leg_zero) - hw.params.sensor_offset[13:19]).max() < 20e-6
+
+
+def test_a_foot_on_the_plate_or_a_bad_sensor_refuses_the_calibration() -> None:
+    hw = SimulatedHardware(PlantConfig(patient="absent", overrides=(("leg_offset", 5e-3),)), seed=1)
+    hw.params.sensor_offset[13] = 5e-3  # this unit's leg 1 sensor slipped by 5 mm
+    with pytest.raises(IdentificationError, match="leg 1 sensor reads"):
+        identify(hw)
+
+
+def test_a_calibration_round_trips_and_refuses_garbage(tmp_path: Path) -> None:
+    cal = Calibration(leg_zero=(1e-4,) * 6, pressure_zero=(300.0,) * 12, identified_at="x")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    assert Calibration.load(path) == cal
+    for text in (
+        "{}",
+        "[]",
+        "nope",
+        json.dumps({**json.loads(cal.to_json()), "leg_zero": [1] * 5}),
+    ):
+        path.write_text(text)
+        with pytest.raises(IdentificationError):
+            Calibration.load(path)
+    bad = json.loads(cal.to_json()) | {"pressure_zero": [1e5] * 12}
+    path.write_text(json.dumps(bad))
+    with pytest.raises(IdentificationError, match="chamber 0"):
+        Calibration.load(path)
+
+
+def test_with_its_calibration_the_controller_reads_true_leg_lengths() -> None:
+    from device.kinematics import Kinematics
+
+    cal = identify(SimulatedHardware(PlantConfig(patient="absent"), seed=9))  # the same unit
+    errors = {}
+    for name, config in (
+        ("raw", ControllerConfig()),
+        ("calibrated", ControllerConfig(calibration=cal)),
+    ):
+        hw = SimulatedHardware(PlantConfig(patient="absent"), seed=4)
+        rig = Rig(hw, config)
+        rig.run(0.05)
+        true_x = Kinematics().inverse(hw.state.pose) - hw.params.min_length
+        errors[name] = np.abs(rig.state.leg_x - true_x).max()
+        span = np.abs(hw.params.sensor_gain[13:19] - 1.0).max() * true_x.max()
+    # What is left: the spans' error (not identified), a count and the noise.
+    assert errors["calibrated"] < span + 30e-6
+    assert errors["raw"] > 100e-6  # the unit's own zeros (up to 0.2 mm nominal)
