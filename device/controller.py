@@ -512,30 +512,24 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
     if not safety.all_finite(sensors):
         trip(s, Trip.SENSOR_INVALID)
         return
-    # Sensor faults are judged on the raw readings; the leg targets move into their frame.
-    targets_raw = np.empty(6)
-    for i in range(6):
-        targets_raw[i] = s.leg_target[i] + p.sensor_zero[13 + i]
+    # Sensor faults are judged on the raw readings (the leg targets move into their frame).
     fault, channel = supervision.check_reading(
-        s.monitor, s.counters, sensors, p.sup, moving(s), targets_raw
+        s.monitor, s.counters, sensors, p.sup, moving(s), s.leg_target, p.sensor_zero
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)
         return
-    calibrated = np.empty(25)
     for k in range(25):
-        calibrated[k] = sensors[k] - p.sensor_zero[k]
-    code = safety.check_sensors(calibrated, p.stroke, p.limits)
+        s.sensors[k] = sensors[k] - p.sensor_zero[k]
+    code = safety.check_sensors(s.sensors, p.stroke, p.limits)
     if code != Trip.NONE and moving(s):
         trip(s, code)
         return
-    for k in range(25):
-        s.sensors[k] = calibrated[k]
     for c in range(12):
-        s.pressure[c] = calibrated[c] - p.p_atm
+        s.pressure[c] = s.sensors[c] - p.p_atm
     first = s.istate[I_SENSOR_READS] == 1
     for i in range(6):
-        x = calibrated[13 + i]
+        x = s.sensors[13 + i]
         rate = 0.0 if first else (x - s.leg_x[i]) / p.dt_sensor
         s.leg_rate[i] += p.leg_alpha * (rate - s.leg_rate[i])
         s.leg_x[i] = x

@@ -294,8 +294,10 @@ def check_reading(
     q: SupervisionParams,
     moving: bool,
     leg_target: NDArray[np.float64],
+    sensor_zero: NDArray[np.float64],
 ) -> tuple[int, int]:
-    """Checks of one fresh sensor vector (1 kHz): (trip code, channel), (0, -1) if fine."""
+    """Checks of one fresh raw sensor vector (1 kHz): (trip code, channel), (0, -1) if fine.
+    ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros."""
     counters[C_READS] += 1
     first = counters[C_READS] == 1
     # Pressure transducers: open wire, short or a jump no air makes, whatever the mode.
@@ -354,7 +356,7 @@ def check_reading(
             return Trip.LEG_SENSOR, i
         driven = (
             abs(monitor[M_PUSH + i]) > q.leg_stuck_force
-            or abs(leg_target[i] - x) > q.leg_stuck_error
+            or abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
         )
         if moving and x == prev and driven:
             counters[C_LEG_SAME + i] += 1

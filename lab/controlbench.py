@@ -35,6 +35,7 @@ TARGETS: tuple[Target, ...] = (
     Target("stiffness_error_pct", "rendered pitch stiffness at 50 N m/rad: error (%)", 5.0, "max"),
     Target("damping_error_pct", "rendered pitch damping at 1 N m s/rad: error (%)", 5.0, "max"),
     Target("realtime_factor_cpu", "real-time factor, full 7 kHz loop, CPU time", 50.0, "min"),
+    Target("valve_switches_per_s_rest", "valve switches at rest (per s per valve)", 10.0, "max"),
 )
 
 ROWS: tuple[tuple[str, str], ...] = (
@@ -56,6 +57,12 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("stiffness_error_pct", "rendered pitch stiffness: error (%)"),
     ("damping_pitch_nm_s_per_rad", "rendered pitch damping, B = 1 (N m s/rad; 0.5-2 Hz fit)"),
     ("damping_error_pct", "rendered pitch damping: error (%)"),
+    ("valve_switches_per_s_rest", "valve switches at rest (per s per valve, mean)"),
+    ("valve_switches_per_s_rest_wave1", "  wave 1's scheme (the same: no quiet scheme yet)"),
+    ("air_nl_per_min_rest", "air at rest (NL/min at the supply)"),
+    ("air_nl_per_min_rest_wave1", "  wave 1's scheme"),
+    ("valve_switches_per_s_exercise", "valve switches, pitch 10 deg at 0.5 Hz (per s per valve)"),
+    ("air_nl_per_min_exercise", "air, pitch 10 deg at 0.5 Hz (NL/min)"),
     ("realtime_factor_cpu", "real-time factor, full 7 kHz loop, CPU time"),
     ("realtime_factor", "real-time factor, full 7 kHz loop, wall clock"),
     ("ticks_per_s", "ticks per wall second"),
@@ -113,6 +120,13 @@ ROWS_OF: dict[str, tuple[str, ...]] = {
     "impedance": ("stiffness_pitch_nm_per_rad", "stiffness_error_pct"),
     "impedance_dynamic": ("damping_pitch_nm_s_per_rad", "damping_error_pct"),
     "realtime": ("realtime_factor", "realtime_factor_cpu", "ticks_per_s"),
+    "valves_rest": (
+        "valve_switches_per_s_rest",
+        "valve_switches_per_s_rest_wave1",
+        "air_nl_per_min_rest",
+        "air_nl_per_min_rest_wave1",
+    ),
+    "valves_exercise": ("valve_switches_per_s_exercise", "air_nl_per_min_exercise"),
 }
 
 
@@ -208,6 +222,24 @@ def _run(plots: Path | None, progress: Callable[[str], None] | None) -> dict[str
     out["damping_pitch_nm_s_per_rad"] = dyn.joint.damping if dyn.fits else None
     out["damping_error_pct"] = dyn.damping_error_pct if dyn.fits else None
     checks["impedance_dynamic"] = _health(dyn.health)
+    if progress:
+        progress("control: valve switches and air")
+    from lab import valves
+
+    for situation in ("rest", "exercise"):
+        act = valves.measure("wave1", situation)
+        out[f"valve_switches_per_s_{situation}"] = act.switches_per_s_mean
+        out[f"air_nl_per_min_{situation}"] = act.air_nl_per_min
+        checks[f"valves_{situation}"] = {
+            "tripped": act.trip is not None,
+            "trip": act.trip,
+            "saturated": [],
+            "valid": act.trip is None,
+            "invalid_reason": f"tripped {act.trip}" if act.trip else None,
+        }
+    out["valve_switches_per_s_rest_wave1"] = out["valve_switches_per_s_rest"]
+    out["air_nl_per_min_rest_wave1"] = out["air_nl_per_min_rest"]
+    out["quiet_valve_scheme"] = False
     out["realtime_factor"] = rt
     out["realtime_factor_cpu"] = rt_cpu
     out["ticks_per_s"] = ticks

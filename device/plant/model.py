@@ -159,7 +159,7 @@ def static_pressures(s: PlantState, p: PlantParams) -> None:
         s.pressure[2 * i] = p.p_atm + (f[i] + (p_rod - p.p_atm) * p.area_annulus) / p.area_cap
 
 
-@njit
+@njit_inline
 def iso6358_mass_flow(p_up: float, p_down: float, open_fraction: float, p: PlantParams) -> float:
     """Mass flow (kg/s) from ``p_up`` to ``p_down`` through a valve; negative if reversed."""
     if open_fraction <= 0.0 or p_up == p_down:
@@ -231,7 +231,7 @@ def write_valves(s: PlantState, p: PlantParams, command: NDArray[np.uint8]) -> N
                 s.valve_delay_now[v] = max(0.0, delay)
 
 
-@njit
+@njit_inline
 def lugre_substep(s: PlantState, p: PlantParams, i: int, v: float, dt: float) -> float:
     """Advance leg ``i``'s bristle state by dt at piston velocity v; return friction (N)."""
     e = v / p.v_stribeck
@@ -249,7 +249,7 @@ def lugre_substep(s: PlantState, p: PlantParams, i: int, v: float, dt: float) ->
     return p.bristle_k * z_new + p.bristle_c * z_dot + p.f_viscous * v
 
 
-@njit
+@njit_inline
 def scripted_torque(script: NDArray[np.float64], axis: int, t: float) -> float:
     kind = int(script[axis, 0])
     t0: float = script[axis, 1]
@@ -267,7 +267,7 @@ def scripted_torque(script: NDArray[np.float64], axis: int, t: float) -> float:
     return 0.0
 
 
-@njit
+@njit_inline
 def patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> None:
     """Wrench the patient's leg exerts on the foot plate, about the ankle (base frame)."""
     for k in range(6):
@@ -285,7 +285,7 @@ def gravity_and_patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.floa
     add_weight(W, m3_vec(R, p.body_com), p.body_mass, p.gravity)
 
 
-@njit
+@njit_inline
 def add_weight(W: NDArray[np.float64], r: Vec3, mass: float, gravity: float) -> None:
     """Add to ``W`` the wrench about the ankle of a weight whose centre is at ``r``."""
     fz = -mass * gravity
@@ -311,6 +311,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     n = p.substeps
     dt = p.dt / n
     rt = p.gas_r * p.temperature
+    inv_rt = 1.0 / rt
     valve_rate = dt / p.valve_travel
     body_inertia = m3(p.body_inertia)
     J = s.scratch[0, :, :6]  # twist Jacobian
@@ -324,6 +325,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
     if faulty:
         supply_lost, set_point = physical_faults(s, p)
     regulator_tick(s, p, set_point)
+    tick_draw = 0.0  # the intakes' draw summed over the substeps (kg/s)
     for _ in range(n):
         for v in range(24):  # the valves' armatures, spelled out to keep s and p out of a call
             s.valve_timer[v] += dt
@@ -335,7 +337,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                 if s.fault_now[0, v] >= 0.0:
                     s.valve_open[v] = s.fault_now[0, v]
         supply_draw = 0.0  # kg/s into the chambers through their intakes
-        p_valves = s.supply[0]  # what the intakes see; changes only after the chambers
+        p_valves = s.supply[0]  # what the intakes see; changes once a tick
         # Valve flow enters a tube now and reaches its cylinder tube_steps substeps later.
         tube_head = s.rings[0]
         tube_tail = (tube_head - p.tube_steps) % TUBE_RING
@@ -376,7 +378,8 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                 pc = s.pressure[c]
                 # The valves see the pressure at their end of the tube: the cylinder's plus
                 # what has passed them and is still on its way.
-                pv = pc + rt / vol * s.in_flight[c]
+                rt_v = rt / vol  # one division, used three times
+                pv = pc + rt_v * s.in_flight[c]
                 a_in = s.valve_open[2 * c] * p.valve_scale[2 * c]
                 a_out = s.valve_open[2 * c + 1] * p.valve_scale[2 * c + 1]
                 if a_in > 0.0:
@@ -396,7 +399,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
                 if faulty and s.fault_now[1, c] > 0.0:  # a leak: an orifice to atmosphere
                     m_leak += iso6358_mass_flow(pc, p.p_atm, s.fault_now[1, c], p)
                 leak_term = (p.alpha_out if m_leak > 0.0 else p.alpha_in) * m_leak
-                dp = rt / vol * (valve_term - leak_term) - p.alpha_work * pc * dvol / vol
+                dp = rt_v * (valve_term - leak_term - p.alpha_work * pc * dvol * inv_rt)
                 s.pressure[c] = max(1000.0, pc + dp * dt)
             force = (s.pressure[2 * i] - p.p_atm) * p.area_cap - (
                 s.pressure[2 * i + 1] - p.p_atm
@@ -409,7 +412,7 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
             elif x > p.stroke:
                 force -= p.stop_k * (x - p.stroke) + p.stop_c * max(xd, 0.0)
             f[i] = force
-        supply_substep(s, p, supply_lost, supply_draw, dt)
+        tick_draw += supply_draw
         # Generalised forces on the platform (base frame, about the ankle).
         r = m3_vec(R, p.body_com)
         patient_wrench(s, p, W)
@@ -466,6 +469,9 @@ def plant_tick(s: PlantState, p: PlantParams) -> None:
         s.pose[4] += (-sy * wx + cy * wy) * dt
         s.pose[5] += (wz + sp * roll_rate) * dt
         s.time[0] += dt
+    # The supply side changes with time constants of tens of milliseconds: once a tick,
+    # with the intakes' mean draw over it, is as good as once a substep and half the cost.
+    supply_substep(s, p, supply_lost, tick_draw / n, p.dt)
 
 
 @njit
@@ -508,18 +514,19 @@ def regulator_tick(s: PlantState, p: PlantParams, set_point: float) -> None:
     and recovers, with the droop time constant) and its output, which follows the set point
     less its droop under the flow it delivers, with the regulator's response time."""
     if s.supply[2] != set_point:
-        s.supply[2] = set_point + (s.supply[2] - set_point) * math.exp(-p.dt / p.supply_droop_tau)
+        s.supply[2] = set_point + (s.supply[2] - set_point) * p.droop_decay
         if abs(s.supply[2] - set_point) < 1.0:
             s.supply[2] = set_point
     target = s.supply[2] - p.regulator_droop * max(s.supply[3], 0.0)
-    s.supply[1] = target + (s.supply[1] - target) * math.exp(-p.dt / p.regulator_tau)
+    s.supply[1] = target + (s.supply[1] - target) * p.regulator_decay
 
 
 @njit_inline
 def supply_substep(s: PlantState, p: PlantParams, lost: bool, draw: float, dt: float) -> None:
     """The valve manifold (``supply_volume``) fills from the regulator's output through the
     supply line (an ISO 6358 orifice) and feeds the intakes (``draw``, kg/s; negative when
-    chambers blow back). With the hose off the line's far end is the atmosphere."""
+    chambers blow back) over ``dt``. With the hose off the line's far end is the
+    atmosphere."""
     upstream = p.p_atm if lost else s.supply[1]
     ps = s.supply[0]
     m_line = iso6358_mass_flow(upstream, ps, p.supply_line_fraction, p)
@@ -577,28 +584,23 @@ def true_readings(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> No
         out[22 + k] = Mb[k]
 
 
-@njit
-def delayed(history: NDArray[np.float64], head: int, n: int, column: int, t: float) -> float:
-    """A channel's true value at time ``t``, linear between the reads kept in ``history``
-    (rows: time, then the 25 channels; ``head`` the newest of ``n`` rows)."""
+@njit_inline
+def bracket(history: NDArray[np.float64], head: int, n: int, t: float) -> tuple[int, int, float]:
+    """(older row, newer row, fraction) of the reads in ``history`` (rows: time, then the
+    25 channels; ``head`` the newest of ``n`` rows) that time ``t`` lies between; a time
+    after the newest read gives the newest, one before the oldest kept the oldest."""
     if t >= history[head, 0]:
-        return float(history[head, column])
+        return head, head, 0.0
     rows = history.shape[0]
     newer = head
     for j in range(1, n):
         older = (head - j) % rows
         t_old = history[older, 0]
         if t_old <= t:
-            t_new = history[newer, 0]
-            span = t_new - t_old
-            if span <= 0.0:
-                return float(history[newer, column])
-            f = (t - t_old) / span
-            return float(
-                history[older, column] + f * (history[newer, column] - history[older, column])
-            )
+            span = history[newer, 0] - t_old
+            return older, newer, (t - t_old) / span if span > 0.0 else 1.0
         newer = older
-    return float(history[newer, column])  # older than the oldest kept: the oldest
+    return newer, newer, 0.0
 
 
 @njit
@@ -608,24 +610,33 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     Each channel is the true value ``sensor_delay`` ago (linear between reads), through a
     first-order filter (``sensor_tau``, advanced by the time since the last read), with its
     unit's span and zero errors, noise and quantisation, clipped to its range. The filter
-    acts on the reads, so it is exact for signals slow beside the read rate (1 kHz).
+    acts on the reads, so it is exact for signals slow beside the read rate (1 kHz). Delay
+    and filter are the same within each group of channels (pressures, legs, force/torque):
+    one search and one exponential per group.
     """
     true_readings(s, p, out)
     t = s.time[0]
-    rows = s.sensor_history.shape[0]
+    history = s.sensor_history
+    rows = history.shape[0]
     head = s.rings[1]
     reads = s.rings[2]
-    previous_t = s.sensor_history[(head - 1) % rows, 0]
-    s.sensor_history[head, 0] = t
+    previous_t = history[(head - 1) % rows, 0]
+    history[head, 0] = t
     for k in range(25):
-        s.sensor_history[head, 1 + k] = out[k]
+        history[head, 1 + k] = out[k]
     n = min(reads + 1, rows)
+    older, newer, f = 0, 0, 0.0
+    a = 1.0
     for k in range(25):
-        value = delayed(s.sensor_history, head, n, 1 + k, t - p.sensor_delay[k])
+        if k == 0 or k == 13 or k == 19:  # the first channel of a group
+            older, newer, f = bracket(history, head, n, t - p.sensor_delay[k])
+            a = 1.0
+            if reads > 0 and t > previous_t:
+                a = 1.0 - math.exp(-(t - previous_t) / p.sensor_tau[k])
+        value = history[older, 1 + k] + f * (history[newer, 1 + k] - history[older, 1 + k])
         if reads == 0:
             s.sensor_filter[k] = value
-        elif t > previous_t:
-            a = 1.0 - math.exp(-(t - previous_t) / p.sensor_tau[k])
+        else:
             s.sensor_filter[k] += a * (value - s.sensor_filter[k])
         y = s.sensor_filter[k] * p.sensor_gain[k] + p.sensor_offset[k]
         if k < 13:

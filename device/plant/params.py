@@ -557,7 +557,8 @@ class PlantParams(NamedTuple):
     supply_line_fraction: float  # supply line's ISO 6358 C / a valve's C
     supply_droop_tau: float  # s, a SUPPLY_DROOP fault's sag
     regulator_droop: float  # Pa of output lost per kg/s delivered
-    regulator_tau: float  # s
+    regulator_decay: float  # exp(-tick / regulator response): its output's step per tick
+    droop_decay: float  # exp(-tick / supply droop time constant)
     temperature: float
     gas_r: float
     alpha_in: float
@@ -843,7 +844,8 @@ def build_params(config: PlantConfig = PlantConfig()) -> PlantParams:
         supply_droop_tau=v("supply_droop_time_constant"),
         # bar per 100 NL/min -> Pa per kg/s
         regulator_droop=v("regulator_droop") * 1e5 / (100.0e-3 / 60.0 * rho_anr),
-        regulator_tau=v("regulator_response"),
+        regulator_decay=math.exp(-1.0 / TICK_HZ / v("regulator_response")),
+        droop_decay=math.exp(-1.0 / TICK_HZ / v("supply_droop_time_constant")),
         temperature=t,
         gas_r=v("gas_constant"),
         alpha_in=v("alpha_in"),

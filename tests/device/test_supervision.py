@@ -113,9 +113,11 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
         else:
             assert run.trip == Trip.NONE.name, run
     # Measured today: a stuck-open intake is caught holding and mid-exercise (and while the
-    # patient pushes, see below: open); a stuck-closed exhaust and a 0.5 C leak only where
-    # the loop must move much air one way. The README's fault table says so.
-    assert caught >= (2 if kind == FaultKind.VALVE_STUCK_OPEN else 1), kind
+    # patient pushes, see below: open); a 0.5 C leak where the loop must move much air one
+    # way (mid-exercise, pushing); a stuck-closed exhaust nowhere (below: open). The
+    # README's fault table says so.
+    least = {FaultKind.VALVE_STUCK_OPEN: 2, FaultKind.CHAMBER_LEAK: 2}.get(kind, 0)
+    assert caught >= least, kind
 
 
 @pytest.mark.xfail(
@@ -125,6 +127,15 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
 )
 def test_a_stuck_open_intake_is_caught_while_the_patient_pushes() -> None:
     assert safety.run_fault(FaultKind.VALVE_STUCK_OPEN, "pushing").detected
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (issue 12): on the plant with leaks and tube delays a stuck-closed exhaust "
+    "goes unnoticed in every situation (the loop holds the leg: at most 0.09 deg, 0.24 mm)",
+)
+def test_a_stuck_closed_exhaust_is_caught_while_the_patient_pushes() -> None:
+    assert safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "pushing").detected
 
 
 def test_a_service_warning_stops_new_motion_until_a_technician_rearms() -> None:

@@ -16,20 +16,8 @@ from lab import experiments as ex
 def test_leg_step_meets_rise_overshoot_and_steady_error(leg: int, mm: float) -> None:
     m = ex.step(leg=leg, mm=mm).metrics
     assert m.rise_ms <= 90.0
-    assert m.overshoot_pct <= 5.0  # the ensemble's target (issue 12)
+    assert m.overshoot_pct <= 2.0
     assert m.steady_error_mm <= 0.3
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 12): wave 1's 2 % on the nominal plant, now with sensor latency and "
-    "tube delays; measured 2.1-2.4 % on two of these steps",
-)
-def test_leg_steps_overshoot_at_most_2_percent_on_the_nominal_plant() -> None:
-    worst = max(
-        ex.step(leg=leg, mm=mm).metrics.overshoot_pct for leg, mm in ((4, -10.0), (2, 10.0))
-    )
-    assert worst <= 2.0
 
 
 def test_deadband_compensation_is_better_than_without() -> None:
