@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import statistics
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from device.rig import CommandError
 from lab import experiments
 from lab.targets import Target
 
@@ -51,31 +53,57 @@ TARGETS: tuple[Target, ...] = (
 
 
 def measure(choice: experiments.PlantChoice) -> dict[str, Any]:
-    """Every metric of :data:`METRICS` on one plant, with each experiment's health."""
+    """Every metric of :data:`METRICS` on one plant, with each experiment's health.
+
+    An experiment whose rig tripped before it could even give its command (the device
+    refuses commands while tripped) counts as tripped, with no number."""
     out: dict[str, Any] = {"plant": choice.describe(), "draw": choice.draw}
     health: dict[str, dict[str, Any]] = {}
+
+    def attempt(name: str, run: Callable[[], Any]) -> Any:
+        try:
+            return run()
+        except CommandError as exc:
+            trip = re.search(r"tripped \((\w+)\)", str(exc))
+            health[name] = {
+                "valid": False,
+                "trip": trip.group(1) if trip else "REFUSED",
+                "reason": f"before the measurement: {exc}",
+                "saturated": [],
+            }
+            return None
+
     with experiments.on_plant(choice):
-        step = experiments.step(leg=1, mm=10.0)
-        out["step_rise_ms"] = step.metrics.rise_ms
-        out["step_overshoot_pct"] = step.metrics.overshoot_pct
-        out["step_steady_error_mm"] = step.metrics.steady_error_mm
-        health["step"] = _health(step.health)
-        stairs = experiments.staircase(leg=1, step_mm=0.3)
-        out["resolution_mm"] = stairs.resolution_mm
-        health["staircase"] = _health(stairs.health)
-        sweep = experiments.sweep("pitch", 2.0)
-        out["pitch_bandwidth_hz"] = sweep.bandwidth_hz
-        out["pitch_bandwidth_lower_bound"] = sweep.bandwidth_kind == "lower_bound"
-        health["pitch_sweep"] = _health(sweep.health)
-        if sweep.stopped_hz is not None:
-            health["pitch_sweep"]["valid"] = False
-            health["pitch_sweep"]["reason"] = f"stopped at {sweep.stopped_hz:g} Hz"
-        imp = experiments.impedance("pitch", k=50.0, b=1.0, torque=10.0)
-        out["stiffness_error_pct"] = imp.error_pct
-        health["impedance"] = _health(imp.health)
-        dyn = experiments.impedance_dynamic("pitch", k=50.0, b=1.0)
-        out["damping_error_pct"] = dyn.damping_error_pct if dyn.fits else math.nan
-        health["impedance_dynamic"] = _health(dyn.health)
+        step = attempt("step", lambda: experiments.step(leg=1, mm=10.0))
+        if step is not None:
+            out["step_rise_ms"] = step.metrics.rise_ms
+            out["step_overshoot_pct"] = step.metrics.overshoot_pct
+            out["step_steady_error_mm"] = step.metrics.steady_error_mm
+            health["step"] = _health(step.health)
+        stairs = attempt("staircase", lambda: experiments.staircase(leg=1, step_mm=0.3))
+        if stairs is not None:
+            out["resolution_mm"] = stairs.resolution_mm
+            health["staircase"] = _health(stairs.health)
+        sweep = attempt("pitch_sweep", lambda: experiments.sweep("pitch", 2.0))
+        if sweep is not None:
+            out["pitch_bandwidth_hz"] = sweep.bandwidth_hz
+            out["pitch_bandwidth_lower_bound"] = sweep.bandwidth_kind == "lower_bound"
+            health["pitch_sweep"] = _health(sweep.health)
+            if sweep.stopped_hz is not None:
+                health["pitch_sweep"]["valid"] = False
+                health["pitch_sweep"]["reason"] = f"stopped at {sweep.stopped_hz:g} Hz"
+        imp = attempt(
+            "impedance", lambda: experiments.impedance("pitch", k=50.0, b=1.0, torque=10.0)
+        )
+        if imp is not None:
+            out["stiffness_error_pct"] = imp.error_pct
+            health["impedance"] = _health(imp.health)
+        dyn = attempt(
+            "impedance_dynamic", lambda: experiments.impedance_dynamic("pitch", k=50.0, b=1.0)
+        )
+        if dyn is not None:
+            out["damping_error_pct"] = dyn.damping_error_pct if dyn.fits else math.nan
+            health["impedance_dynamic"] = _health(dyn.health)
     for m in METRICS:
         if not health[m.experiment]["valid"]:
             out[m.key] = None

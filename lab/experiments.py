@@ -305,10 +305,10 @@ def _rig(
 ) -> Rig:
     choice = _PLANT[0]
     cfg = plant if plant is not None else choice.config(patient)
-    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
     config = ControllerConfig(deadband_compensation=compensate)
-    if choice.calibrate:
+    if choice.calibrate:  # first: identifying seeds the plant's random generator itself
         config = replace(config, calibration=calibration_of(cfg))
+    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
     for fault in _FAULTS:
         hw.inject(fault)
     return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)
@@ -400,8 +400,8 @@ class StaircaseResult(Checked):
 
     @property
     def resolution_mm(self) -> float:
-        """The largest steady error over the staircase."""
-        return max(self.errors_mm)
+        """The largest steady error over the staircase (NaN if no step was taken)."""
+        return max(self.errors_mm) if self.errors_mm else math.nan
 
 
 def check_staircase(leg: int, step_mm: float, steps: int = STAIR_STEPS) -> None:
@@ -444,8 +444,11 @@ def staircase(
         ts.append(log[:, 0])
         ys.append((y - start) * 1e3)
         rs.append(np.full(y.shape, (target[i] - start) * 1e3))
-    t = np.concatenate(ts)
     health = assess(rig, rig.log)
+    if not ts:  # tripped while settling at home: not one step was taken
+        empty = np.zeros(0)
+        return StaircaseResult(leg, step_mm, (), health, empty, empty, empty)
+    t = np.concatenate(ts)
     return StaircaseResult(
         leg, step_mm, tuple(errors), health, t - t[0], np.concatenate(ys), np.concatenate(rs)
     )

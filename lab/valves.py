@@ -68,10 +68,10 @@ def measure(scheme: str, situation: str, seed: int = 1) -> Activity:
     (``lab.experiments.on_plant``), calibrated as the device calibrates itself."""
     choice = experiments.current_plant()
     cfg = choice.config("relaxed")
-    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
     config = _config(scheme)
-    if choice.calibrate:
+    if choice.calibrate:  # first: identifying seeds the plant's random generator itself
         config = replace(config, calibration=experiments.calibration_of(cfg))
+    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
     rig = Rig(hw, config)
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE_S, log_hz=0)
