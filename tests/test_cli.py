@@ -213,6 +213,10 @@ BENCH_KEYS = {
     "stiffness_error_pct",
     "damping_pitch_nm_s_per_rad",
     "damping_error_pct",
+    "resonance_peak_db",
+    "resonance_peak_axis",
+    "resonance_peak_hz",
+    "pitch_bandwidth_true_hz",
     "realtime_factor",
     "realtime_factor_cpu",
     "ticks_per_s",
@@ -228,11 +232,12 @@ def test_bench_control_prints_every_key_and_writes_figures(tmp_path: Path) -> No
     assert result["valid"] is True and result["invalid"] == {}
     assert all(not e["tripped"] for e in result["experiments"].values())
     # Control targets only: speed is the benchmark's to report, not a test's to assert.
-    # One is open in issue 12 and must be reported as not met until it is: the rendered
-    # damping (the position loop's lag adds about 0.3-0.5 N m s/rad to B = 1).
-    known_unmet = {"damping_error_pct"}
+    # Two are open and must be reported as not met until they are: the rendered damping
+    # (issue 12: the position loop's lag adds about 0.3-0.5 N m s/rad to B = 1) and the
+    # resonance peak (z +8.1 dB at 30 Hz in the lab mode; tests/lab/test_frequency.py).
+    known_unmet = {"damping_error_pct", "resonance_peak_db"}
     met = result["targets_met"]
     assert all(met[k] for k in met if k not in known_unmet | {"realtime_factor_cpu"}), met
     assert not any(met[k] for k in known_unmet), "met now: move it out of known_unmet"
     assert result["realtime_factor"] > 0 and result["realtime_factor_cpu"] > 0
-    assert len(list(tmp_path.glob("*.png"))) == 4
+    assert len(list(tmp_path.glob("*.png"))) == 5
