@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -18,6 +19,7 @@ from lab.experiments import (
     StepResult,
     SweepResult,
 )
+from lab.frequency import Response
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -193,3 +195,53 @@ def envelope_figure(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def frequency_figure(
+    responses: dict[str, Response],
+    path: Path,
+    after: dict[str, Response] | None = None,
+    labels: tuple[str, str] = ("before", "after"),
+) -> Path:
+    """Gain and phase against frequency of every axis (lab.frequency, to 40 Hz with the
+    device's speed limits lifted); with ``after``, the same axes after a change beside."""
+    from device.geometry import AXES
+
+    fig, axes = plt.subplots(4, 3, figsize=(13, 10), sharex=True)
+    runs = [(responses, labels[0] if after else "")] + ([(after, labels[1])] if after else [])
+    for k, name in enumerate(AXES):
+        row, col = (0 if k < 3 else 2), k % 3
+        g, ph = axes[row, col], axes[row + 1, col]
+        for data, label in runs:
+            r = data[name]
+            pts = r.valid_points
+            hz = [p.hz for p in pts]
+            tag = f"{label}: " if label else ""
+            g.semilogx(
+                hz,
+                [p.gain_db for p in pts],
+                "o-",
+                ms=3,
+                label=f"{tag}peak {r.peak_db:+.1f} dB at {r.peak_hz:g} Hz",
+            )
+            unwrapped = np.degrees(np.unwrap(np.radians([p.phase_deg for p in pts])))
+            ph.semilogx(hz, unwrapped, "o-", ms=3, label=label or None)
+            sat = [p for p in pts if "valve_duty" in p.health.saturated]
+            if sat:
+                g.plot([p.hz for p in sat], [p.gain_db for p in sat], "rx", ms=7)
+        unit = "deg" if k >= 3 else "mm"
+        g.set_title(f"{name}, {responses[name].amplitude:g} {unit}")
+        g.axhline(-3.0, color="r", lw=0.7, ls=":")
+        g.axhline(3.0, color="k", lw=0.7, ls=":")
+        g.set_ylabel("gain (dB)")
+        ph.set_ylabel("phase (deg)")
+        g.legend(fontsize=7)
+        for a in (g, ph):
+            a.grid(alpha=0.3, which="both")
+    for a in axes[3]:
+        a.set_xlabel("frequency (Hz)")
+    fig.suptitle(
+        "Frequency response per axis, lab mode (speed limits lifted), nominal plant, "
+        "relaxed foot; dotted: +3 and -3 dB"
+    )
+    return _save(fig, path)

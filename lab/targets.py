@@ -59,6 +59,12 @@ def table(
             text = f"{value:,.0f}"
         if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
             text = f"> {text} (top of sweep)"
+        if key == "pitch_bandwidth_true_hz" and result.get("pitch_bandwidth_true_lower_bound"):
+            text = f">= {text} (gain above -3 dB to the top of the sweep)"
+        if key == "pitch_bandwidth_true_hz" and result.get("pitch_bandwidth_true_saturated_hz"):
+            text += (
+                f" (valves saturated from {result['pitch_bandwidth_true_saturated_hz'][0]:g} Hz)"
+            )
         lines.append(
             f"| {label} | {text} | {tgt.text() if tgt else ''} | "
             f"{('yes' if tgt.met(float(value)) else 'NO') if tgt else ''} |"

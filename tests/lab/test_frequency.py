@@ -1,0 +1,53 @@
+"""The whole frequency response in the lab mode (lab.frequency): speed limits lifted."""
+
+from pathlib import Path
+
+import pytest
+
+from device.rig import Rig
+from lab import frequency as fr
+
+
+def test_the_lab_mode_reaches_40_hz_without_a_speed_trip() -> None:
+    gain, _, health, _ = fr.lab_sine("pitch", fr.AMPLITUDE["pitch"], 40.0)
+    assert not health.tripped and health.valid, health.words()
+    assert "valve_duty" not in health.saturated
+    assert -30.0 < gain < 10.0  # a response, not a held platform
+
+
+def test_the_lab_limits_are_the_labs_alone() -> None:
+    device = Rig().limits  # what the device's rig runs on by default
+    assert fr.LAB_LIMITS.leg_speed_limit > device.leg_speed_limit
+    assert all(
+        lab > dev
+        for lab, dev in zip(fr.LAB_LIMITS.axis_speed_max, device.axis_speed_max, strict=True)
+    )
+    root = Path(__file__).resolve().parents[2]
+    for package in ("device", "server", "station"):
+        for source in (root / package).rglob("*.py"):
+            text = source.read_text()
+            assert "LAB_LIMITS" not in text and "lab.frequency" not in text, source
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open: the nominal plant peaks above +3 dB (measured, lab mode: z +8.1 dB at "
+    "30 Hz, pitch +6.8 at 22, roll +6.1 at 30, y +4.4 at 2, x +3.6 at 2); no gain change "
+    "tried kept the 10 mm step's overshoot within 5 % on the drawn plants",
+)
+def test_no_axis_peaks_more_than_3_db_on_the_nominal_plant() -> None:
+    axis, peak_db, hz = fr.largest_peak(fr.all_axes())
+    assert peak_db <= 3.0, (axis, peak_db, hz)
+
+
+def test_the_true_pitch_bandwidth_at_2_deg_is_at_least_7_hz() -> None:
+    r = fr.response("pitch", 2.0, frequencies=(0.5, 5.0, 7.0, 10.0))
+    assert r.valid and not r.tripped
+    assert r.bandwidth_hz >= 7.0
+
+
+@pytest.mark.parametrize("axis", ["x", "y", "z", "roll", "pitch", "yaw"])
+def test_the_sweep_amplitude_does_not_saturate_the_valves(axis: str) -> None:
+    r = fr.response(axis, frequencies=(0.5, 20.0, 25.0, 30.0, 40.0))
+    assert r.valid and not r.tripped, r.health.words()
+    assert r.saturated_hz == ()
