@@ -213,12 +213,19 @@ def table(result: dict[str, Any]) -> str:
 
         worst = f(row["worst"])
         if row["no_number_on"]:
-            worst = f"none on {len(row['no_number_on'])} plants (tripped or saturated)"
+            plants = ", ".join(str(d) for d in row["no_number_on"])
+            worst = f"no number on plant {plants} (tripped); {f(row['worst_measured'])} on the rest"
         target = ("<= " if m.worst == "max" else ">= ") + f"{m.target:g}"
         met = row["worst"] is not None and (
             row["worst"] <= m.target if m.worst == "max" else row["worst"] >= m.target
         )
         plant = "" if row["worst_plant"] is None else str(row["worst_plant"])
+        if row["no_number_on"] and row.get("worst_measured") is not None:
+            measured = [
+                p for p in result["ensemble_plants"] if p["draw"] not in row["no_number_on"]
+            ]
+            pick = max if m.worst == "max" else min
+            plant += " / " + str(pick(measured, key=lambda p: p[m.key])["draw"])
         lines.append(
             f"| {m.label} | {f(row['nominal'])} | {f(row['median'])} | {worst} | {plant} | "
             f"{target} | {'yes' if met else 'NO'} |"
