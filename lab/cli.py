@@ -122,6 +122,11 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p = bs.add_parser(
+        "zwidth", help="the stiffness and damping rendered stably per rotational axis (Z-width)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plots", type=Path, help="write zwidth.png into this folder")
+    p = bs.add_parser(
         "server", help="live relay: many simulated stations and viewers on a real server"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -234,6 +239,15 @@ def _bench(args: argparse.Namespace) -> int:
         sfresult = safety.run(progress=_progress)
         print(file=sys.stderr)
         print(json.dumps(_jsonable(sfresult), indent=2) if args.json else safety.table(sfresult))
+        return 0
+    if args.bench == "zwidth":
+        from lab import zwidth
+
+        zresult = zwidth.run(progress=_progress)
+        print(file=sys.stderr)
+        if args.plots is not None:
+            zresult["plot"] = str(zwidth.figure(zresult, args.plots / "zwidth.png"))
+        print(json.dumps(_jsonable(zresult), indent=2) if args.json else zwidth.table(zresult))
         return 0
     if args.bench == "server":
         from lab import serverbench

@@ -48,6 +48,7 @@ import numpy as np
 from device.controller import ControllerConfig
 from device.geometry import AXIS_INDEX
 from device.hardware import SimulatedHardware
+from device.limits import SafetyLimits
 from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
 from device.plant.params import PlantConfig
 from device.rig import Rig
@@ -117,8 +118,11 @@ def run_point(
     pulse: float = PULSE_NM,
     seed: int = 1,
     fmax: float | None = None,
+    limits: SafetyLimits | None = None,
 ) -> Point:
     """One point; a push that trips the speed limit at once is retried with a quarter push.
+
+    ``limits``: the rig's own (lab.zwidth lifts the published envelope to measure below it).
 
     A LEG_SPEED trip within ``SPEED_TRIP_S`` of the push, with no oscillation before the push
     and a monotonic run-up to it (dominant frequency of the last 0.5 s under
@@ -126,7 +130,7 @@ def run_point(
     to F/B rad/s, or impulse/J with a virtual inertia), not an oscillation: it is reported
     (``speed_trip``, counted as marginal) and the point is classified on the retry.
     """
-    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax)
+    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax, limits)
     r["speed_trip"] = False
     if (
         r["trip"] == "LEG_SPEED"
@@ -134,7 +138,7 @@ def run_point(
         and r["pre_pp_deg"] < PP_LIMIT_DEG
         and r["f_hz"] < SPEED_TRIP_MAX_HZ
     ):
-        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax)
+        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax, limits)
         r2["speed_trip"] = True
         r2["first_trip_t"] = r["trip_t"]
         r2["marginal"] = True
@@ -151,10 +155,11 @@ def _run_point(
     pulse: float,
     seed: int,
     fmax: float | None = None,
+    limits: SafetyLimits | None = None,
 ) -> Point:
     ax = AXIS_INDEX[axis]
     hw = SimulatedHardware(_plant_config(patient), seed=seed)
-    rig = Rig(hw, _config(J, fmax))
+    rig = Rig(hw, _config(J, fmax), limits=limits if limits is not None else SafetyLimits())
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE, log_hz=0)
     rig.clear_log()
