@@ -220,12 +220,13 @@ class ControllerConfig:
     resonance reaches 17-20 Hz at K = 350-500, where the position loop lags and the
     resisting foot oscillates at 21-26 Hz unless B >= 0.5; capped at 12 Hz (J = 0.088 kg
     m2 at K = 500) no foot needed more than B = 0, no empty plate more than 0.1."""
-    vent_pulse_slots: int = 8
+    vent_pulse_slots: int = 11
     """Release (``I_VENT``): slots (of 28) that every exhaust valve is energised in a venting
-    PWM period, intakes shut. The armature moves only after 0.8 ms (5.6 slots) and is fully
-    open at 1.0 ms (7 slots): 8 slots open it fully whatever the valve's delay between 0.7
-    and 1.0 ms. A pulse that only cracks the valve (6 slots) would rest on that delay: a
-    slower valve would not vent at all and trap the foot."""
+    PWM period, intakes shut. The pulse must open the slowest valve a real build may have:
+    an opening delay up to 1.05 ms, 15 % more on one valve, and 0.3 ms of travel
+    (device/plant/params.py) is 1.51 ms; 11 slots are 1.57 ms. Wave 1's 8 slots (1.14 ms)
+    left such a unit's foot trapped: its exhausts never opened and the release never
+    vented."""
     supervision: SupervisionConfig = SupervisionConfig(
         ft_force_full_scale=PARAMETERS["force_range_xy"].value,
         ft_torque_full_scale=PARAMETERS["torque_range"].value,
@@ -239,11 +240,12 @@ class ControllerConfig:
     dead_volume: float = nominal_dead_volume()
     """Chamber volume at the end of the stroke, tube included (m3): as built, for judging
     how much air a chamber holds (device.supervision.check_valves)."""
-    vent_every_periods: int = 4
+    vent_every_periods: int = 6
     """...once every this many PWM periods. Measured on the plant from a hold at home (about
-    5 bar in every chamber, relaxed foot): every chamber below 0.2 bar after 2.6 s and no leg
-    sinking faster than 17 mm/s, for valve delays of 0.7-1.0 ms. A full pulse every period
-    vents in 0.7 s at up to 48 mm/s: too fast under a patient's foot."""
+    5 bar in every chamber, relaxed foot): every chamber below 0.2 bar after 2.8 s (nominal
+    valves), 2.8 s (the fastest plausible) and 3.3 s (the slowest), no leg sinking faster
+    than 17 mm/s. Every 5 periods vented in 2.3-2.7 s at up to 18 mm/s; a full pulse every
+    period vents in 0.7 s at up to 48 mm/s: too fast under a patient's foot."""
 
 
 class ControllerParams(NamedTuple):

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from device import signals
 from device.calibration import Calibration, IdentificationError
+from device.controller import ControllerConfig
 from device.hardware import Hardware
 from device.plant.params import TICK_HZ
 
@@ -46,8 +47,9 @@ READS = 200
 reading's (5 um on a leg, 7 Pa on a chamber)."""
 SENSOR_PERIOD_TICKS = 7
 DOWN_PULSE_S = 2.5
-"""Pull down in pulses first: each rod-side intake and cap-side exhaust open 8 slots of 28
-once every 4 PWM periods, the controller's release pattern: the legs come down slowly."""
+"""Pull down in pulses first: each rod-side intake and cap-side exhaust open in the
+controller's release pattern (``ControllerConfig.vent_pulse_slots`` of 28 slots, once every
+``vent_every_periods`` PWM periods): the legs come down slowly."""
 DOWN_OPEN_S = 0.5
 """Then fully open: every piston pressed onto its stop."""
 VENT_OPEN_S = 1.0
@@ -85,9 +87,10 @@ def identify(
     if progress:
         progress("identification: legs down to their end stops")
     try:
+        pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
         for _ in range(int(DOWN_PULSE_S * TICK_HZ)):
             slot, period = tick % slots, tick // slots
-            step(down if slot < 8 and period % 4 == 0 else valves)
+            step(down if slot < pulse and period % every == 0 else valves)
         for _ in range(int(DOWN_OPEN_S * TICK_HZ)):
             step(down)
         valves[1::2] = 1

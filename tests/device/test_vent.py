@@ -126,19 +126,20 @@ def test_only_exhaust_valves_open_while_venting(tripped: bool) -> None:
         r.estop()
     r.state.istate[ctl.I_VENT] = 1
     before = plant_gauge(r)
-    ticks = 20 * pwm.PWM_SLOTS
+    periods = 24  # a whole number of venting cycles for every 1, 2, 3, 4, 6 periods
+    ticks = periods * pwm.PWM_SLOTS
     first, valves = record(r, ticks)
     assert valves.shape == (ticks, 24)
     assert not valves[:, 0::2].any()  # intakes never energised
     n, every = r.params.vent_pulse_slots, r.params.vent_every_periods
-    assert n > 0 and 20 % every == 0
+    assert n > 0 and periods % every == 0
     since = first + np.arange(ticks)[:, None] - r.params.pwm_phase[None, :]
     pulsing = (since // pwm.PWM_SLOTS) % every == 0
     expected = ((since % pwm.PWM_SLOTS < n) & pulsing).astype(np.uint8)  # (ticks, 6 legs)
     exhaust = valves[:, 1::2]
     assert np.array_equal(exhaust[:, 0::2], expected)  # cap side of each leg
     assert np.array_equal(exhaust[:, 1::2], expected)  # rod side
-    assert np.all(exhaust.sum(axis=0) == 20 // every * n)  # one pulse per `every` periods
+    assert np.all(exhaust.sum(axis=0) == periods // every * n)  # a pulse per `every` periods
     # The pulse outlasts the valve's delay: every chamber loses pressure.
     assert np.all(plant_gauge(r) < before - 0.1e5)
 
@@ -181,3 +182,26 @@ def test_idle_without_the_flag_keeps_every_valve_closed() -> None:
     _, valves = record(r, 10 * pwm.PWM_SLOTS)
     assert not valves.any()
     assert np.allclose(plant_gauge(r), vented, atol=0.02e5)
+
+
+@pytest.mark.parametrize(
+    "valves",
+    [
+        (("valve_open_delay", 1.05e-3), ("valve_delay_spread", 0.15), ("valve_travel", 0.3e-3)),
+        (("valve_open_delay", 0.55e-3), ("valve_close_delay", 0.6e-3), ("valve_travel", 0.15e-3)),
+    ],
+    ids=["slowest plausible valves", "fastest plausible valves"],
+)
+def test_release_vents_a_unit_with_the_slowest_or_fastest_plausible_valves(
+    valves: tuple[tuple[str, float], ...],
+) -> None:
+    r = Rig(RecordingHardware(PlantConfig(patient="relaxed", overrides=valves), seed=2))
+    r.move_legs(r.state.leg_x.copy())
+    r.run(1.0, log_hz=0)
+    r.hold()
+    r.run(0.3, log_hz=0)
+    r.state.istate[ctl.I_VENT] = 1
+    log = r.run(6.0, log_hz=1000)
+    t_vent, speed = vent_time_and_speed(log)
+    assert VENT_TIME_MIN < t_vent < VENT_TIME_MAX  # a trapped foot would never be vented
+    assert speed < SPEED_MAX
