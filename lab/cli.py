@@ -290,7 +290,16 @@ def _experiment(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     with ex.injected(tuple(getattr(args, "fault", ()))), ex.on_plant(choice):
-        return _run_experiment(args)
+        try:
+            return _run_experiment(args)
+        except ex.TrippedBeforeMeasurement as exc:
+            if args.json:
+                data = {"valid": False, "tripped": True, "trip": exc.trip}
+                data |= {"invalid_reason": str(exc), "plant": choice.describe()}
+                print(json.dumps(data))
+            else:
+                print(f"INVALID: {exc} (on {choice.describe()}); no measurement")
+            return INVALID
 
 
 def _run_experiment(args: argparse.Namespace) -> int:

@@ -63,7 +63,10 @@ def measure(choice: experiments.PlantChoice) -> dict[str, Any]:
     def attempt(name: str, run: Callable[[], Any]) -> Any:
         try:
             return run()
-        except CommandError as exc:
+        except experiments.TrippedBeforeMeasurement as exc:
+            health[name] = {"valid": False, "trip": exc.trip, "reason": str(exc), "saturated": []}
+            return None
+        except CommandError as exc:  # tripped earlier in the same rig: the command refused
             trip = re.search(r"tripped \((\w+)\)", str(exc))
             health[name] = {
                 "valid": False,

@@ -314,9 +314,20 @@ def _rig(
     return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)
 
 
+class TrippedBeforeMeasurement(RuntimeError):
+    """The device tripped while it was being put in place for an experiment (e.g. holding
+    at home): there is no measurement, and no command could have been refused for it."""
+
+    def __init__(self, trip: str, where: str) -> None:
+        super().__init__(f"tripped {trip} {where}, before the measurement")
+        self.trip = trip
+
+
 def _settle_at_home(rig: Rig) -> None:
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE_S)
+    if rig.trip != Trip.NONE:
+        raise TrippedBeforeMeasurement(rig.trip.name, "while settling at home")
     rig.clear_log()
 
 

@@ -246,3 +246,14 @@ def test_bench_control_prints_every_key_and_writes_figures(tmp_path: Path) -> No
     assert not any(met[k] for k in known_unmet), "met now: move it out of known_unmet"
     assert result["realtime_factor"] > 0 and result["realtime_factor_cpu"] > 0
     assert len(list(tmp_path.glob("*.png"))) == 5
+
+
+def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> None:
+    # A leg sensor gone noisy while the rig settles at home: LEG_SENSOR before any step.
+    fault = "leg_noise@0.2+0.2:0=3"
+    r = ankle("sim", "step", "--fault", fault)
+    assert r.returncode == 1, r.stderr
+    assert r.stdout.startswith("INVALID: tripped LEG_SENSOR while settling at home"), r.stdout
+    r = ankle("sim", "step", "--fault", fault, "--json")
+    data = json.loads(r.stdout)
+    assert data["valid"] is False and data["trip"] == "LEG_SENSOR"
