@@ -555,6 +555,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.counters[supervision.C_WINDOW + up] = 0
         s.counters[supervision.C_AIR + lo] = 0
         s.counters[supervision.C_AIR + up] = 0
+        s.counters[supervision.C_OBS + lo] = 0
+        s.counters[supervision.C_OBS + up] = 0
         return
     # While an axis renders an impedance the integral sees only the error beyond a band.
     rendering = False
@@ -607,6 +609,14 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         if supervision.check_frozen(s.monitor, s.counters, c, s.sensors[c], driven, p.sup):
             trip(s, Trip.PRESSURE_SENSOR, c)
             return
+    for c in (lo, up):
+        # The air of the period that just ended, against what its valves were told.
+        volume = p.dead_volume + (p.area_cap * x if c == lo else p.area_annulus * (p.stroke - x))
+        if supervision.check_air_flow(
+            s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup
+        ):
+            if s.counters[supervision.C_SERVICE] == 0:
+                s.counters[supervision.C_SERVICE] = c + 1
     for c, u in ((lo, u_l), (up, u_u)):
         s.u[c] = u
         n = 0
@@ -799,12 +809,27 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
         if moving(s) and p.load_compensation:
             # Each leg's measured pneumatic force against the force that holds the load.
+            residuals = np.empty(6)
+            leg = -1
             for i in range(6):
                 pushed = s.pressure[2 * i] * p.area_cap - s.pressure[2 * i + 1] * p.area_annulus
-                residual = pushed - s.compensation[i] * p.area_cap
-                if supervision.check_balance(s.monitor, s.counters, i, residual, p.sup):
-                    trip(s, Trip.FORCE_BALANCE, i)
-                    return
+                residuals[i] = pushed - s.compensation[i] * p.area_cap
+                if supervision.check_balance(s.monitor, s.counters, i, residuals[i], p.sup):
+                    if leg < 0:
+                        leg = i
+            # The same residuals as one wrench at the ankle (J^T r): the force/torque sensor
+            # against the six legs together.
+            for k in range(6):
+                W[k] = 0.0
+                for i in range(6):
+                    W[k] += J[i, k] * residuals[i]
+            sensor = supervision.check_wrench(s.monitor, s.counters, W, p.sup)
+            if leg >= 0 and supervision.one_leg(s.monitor, leg):
+                trip(s, Trip.FORCE_BALANCE, leg)
+                return
+            if sensor or leg >= 0:
+                trip(s, Trip.FORCE_SENSOR, supervision.wrench_component(s.monitor, p.sup))
+                return
 
 
 @njit_inline

@@ -27,7 +27,12 @@ What is watched, and how:
 - each leg's force balance: the pneumatic force its two pressures make must match, averaged
   over tens of milliseconds, the force that holds the platform's weight and the foot's
   measured wrench (a wrong pressure or force reading, a leak, a valve that does not do what
-  it is told).
+  it is told);
+- the force/torque sensor against the six legs together: the legs' residuals, summed as a
+  wrench at the ankle, are what the sensor says differently from what the legs carry. A
+  sensor offset on any channel spreads over all six legs, each share too small for the
+  per-leg check, but adds up in the sum, where the legs' own errors (friction, each
+  transducer's zero) largely cancel.
 """
 
 from __future__ import annotations
@@ -55,7 +60,14 @@ M_AIR_OUT = 80  # 12: air its exhaust was told to let out in the window (Pa m3)
 M_VALVE_IN = 92  # 12: intake slots commanded in the valve window
 M_VALVE_OUT = 104  # 12: exhaust slots commanded in the valve window
 M_PUSH = 116  # 6: force (N) the position loop last commanded beyond the load, per leg
-N_MONITOR = 122
+M_WRENCH = 122  # 6: filtered force-balance residual as a wrench at the ankle (N, N m)
+M_WRENCH_PEAK = 128  # 2: largest filtered force and torque residual since the last reset
+M_OBS_PV = 130  # 12: chamber air (p V, Pa abs m3) at the previous control period
+M_OBS_V = 142  # 12: chamber volume (m3) at the previous control period
+M_OBS_R = 154  # 12: filtered air residual: measured minus expected inflow (Pa m3/s)
+M_OBS_T = 166  # 12: filtered tolerance of that residual (Pa m3/s)
+M_OBS_PEAK = 178  # 1: largest |residual| / tolerance seen since the last reset
+N_MONITOR = 179
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -72,12 +84,16 @@ C_LOW_FLAG = 31
 C_READS = 32
 C_P_SAME = 33  # 12: driven control periods a chamber's reading stayed the same
 C_AIR = 45  # 12: control periods in the current air-balance window
+C_WRENCH = 58
+"""Control periods in a row with the wrench residual over its limit."""
+C_OBS_OVER = 59  # 12: control periods in a row a chamber's air residual was over tolerance
+C_OBS = 71  # 12: control periods a chamber's air has been observed since motion started
 C_SERVICE = 57
 """Chamber + 1 whose air did not add up (0: none): the device needs service. Not a trip:
 closing every valve would let a leaking chamber, or one whose intake is stuck open, move
 its leg with nothing to stop it, while the loop holds it. So the running segment finishes
 under control and nothing new starts until a technician re-arms (device.modes)."""
-N_COUNTERS = 58
+N_COUNTERS = 83
 
 
 @dataclass(frozen=True)
@@ -194,6 +210,48 @@ class SupervisionConfig:
     changed by at least this share of it, the same way. A leak takes what the intake brings;
     a stuck valve does not pass it; a leg sensor that stopped hides the volume the piston
     really makes."""
+    valve_conductance: float = 0.30e-8
+    """ISO 6358 sonic conductance C of one valve as the air observer assumes it (m3/(s Pa)):
+    0.30 dm3/(s bar), the middle of what the Matrix valve's rated 100 NL/min means (0.24 if
+    rated choked at 7 bar abs, 0.37 if rated 6 -> 5 bar gauge with b = 0.4). A real valve of
+    the type may sit anywhere in that range: ``observer_flow_tolerance`` covers it."""
+    valve_critical_ratio: float = 0.4
+    """ISO 6358 b the observer assumes (0.3-0.5 for a small poppet valve)."""
+    observer_polytropic: float = 1.2
+    """Polytropic index that turns a chamber's change of p V into air moved: between the
+    adiabatic 1.4 of a fast fill and the nearly isothermal 1.0 of a discharge (Richer and
+    Hurmuzlu 2000); the 15 % either way is in ``observer_flow_tolerance``."""
+    observer_flow_tolerance: float = 0.45
+    """Share of the air the valves were told to move that the observer forgives: the valve
+    type's conductance range (-20/+23 % about the assumed C), each valve's own 10 %, the
+    critical ratio (up to 15 % at a chamber near the supply) and the polytropic index
+    (15 %). A stuck-open intake brings what the exhaust fighting it is told to let out
+    (the residual is then about 100 % of the expected flow), a leak of half a valve takes
+    what the intake is told to bring; neither hides inside 45 %."""
+    observer_pulse_time: float = 0.7e-3
+    """Per PWM pulse, the time (s) of full flow the observer forgives on top: how much a
+    valve's opening and closing delays may differ from each other and from the type's
+    (0.55-1.05 ms opening, 0.6-1.2 ms closing, 15 % per valve; device/plant/params.py).
+    A minimum pulse (1 ms) may thus pass anything from nothing to nearly twice its length:
+    at rest, in the dither of minimum pulses, the observer can see only a fault larger than
+    that dither (a leak of a third of a valve, a valve stuck open), not a stuck-closed
+    exhaust the loop hardly uses."""
+    observer_volume_tolerance: float = 0.35
+    """Share of the air a pressure change alone seems to move (V dp / k) that the observer
+    forgives: the dead volume of a real build (port and tube, 4-15 cm3 for 0.3-1 m of tube)
+    differs from the design's 7.3 cm3 by up to this share of a chamber at mid stroke."""
+    observer_floor: float = 5.0
+    """Air residual (Pa m3/s, about 0.06 g/s) the observer always forgives: the healthy
+    leaks of a build (past a piston 0.5 NL/min, through each closed seat up to 0.5 NL/min)
+    and the transducers' noise over a control period."""
+    observer_cutoff_hz: float = 8.0
+    """Low-pass (Hz) on the residual and its tolerance: the air in the tube reaches the
+    transducer and the piston milliseconds apart, and a pulse's air arrives over the next
+    period; 8 Hz (20 ms time constant) averages that while a large fault still shows within
+    tens of milliseconds."""
+    observer_periods: int = 5
+    """Control periods (4 ms) in a row over tolerance before the device asks for service
+    (20 ms)."""
     residual_cutoff_hz: float = 5.0
     """Low-pass on the force-balance residual: a leg's accelerating force in a step or a fast
     sine is brief and alternating, a wrong reading or a leak persists."""
@@ -204,6 +262,19 @@ class SupervisionConfig:
     the margin leaves room for stiffer seals and a platform mass a kilogram off."""
     residual_periods: int = 5
     """Control periods (4 ms) the filtered residual must stay above the limit (20 ms)."""
+    wrench_force_limit: float = 45.0
+    """Filtered residual force at the ankle (N, magnitude) above which the force/torque
+    sensor and the legs disagree. The legs' own errors set it: light seals (5 N Coulomb
+    each) in a fast heave or a 15 deg sine, a platform a kilogram off its model and each
+    transducer's zero. Largest healthy value measured over the exercise library, leg steps
+    of 10-20 mm and sines up to the axis speed limit, on the nominal plant and seven drawn
+    ones: 30 N (11 N nominal). An offset of 80 N on any force channel is caught; one of
+    30 N is not (it acts like a patient pushing 30 N, which the range of motion bounds)."""
+    wrench_torque_limit: float = 5.5
+    """...and residual moment about the ankle (N m, magnitude): largest healthy value
+    measured as above 3.8 N m (2.1 nominal), from the stiffest seals' friction. A torque
+    offset smaller than this is indistinguishable from friction, and acts on the platform
+    like a patient's torque of that size (bounded by the range of motion)."""
 
 
 class SupervisionParams(NamedTuple):
@@ -236,6 +307,16 @@ class SupervisionParams(NamedTuple):
     air_open_after: int
     air_min_expected: float
     air_min_fraction: float
+    obs_conductance: float
+    obs_b: float
+    obs_k: float
+    obs_flow_tol: float
+    obs_pulse_time: float
+    obs_volume_tol: float
+    obs_floor: float
+    obs_alpha: float
+    obs_periods: int
+    slot_time: float
     valve_window: int
     valve_slots: int
     valve_min_change: float
@@ -243,6 +324,8 @@ class SupervisionParams(NamedTuple):
     residual_alpha: float
     residual_limit: float
     residual_periods: int
+    wrench_force_limit: float
+    wrench_torque_limit: float
 
 
 def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> SupervisionParams:
@@ -276,6 +359,16 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
         air_open_after=config.air_open_after_slots,
         air_min_expected=config.air_min_expected,
         air_min_fraction=config.air_min_fraction,
+        obs_conductance=config.valve_conductance,
+        obs_b=config.valve_critical_ratio,
+        obs_k=config.observer_polytropic,
+        obs_flow_tol=config.observer_flow_tolerance,
+        obs_pulse_time=config.observer_pulse_time,
+        obs_volume_tol=config.observer_volume_tolerance,
+        obs_floor=config.observer_floor,
+        obs_alpha=1.0 - math.exp(-2.0 * math.pi * config.observer_cutoff_hz * control_dt),
+        obs_periods=config.observer_periods,
+        slot_time=control_dt / 28,
         valve_window=config.valve_window_periods,
         valve_slots=math.ceil(config.valve_duty_fraction * 28 * config.valve_window_periods),
         valve_min_change=config.valve_min_change,
@@ -283,6 +376,8 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
         residual_alpha=1.0 - math.exp(-2.0 * math.pi * config.residual_cutoff_hz * control_dt),
         residual_limit=config.residual_limit,
         residual_periods=config.residual_periods,
+        wrench_force_limit=config.wrench_force_limit,
+        wrench_torque_limit=config.wrench_torque_limit,
     )
 
 
@@ -463,6 +558,77 @@ def check_frozen(
 
 
 @njit_inline
+def valve_flow(p_up: float, p_down: float, q: SupervisionParams) -> float:
+    """ISO 6358 flow of one open valve from ``p_up`` to ``p_down`` (Pa abs) as air moved per
+    second (Pa m3/s at the air's temperature: mass flow times R T); 0 if none goes that way."""
+    if p_up <= p_down:
+        return 0.0
+    ratio = p_down / p_up
+    phi = 1.0
+    if ratio > q.obs_b:
+        x = (ratio - q.obs_b) / (1.0 - q.obs_b)
+        phi = math.sqrt(max(0.0, 1.0 - x * x))
+    return q.obs_conductance * p_up * phi * 1.0e5  # rho_ANR R T_ANR = 1 bar
+
+
+@njit_inline
+def check_air_flow(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    c: int,
+    slots: int,
+    pressure: float,
+    volume: float,
+    supply: float,
+    q: SupervisionParams,
+) -> bool:
+    """Observe chamber ``c``'s air over the control period that just ended, in which its
+    valves were driven ``slots`` (+ intake, - exhaust); ``pressure`` and ``supply`` gauge
+    (Pa), ``volume`` from the measured piston (m3). True when the air that came in (from the
+    change of p V, polytropic) stayed further from what the valves' ISO 6358 flow should
+    have brought than the model's own uncertainty, for ``observer_periods`` in a row: a
+    leak, a valve stuck open or closed, or a leg sensor that hides the volume its piston
+    really makes. The sign of the residual says which way (see :data:`M_OBS_R`)."""
+    p_abs = pressure + q.atm
+    air = p_abs * volume
+    n = counters[C_OBS + c]
+    counters[C_OBS + c] = n + 1
+    air0, v0 = monitor[M_OBS_PV + c], monitor[M_OBS_V + c]
+    monitor[M_OBS_PV + c] = air
+    monitor[M_OBS_V + c] = volume
+    if n == 0:
+        monitor[M_OBS_R + c] = 0.0
+        monitor[M_OBS_T + c] = 0.0
+        counters[C_OBS_OVER + c] = 0
+        return False
+    p0 = air0 / v0
+    k = q.obs_k
+    came_in = (air - air0 + (k - 1.0) * 0.5 * (p0 + p_abs) * (volume - v0)) / k
+    p_mid = 0.5 * (p0 + p_abs)
+    expected = 0.0
+    tolerance = q.obs_volume_tol * abs(v0 * (p_abs - p0)) / k
+    width = abs(slots)
+    if width > 0:
+        into = slots > 0
+        flow = valve_flow(supply + q.atm, p_mid, q) if into else -valve_flow(p_mid, q.atm, q)
+        expected = flow * width * q.slot_time
+        tolerance += q.obs_flow_tol * abs(expected)
+        if width < 28:  # a pulse, not a valve held open through the period
+            tolerance += q.obs_pulse_time * abs(flow)
+    dt = 28 * q.slot_time
+    r = monitor[M_OBS_R + c]
+    r += q.obs_alpha * ((came_in - expected) / dt - r)
+    monitor[M_OBS_R + c] = r
+    t = monitor[M_OBS_T + c]
+    t += q.obs_alpha * (tolerance / dt - t)
+    monitor[M_OBS_T + c] = t
+    limit = t + q.obs_floor
+    monitor[M_OBS_PEAK] = max(monitor[M_OBS_PEAK], abs(r) / limit)
+    counters[C_OBS_OVER + c] = counters[C_OBS_OVER + c] + 1 if abs(r) > limit else 0
+    return bool(counters[C_OBS_OVER + c] >= q.obs_periods)
+
+
+@njit_inline
 def check_air(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -523,6 +689,55 @@ def check_balance(
     return bool(counters[C_RESIDUAL + leg] >= q.residual_periods)
 
 
+@njit_inline
+def check_wrench(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    wrench: NDArray[np.float64],
+    q: SupervisionParams,
+) -> bool:
+    """Filter the legs' residual as a wrench at the ankle (force N, moment N m, base frame);
+    True when its force or its moment stayed over its limit."""
+    force2, torque2 = 0.0, 0.0
+    for k in range(6):
+        r = monitor[M_WRENCH + k]
+        r += q.residual_alpha * (wrench[k] - r)
+        monitor[M_WRENCH + k] = r
+        if k < 3:
+            force2 += r * r
+        else:
+            torque2 += r * r
+    force, torque = math.sqrt(force2), math.sqrt(torque2)
+    monitor[M_WRENCH_PEAK] = max(monitor[M_WRENCH_PEAK], force)
+    monitor[M_WRENCH_PEAK + 1] = max(monitor[M_WRENCH_PEAK + 1], torque)
+    over = force > q.wrench_force_limit or torque > q.wrench_torque_limit
+    counters[C_WRENCH] = counters[C_WRENCH] + 1 if over else 0
+    return bool(counters[C_WRENCH] >= q.residual_periods)
+
+
+@njit_inline
+def wrench_component(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
+    """The component (0..5) of the filtered wrench residual furthest over its limit."""
+    worst, share = 0, -1.0
+    for k in range(6):
+        limit = q.wrench_force_limit if k < 3 else q.wrench_torque_limit
+        v = abs(monitor[M_WRENCH + k]) / limit
+        if v > share:
+            worst, share = k, v
+    return worst
+
+
+@njit_inline
+def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
+    """Whether ``leg`` carries most of the filtered force-balance residual (more than half
+    of its sum of squares): a fault of that leg (its transducers, valves, tube). A wrong
+    force/torque reading spreads over several legs instead."""
+    total = 0.0
+    for i in range(6):
+        total += monitor[M_RESIDUAL + i] ** 2
+    return bool(monitor[M_RESIDUAL + leg] ** 2 > 0.5 * total)
+
+
 @njit
 def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> None:
     """Forget what motion-bound checks accumulated (a new motion starts from a hold)."""
@@ -531,7 +746,10 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
         counters[C_RESIDUAL + i] = 0
         monitor[M_RESIDUAL + i] = 0.0
         monitor[M_PUSH + i] = 0.0
+        monitor[M_WRENCH + i] = 0.0
+    counters[C_WRENCH] = 0
     for c in range(12):
         counters[C_P_SAME + c] = 0
         counters[C_AIR + c] = 0
+        counters[C_OBS + c] = 0
     reset_valve_windows(counters)

@@ -43,7 +43,8 @@ class Trip(IntEnum):
     LEG_SENSOR = 14
     """A leg length sensor jumped, or froze while its leg was driven."""
     FORCE_SENSOR = 15
-    """The foot's force/torque sensor is saturated, dead (all zeros) or frozen."""
+    """The foot's force/torque sensor is saturated, dead (all zeros) or frozen, or disagrees
+    with the load the six legs carry together (the channel names the component)."""
     FORCE_BALANCE = 16
     """A leg's chamber forces disagree with the platform's load."""
     VALVE = 17
@@ -73,8 +74,8 @@ TRIP_TEXT: dict[Trip, str] = {
     Trip.SUPPLY_HIGH: "the air supply is above its high mark: check the regulator",
     Trip.LEG_SENSOR: "a leg length sensor jumped or stopped changing while its leg was "
     "driven: check that sensor and its cable",
-    Trip.FORCE_SENSOR: "the foot's force/torque sensor is saturated, dead or frozen: check "
-    "its cable, power and amplifier",
+    Trip.FORCE_SENSOR: "the foot's force/torque sensor is saturated, dead, frozen or reads "
+    "a load the legs do not carry: check its cable, power, amplifier and zero",
     Trip.FORCE_BALANCE: "a leg's chamber forces disagree with the load on the platform: "
     "check that leg's pressure transducers, valves and tubes for a leak",
     Trip.VALVE: "a chamber's pressure did not follow its valves: a valve stuck open or "
@@ -104,7 +105,20 @@ def where(trip: int, channel: int) -> str:
         return f"chamber {channel + 1} (leg {channel // 2 + 1}, {side} side)"
     if trip in (Trip.LEG_SENSOR, Trip.FORCE_BALANCE):
         return f"leg {channel + 1}"
+    if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
+        return _WRENCH_PARTS[channel]
     return ""
+
+
+_WRENCH_PARTS = (
+    "force along x",
+    "force along y",
+    "force along z",
+    "torque about roll",
+    "torque about pitch",
+    "torque about yaw",
+)
+"""The component of the wrench at the ankle a FORCE_SENSOR trip names (base frame)."""
 
 
 def event_text(trip: int, channel: int, limit: int = 120) -> str:
