@@ -20,7 +20,7 @@ What is watched, and how:
   bit (frozen);
 - each leg length sensor: a jump between two reads that no leg can make (unplugged, noisy
   wiper), or a reading that stays bit for bit constant while the leg is driven hard toward a
-  target millimetres away (stuck);
+  target that ran millimetres away from it (stuck);
 - each chamber against its valves: an intake held open for most of several PWM periods
   must raise the chamber's pressure, an exhaust lower it (a stuck valve, a stuck pressure
   reading, a large leak or a blocked port fails this);
@@ -67,7 +67,8 @@ M_OBS_V = 142  # 12: chamber volume (m3) at the previous control period
 M_OBS_R = 154  # 12: filtered air residual: measured minus expected inflow (Pa m3/s)
 M_OBS_T = 166  # 12: filtered tolerance of that residual (Pa m3/s)
 M_OBS_PEAK = 178  # 1: largest |residual| / tolerance seen since the last reset
-N_MONITOR = 179
+M_LEG_TARGET_SEEN = 179  # 6: a leg's target when its reading last changed (calibrated, m)
+N_MONITOR = 185
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -157,6 +158,14 @@ class SupervisionConfig:
     """A leg the position loop pushes this hard (N) beyond its load, or..."""
     leg_stuck_error: float = 1.0e-3
     """...whose reading is this far (m) from its target, ..."""
+    leg_stuck_target_move: float = 0.3e-3
+    """The error rule counts only once the target has moved this far (m) since the reading
+    last changed: a leg whose target runs away from a frozen reading, not one that rests
+    short of a target that stands still. While an axis renders a low stiffness against a
+    resisting foot, stiff seals hold a leg 1.0-1.1 mm short of its target for longer than
+    the rule's 33 reads while its target creeps by 0.05-0.1 mm (draw 2 of the plant
+    ensemble tripped there); a healthy leg whose target moves 0.3 mm (12 counts) away
+    breaks free and changes its reading."""
     leg_stuck_reads: int = 33
     """...and whose reading stays bit for bit the same for this many reads (33 ms) is
     stuck. 15 N is half as much again as the largest breakaway friction of a plausible
@@ -298,6 +307,7 @@ class SupervisionParams(NamedTuple):
     leg_jump: float
     leg_stuck_force: float
     leg_stuck_error: float
+    leg_stuck_target_move: float
     leg_stuck_reads: int
     pressure_frozen_periods: int
     air_window: int
@@ -350,6 +360,7 @@ def build(config: SupervisionConfig, atmosphere: float, control_dt: float) -> Su
         leg_jump=config.leg_jump,
         leg_stuck_force=config.leg_stuck_force,
         leg_stuck_error=config.leg_stuck_error,
+        leg_stuck_target_move=config.leg_stuck_target_move,
         leg_stuck_reads=config.leg_stuck_reads,
         pressure_frozen_periods=config.pressure_frozen_periods,
         air_window=config.air_window_periods,
@@ -446,12 +457,15 @@ def check_reading(
         prev = monitor[M_LEG_PREV + i]
         monitor[M_LEG_PREV + i] = x
         if first:
+            monitor[M_LEG_TARGET_SEEN + i] = leg_target[i]
             continue
         if abs(x - prev) > q.leg_jump:
             return Trip.LEG_SENSOR, i
-        driven = (
-            abs(monitor[M_PUSH + i]) > q.leg_stuck_force
-            or abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
+        if x != prev or not moving:
+            monitor[M_LEG_TARGET_SEEN + i] = leg_target[i]
+        ran_away = abs(leg_target[i] - monitor[M_LEG_TARGET_SEEN + i]) > q.leg_stuck_target_move
+        driven = abs(monitor[M_PUSH + i]) > q.leg_stuck_force or (
+            ran_away and abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
         )
         if moving and x == prev and driven:
             counters[C_LEG_SAME + i] += 1
