@@ -56,6 +56,17 @@ class Settings(BaseSettings):
         gt=0,
         description="Largest session file a station may upload, bytes.",
     )
+    body_max_bytes: int = Field(
+        default=1 * MiB,
+        gt=0,
+        description="Largest JSON request body, bytes; a larger one is refused (413) before "
+        "anything reads it. Upload chunks have their own limit.",
+    )
+    disk_free_min_bytes: int = Field(
+        default=512 * MiB,
+        ge=0,
+        description="Below this much free space in data_dir, /health answers 503 'degraded'.",
+    )
     public_url: str = Field(
         default="",
         description="Base URL people and stations use to reach this server. Empty: "
