@@ -19,6 +19,7 @@ from server import errors, live
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
 from server.guard import RequestGuard
+from server.headers import SecurityHeaders
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.health import server_version
 from server.routes.uploads import CHUNK_MAX
@@ -86,8 +87,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         allow_methods=["GET", "POST", "PATCH", "PUT", "DELETE"],
         allow_headers=["Authorization", "Content-Type"],
     )
-    # Added last, so outermost: a body is refused before CORS or any route sees it.
+    # Added last, so outermost: a body is refused before CORS or any route sees it, and
+    # every answer, refusals included, carries the security headers.
     app.add_middleware(RequestGuard, default=settings.body_max_bytes, limit_for=body_limit)
+    app.add_middleware(SecurityHeaders)
     for router in ROUTERS:
         app.include_router(router, prefix=API_PREFIX)
     # The live router names its own full paths (/ws/..., /api/v1/schemas/ws).
