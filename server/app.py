@@ -23,6 +23,8 @@ from server.headers import SecurityHeaders
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.health import server_version
 from server.routes.uploads import CHUNK_MAX
+from server.security import HashingSlots
+from server.throttle import LoginThrottle
 
 DESCRIPTION = """\
 The server of the ankle telerehabilitation system: therapists manage their patients,
@@ -44,6 +46,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.engine = engine
         app.state.sessionmaker = create_sessionmaker(engine)
         app.state.hub = hub
+        app.state.hashing = HashingSlots(settings.password_hash_concurrency)
+        app.state.login_throttle = LoginThrottle(settings)
         yield
     finally:
         await hub.close()
