@@ -152,7 +152,7 @@ async def os_error(request: Request, exc: Exception) -> JSONResponse:
     Any other OSError is a fault and goes on to the 500 handler."""
     assert isinstance(exc, OSError)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        log.error("disk full while serving %s %s: %s", request.method, request.url.path, exc)
+        log.error("disk full while serving %s: %s", request.url.path, exc)
         return _disk_full()
     raise exc
 
@@ -164,6 +164,6 @@ async def database_error(request: Request, exc: Exception) -> JSONResponse:
     if any(
         getattr(c, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL for c in causes
     ) or "database or disk is full" in str(exc):
-        log.error("database full while serving %s %s", request.method, request.url.path)
+        log.error("database full while serving %s", request.url.path)
         return _disk_full()
     raise exc
