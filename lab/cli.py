@@ -1,4 +1,4 @@
-"""Command line of the lab: ``sim`` experiments and ``bench control|link|server``.
+"""Command line of the lab: ``sim`` experiments and ``bench control|link|server|abuse``.
 
 Mounted under the ``ankle`` command by :mod:`ankle.cli`. Bad arguments give one line on
 stderr and exit code 2.
@@ -139,6 +139,20 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         default=True,
         help="then 25, 50, 100, 150, 200 stations for 5 s each, until p99 > 50 ms (default on)",
     )
+    p = bs.add_parser(
+        "abuse",
+        help="large bodies, a sign-in flood, a WebSocket flood and malformed requests against "
+        "a real server, while /health and a live link are watched",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--bodies-10mib", type=ranged(int, 0, 1000), default=20, help="default 20")
+    p.add_argument("--bodies-100mib", type=ranged(int, 0, 1000), default=20, help="default 20")
+    p.add_argument("--logins", type=ranged(int, 1, 1000), default=100, help="default 100")
+    p.add_argument(
+        "--ws-rate", type=ranged(int, 1, 100000), default=1000, help="messages/s, default 1000"
+    )
+    p.add_argument("--ws-seconds", type=ranged(float, 0.1, 600.0), default=3.0, help="default 3 s")
+    p.add_argument("--malformed", type=ranged(int, 0, 100000), default=200, help="default 200")
 
 
 def _frequencies(text: str) -> tuple[float, ...]:
@@ -258,6 +272,21 @@ def _bench(args: argparse.Namespace) -> int:
             if args.json
             else serverbench.table(sresult)
         )
+        return 0
+    if args.bench == "abuse":
+        from lab import abuse
+
+        sizes = abuse.Sizes(
+            args.bodies_10mib,
+            args.bodies_100mib,
+            args.logins,
+            args.ws_rate,
+            args.ws_seconds,
+            args.malformed,
+        )
+        aresult = abuse.run(sizes, progress=_progress)
+        print(file=sys.stderr)
+        print(json.dumps(abuse.jsonable(aresult), indent=2) if args.json else abuse.table(aresult))
         return 0
     if args.bench == "link":
         from lab import linkbench

@@ -6,22 +6,25 @@ in the lifespan, so two apps with different settings (tests, the demo) never sha
 
 from __future__ import annotations
 
-import math
+import re
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from typing import Any
 
-from fastapi import FastAPI, Request, status
-from fastapi.encoders import jsonable_encoder
+from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
 
-from server import live
+from server import errors, live
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
+from server.guard import RequestGuard
+from server.headers import SecurityHeaders
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.health import server_version
+from server.routes.uploads import CHUNK_MAX
+from server.security import HashingSlots
+from server.throttle import LoginThrottle
 
 DESCRIPTION = """\
 The server of the ankle telerehabilitation system: therapists manage their patients,
@@ -43,42 +46,22 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.engine = engine
         app.state.sessionmaker = create_sessionmaker(engine)
         app.state.hub = hub
+        app.state.hashing = HashingSlots(settings.password_hash_concurrency)
+        app.state.login_throttle = LoginThrottle(settings)
         yield
     finally:
         await hub.close()
         await engine.dispose()
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_json_safe(v) for v in value]
-    return value
+_UPLOAD_CHUNK = re.compile(rf"^{API_PREFIX}/uploads/[^/]+$")
 
 
-async def validation_error(request: Request, exc: Exception) -> JSONResponse:
-    """FastAPI's 422, except that a rejected NaN or Infinity, which the error echoes as its
-    input, is written as a string: strict JSON has no such numbers, and rendering one
-    would turn a refusal into a 500."""
-    assert isinstance(exc, RequestValidationError)
-    detail = _json_safe(jsonable_encoder(exc.errors()))
-    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
-
-
-async def overflow_error(request: Request, exc: Exception) -> JSONResponse:
-    """An id or offset beyond what the database stores (2**63-1) cannot name anything: a
-    422 in FastAPI's own shape, not a 500 from the driver."""
-    detail = [
-        {
-            "loc": ["request"],
-            "msg": "a number in the request is beyond 2**63-1, the largest the server stores",
-            "type": "overflow",
-        }
-    ]
-    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+def body_limit(method: str, path: str) -> int | None:
+    """The routes whose bodies are not JSON of ordinary size: an upload's chunks."""
+    if method == "PATCH" and _UPLOAD_CHUNK.match(path):
+        return CHUNK_MAX
+    return None
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -90,12 +73,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=DESCRIPTION,
         lifespan=lifespan,
         openapi_url=f"{API_PREFIX}/openapi.json",
-        docs_url=f"{API_PREFIX}/docs",
+        # The docs page needs Swagger UI's files, which the dashboard installs and serves
+        # (webui.app): never a CDN's.
+        docs_url=None,
         redoc_url=None,
     )
     app.state.settings = settings
-    app.add_exception_handler(RequestValidationError, validation_error)
-    app.add_exception_handler(OverflowError, overflow_error)
+    app.add_exception_handler(RequestValidationError, errors.validation_error)
+    app.add_exception_handler(OverflowError, errors.overflow_error)
+    app.add_exception_handler(OSError, errors.os_error)
+    app.add_exception_handler(OperationalError, errors.database_error)
     # Bearer tokens, not cookies: no credentials mode, so a listed origin can call the API
     # but a browser never attaches anything on its own.
     app.add_middleware(
@@ -104,6 +91,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         allow_methods=["GET", "POST", "PATCH", "PUT", "DELETE"],
         allow_headers=["Authorization", "Content-Type"],
     )
+    # Added last, so outermost: a body is refused before CORS or any route sees it, and
+    # every answer, refusals included, carries the security headers.
+    app.add_middleware(RequestGuard, default=settings.body_max_bytes, limit_for=body_limit)
+    app.add_middleware(SecurityHeaders)
     for router in ROUTERS:
         app.include_router(router, prefix=API_PREFIX)
     # The live router names its own full paths (/ws/..., /api/v1/schemas/ws).

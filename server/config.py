@@ -9,7 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, model_validator
+from limits import parse
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 MiB = 1024 * 1024
@@ -56,11 +57,66 @@ class Settings(BaseSettings):
         gt=0,
         description="Largest session file a station may upload, bytes.",
     )
+    body_max_bytes: int = Field(
+        default=1 * MiB,
+        gt=0,
+        description="Largest JSON request body, bytes; a larger one is refused (413) before "
+        "anything reads it. Upload chunks have their own limit.",
+    )
+    disk_free_min_bytes: int = Field(
+        default=512 * MiB,
+        ge=0,
+        description="Below this much free space in data_dir, /health answers 503 'degraded'.",
+    )
+    login_account_limit: str = Field(
+        default="10 per 15 minutes",
+        description="Failed sign-ins allowed per account in a moving window (the limits "
+        "library's notation); past it, 429 with Retry-After.",
+    )
+    login_address_limit: str = Field(
+        default="30 per 15 minutes",
+        description="Failed sign-ins allowed per client address in a moving window.",
+    )
+    login_delay_max_s: float = Field(
+        default=4.0,
+        ge=0.0,
+        le=60.0,
+        description="Longest delay before a sign-in is checked; delays double with each "
+        "failure past the first third of a limit.",
+    )
+    login_pending_max: int = Field(
+        default=4,
+        ge=1,
+        description="Sign-ins of one account or one address in progress at once; more get 429.",
+    )
+    login_throttle_storage: str = Field(
+        default="memory://",
+        description="Where failed sign-ins are counted: a limits storage URI; memory:// is "
+        "this process, redis://host:6379 would share counts between server processes.",
+    )
+    password_hash_concurrency: int = Field(
+        default=2,
+        ge=1,
+        le=64,
+        description="Argon2 hashes computed at once (each takes ~64 MiB and a core for "
+        "~0.1 s); more sign-ins wait their turn.",
+    )
     public_url: str = Field(
         default="",
         description="Base URL people and stations use to reach this server. Empty: "
         "http://{host}:{port}, with 127.0.0.1 for a wildcard host.",
     )
+
+    @field_validator("login_account_limit", "login_address_limit")
+    @classmethod
+    def _rate(cls, value: str) -> str:
+        try:
+            parse(value)
+        except ValueError:
+            raise ValueError(
+                f"{value!r} is not a rate such as '10 per 15 minutes' or '30/hour'"
+            ) from None
+        return value
 
     @model_validator(mode="before")
     @classmethod

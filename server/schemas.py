@@ -253,3 +253,5 @@ class HealthPublic(BaseModel):
     status: Literal["ok", "degraded"]
     version: str = Field(description="The server's package version.")
     database: bool = Field(description="The database answered a query.")
+    disk_free_bytes: int = Field(description="Free space where the data directory is, bytes.")
+    disk_ok: bool = Field(description="At least the configured minimum of it is free.")

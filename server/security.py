@@ -8,13 +8,18 @@ by hash is safe against timing (an attacker learns bits of a hash, never of a to
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import hmac
 import secrets
+from collections.abc import Callable
 from functools import cache
+from typing import TypeVar
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
+
+T = TypeVar("T")
 
 PASSWORD_MIN_LENGTH = 10
 PASSWORD_MAX_LENGTH = 1024
@@ -67,3 +72,20 @@ def token_hash(token: str) -> str:
 def same_secret(a: str, b: str) -> bool:
     """Constant-time string comparison for secrets held in memory."""
     return hmac.compare_digest(a.encode(), b.encode())
+
+
+class HashingSlots:
+    """Argon2 work off the event loop, a few at a time.
+
+    Each hash takes a core and 64 MiB for about a tenth of a second: run on the loop it
+    would stall every other request, and run all at once (a burst of sign-ins) it would take
+    every core and a lot of memory. Callers wait their turn, first come first served.
+    """
+
+    def __init__(self, slots: int) -> None:
+        self.slots = slots
+        self._gate = asyncio.Semaphore(slots)
+
+    async def run(self, fn: Callable[..., T], *args: str) -> T:
+        async with self._gate:
+            return await asyncio.to_thread(fn, *args)

@@ -100,6 +100,10 @@ holds or moves the foot and does not give way."""
 Waveform = Literal["hold", "sine", "ramp"]
 
 _NO_NAN = ConfigDict(allow_inf_nan=False, extra="forbid")
+# A clinician's number must arrive as a JSON number: strict fields refuse true (which lax
+# mode reads as 1) and "40" (which it reads as 40), so a form or script that sends the
+# wrong type is told so instead of prescribing something nobody typed. An integer is still
+# a valid float; a count refuses 2.0.
 
 
 class AxisPrescription(BaseModel):
@@ -112,29 +116,43 @@ class AxisPrescription(BaseModel):
         "(plantar/dorsiflexion) or yaw (ab-/adduction)."
     )
     stiffness: float = Field(
-        ge=0.0, le=STIFFNESS_MAX, description="K, N·m/rad: resistance to leaving the target."
+        strict=True,
+        ge=0.0,
+        le=STIFFNESS_MAX,
+        description="K, N·m/rad: resistance to leaving the target.",
     )
     damping: float = Field(
-        ge=0.0, le=DAMPING_MAX, description="B, N·m·s/rad: resistance to moving fast."
+        strict=True, ge=0.0, le=DAMPING_MAX, description="B, N·m·s/rad: resistance to moving fast."
     )
     waveform: Waveform = Field(
         default="hold",
         description="hold: stay at center; sine: center + amplitude·sin(2π·frequency·t); "
         "ramp: from center to ramp_end at ramp_rate, then stay.",
     )
-    center: float = Field(default=0.0, ge=-90.0, le=90.0, description="Degrees from home.")
-    amplitude: float = Field(default=0.0, ge=0.0, le=90.0, description="Degrees (sine).")
-    frequency: float = Field(default=0.0, ge=0.0, le=7.0, description="Hz (sine).")
-    ramp_end: float = Field(default=0.0, ge=-90.0, le=90.0, description="Degrees (ramp).")
-    ramp_rate: float = Field(default=0.0, ge=0.0, le=180.0, description="Degrees per second.")
+    center: float = Field(
+        strict=True, default=0.0, ge=-90.0, le=90.0, description="Degrees from home."
+    )
+    amplitude: float = Field(
+        strict=True, default=0.0, ge=0.0, le=90.0, description="Degrees (sine)."
+    )
+    frequency: float = Field(strict=True, default=0.0, ge=0.0, le=7.0, description="Hz (sine).")
+    ramp_end: float = Field(
+        strict=True, default=0.0, ge=-90.0, le=90.0, description="Degrees (ramp)."
+    )
+    ramp_rate: float = Field(
+        strict=True, default=0.0, ge=0.0, le=180.0, description="Degrees per second."
+    )
     rom_low: float | None = Field(
+        strict=True,
         default=None,
         ge=-90.0,
         le=90.0,
         description="Lowest angle allowed in this exercise, degrees; default the allowed "
         "range (anatomy and device, the narrower).",
     )
-    rom_high: float | None = Field(default=None, ge=-90.0, le=90.0, description="Degrees.")
+    rom_high: float | None = Field(
+        strict=True, default=None, ge=-90.0, le=90.0, description="Degrees."
+    )
 
     def limits_deg(self) -> tuple[float, float]:
         lo, hi = allowed_range_deg(self.axis)
@@ -204,25 +222,34 @@ class PrescriptionBody(BaseModel):
         default="", max_length=2000, description="Plain words for the patient."
     )
     axes: list[AxisPrescription] = Field(min_length=1, max_length=3)
-    sets: int = Field(default=1, ge=1, le=20)
-    repetitions: int = Field(default=10, ge=1, le=100, description="Per set.")
+    sets: int = Field(strict=True, default=1, ge=1, le=20)
+    repetitions: int = Field(strict=True, default=10, ge=1, le=100, description="Per set.")
     repetition_s: float = Field(
-        default=10.0, ge=1.0, le=SEGMENT_S_MAX, description="Duration of one repetition, s."
+        strict=True,
+        default=10.0,
+        ge=1.0,
+        le=SEGMENT_S_MAX,
+        description="Duration of one repetition, s.",
     )
-    rest_s: float = Field(default=30.0, ge=0.0, le=900.0, description="Rest between sets, s.")
+    rest_s: float = Field(
+        strict=True, default=30.0, ge=0.0, le=900.0, description="Rest between sets, s."
+    )
     torque_limit: float = Field(
+        strict=True,
         default=TORQUE_LIMIT_MAX,
         gt=0.0,
         le=TORQUE_LIMIT_MAX,
         description="N·m: the device stops if the foot's torque exceeds it.",
     )
     force_limit: float = Field(
+        strict=True,
         default=FORCE_LIMIT_MAX,
         gt=0.0,
         le=FORCE_LIMIT_MAX,
         description="N: the device stops if the force on the foot plate exceeds it.",
     )
     sessions_per_week: int = Field(
+        strict=True,
         default=5,
         ge=1,
         le=14,

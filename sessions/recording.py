@@ -36,6 +36,10 @@ MAX_RECORD = 16 * 1024 * 1024
 """Largest payload of one record (bytes); a longer length field means a corrupt file."""
 
 
+UNIX_TIME_MAX = 253_402_300_800.0
+"""Year 10000 in Unix seconds: a start or end time a date can hold."""
+
+
 class RecordType(enum.IntEnum):
     HEADER = 1
     SAMPLES = 2
@@ -108,7 +112,9 @@ class Header(BaseModel):
     prescription: dict[str, Any] = Field(description="The prescription as it was run.")
     device: DeviceInfo
     software: str
-    started_at: float = Field(description="Unix time, s.")
+    started_at: float = Field(
+        ge=0.0, lt=UNIX_TIME_MAX, allow_inf_nan=False, description="Unix time, s."
+    )
 
 
 class SessionEvent(BaseModel):
@@ -132,7 +138,9 @@ EndReason = Literal["completed", "stopped", "fault", "interrupted"]
 class End(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    ended_at: float = Field(description="Unix time, s.")
+    ended_at: float = Field(
+        ge=0.0, lt=UNIX_TIME_MAX, allow_inf_nan=False, description="Unix time, s."
+    )
     reason: EndReason
     sets_completed: int
     repetitions_completed: int

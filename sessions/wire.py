@@ -143,6 +143,9 @@ class StatusMsg(BaseModel):
 
 
 Action = Literal["set_impedance", "hold", "resume", "stop", "start"]
+# Strict: a live K or B must be a JSON number, never true or "40" (see sessions.prescription).
+LiveStiffness = Annotated[float, Field(strict=True, ge=0.0, le=STIFFNESS_MAX)]
+LiveDamping = Annotated[float, Field(strict=True, ge=0.0, le=DAMPING_MAX)]
 
 
 class Command(BaseModel):
@@ -152,10 +155,10 @@ class Command(BaseModel):
     type: Literal["command"] = "command"
     request_id: str = Field(min_length=1, max_length=64)
     action: Action
-    stiffness: dict[Axis, Annotated[float, Field(ge=0.0, le=STIFFNESS_MAX)]] | None = Field(
+    stiffness: dict[Axis, LiveStiffness] | None = Field(
         default=None, description="set_impedance: new K per ankle axis, N·m/rad."
     )
-    damping: dict[Axis, Annotated[float, Field(ge=0.0, le=DAMPING_MAX)]] | None = Field(
+    damping: dict[Axis, LiveDamping] | None = Field(
         default=None, description="set_impedance: new B per ankle axis, N·m·s/rad."
     )
     prescription_id: int | None = Field(default=None, description="start: which exercise.")

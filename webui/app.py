@@ -3,7 +3,7 @@
 webui is the top layer (DESIGN.md section 5): the server never imports it. This factory adds
 the dashboard's pages under ``/app``, the scripts and styles under ``/static``, the chart
 libraries under ``/vendor``, and the live 3D views (one viser server per watched station),
-whose lifetime is the app's.
+whose lifetime is the app's, and the API docs page with Swagger UI from ``/vendor``.
 """
 
 from __future__ import annotations
@@ -15,14 +15,13 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 from fastapi.responses import Response
-from fastapi.staticfiles import StaticFiles
 
 from device.axes import AXIS_INDEX, ROTATION_AXES
 from server.app import create_app as create_server_app
 from server.config import Settings
 from server.routes import API_PREFIX
-from webui import pages, replay, routes
-from webui.assets import STATIC, missing_vendor, vendor_router
+from webui import docs, pages, replay, routes
+from webui.assets import CSP, STATIC, Static, missing_vendor, vendor_router
 from webui.live3d import LiveScenes
 
 log = logging.getLogger("ankle.webui")
@@ -51,6 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(replay.router, prefix=API_PREFIX)
     app.include_router(pages.router)
     app.include_router(vendor_router)
+    app.include_router(docs.router)
 
     @app.get("/static/js/axes.js", include_in_schema=False)
     def axes_module() -> Response:
@@ -61,7 +61,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             f"export const AXES = {json.dumps(rotations)};\n"
             f"export const AXIS_INDEX = {json.dumps({a: AXIS_INDEX[a] for a in rotations})};\n"
         )
-        return Response(body, media_type="text/javascript", headers={"Cache-Control": "no-cache"})
+        return Response(
+            body,
+            media_type="text/javascript",
+            headers={"Cache-Control": "no-cache", "Content-Security-Policy": CSP},
+        )
 
-    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    app.mount("/static", Static(directory=STATIC), name="static")
     return app

@@ -7,10 +7,13 @@ under ``/vendor/`` by a fixed name, so a page never depends on a package's folde
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from fastapi import APIRouter, HTTPException
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, Response
+from fastapi.staticfiles import StaticFiles
+from starlette.types import Scope
 
 HERE = Path(__file__).resolve().parent
 STATIC = HERE / "static"
@@ -21,6 +24,8 @@ VENDOR: dict[str, Path] = {
     "uPlot.iife.min.js": NODE_MODULES / "uplot" / "dist" / "uPlot.iife.min.js",
     "uPlot.min.css": NODE_MODULES / "uplot" / "dist" / "uPlot.min.css",
     "chart.umd.min.js": NODE_MODULES / "chart.js" / "dist" / "chart.umd.min.js",
+    "swagger-ui-bundle.js": NODE_MODULES / "swagger-ui-dist" / "swagger-ui-bundle.js",
+    "swagger-ui.css": NODE_MODULES / "swagger-ui-dist" / "swagger-ui.css",
 }
 """Served name → installed file."""
 
@@ -50,7 +55,25 @@ async def vendor(name: str) -> FileResponse:
             503,
             f"{name} is not installed: run 'make setup' (npm ci in webui/) on this machine",
         )
-    return FileResponse(path, headers={"Cache-Control": "public, max-age=86400"})
+    return FileResponse(
+        path, headers={"Cache-Control": "public, max-age=86400", "Content-Security-Policy": CSP}
+    )
+
+
+class Static(StaticFiles):
+    """Our scripts and styles, with the dashboard's policy: a script run as a worker (the
+    live page's link) is governed by its own response's CSP, which must let it connect."""
+
+    def file_response(
+        self,
+        full_path: str | os.PathLike[str],
+        stat_result: os.stat_result,
+        scope: Scope,
+        status_code: int = 200,
+    ) -> Response:
+        response = super().file_response(full_path, stat_result, scope, status_code)
+        response.headers["Content-Security-Policy"] = CSP
+        return response
 
 
 def page(name: str) -> FileResponse:

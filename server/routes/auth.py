@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-import asyncio
 from datetime import timedelta
 
-from fastapi import APIRouter, Request, status
+from fastapi import APIRouter, HTTPException, Request, status
 from sqlalchemy import delete, select
 
+from server import audit
 from server.config import Settings
 from server.deps import CurrentUser, Db, UserCredentials, unauthorized
 from server.models import AuthToken, User, utcnow
-from server.routes.common import UNAUTHORIZED
+from server.routes.common import UNAUTHORIZED, ErrorPublic
 from server.schemas import LoginRequest, TokenPublic, UserPublic
 from server.security import (
+    HashingSlots,
     burn_verify,
     hash_password,
     needs_rehash,
@@ -21,6 +22,7 @@ from server.security import (
     token_hash,
     verify_password,
 )
+from server.throttle import LoginThrottle, Throttled
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
@@ -33,23 +35,60 @@ BAD_LOGIN = "wrong email or password"
     "/login",
     response_model=TokenPublic,
     summary="Log in with email and password",
-    responses=UNAUTHORIZED,
+    responses={
+        **UNAUTHORIZED,
+        429: {
+            "model": ErrorPublic,
+            "description": "Too many failed sign-ins for this account or from this address, "
+            "or too many at once; Retry-After says when to try again.",
+        },
+    },
 )
 async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
     """A bearer token valid for ``token_ttl_s`` (12 h by default). A wrong email and a wrong
-    password get the same 401 and take the same time."""
+    password get the same 401 and take the same time. Repeated failures are slowed down and
+    then refused with 429 (see ``server.throttle``)."""
     settings: Settings = request.app.state.settings
+    throttle: LoginThrottle = request.app.state.login_throttle
+    hashing: HashingSlots = request.app.state.hashing
     email = body.email.strip().lower()
-    user = (await db.execute(select(User).where(User.email == email))).scalar_one_or_none()
-    # Argon2 is deliberately slow; run it off the event loop so other requests go on.
-    if user is None:
-        await asyncio.to_thread(burn_verify, body.password)
-        raise unauthorized(BAD_LOGIN)
-    ok = await asyncio.to_thread(verify_password, user.password_hash, body.password)
-    if not ok or not user.active:
-        raise unauthorized(BAD_LOGIN)
+    address = request.client.host if request.client else "unknown"
+    try:
+        async with throttle.attempt(email, address) as attempt:
+            user = (await db.execute(select(User).where(User.email == email))).scalar_one_or_none()
+            if user is None:
+                await hashing.run(burn_verify, body.password)
+            ok = user is not None and await hashing.run(
+                verify_password, user.password_hash, body.password
+            )
+            if user is None or not ok or not user.active:
+                await attempt.failed()
+                if user is not None:
+                    # Only known accounts: the log must not collect what people mistype.
+                    audit.record(
+                        db,
+                        audit.SYSTEM,
+                        "auth.login_failed",
+                        "user",
+                        user.id,
+                        None,
+                        None,
+                        {"client": address},
+                    )
+                    await db.commit()
+                raise unauthorized(BAD_LOGIN)
+            await attempt.succeeded()
+    except Throttled as exc:
+        raise HTTPException(
+            status.HTTP_429_TOO_MANY_REQUESTS,
+            detail=exc.detail,
+            headers={"Retry-After": str(exc.retry_after)},
+        ) from None
     if needs_rehash(user.password_hash):
-        user.password_hash = await asyncio.to_thread(hash_password, body.password)
+        user.password_hash = await hashing.run(hash_password, body.password)
+    audit.record(
+        db, audit.user_actor(user), "auth.login", "user", user.id, None, None, {"client": address}
+    )
     now = utcnow()
     token = new_token()
     expires_at = now + timedelta(seconds=settings.token_ttl_s)

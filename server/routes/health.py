@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import shutil
 from importlib.metadata import PackageNotFoundError, version
 
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Request, Response, status
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -22,12 +23,24 @@ def server_version() -> str:
 
 
 @router.get("/health", response_model=HealthPublic, summary="Server version and database state")
-async def health(db: Db, response: Response) -> HealthPublic:
-    """No authentication: it says nothing about patients. 503 when the database fails."""
+async def health(db: Db, request: Request, response: Response) -> HealthPublic:
+    """No authentication: it says nothing about patients. 503 ("degraded") when the
+    database fails or the data directory has less free space than ``disk_free_min_bytes``
+    (uploads and sign-ins would soon fail)."""
+    settings = request.app.state.settings
     try:
         await db.execute(text("SELECT 1"))
-        ok = True
+        database = True
     except SQLAlchemyError:
-        ok = False
+        database = False
+    free = shutil.disk_usage(settings.data_dir).free
+    disk = free >= settings.disk_free_min_bytes
+    if not (database and disk):
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
-    return HealthPublic(status="ok" if ok else "degraded", version=server_version(), database=ok)
+    return HealthPublic(
+        status="ok" if database and disk else "degraded",
+        version=server_version(),
+        database=database,
+        disk_free_bytes=free,
+        disk_ok=disk,
+    )

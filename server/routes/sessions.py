@@ -13,6 +13,7 @@ session at 100 Hz reads and decimates in milliseconds, and nothing can go stale.
 from __future__ import annotations
 
 import asyncio
+import os
 from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -152,12 +153,14 @@ async def download(
         filename = f"{name}.rec"
     else:
         exports = Path(request.app.state.settings.data_dir) / "exports"
-        exports.mkdir(parents=True, exist_ok=True)
+        exports.mkdir(mode=0o700, parents=True, exist_ok=True)
         path = exports / f"{row.session_uuid}{FILE_SUFFIX[fmt]}"
         sidecar = path.with_name(path.name + ".sha256")
         if not (path.exists() and sidecar.exists()):
             digest = await asyncio.to_thread(_export, source, fmt, path)
-            sidecar.write_text(digest)
+            fd = os.open(sidecar, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as f:
+                f.write(digest)
         digest = sidecar.read_text().strip()
         media, filename = MEDIA_TYPES[fmt], f"{name}{FILE_SUFFIX[fmt]}"
     return FileResponse(

@@ -36,10 +36,12 @@ from sessions.recording import (
 )
 from sessions.recording import Header as RecordingHeader
 from sessions.summary import summarize
+from sessions.wire import error_text
 
 router = APIRouter(tags=["uploads"], responses=UNAUTHORIZED)
-CHUNK_MAX = 8 * 1024 * 1024
-"""Largest PATCH body (bytes); the station sends 1 MiB."""
+CHUNK_MAX = 1024 * 1024 + 64 * 1024
+"""Largest PATCH body (bytes): the station's 1 MiB chunk and a margin. ``server.guard``
+refuses a longer one before it is read."""
 
 
 class UploadRefused(BaseModel):
@@ -69,8 +71,8 @@ class UploadComplete(BaseModel):
 def _dirs(request: Request) -> tuple[Path, Path]:
     data = Path(request.app.state.settings.data_dir)
     uploads, sessions = data / "uploads", data / "sessions"
-    uploads.mkdir(parents=True, exist_ok=True)
-    sessions.mkdir(parents=True, exist_ok=True)
+    uploads.mkdir(mode=0o700, parents=True, exist_ok=True)
+    sessions.mkdir(mode=0o700, parents=True, exist_ok=True)
     return uploads, sessions
 
 
@@ -135,10 +137,7 @@ async def upload_append(
     upload_offset: Annotated[int, Header(ge=0, description="Where these bytes go.")],
 ) -> Response:
     sid = str(session_id)
-    length = int(request.headers.get("content-length") or 0)
-    if length > CHUNK_MAX:
-        raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
-    data = await request.body()
+    data = await request.body()  # at most CHUNK_MAX: server.guard refused anything longer
     if len(data) > CHUNK_MAX:
         raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
     uploads, _ = _dirs(request)
@@ -175,7 +174,10 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> None:
         raise HTTPException(422, f"not a session recording: {exc}") from None
     if not records or records[0][0] != RecordType.HEADER:
         raise HTTPException(422, "the first chunk must contain the recording's header record")
-    header = RecordingHeader.model_validate_json(records[0][1])
+    try:
+        header = RecordingHeader.model_validate_json(records[0][1])
+    except ValueError as exc:
+        raise HTTPException(422, f"the header record is not valid: {error_text(exc)}") from None
     if header.session_id != sid:
         raise HTTPException(422, "the header's session_id differs from the upload's")
     if header.patient_id != patient_id:
@@ -232,13 +234,20 @@ async def upload_complete(
             )
         try:
             rec = await asyncio.to_thread(decode, part.read_bytes())
-        except (RecordingError, ValueError) as exc:
-            raise HTTPException(422, f"not a valid recording: {exc}") from None
-        if rec.damaged or rec.end is None:
-            raise HTTPException(422, "the recording is cut off: it has no end record")
+            end = rec.end
+            if rec.damaged or end is None:
+                raise RecordingError("it is cut off: it has no end record")
+        except ValueError as exc:  # RecordingError, or a record's ValidationError
+            # The station's whole file is wrong; keeping a copy of it helps nobody, and the
+            # station can only send a corrected file from the start.
+            await db.delete(up)
+            await db.commit()
+            part.unlink(missing_ok=True)
+            raise HTTPException(
+                422, f"not a valid recording: {error_text(exc, 300)}; upload the session again"
+            ) from None
         summary = await asyncio.to_thread(summarize, rec)
         final = sessions_dir / f"{sid}.rec"
-        os.replace(part, final)
         prescription = await db.get(Prescription, rec.header.prescription_id)
         row = Session(
             session_uuid=sid,
@@ -250,27 +259,34 @@ async def upload_complete(
                 else None
             ),
             started_at=datetime.fromtimestamp(rec.header.started_at, UTC),
-            ended_at=datetime.fromtimestamp(rec.end.ended_at, UTC),
-            end_reason=rec.end.reason,
+            ended_at=datetime.fromtimestamp(end.ended_at, UTC),
+            end_reason=end.reason,
             size_bytes=body.size,
             sha256=digest,
             summary=summary.model_dump(mode="json"),
             file_path=str(final),
             upload_complete=True,
         )
-        db.add(row)
-        await db.delete(up)
-        await db.flush()
-        audit.record(
-            db,
-            audit.station_actor(station),
-            "session.upload",
-            "session",
-            row.id,
-            station.patient_id,
-            None,
-            {"session_uuid": sid, "size_bytes": body.size, "sha256": digest},
-        )
-        await db.commit()
+        # Moved only now that every check has passed, and moved back if the row cannot be
+        # written (a full disk): a retried complete must find the bytes where it left them.
+        os.replace(part, final)
+        try:
+            db.add(row)
+            await db.delete(up)
+            await db.flush()
+            audit.record(
+                db,
+                audit.station_actor(station),
+                "session.upload",
+                "session",
+                row.id,
+                station.patient_id,
+                None,
+                {"session_uuid": sid, "size_bytes": body.size, "sha256": digest},
+            )
+            await db.commit()
+        except BaseException:
+            os.replace(final, part)
+            raise
         response.status_code = status.HTTP_201_CREATED
         return session_public(row)

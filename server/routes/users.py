@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import asyncio
-
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Request, status
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
@@ -13,7 +11,7 @@ from server.deps import Admin, Db
 from server.models import User
 from server.routes.common import CONFLICT, FORBIDDEN, UNAUTHORIZED
 from server.schemas import UserCreate, UserPublic
-from server.security import hash_password
+from server.security import HashingSlots, hash_password
 
 router = APIRouter(prefix="/users", tags=["users"])
 
@@ -27,11 +25,12 @@ EMAIL_TAKEN = "a user with this email exists"
     summary="Create a therapist or admin account",
     responses={**UNAUTHORIZED, **FORBIDDEN, **CONFLICT},
 )
-async def create_user(body: UserCreate, admin: Admin, db: Db) -> UserPublic:
+async def create_user(body: UserCreate, admin: Admin, db: Db, request: Request) -> UserPublic:
     """Admins only. 409 if the email is taken."""
     if (await db.execute(select(User.id).where(User.email == body.email))).first():
         raise HTTPException(status.HTTP_409_CONFLICT, detail=EMAIL_TAKEN)
-    password_hash = await asyncio.to_thread(hash_password, body.password)
+    hashing: HashingSlots = request.app.state.hashing
+    password_hash = await hashing.run(hash_password, body.password)
     user = User(email=body.email, name=body.name, role=body.role, password_hash=password_hash)
     db.add(user)
     try:

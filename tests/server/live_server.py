@@ -169,13 +169,19 @@ def seeded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, World]:
     return data_dir, asyncio.run(_seed(data_dir))
 
 
+def copy_seeded(template: Path, data_dir: Path) -> Path:
+    """A private copy of the seeded database in ``data_dir``."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    for f in template.glob("ankle.db*"):
+        shutil.copy(f, data_dir / f.name)
+    return data_dir
+
+
 @pytest_asyncio.fixture
 async def live(seeded: tuple[Path, World], tmp_path: Path) -> AsyncIterator[Live]:
     """A server on a private copy of the seeded database."""
     template, _ = seeded
-    for f in template.glob("ankle.db*"):
-        shutil.copy(f, tmp_path / f.name)
-    async with running(Settings(data_dir=tmp_path)) as server:
+    async with running(Settings(data_dir=copy_seeded(template, tmp_path))) as server:
         yield server
 
 

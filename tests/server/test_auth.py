@@ -45,7 +45,7 @@ async def test_wrong_email_and_wrong_password_look_the_same(live: Live) -> None:
         r = await live.client.post("/auth/login", json={"email": email, "password": password})
         answers.append((r.status_code, r.json(), r.headers["www-authenticate"]))
     assert set(map(repr, answers)) == {repr((401, {"detail": "wrong email or password"}, "Bearer"))}
-    # Failures lock nobody out.
+    # A few failures lock nobody out (the throttle starts later: test_throttle.py).
     await login(live.client, "t1@clinic.test")
 
 

@@ -25,6 +25,7 @@ from sessions.recording import (
     encode_json,
     encode_samples,
 )
+from station.uploader import CHUNK
 from tests.server.live_server import Live, World, bearer
 
 HZ = 100.0
@@ -94,8 +95,13 @@ async def upload(live: Live, world: World, rows: NDArray[np.void]) -> int:
     sid = str(uuid.uuid4())
     data = recording_bytes(sid, rows, world.s1_id, world.p1, world.rx1)
     c, station = live.client, bearer(world.s1)
-    r = await c.patch(f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"})
-    assert r.status_code == 204, r.text
+    for offset in range(0, len(data), CHUNK):  # in the station's chunks: one is at most ~1 MiB
+        r = await c.patch(
+            f"/uploads/{sid}",
+            content=data[offset : offset + CHUNK],
+            headers={**station, "Upload-Offset": str(offset)},
+        )
+        assert r.status_code == 204, r.text
     body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
     r = await c.post(f"/uploads/{sid}/complete", json=body, headers=station)
     assert r.status_code == 201, r.text

@@ -305,15 +305,17 @@ async def test_a_therapist_of_another_patient_and_a_missing_station_look_the_sam
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize("stiffness", [900.0, "40", True], ids=["900", "text", "boolean"])
 async def test_an_out_of_range_command_is_closed_and_never_reaches_the_station(
-    live: Live, world: World
+    live: Live, world: World, stiffness: Any
 ) -> None:
+    """Out of range, or not a number at all: a K sent as "40" or true is refused too."""
     too_stiff = json.dumps(
         {
             "type": "command",
             "request_id": "k-900",
             "action": "set_impedance",
-            "stiffness": {"pitch": 900.0},
+            "stiffness": {"pitch": stiffness},
         }
     )
     async with station_ws(live, world.s1) as station:

@@ -1,0 +1,169 @@
+"""Answers for requests the routes cannot serve: invalid input, numbers past the store's
+range, and a full disk. Each is a 4xx or 507 with a sentence, never a 500.
+
+The validation answer keeps FastAPI's shape (``detail``: a list of ``type``, ``loc``,
+``msg``, ``input``) but quotes at most ``EXCERPT`` characters of the input: FastAPI's own
+handler echoes the whole of it, so one large invalid body would be serialised again, on
+the event loop, to be sent back.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import math
+import sqlite3
+from typing import Any
+
+from fastapi import Request, status
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
+
+log = logging.getLogger("ankle.server")
+
+EXCERPT = 100
+"""Characters of an invalid input quoted back."""
+ERRORS_MAX = 20
+"""Validation errors listed; a body with more gets one closing entry that counts them."""
+DISK_FULL = (
+    "the server's disk is full: nothing of this request was stored; "
+    "try again once an administrator has freed space"
+)
+
+
+class _Full(Exception):
+    pass
+
+
+def _scalar(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # strict JSON has no NaN: rendering one would be a 500
+    if isinstance(value, str):
+        # backslashreplace: a lone surrogate quoted back must not make the answer unencodable
+        text = value[:EXCERPT].encode("utf-8", "backslashreplace").decode("utf-8")
+        return text + ("…" if len(value) > EXCERPT else "")
+    if value is None or isinstance(value, bool | int | float):
+        return value
+    if isinstance(value, bytes | bytearray):  # a body FastAPI did not parse: cut, then decode
+        text = bytes(value[:EXCERPT]).decode("utf-8", "backslashreplace")
+        return text + ("…" if len(value) > EXCERPT else "")
+    return str(value)[:EXCERPT]
+
+
+def _bounded(value: Any, budget: int) -> str:
+    """JSON-like text of ``value``, cut after ``budget`` characters without walking the
+    rest of it."""
+    out: list[str] = []
+    used = 0
+
+    def emit(text: str) -> None:
+        nonlocal used
+        out.append(text)
+        used += len(text)
+        if used > budget:
+            raise _Full
+
+    def walk(v: Any) -> None:
+        if isinstance(v, dict):
+            emit("{")
+            for i, (k, x) in enumerate(v.items()):
+                emit(", " if i else "")
+                emit(json.dumps(_scalar(str(k))) + ": ")
+                walk(x)
+            emit("}")
+        elif isinstance(v, list | tuple):
+            emit("[")
+            for i, x in enumerate(v):
+                emit(", " if i else "")
+                walk(x)
+            emit("]")
+        else:
+            emit(json.dumps(_scalar(v)))
+
+    try:
+        walk(value)
+    except _Full:
+        return "".join(out)[:budget] + "…"
+    return "".join(out)
+
+
+def excerpt(value: Any) -> Any:
+    """``value`` as it can be quoted back: scalars as they are (long text cut), a small
+    object or list as it is, a large one as the first ``EXCERPT`` characters of its JSON."""
+    if not isinstance(value, dict | list | tuple):
+        return _scalar(value)
+    text = _bounded(value, EXCERPT)
+    if text.endswith("…"):
+        return text
+    return json.loads(text)
+
+
+def _error(e: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "type": e.get("type"),
+        "loc": list(e.get("loc", ())),
+        "msg": e.get("msg"),
+    }
+    if "input" in e:
+        out["input"] = excerpt(e["input"])
+    ctx = e.get("ctx")
+    if isinstance(ctx, dict):
+        out["ctx"] = {str(k): _scalar(v) for k, v in ctx.items()}
+    return out
+
+
+async def validation_error(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422, with a short excerpt of each invalid input instead of all of it."""
+    assert isinstance(exc, RequestValidationError)
+    errors = list(exc.errors())
+    detail = [_error(e) for e in errors[:ERRORS_MAX]]
+    if len(errors) > ERRORS_MAX:
+        detail.append(
+            {
+                "type": "too_many_errors",
+                "loc": ["body"],
+                "msg": f"and {len(errors) - ERRORS_MAX} more invalid values",
+            }
+        )
+    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
+async def overflow_error(request: Request, exc: Exception) -> JSONResponse:
+    """An id or offset beyond what the database stores (2**63-1) cannot name anything: a
+    422 in FastAPI's own shape, not a 500 from the driver."""
+    detail = [
+        {
+            "loc": ["request"],
+            "msg": "a number in the request is beyond 2**63-1, the largest the server stores",
+            "type": "overflow",
+        }
+    ]
+    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
+def _disk_full() -> JSONResponse:
+    return JSONResponse({"detail": DISK_FULL}, status_code=status.HTTP_507_INSUFFICIENT_STORAGE)
+
+
+async def os_error(request: Request, exc: Exception) -> JSONResponse:
+    """A write that found no space (or quota) left is the server's state, not a bug: 507.
+    Any other OSError is a fault and goes on to the 500 handler."""
+    assert isinstance(exc, OSError)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        log.error("disk full while serving %s: %s", request.url.path, exc)
+        return _disk_full()
+    raise exc
+
+
+async def database_error(request: Request, exc: Exception) -> JSONResponse:
+    """SQLite says SQLITE_FULL when the disk is full; the transaction is rolled back."""
+    assert isinstance(exc, OperationalError)
+    causes = [exc.orig, getattr(exc.orig, "__cause__", None)]  # the async driver wraps it
+    if any(
+        getattr(c, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL for c in causes
+    ) or "database or disk is full" in str(exc):
+        log.error("database full while serving %s", request.url.path)
+        return _disk_full()
+    raise exc

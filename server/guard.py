@@ -1,0 +1,200 @@
+"""Request bodies are checked at the door: size first, then, for JSON, that it is text.
+
+A pure ASGI middleware, outside every route, so nothing in FastAPI or pydantic ever holds
+more than a route's limit:
+
+- A ``Content-Length`` above the limit is answered 413 at once, before one byte of the body
+  is read. A chunked body is counted as it arrives and refused the moment it passes the
+  limit, whatever the route was doing with it.
+- A JSON body (or one with no content type, which FastAPI parses as JSON) is read whole,
+  at most the limit, and a string in it holding a lone UTF-16 surrogate (``"\\ud800"``,
+  legal JSON but no Unicode text) is refused with 422 naming the field. Left in, such a
+  string is stored by one layer and cannot be encoded by the next: a 500 after a change.
+
+What the server sends while refusing is small and fixed; the rest of a refused body is
+read and dropped by uvicorn so that the client sees the answer.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+_SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")
+"""The only way a lone surrogate gets into JSON text that is valid UTF-8."""
+_JSON_TYPES = re.compile(r"^application/([\w.+-]*\+)?json\b", re.IGNORECASE)
+
+
+class BodyTooLarge(Exception):
+    """Raised inside the app's ``receive`` when a streamed body passes its limit."""
+
+
+def _mib(n: int) -> str:
+    return f"{n / (1024 * 1024):g} MiB" if n >= 1024 * 1024 else f"{n} bytes"
+
+
+def too_large_text(limit: int) -> str:
+    return (
+        f"the request body is larger than {_mib(limit)} ({limit} bytes), "
+        "the most this route accepts"
+    )
+
+
+async def _answer(send: Send, status: int, body: dict[str, Any]) -> None:
+    payload = json.dumps(body).encode()  # ensure_ascii: always encodable, whatever it quotes
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(payload)).encode()),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": payload})
+
+
+def _strings(value: Any, loc: tuple[str | int, ...]) -> Iterator[tuple[tuple[str | int, ...], str]]:
+    """Every string of a parsed JSON document (keys too) with where it is."""
+    stack: list[tuple[Any, tuple[str | int, ...]]] = [(value, loc)]
+    while stack:
+        v, at = stack.pop()
+        if isinstance(v, str):
+            yield at, v
+        elif isinstance(v, dict):
+            for k, x in v.items():
+                yield at, k
+                stack.append((x, (*at, k)))
+        elif isinstance(v, list):
+            stack.extend((x, (*at, i)) for i, x in enumerate(v))
+
+
+def lone_surrogate(body: bytes) -> dict[str, Any] | None:
+    """A FastAPI-shaped validation error for the first string with a lone surrogate, or
+    None. Bodies without a surrogate escape (nearly all) are passed over by one scan."""
+    if not _SURROGATE_ESCAPE.search(body):
+        return None
+    try:
+        doc = json.loads(body)
+    except (ValueError, RecursionError):
+        return None  # not JSON at all: the route's own parser says so
+    for loc, text in _strings(doc, ("body",)):
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            bad = text[exc.start]
+            return {
+                "type": "string_unicode",
+                "loc": [str(p) if isinstance(p, str) else p for p in loc],
+                "msg": f"the text holds a lone surrogate \\u{ord(bad):04x} at character "
+                f"{exc.start}: only whole Unicode characters are accepted",
+            }
+    return None
+
+
+class RequestGuard:
+    """Body limits and the JSON text check, for every HTTP request (WebSockets have their
+    own message limit).
+
+    ``limit_for(method, path)`` names a route's limit; everything else gets ``default``.
+    """
+
+    def __init__(
+        self,
+        app: ASGIApp,
+        default: int,
+        limit_for: Callable[[str, str], int | None] = lambda method, path: None,
+    ) -> None:
+        self.app = app
+        self.default = default
+        self.limit_for = limit_for
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self.limit_for(scope["method"], scope["path"]) or self.default
+        length: int | None = None
+        chunked = False
+        content_type = ""
+        for name, value in scope["headers"]:
+            if name == b"content-length":
+                length = int(value) if value.isdigit() else None  # the HTTP parser checked it
+            elif name == b"transfer-encoding":
+                chunked = True
+            elif name == b"content-type":
+                content_type = value.decode("latin-1")
+        if length is not None and length > limit:
+            await _answer(send, 413, {"detail": too_large_text(limit)})
+            return
+        if not (chunked or length):
+            await self.app(scope, receive, send)
+            return
+        if not content_type or _JSON_TYPES.match(content_type):
+            await self._json(scope, receive, send, limit)
+        else:
+            await self._stream(scope, receive, send, limit)
+
+    async def _json(self, scope: Scope, receive: Receive, send: Send, limit: int) -> None:
+        parts: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":  # the client left: nothing to answer
+                return
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > limit:
+                await _answer(send, 413, {"detail": too_large_text(limit)})
+                return
+            parts.append(chunk)
+            if not message.get("more_body", False):
+                break
+        body = b"".join(parts)
+        error = lone_surrogate(body)
+        if error is not None:
+            await _answer(send, 422, {"detail": [error]})
+            return
+        replayed = False
+
+        async def replay() -> Message:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()  # a disconnect, for streaming responses
+
+        await self.app(scope, replay, send)
+
+    async def _stream(self, scope: Scope, receive: Receive, send: Send, limit: int) -> None:
+        size = 0
+        over = False
+        started = False
+
+        async def counted() -> Message:
+            nonlocal size, over
+            message = await receive()
+            if message["type"] == "http.request":
+                size += len(message.get("body", b""))
+                if size > limit:
+                    over = True
+                    raise BodyTooLarge(too_large_text(limit))
+            return message
+
+        async def watched(message: Message) -> None:
+            nonlocal started
+            if over and not started:
+                return  # whatever the app made of the exception, the answer is our 413
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        with contextlib.suppress(BodyTooLarge):  # raised by counted(), answered here
+            await self.app(scope, counted, watched)
+        if over and not started:
+            await _answer(send, 413, {"detail": too_large_text(limit)})

@@ -1,0 +1,135 @@
+"""Sign-in throttling: failures are counted per account and per client address.
+
+Each key (an account's email, a client's address) has a limit of failed sign-ins in a
+moving window (``login_account_limit``, ``login_address_limit``). The first third of a
+limit answers at once, as a person mistyping expects; after that each failure doubles a
+delay (from ``DELAY_START_S`` up to ``login_delay_max_s``) spent before the password is
+checked; at the limit the answer is 429 with ``Retry-After`` until the oldest failure
+leaves the window, and the password is not checked at all. A successful sign-in clears its
+account's count (not its address's: one good account must not reset a guesser's address).
+
+Counts live in a ``limits`` storage (``login_throttle_storage``): memory for one process,
+Redis for several. Sign-ins in progress are capped per key in this process
+(``login_pending_max``) so that one address sending a hundred at once queues four for the
+password hasher, not a hundred, and a colleague's sign-in is not stuck behind them.
+
+Keys are the SHA-256 of the normalised email (no addresses in a shared store) and the
+client address as uvicorn reports it (behind a proxy: the forwarded one it trusts).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import math
+import time
+from collections import Counter
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+
+from limits import RateLimitItem, parse
+from limits.aio.strategies import MovingWindowRateLimiter
+from limits.storage import storage_from_string
+
+from server.config import Settings
+
+DELAY_START_S = 0.25
+"""The first delay; each further failure doubles it."""
+BUSY_RETRY_S = 1
+"""Retry-After when too many sign-ins of one key are in progress at once."""
+
+
+class Throttled(Exception):
+    """Refuse this sign-in: 429 with ``Retry-After: retry_after``."""
+
+    def __init__(self, detail: str, retry_after: int) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.retry_after = retry_after
+
+
+@dataclass(frozen=True)
+class _Key:
+    what: str  # "account" or "address", for the sentences
+    storage_key: str
+    limit: RateLimitItem
+
+    @property
+    def free(self) -> int:
+        """Failures answered without delay."""
+        return max(1, self.limit.amount // 3)
+
+
+class Attempt:
+    """One sign-in under way; tell it how it ended."""
+
+    def __init__(self, throttle: LoginThrottle, keys: tuple[_Key, _Key]) -> None:
+        self._throttle = throttle
+        self._keys = keys
+
+    async def failed(self) -> None:
+        for key in self._keys:
+            await self._throttle.limiter.hit(key.limit, key.storage_key)
+
+    async def succeeded(self) -> None:
+        account = self._keys[0]
+        await self._throttle.limiter.clear(account.limit, account.storage_key)
+
+
+class LoginThrottle:
+    def __init__(self, settings: Settings) -> None:
+        uri = settings.login_throttle_storage
+        self.storage = storage_from_string(uri if uri.startswith("async+") else f"async+{uri}")
+        self.limiter = MovingWindowRateLimiter(self.storage)
+        self.account_limit = parse(settings.login_account_limit)
+        self.address_limit = parse(settings.login_address_limit)
+        self.delay_max_s = settings.login_delay_max_s
+        self.pending_max = settings.login_pending_max
+        self._pending: Counter[str] = Counter()
+
+    def _keys(self, email: str, address: str) -> tuple[_Key, _Key]:
+        digest = hashlib.sha256(email.encode("utf-8", "backslashreplace")).hexdigest()[:32]
+        return (
+            _Key("account", f"login:account:{digest}", self.account_limit),
+            _Key("address", f"login:address:{address}", self.address_limit),
+        )
+
+    async def _delay(self, keys: tuple[_Key, _Key]) -> float:
+        """Raise Throttled at a limit; else the delay this attempt waits, s."""
+        over = -1
+        for key in keys:
+            stats = await self.limiter.get_window_stats(key.limit, key.storage_key)
+            if stats.remaining <= 0:
+                wait = max(1, math.ceil(stats.reset_time - time.time()))
+                raise Throttled(
+                    f"too many failed sign-ins for this {key.what}: try again in {wait} s",
+                    wait,
+                )
+            failures = key.limit.amount - stats.remaining
+            over = max(over, failures - key.free)
+        return 0.0 if over < 0 else min(self.delay_max_s, DELAY_START_S * 2.0**over)
+
+    @asynccontextmanager
+    async def attempt(self, email: str, address: str) -> AsyncIterator[Attempt]:
+        """Admit one sign-in (or raise Throttled), wait its delay, and hold its place among
+        those in progress until the block ends."""
+        keys = self._keys(email, address)
+        for key in keys:
+            if self._pending[key.storage_key] >= self.pending_max:
+                raise Throttled(
+                    f"too many sign-ins for this {key.what} at once: try again in {BUSY_RETRY_S} s",
+                    BUSY_RETRY_S,
+                )
+        for key in keys:  # counted before the first await, or a burst would all pass
+            self._pending[key.storage_key] += 1
+        try:
+            delay = await self._delay(keys)
+            if delay:
+                await asyncio.sleep(delay)
+            yield Attempt(self, keys)
+        finally:
+            for key in keys:
+                self._pending[key.storage_key] -= 1
+                if not self._pending[key.storage_key]:
+                    del self._pending[key.storage_key]
