@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from lab.serverbench import ServerProcess, provision
+from lab.serverbench import ServerProcess, _number, jsonable, provision
 from lab.targets import Target
 from lab.targets import table as bench_table
 
@@ -310,22 +310,6 @@ def _measure(
         "server_rss_mb_max": max(rss) if rss else math.nan,
         "health_polls": len(monitor.polls),
     }
-    return out
-
-
-def _number(value: Any) -> float:
-    return math.nan if value is None else float(value)
-
-
-def jsonable(result: dict[str, Any]) -> dict[str, Any]:
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        return v
-
-    out: dict[str, Any] = clean(result)
     return out
 
 

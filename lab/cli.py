@@ -286,7 +286,7 @@ def _bench(args: argparse.Namespace) -> int:
         )
         aresult = abuse.run(sizes, progress=_progress)
         print(file=sys.stderr)
-        print(json.dumps(abuse.jsonable(aresult), indent=2) if args.json else abuse.table(aresult))
+        print(json.dumps(serverbench.jsonable(aresult), indent=2) if args.json else abuse.table(aresult))
         return 0
     if args.bench == "link":
         from lab import linkbench

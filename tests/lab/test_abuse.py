@@ -6,7 +6,7 @@ import json
 import subprocess
 import sys
 
-from lab import abuse
+from lab import abuse, serverbench
 
 ARGS = [
     "bench",
@@ -61,4 +61,4 @@ def test_the_table_shows_every_row_and_marks_a_missed_target() -> None:
     for _, label in abuse.ROWS:
         assert label in text
     assert "| 5xx answers | 2 | = 0 | NO |" in text
-    assert json.loads(json.dumps(abuse.jsonable({"x": float("nan")})))["x"] is None
+    assert json.loads(json.dumps(serverbench.jsonable({"x": float("nan")})))["x"] is None
