@@ -274,7 +274,7 @@ def _bench(args: argparse.Namespace) -> int:
         )
         return 0
     if args.bench == "abuse":
-        from lab import abuse
+        from lab import abuse, serverbench
 
         sizes = abuse.Sizes(
             args.bodies_10mib,
@@ -286,7 +286,11 @@ def _bench(args: argparse.Namespace) -> int:
         )
         aresult = abuse.run(sizes, progress=_progress)
         print(file=sys.stderr)
-        print(json.dumps(serverbench.jsonable(aresult), indent=2) if args.json else abuse.table(aresult))
+        print(
+            json.dumps(serverbench.jsonable(aresult), indent=2)
+            if args.json
+            else abuse.table(aresult)
+        )
         return 0
     if args.bench == "link":
         from lab import linkbench
