@@ -542,6 +542,13 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
 
 
 @njit_inline
+def ask_service(s: ControllerState, c: int) -> None:
+    """Chamber ``c``'s air did not add up: the first such chamber is the one reported."""
+    if s.counters[supervision.C_SERVICE] == 0:
+        s.counters[supervision.C_SERVICE] = c + 1
+
+
+@njit_inline
 def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     lo, up = 2 * leg, 2 * leg + 1
     if not moving(s):
@@ -603,21 +610,22 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     )
     supply = s.sensors[12]
     x = s.leg_x[leg]
+    # Each chamber's volume from the measured piston, for the air checks below.
+    volume_lo = p.dead_volume + p.area_cap * x
+    volume_up = p.dead_volume + p.area_annulus * (p.stroke - x)
     for c in (lo, up):
         # Driven: a pulse at least as long as the valve's response time, so it moved air.
         driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
         if supervision.check_frozen(s.monitor, s.counters, c, s.sensors[c], driven, p.sup):
             trip(s, Trip.PRESSURE_SENSOR, c)
             return
-    for c in (lo, up):
+    for c, volume in ((lo, volume_lo), (up, volume_up)):
         # The air of the period that just ended, against what its valves were told.
-        volume = p.dead_volume + (p.area_cap * x if c == lo else p.area_annulus * (p.stroke - x))
         if supervision.check_air_flow(
             s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup
         ):
-            if s.counters[supervision.C_SERVICE] == 0:
-                s.counters[supervision.C_SERVICE] = c + 1
-    for c, u in ((lo, u_l), (up, u_u)):
+            ask_service(s, c)
+    for c, u, volume in ((lo, u_l, volume_lo), (up, u_u, volume_up)):
         s.u[c] = u
         n = 0
         if abs(u) > p.hold_band:
@@ -625,7 +633,6 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         if n > 0 and not supervision.intake_allowed(supply, s.pressure[c], p.sup):
             n = 0  # an intake would vent this chamber backwards into a falling supply
         s.slots[c] = n
-        volume = p.dead_volume + (p.area_cap * x if c == lo else p.area_annulus * (p.stroke - x))
         if supervision.check_valves(
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
         ):
@@ -634,8 +641,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         if supervision.check_air(
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
         ):
-            if s.counters[supervision.C_SERVICE] == 0:
-                s.counters[supervision.C_SERVICE] = c + 1
+            ask_service(s, c)
 
 
 @njit

@@ -239,6 +239,21 @@ def _drawn_rig(patient: str, draw: int) -> Rig:
     return Rig(SimulatedHardware(cfg, seed=draw), config=config)
 
 
+def start_exercise(rig: Rig, kind: ExerciseKind) -> None:
+    """Start the library's ``kind`` at mid stroke with its defaults, the patient pushing a
+    0.3 Hz, 5 N m torque on each prescribed axis from 0.5 s on."""
+    targets, K, B, compliant = _library_targets(kind)
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(0.5, log_hz=0)
+    if any(compliant):
+        rig.set_impedance(K, B, compliant)
+    rig.track(targets)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    for axis in targets:
+        hw.script_torque(AXIS_INDEX[axis], SCRIPT_SINE, rig.time + 0.5, 5.0, 0.3)
+
+
 def healthy_runs(
     seeds: tuple[int, ...] = (1, 2, 3),
     seconds: float = 10.0,
@@ -252,19 +267,10 @@ def healthy_runs(
     plants = [("nominal", seed) for seed in seeds] + [(f"draw {d}", d) for d in draws]
     total = len(EXERCISE_LIBRARY) * 2 * len(plants)
     for kind in EXERCISE_LIBRARY:
-        targets, K, B, compliant = _library_targets(kind)
         for patient in ("relaxed", "resisting"):
             for plant, seed in plants:
                 rig = _rig(patient, seed) if plant == "nominal" else _drawn_rig(patient, seed)
-                rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
-                rig.run(0.5, log_hz=0)
-                if any(compliant):
-                    rig.set_impedance(K, B, compliant)
-                rig.track(targets)
-                hw = rig.hardware
-                assert isinstance(hw, SimulatedHardware)
-                for axis in targets:
-                    hw.script_torque(AXIS_INDEX[axis], SCRIPT_SINE, rig.time + 0.5, 5.0, 0.3)
+                start_exercise(rig, kind)
                 worst = 0.0
                 monitor = rig.state.monitor
                 peaks = slice(supervision.M_WRENCH_PEAK, supervision.M_WRENCH_PEAK + 2)

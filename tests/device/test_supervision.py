@@ -306,19 +306,9 @@ def test_a_leg_resting_short_of_a_still_target_is_not_taken_for_a_stuck_sensor()
     leg 1.0-1.1 mm short of its target for longer than the stuck rule's 33 reads while the
     target creeps by less than 0.1 mm. It tripped LEG_SENSOR before the error rule asked
     for a target that ran away from the frozen reading."""
-    from device.axes import AXIS_INDEX
-    from device.plant.model import SCRIPT_SINE
     from sessions.prescription import ExerciseKind
 
     rig = safety._drawn_rig("resisting", 2)
-    targets, K, B, compliant = safety._library_targets(ExerciseKind.ROM_ASSESSMENT)
-    rig.move_legs([0.5 * rig.geometry.stroke] * 6)
-    rig.run(0.5, log_hz=0)
-    rig.set_impedance(K, B, compliant)
-    rig.track(targets)
-    hw = rig.hardware
-    assert isinstance(hw, SimulatedHardware)
-    for axis in targets:
-        hw.script_torque(AXIS_INDEX[axis], SCRIPT_SINE, rig.time + 0.5, 5.0, 0.3)
+    safety.start_exercise(rig, ExerciseKind.ROM_ASSESSMENT)
     rig.run(10.0, log_hz=0)
     assert rig.trip == Trip.NONE, (rig.trip, rig.trip_channel)
