@@ -40,12 +40,13 @@ N·m·s/rad, times seconds, timestamps UTC.
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     engine = create_engine(settings)
-    hub = live.Hub()
+    hub = live.Hub(recheck_s=settings.live_recheck_s)
     try:
         await migrate(engine)
         app.state.engine = engine
-        app.state.sessionmaker = create_sessionmaker(engine)
+        app.state.sessionmaker = hub.sessionmaker = create_sessionmaker(engine)
         app.state.hub = hub
+        hub.start_rechecks()
         app.state.hashing = HashingSlots(settings.password_hash_concurrency)
         app.state.login_throttle = LoginThrottle(settings)
         yield

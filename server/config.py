@@ -52,6 +52,14 @@ class Settings(BaseSettings):
         le=30 * 24 * 3600,
         description="Lifetime of a therapist's or admin's login token, seconds (a clinic shift).",
     )
+    live_recheck_s: float = Field(
+        default=30.0,
+        gt=0,
+        le=3600,
+        description="How often open live links re-check their credentials even when this "
+        "process changed none (a change made in the database directly, or by another server "
+        "process), seconds. Changes made through this server close the links at once.",
+    )
     upload_max_bytes: int = Field(
         default=512 * MiB,
         gt=0,

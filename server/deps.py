@@ -14,8 +14,8 @@ handlers, which have no HTTP dependencies of this kind, check tokens the same wa
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from datetime import timedelta
-from typing import Annotated
+from datetime import datetime, timedelta
+from typing import Annotated, Literal, NamedTuple
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -63,8 +63,24 @@ def not_found(what: str) -> HTTPException:
     return HTTPException(status.HTTP_404_NOT_FOUND, detail=f"{what} not found")
 
 
-async def authenticate_user(db: AsyncSession, token: str) -> User | None:
-    """The active user holding an unexpired login ``token``, or None."""
+LoginFailure = Literal["unknown", "expired", "inactive"]
+"""Why a token does not sign anyone in: no such login (never issued, logged out, or ended by
+a password change), past its expiry, or its user is deactivated."""
+
+
+class LoginStanding(NamedTuple):
+    user: User | None
+    failure: LoginFailure | None
+    """None when the token signs ``user`` in now."""
+    expires_at: datetime | None
+
+
+async def login_standing(db: AsyncSession, token: str) -> LoginStanding:
+    """Who holds the login ``token``, until when, and, if it does not sign them in now, why.
+
+    The one place a user's token is judged: HTTP requests (``authenticate_user``), the live
+    view's handshake and the live links' re-checks all ask here.
+    """
     digest = token_hash(token)
     row = (
         await db.execute(
@@ -74,11 +90,21 @@ async def authenticate_user(db: AsyncSession, token: str) -> User | None:
         )
     ).first()
     if row is None:
-        return None
+        return LoginStanding(None, "unknown", None)
     login, user = row
-    if not same_secret(login.token_hash, digest) or login.expires_at <= utcnow():
-        return None
-    return user if user.active else None
+    if not same_secret(login.token_hash, digest):
+        return LoginStanding(None, "unknown", None)
+    if login.expires_at <= utcnow():
+        return LoginStanding(user, "expired", login.expires_at)
+    if not user.active:
+        return LoginStanding(user, "inactive", login.expires_at)
+    return LoginStanding(user, None, login.expires_at)
+
+
+async def authenticate_user(db: AsyncSession, token: str) -> User | None:
+    """The active user holding an unexpired login ``token``, or None."""
+    standing = await login_standing(db, token)
+    return standing.user if standing.failure is None else None
 
 
 async def authenticate_station(db: AsyncSession, token: str) -> Station | None:

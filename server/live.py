@@ -19,6 +19,7 @@ import json
 import logging
 import time
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -28,8 +29,8 @@ from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
 
 from server import audit
-from server.deps import authenticate_station, authenticate_user
-from server.models import Patient, Prescription, Station, User, utcnow
+from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
+from server.models import Patient, Prescription, Station, utcnow
 from sessions import wire
 from sessions.prescription import AXIS_INDEX, PrescriptionBody
 
@@ -42,11 +43,19 @@ COMMAND_TIMEOUT_S = 3.0
 """A command with no answer from the station by then is reported as TIMEOUT."""
 CONTROL_QUEUE_MAX = 1000
 """Events and status a viewer may fall behind by before it is closed as too slow."""
+_LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
+    "unknown": (wire.CLOSE_SIGNED_OUT, "signed out; sign in again"),
+    "expired": (wire.CLOSE_EXPIRED, "the sign-in expired; sign in again"),
+    "inactive": (wire.CLOSE_DEACTIVATED, "this account was deactivated"),
+}
+NO_ACCESS = "you may no longer see this patient"
 
 
 @dataclass(eq=False)
 class Viewer:
     ws: WebSocket
+    token: str
+    """The login it was opened with: re-checked whenever credentials may have changed."""
     user_id: int
     station_id: int
     may_command: bool
@@ -62,6 +71,7 @@ class Viewer:
 @dataclass(eq=False)
 class StationConn:
     ws: WebSocket
+    token: str
     station_id: int
     patient_id: int
     status: wire.StatusMsg | None = None
@@ -73,13 +83,20 @@ class StationConn:
 class Hub:
     """Connected stations and their viewers, in one process."""
 
-    def __init__(self) -> None:
+    def __init__(self, recheck_s: float = 30.0) -> None:
+        self.recheck_s = recheck_s
+        """How often every open link's credentials are checked again even when nothing in
+        this process changed them (``Settings.live_recheck_s``)."""
         self.stations: dict[int, StationConn] = {}
         self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
         self._pending: dict[str, tuple[int, asyncio.TimerHandle]] = {}
         self.sessionmaker: async_sessionmaker[AsyncSession] | None = None
         self._audit: asyncio.Queue[tuple[dict[str, Any], asyncio.Future[None]]] = asyncio.Queue()
         self._audit_task: asyncio.Task[None] | None = None
+        self._recheck_lock = asyncio.Lock()
+        self._recheck_asked = 0
+        self._recheck_done = 0
+        self._recheck_task: asyncio.Task[None] | None = None
 
     async def audit(self, **row: Any) -> None:
         """Write one audit row; returns once it is committed.
@@ -114,12 +131,53 @@ class Hub:
                     if not done.done():
                         done.set_result(None)
 
-    async def revoke(self, station_id: int) -> None:
-        """Disconnect a station whose token was just revoked."""
-        conn = self.stations.get(station_id)
-        if conn is not None:
-            with contextlib.suppress(Exception):
-                await conn.ws.close(wire.CLOSE_REVOKED, "the station's token was revoked")
+    async def recheck(self) -> None:
+        """Check the credentials of every open link against the database now, and close
+        each link whose credentials no longer hold, with the close code that says why.
+
+        Every route that ends or narrows someone's trust (logout, a password change or
+        reset, deactivation, a patient moved or archived, a station revoked) calls this
+        after its commit, so the link closes within the request. Callers that arrive while a
+        pass runs share the next pass: a burst of changes costs two passes, not one each.
+        """
+        self._recheck_asked += 1
+        asked = self._recheck_asked
+        async with self._recheck_lock:
+            if self._recheck_done >= asked:
+                return  # a pass that began after this call was made has covered it
+            began = self._recheck_asked
+            await self._recheck_pass()
+            self._recheck_done = began
+
+    async def _recheck_pass(self) -> None:
+        if self.sessionmaker is None or not (self.stations or any(self.viewers.values())):
+            return
+        ends: list[tuple[WebSocket, int, str]] = []
+        async with self.sessionmaker() as db:
+            for viewers in list(self.viewers.values()):
+                for v in list(viewers):
+                    _, code, reason = await view_standing(db, v.token, v.station_id)
+                    if code:
+                        ends.append((v.ws, code, reason))
+            for conn in list(self.stations.values()):
+                if await authenticate_station(db, conn.token) is None:
+                    ends.append((conn.ws, wire.CLOSE_REVOKED, "the station's token was revoked"))
+        for ws, code, reason in ends:
+            log.info("live link closed (%d): %s", code, reason)
+            await _close(ws, code, reason)
+
+    def start_rechecks(self) -> None:
+        """Re-check every ``recheck_s`` in the background (idempotent)."""
+        if self._recheck_task is None or self._recheck_task.done():
+            self._recheck_task = asyncio.create_task(self._recheck_forever())
+
+    async def _recheck_forever(self) -> None:
+        while True:
+            await asyncio.sleep(self.recheck_s)
+            try:
+                await self.recheck()
+            except Exception:  # the database is away: the next pass tries again
+                log.exception("re-checking live links' credentials failed")
 
     def online(self, station_id: int) -> bool:
         return station_id in self.stations
@@ -135,8 +193,9 @@ class Hub:
 
     async def close(self) -> None:
         """Close every live connection (at shutdown)."""
-        if self._audit_task is not None:
-            self._audit_task.cancel()
+        for task in (self._audit_task, self._recheck_task):
+            if task is not None:
+                task.cancel()
         for conn in list(self.stations.values()):
             with contextlib.suppress(Exception):
                 await conn.ws.close(wire.CLOSE_NORMAL, "server shutting down")
@@ -176,8 +235,6 @@ class Hub:
 
 def _hub(ws: WebSocket) -> Hub:
     hub: Hub = ws.app.state.hub
-    if hub.sessionmaker is None:
-        hub.sessionmaker = ws.app.state.sessionmaker
     return hub
 
 
@@ -303,7 +360,8 @@ async def station_socket(ws: WebSocket) -> None:
         await ws.close(wire.CLOSE_POLICY)  # before accept: the client sees HTTP 403
         return
     await ws.accept()
-    conn = StationConn(ws, station.id, station.patient_id)
+    assert token is not None
+    conn = StationConn(ws, token, station.id, station.patient_id)
     silence = _Silence()
     try:
         hello = wire.STATION_UP.validate_json(await _receive(ws, silence))
@@ -387,18 +445,21 @@ async def _heartbeats(ws: WebSocket) -> None:
 async def live_socket(ws: WebSocket, station_id: int) -> None:
     hub = _hub(ws)
     token, subprotocol = _bearer(ws)
-    user: User | None = None
-    allowed = False
+    standing: LoginStanding | None = None
+    refused = True
     if token and _origin_ok(ws):
         assert hub.sessionmaker is not None
         async with hub.sessionmaker() as db:
-            user, allowed = await _viewer_may_watch(db, token, station_id)
-    if user is None or not allowed:
+            standing, code, _ = await view_standing(db, token, station_id)
+        refused = code != 0
+    if refused or token is None or standing is None or standing.user is None:
         await ws.close(wire.CLOSE_POLICY)  # the same for a station that does not exist
         return
+    user = standing.user
     await ws.accept(subprotocol=subprotocol)
-    viewer = Viewer(ws, user.id, station_id, may_command=user.role == "therapist")
+    viewer = Viewer(ws, token, user.id, station_id, may_command=user.role == "therapist")
     hub.viewers[station_id].add(viewer)
+    expiry = _close_at_expiry(ws, standing.expires_at)
     conn = hub.stations.get(station_id)
     silence = _Silence()
     writer: asyncio.Task[None] | None = None
@@ -426,6 +487,7 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
         pass
     finally:
         silence.stop()
+        expiry.cancel()
         hub.viewers[station_id].discard(viewer)
         if writer is not None:
             writer.cancel()
@@ -433,19 +495,38 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
                 await writer
 
 
-async def _viewer_may_watch(
+async def view_standing(
     db: AsyncSession, token: str, station_id: int
-) -> tuple[User | None, bool]:
-    user = await authenticate_user(db, token)
-    if user is None:
-        return None, False
+) -> tuple[LoginStanding, int, str]:
+    """Whether the login ``token`` may watch the station now: (standing, 0, "") if it may,
+    else the close code and the reason. Checked at the handshake and at every re-check."""
+    standing = await login_standing(db, token)
+    if standing.failure is not None:
+        return standing, *_LOGIN_CLOSE[standing.failure]
+    assert standing.user is not None
     station = await db.get(Station, station_id)
-    if station is None:
-        return user, False
-    if user.role == "admin":
-        return user, True
-    patient = await db.get(Patient, station.patient_id)
-    return user, patient is not None and patient.therapist_id == user.id
+    patient = None if station is None else await db.get(Patient, station.patient_id)
+    if patient is None or not may_read(standing.user, patient):
+        return standing, wire.CLOSE_NO_ACCESS, NO_ACCESS
+    return standing, 0, ""
+
+
+def _close_at_expiry(ws: WebSocket, expires_at: datetime | None) -> asyncio.TimerHandle:
+    """A timer that closes the view the moment its sign-in expires."""
+    loop = asyncio.get_running_loop()
+    left = 0.0 if expires_at is None else (expires_at - utcnow()).total_seconds()
+    code, reason = _LOGIN_CLOSE["expired"]
+
+    def expire() -> None:
+        task = loop.create_task(_close(ws, code, reason))
+        _background.add(task)
+        task.add_done_callback(_background.discard)
+
+    return loop.call_later(max(left, 0.0), expire)
+
+
+_background: set[asyncio.Task[None]] = set()
+"""Tasks nobody awaits, held so that they are not collected before they run."""
 
 
 async def _viewer_writer(hub: Hub, v: Viewer) -> None:

@@ -51,6 +51,15 @@ CLOSE_TIMEOUT = 4001
 CLOSE_REPLACED = 4002
 """The same station connected again; the newest connection wins."""
 CLOSE_REVOKED = 4003
+"""The station's token was revoked (a station link), or the watched station was (a view)."""
+CLOSE_SIGNED_OUT = 4004
+"""The viewer's sign-in ended: logged out, or its password was changed or reset."""
+CLOSE_EXPIRED = 4005
+"""The viewer's sign-in expired (``token_ttl_s`` after it began)."""
+CLOSE_DEACTIVATED = 4006
+"""The viewer's account was deactivated."""
+CLOSE_NO_ACCESS = 4007
+"""The viewer may no longer see this station's patient."""
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 

@@ -109,13 +109,17 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
     summary="End this login",
     responses=UNAUTHORIZED,
 )
-async def logout(user: CurrentUser, credentials: UserCredentials, db: Db) -> None:
-    """The token used for this request stops working; other logins of the user do not."""
+async def logout(
+    user: CurrentUser, credentials: UserCredentials, db: Db, request: Request
+) -> None:
+    """The token used for this request stops working, and the live views opened with it
+    close (code 4004); other logins of the user do not."""
     assert credentials is not None  # current_user has refused a request without one
     await db.execute(
         delete(AuthToken).where(AuthToken.token_hash == token_hash(credentials.credentials))
     )
     await db.commit()
+    await request.app.state.hub.recheck()
 
 
 @router.get("/me", response_model=UserPublic, summary="Who am I", responses=UNAUTHORIZED)

@@ -107,5 +107,5 @@ async def revoke_station(
             {"revoked": True},
         )
         await db.commit()
-        await request.app.state.hub.revoke(station.id)  # its open link goes too
+        await request.app.state.hub.recheck()  # its open link goes too
     return StationPublic.from_row(station, _online(request, station))

@@ -11,18 +11,22 @@ import asyncio
 import json
 import re
 import time
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from typing import Any
 
 import pytest
-from websockets.asyncio.client import ClientConnection, connect
+from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from sessions import wire
 from tests.server.live_server import Live, World, bearer
-
-HELLO = wire.StationHello(protocol=wire.PROTOCOL, software="test-station").model_dump_json()
+from tests.server.ws_client import (
+    HELLO,
+    close_of,
+    closed_with,
+    station_ws,
+    viewer_ws,
+    welcomed,
+)
 
 
 def _telemetry(**change: Any) -> dict[str, Any]:
@@ -48,67 +52,6 @@ def _telemetry(**change: Any) -> dict[str, Any]:
         "frames_dropped": 0,
     }
     return body | change
-
-
-def _url(live: Live, path: str) -> str:
-    return f"ws://127.0.0.1:{live.client.base_url.port}{path}"
-
-
-@asynccontextmanager
-async def station_ws(
-    live: Live, token: str, headers: dict[str, str] | None = None
-) -> AsyncIterator[ClientConnection]:
-    async with connect(
-        _url(live, "/ws/station"),
-        additional_headers={"Authorization": f"Bearer {token}", **(headers or {})},
-        max_size=None,  # the test reads what the server sends, whatever its size
-        ping_interval=None,
-        open_timeout=5,
-    ) as ws:
-        yield ws
-
-
-@asynccontextmanager
-async def viewer_ws(
-    live: Live, token: str, station_id: int, headers: dict[str, str] | None = None
-) -> AsyncIterator[ClientConnection]:
-    async with connect(
-        _url(live, f"/ws/live/{station_id}"),
-        subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
-        additional_headers=headers,
-        ping_interval=None,
-        open_timeout=5,
-    ) as ws:
-        yield ws
-
-
-async def close_of(ws: ClientConnection, timeout: float) -> tuple[int, str] | None:
-    """Read (and drop) whatever comes until the server closes: its code and reason; None if
-    the link is still open after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    try:
-        while (left := deadline - time.monotonic()) > 0:
-            await asyncio.wait_for(ws.recv(), left)
-    except TimeoutError:
-        return None
-    except ConnectionClosed:
-        assert ws.close_code is not None
-        return ws.close_code, ws.close_reason or ""
-    return None
-
-
-async def closed_with(ws: ClientConnection, timeout: float = 3.0) -> tuple[int, str]:
-    closed = await close_of(ws, timeout)
-    assert closed is not None, f"the server did not close the link within {timeout} s"
-    return closed
-
-
-async def welcomed(ws: ClientConnection) -> wire.Welcome:
-    """Say hello as a station; the server's welcome (its prescriptions are read past)."""
-    await ws.send(HELLO)
-    welcome = wire.STATION_DOWN.validate_json(await asyncio.wait_for(ws.recv(), 5))
-    assert isinstance(welcome, wire.Welcome), welcome
-    return welcome
 
 
 async def online(live: Live, world: World, station_id: int) -> bool:

@@ -25,7 +25,7 @@ def telemetry(pitch_deg: float) -> str:
 def connected(hub: Hub, station_id: int) -> StationConn:
     # The hub's record of a connected station; its socket is never used by the scenes.
     ws: Any = None
-    conn = StationConn(ws, station_id, patient_id=1)
+    conn = StationConn(ws, "", station_id, patient_id=1)
     hub.stations[station_id] = conn
     return conn
 

@@ -368,10 +368,18 @@ link.addEventListener("message", (ev) => {
     }
   } else if (m.op === "close") {
     linkOpen = false;
-    if (m.code === 1008) {
+    // Closed because trust ended (sessions/wire.py CLOSE_*): retrying cannot help.
+    const ended = {
+      1008: "You may not watch this station (signed out, or not your patient's station).",
+      4004: "You were signed out. Sign in again to keep watching.",
+      4005: "Your sign-in expired. Sign in again to keep watching.",
+      4006: "Your account was deactivated. Ask your administrator.",
+      4007: "You may no longer see this patient, so the live view was closed.",
+    }[m.code];
+    if (ended) {
       state.closedForGood = true;
       showLink();
-      fail("You may not watch this station (signed out, or not your patient's station).");
+      fail(ended);
       return;
     }
     const wait = state.retryMs;
