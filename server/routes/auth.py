@@ -109,9 +109,7 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
     summary="End this login",
     responses=UNAUTHORIZED,
 )
-async def logout(
-    user: CurrentUser, credentials: UserCredentials, db: Db, request: Request
-) -> None:
+async def logout(user: CurrentUser, credentials: UserCredentials, db: Db, request: Request) -> None:
     """The token used for this request stops working, and the live views opened with it
     close (code 4004); other logins of the user do not."""
     assert credentials is not None  # current_user has refused a request without one
