@@ -5,16 +5,20 @@ would on the embedded PC.
 
 from __future__ import annotations
 
+import collections
 import os
 import re
 import selectors
 import signal
 import subprocess
 import sys
+import threading
 import time
 from types import TracebackType
 
 SERVING = re.compile(r"serving on (\S+)")
+OUTPUT_LINES = 1000
+"""The service's last lines of output kept (for a crash report)."""
 
 
 class ServiceStartError(RuntimeError):
@@ -33,8 +37,18 @@ class ServiceProcess:
             text=True,
             bufsize=1,
         )
-        self.output: list[str] = []
+        self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES)
+        self._reader: threading.Thread | None = None
         self.link = self._wait_for_link(start_timeout)
+        # Read on for as long as it lives: a pipe nobody reads fills up (64 KiB) and the
+        # service would block on its next log line, control loop and all.
+        self._reader = threading.Thread(target=self._read_on, name="device-output", daemon=True)
+        self._reader.start()
+
+    def _read_on(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.output.append(line.rstrip("\n"))
 
     def _wait_for_link(self, timeout: float) -> str:
         assert self.proc.stdout is not None
@@ -58,7 +72,7 @@ class ServiceProcess:
             sel.close()
         self.stop()
         raise ServiceStartError(
-            "the device service did not start:\n" + "\n".join(self.output[-20:])
+            "the device service did not start:\n" + "\n".join(list(self.output)[-20:])
         )
 
     @property
@@ -81,8 +95,9 @@ class ServiceProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        if self._reader is not None:
+            self._reader.join(timeout)
         if self.proc.stdout is not None:
-            self.output += self.proc.stdout.read().splitlines()
             self.proc.stdout.close()
         return self.proc.returncode
 

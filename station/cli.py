@@ -13,6 +13,7 @@ import contextlib
 import logging
 import os
 import signal
+import socket
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def port_taken(host: str, port: int) -> str | None:
+    """Why nothing can listen on (host, port) now, e.g. "address already in use"; None if it
+    can. Checked at start-up so that a taken port is an error, not a silently missing page."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host.strip("[]"), port))
+        except OSError as exc:
+            return (exc.strerror or str(exc)).lower()
+    return None
+
+
 PageServer = Callable[[Station, str, int], Coroutine[Any, Any, None]]
 """Serves the patient's page for a station on (host, port) until cancelled."""
 
@@ -77,6 +91,15 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
     if not 0 <= args.page_port <= 65535:
         print(f"error: ankle station: --page-port {args.page_port} is not a port (0..65535)")
         return 2
+    if page is not None and args.page_port:
+        taken = port_taken(args.page_host, args.page_port)
+        if taken is not None:
+            print(
+                f"error: ankle station: the patient's page cannot listen on "
+                f"{args.page_host}:{args.page_port} ({taken}); is another station running? "
+                "Stop it, or pass --page-port with a free port (0: no page)."
+            )
+            return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
     station = Station(
