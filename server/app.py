@@ -52,6 +52,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
     finally:
         await hub.close()
+        if hasattr(app.state, "hashing"):
+            app.state.hashing.close()
         await engine.dispose()
 
 

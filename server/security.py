@@ -9,12 +9,16 @@ by hash is safe against timing (an attacker learns bits of a hash, never of a to
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import hmac
+import os
 import secrets
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
@@ -74,18 +78,56 @@ def same_secret(a: str, b: str) -> bool:
     return hmac.compare_digest(a.encode(), b.encode())
 
 
+HASH_NICE = 10
+"""How much lower than the server's own threads the hashing threads run (Linux nice).
+
+Argon2 keeps a core busy for about a tenth of a second per hash; on an equal footing with the
+event loop, a burst of sign-ins on a two-core machine delayed every other request (and every
+live link) by that much. Lowered, the hashes take what the loop leaves."""
+
+
+def _lower_priority(nice: int) -> None:
+    # On Linux each thread has its own nice value (and the threads it starts inherit it).
+    with contextlib.suppress(OSError, AttributeError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+
+
 class HashingSlots:
-    """Argon2 work off the event loop, a few at a time.
+    """Argon2 work off the event loop, a few at a time, at a lower priority.
 
     Each hash takes a core and 64 MiB for about a tenth of a second: run on the loop it
     would stall every other request, and run all at once (a burst of sign-ins) it would take
-    every core and a lot of memory. Callers wait their turn, first come first served.
+    every core and a lot of memory. Callers wait their turn, first come first served, except
+    that callers sharing a ``key`` (a client address) hash one at a time: a flood from one
+    address holds one slot, and a colleague's sign-in from elsewhere takes another.
     """
 
-    def __init__(self, slots: int) -> None:
+    def __init__(self, slots: int, nice: int = HASH_NICE) -> None:
         self.slots = slots
         self._gate = asyncio.Semaphore(slots)
+        self._pool = ThreadPoolExecutor(
+            slots, thread_name_prefix="argon2", initializer=_lower_priority, initargs=(nice,)
+        )
+        self._keys: dict[str, tuple[asyncio.Lock, int]] = {}
 
-    async def run(self, fn: Callable[..., T], *args: str) -> T:
+    async def run(self, fn: Callable[..., T], *args: Any, key: str | None = None) -> T:
+        if key is None:
+            return await self._hash(fn, *args)
+        lock, users = self._keys.get(key, (asyncio.Lock(), 0))
+        self._keys[key] = (lock, users + 1)
+        try:
+            async with lock:
+                return await self._hash(fn, *args)
+        finally:
+            lock, users = self._keys[key]
+            if users == 1:
+                del self._keys[key]
+            else:
+                self._keys[key] = (lock, users - 1)
+
+    async def _hash(self, fn: Callable[..., T], *args: Any) -> T:
         async with self._gate:
-            return await asyncio.to_thread(fn, *args)
+            return await asyncio.get_running_loop().run_in_executor(self._pool, fn, *args)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)

@@ -57,9 +57,9 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
         async with throttle.attempt(email, address) as attempt:
             user = (await db.execute(select(User).where(User.email == email))).scalar_one_or_none()
             if user is None:
-                await hashing.run(burn_verify, body.password)
+                await hashing.run(burn_verify, body.password, key=address)
             ok = user is not None and await hashing.run(
-                verify_password, user.password_hash, body.password
+                verify_password, user.password_hash, body.password, key=address
             )
             if user is None or not ok or not user.active:
                 await attempt.failed()
@@ -85,7 +85,7 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
             headers={"Retry-After": str(exc.retry_after)},
         ) from None
     if needs_rehash(user.password_hash):
-        user.password_hash = await hashing.run(hash_password, body.password)
+        user.password_hash = await hashing.run(hash_password, body.password, key=address)
     audit.record(
         db, audit.user_actor(user), "auth.login", "user", user.id, None, None, {"client": address}
     )

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
+import os
+import threading
+import time
+
+import pytest
 
 from server.security import (
+    HASH_NICE,
+    HashingSlots,
     hash_password,
     needs_rehash,
     new_token,
@@ -31,3 +39,38 @@ def test_tokens_are_random_and_stored_as_sha256() -> None:
     assert token_hash(a) == hashlib.sha256(a.encode()).hexdigest()
     assert same_secret(token_hash(a), token_hash(a))
     assert not same_secret(token_hash(a), token_hash(b))
+
+
+# -- hashing off the loop ---------------------------------------------------------------------
+def _held(gate: threading.Event, started: list[str], name: str) -> int:
+    started.append(name)
+    assert gate.wait(10)
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+
+@pytest.mark.asyncio
+async def test_one_address_holds_one_hashing_slot_so_another_gets_the_other() -> None:
+    slots = HashingSlots(2)
+    gate = threading.Event()
+    started: list[str] = []
+    try:
+        flood = [
+            asyncio.create_task(slots.run(_held, gate, started, f"a{i}", key="attacker"))
+            for i in range(3)
+        ]
+        colleague = asyncio.create_task(slots.run(_held, gate, started, "b", key="colleague"))
+        deadline = time.monotonic() + 10
+        while len(started) < 2:
+            assert time.monotonic() < deadline, started
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.1)  # a third would have started by now if it could
+        assert sorted(started) == ["a0", "b"], started
+        gate.set()
+        nice = await asyncio.gather(*flood, colleague)
+        assert len(started) == 4
+        # The hashing threads run below the loop's priority (or at the floor, 19).
+        own = os.getpriority(os.PRIO_PROCESS, 0)
+        assert all(n >= min(19, own + HASH_NICE) for n in nice), (own, nice)
+    finally:
+        gate.set()
+        slots.close()
