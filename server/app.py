@@ -25,6 +25,7 @@ from server.routes.health import server_version
 from server.routes.uploads import CHUNK_MAX
 from server.security import HashingSlots
 from server.throttle import LoginThrottle
+from server.tickets import ViewTickets
 
 DESCRIPTION = """\
 The server of the ankle telerehabilitation system: therapists manage their patients,
@@ -49,6 +50,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         hub.start_rechecks()
         app.state.hashing = HashingSlots(settings.password_hash_concurrency)
         app.state.login_throttle = LoginThrottle(settings)
+        # Here, not in the dashboard, so that whatever ends a user's access can end theirs.
+        app.state.view_tickets = hub.tickets = ViewTickets(settings.view_ticket_ttl_s)
         yield
     finally:
         await hub.close()

@@ -13,6 +13,8 @@ from limits import parse
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from server.tickets import TICKET_TTL_S
+
 MiB = 1024 * 1024
 _WILDCARD_HOSTS = {"0.0.0.0", "::", ""}
 
@@ -59,6 +61,13 @@ class Settings(BaseSettings):
         description="How often open live links re-check their credentials even when this "
         "process changed none (a change made in the database directly, or by another server "
         "process), seconds. Changes made through this server close the links at once.",
+    )
+    view_ticket_ttl_s: float = Field(
+        default=TICKET_TTL_S,
+        gt=0.0,
+        le=3600.0,
+        description="How long a ticket to open a live 3D view works unused, seconds; a view "
+        "open on it keeps it alive.",
     )
     upload_max_bytes: int = Field(
         default=512 * MiB,

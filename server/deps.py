@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from datetime import datetime, timedelta
-from typing import Annotated, Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple, Protocol, TypeVar
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -205,6 +205,27 @@ async def patient_for(
     if patient is None or not allowed(user, patient):
         raise not_found("patient")
     return patient
+
+
+class _OfPatient(Protocol):
+    @property
+    def patient_id(self) -> int: ...
+
+
+R = TypeVar("R", bound=_OfPatient)
+
+
+async def record_for(db: AsyncSession, user: User, model: type[R], record_id: int, what: str) -> R:
+    """The record (a session, a station) of a patient ``user`` may read; else a 404 naming
+    ``what``, the same as for an id that does not exist."""
+    row = await db.get(model, record_id)
+    if row is None:
+        raise not_found(what)
+    try:
+        await patient_for(db, user, row.patient_id)
+    except HTTPException:
+        raise not_found(what) from None
+    return row
 
 
 UserCredentials = Annotated[HTTPAuthorizationCredentials | None, Depends(_user_bearer)]

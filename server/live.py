@@ -31,6 +31,7 @@ from starlette.websockets import WebSocketState
 from server import audit
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station, utcnow
+from server.tickets import ViewTickets
 from sessions import wire
 from sessions.prescription import AXIS_INDEX, PrescriptionBody
 
@@ -97,6 +98,8 @@ class Hub:
         self._recheck_asked = 0
         self._recheck_done = 0
         self._recheck_task: asyncio.Task[None] | None = None
+        self.tickets: ViewTickets | None = None
+        """The 3D views' tickets, ended with the sign-in they were issued to."""
 
     async def audit(self, **row: Any) -> None:
         """Write one audit row; returns once it is committed.
@@ -150,10 +153,21 @@ class Hub:
             self._recheck_done = began
 
     async def _recheck_pass(self) -> None:
-        if self.sessionmaker is None or not (self.stations or any(self.viewers.values())):
+        tickets = self.tickets.live() if self.tickets is not None else []
+        if self.sessionmaker is None or not (
+            self.stations or any(self.viewers.values()) or tickets
+        ):
             return
         ends: list[tuple[WebSocket, int, str]] = []
         async with self.sessionmaker() as db:
+            for ticket in tickets:
+                kind, station_id = ticket.subject
+                if kind != "station":  # the only kind of view today
+                    continue
+                _, code, reason = await view_standing(db, ticket.login, station_id)
+                if code and self.tickets is not None:
+                    log.info("3D view ticket ended (%d): %s", code, reason)
+                    self.tickets.revoke(ticket)
             for viewers in list(self.viewers.values()):
                 for v in list(viewers):
                     _, code, reason = await view_standing(db, v.token, v.station_id)
@@ -459,7 +473,7 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
     await ws.accept(subprotocol=subprotocol)
     viewer = Viewer(ws, token, user.id, station_id, may_command=user.role == "therapist")
     hub.viewers[station_id].add(viewer)
-    expiry = _close_at_expiry(ws, standing.expires_at)
+    expiry = _close_at_expiry(hub, ws, standing.expires_at)
     conn = hub.stations.get(station_id)
     silence = _Silence()
     writer: asyncio.Task[None] | None = None
@@ -511,14 +525,19 @@ async def view_standing(
     return standing, 0, ""
 
 
-def _close_at_expiry(ws: WebSocket, expires_at: datetime | None) -> asyncio.TimerHandle:
-    """A timer that closes the view the moment its sign-in expires."""
+def _close_at_expiry(hub: Hub, ws: WebSocket, expires_at: datetime | None) -> asyncio.TimerHandle:
+    """A timer that closes the view the moment its sign-in expires, and then re-checks the
+    rest (the 3D view opened with the same sign-in ends with it)."""
     loop = asyncio.get_running_loop()
     left = 0.0 if expires_at is None else (expires_at - utcnow()).total_seconds()
     code, reason = _LOGIN_CLOSE["expired"]
 
+    async def end() -> None:
+        await _close(ws, code, reason)
+        await hub.recheck()
+
     def expire() -> None:
-        task = loop.create_task(_close(ws, code, reason))
+        task = loop.create_task(end())
         _background.add(task)
         task.add_done_callback(_background.discard)
 

@@ -2,8 +2,9 @@
 
 webui is the top layer (DESIGN.md section 5): the server never imports it. This factory adds
 the dashboard's pages under ``/app``, the scripts and styles under ``/static``, the chart
-libraries under ``/vendor``, and the live 3D views (one viser server per watched station),
-whose lifetime is the app's, and the API docs page with Swagger UI from ``/vendor``.
+libraries under ``/vendor``, the live 3D views (one viser server per watched station on
+loopback, whose lifetime is the app's) behind tickets under ``/scene``, and the API docs page
+with Swagger UI from ``/vendor``.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+import httpx
 from fastapi import FastAPI
 from fastapi.responses import Response
 
@@ -20,9 +22,10 @@ from device.axes import AXIS_INDEX, ROTATION_AXES
 from server.app import create_app as create_server_app
 from server.config import Settings
 from server.routes import API_PREFIX
-from webui import docs, pages, replay, routes
+from webui import docs, pages, replay, routes, sceneproxy
 from webui.assets import CSP, STATIC, Static, missing_vendor, vendor_router
 from webui.live3d import LiveScenes
+from webui.sceneproxy import CONNECT_TIMEOUT_S
 
 log = logging.getLogger("ankle.webui")
 
@@ -38,12 +41,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             missing = missing_vendor()
             if missing:
                 log.warning("chart libraries not installed (%s): run 'make setup'", missing)
-            scenes = LiveScenes(app.state.hub, host=app.state.settings.host)
+            scenes = LiveScenes(app.state.hub)
             app.state.scenes = scenes
+            # Only ever asks the views on loopback: no proxy from the environment.
+            app.state.scene_http = httpx.AsyncClient(trust_env=False, timeout=CONNECT_TIMEOUT_S)
             try:
                 yield
             finally:
                 await scenes.close()
+                await app.state.scene_http.aclose()
 
     app.router.lifespan_context = lifespan
     app.include_router(routes.router, prefix=API_PREFIX)
@@ -51,6 +57,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(pages.router)
     app.include_router(vendor_router)
     app.include_router(docs.router)
+    app.include_router(sceneproxy.router)
 
     @app.get("/static/js/axes.js", include_in_schema=False)
     def axes_module() -> Response:

@@ -31,10 +31,19 @@ VENDOR: dict[str, Path] = {
 
 CSP = (
     "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data: blob:; connect-src 'self' ws: wss:; frame-src http: https: blob:; "
+    "img-src 'self' data: blob:; connect-src 'self' ws: wss:; frame-src 'self'; "
     "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'self'"
 )
-"""No inline script; frames for the 3D view (another port) and the session replay (blob)."""
+"""No inline script; frames only from this server (the live 3D view and the session replay)."""
+VIEWER_CSP = (
+    "default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; "
+    "img-src data: blob:; font-src data:; connect-src 'self' blob: data:; worker-src blob:; "
+    "base-uri 'none'; form-action 'none'; frame-ancestors 'self'"
+)
+"""viser's client (the live 3D view and the replay viewer) is inline scripts and styles that
+evaluate code, compile WebAssembly and start a blob: worker, and fetch data: URLs of their
+own; it may open a WebSocket to this server (the live view), read a recording from this
+server or a blob: URL, and reach nothing else; only the dashboard may frame it."""
 
 
 def missing_vendor() -> list[str]:

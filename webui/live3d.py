@@ -1,13 +1,11 @@
 """One viser server per watched station: the live 3D view the dashboard embeds.
 
 viser is not ASGI, so it cannot be mounted in the FastAPI app: each view is its own
-``ViserServer`` on a free port (``port=0``), published by ``GET /api/v1/stations/{id}/scene``
-and embedded by the live page as an iframe. A view is fed from the hub's newest telemetry
-sample at ``SCENE_HZ`` (the station sends 100 Hz; each scene update costs about 0.25 ms) and
-is stopped once no therapist has watched the station for ``IDLE_S``.
-
-The viser port serves the scene to whoever reaches it, without the API's token: it shows a
-moving platform, no names. Bind the server to an interface only the clinic reaches.
+``ViserServer`` on a free port of the loopback interface (:data:`VIEW_HOST`), which no other
+machine reaches. Browsers see it only through the API's port, behind a ticket
+(:mod:`webui.sceneproxy`). A view is fed from the hub's newest telemetry sample at
+``SCENE_HZ`` (the station sends 100 Hz; each scene update costs about 0.25 ms) and is stopped
+once no therapist has watched the station for ``IDLE_S``.
 """
 
 from __future__ import annotations
@@ -17,6 +15,7 @@ import contextlib
 import json
 import logging
 import time
+from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
 import viser
@@ -29,7 +28,10 @@ log = logging.getLogger("ankle.webui.live3d")
 SCENE_HZ = 30.0
 """Scene updates per second: within viser's 30–60 Hz sweet spot."""
 IDLE_S = 30.0
-"""A view nobody has watched (no live WebSocket, no scene request) for this long stops."""
+"""A view nobody has watched (no live WebSocket, no 3D client, no scene request) for this
+long stops."""
+VIEW_HOST = "127.0.0.1"
+"""viser listens here only, whatever interface the API serves: viser checks no token."""
 
 
 @dataclass(eq=False)
@@ -40,6 +42,8 @@ class LiveView:
     touched: float = field(default_factory=time.monotonic)
     seq: int = -1
     task: asyncio.Task[None] | None = None
+    clients: int = 0
+    """3D clients connected through the proxy: each keeps the view running."""
 
     @property
     def port(self) -> int:
@@ -49,9 +53,8 @@ class LiveView:
 class LiveScenes:
     """The live 3D views of one server process."""
 
-    def __init__(self, hub: Hub, host: str, hz: float = SCENE_HZ, idle_s: float = IDLE_S) -> None:
+    def __init__(self, hub: Hub, hz: float = SCENE_HZ, idle_s: float = IDLE_S) -> None:
         self.hub = hub
-        self.host = host
         self.period = 1.0 / hz
         self.idle_s = idle_s
         self.views: dict[int, LiveView] = {}
@@ -69,8 +72,19 @@ class LiveScenes:
             view.touched = time.monotonic()
             return view
 
+    @contextlib.asynccontextmanager
+    async def client(self, station_id: int) -> AsyncIterator[LiveView]:
+        """The station's view, kept running while a 3D client is connected to it."""
+        view = await self.open(station_id)
+        view.clients += 1
+        try:
+            yield view
+        finally:
+            view.clients -= 1
+            view.touched = time.monotonic()
+
     def _start(self, station_id: int) -> LiveView:
-        server = viser.ViserServer(host=self.host, port=0, verbose=False)
+        server = viser.ViserServer(host=VIEW_HOST, port=0, verbose=False)
         server.gui.configure_theme(show_logo=False, show_share_button=False)
         server.gui.main_panel.minimize()  # the scene, not viser's controls, fills the frame
         return LiveView(station_id, server, PlatformScene(server))
@@ -84,7 +98,7 @@ class LiveScenes:
                     view.seq = conn.seq
                     t = json.loads(conn.latest)
                     view.scene.update(t["pose"], t["pose_cmd"], t["pressures"], t["wrench"])
-                if self.hub.viewers.get(view.station_id):
+                if view.clients or self.hub.viewers.get(view.station_id):
                     view.touched = time.monotonic()
                 elif time.monotonic() - view.touched > self.idle_s:
                     break

@@ -49,6 +49,7 @@ from server.deps import Db, TherapistOrAdmin
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.sessions import _session_for, recording_path, session_time
 from sessions.recording import Recording, read
+from webui.assets import VIEWER_CSP
 from webui.scene import CAMERA_LOOK_AT, CAMERA_POSITION, PlatformScene
 
 REPLAY_HZ = 25.0
@@ -59,14 +60,6 @@ REPLAY_FORMAT = 1
 
 CLIENT_HTML = Path(viser.__file__).parent / "client" / "build" / "index.html"
 """viser's packaged single-file client: the page ``as_html`` and the viewer are made of."""
-VIEWER_CSP = (
-    "default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; "
-    "img-src data: blob:; font-src data:; connect-src 'self' blob: data:; worker-src blob:; "
-    "base-uri 'none'; form-action 'none'; frame-ancestors 'self'"
-)
-"""viser's client is inline scripts and styles that evaluate code, compile WebAssembly and
-start a blob: worker, and fetch data: URLs of their own; it may read a recording from this
-server or a blob: URL and reach nothing else, and only the dashboard may frame it."""
 
 
 def frame_indices(clock: NDArray[np.float64], drawable: NDArray[np.bool_], hz: float) -> list[int]:

@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from device.protocol.messages import DeviceMode
-from server.deps import Db, TherapistOrAdmin, patient_for
+from server.deps import Db, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
@@ -77,14 +77,7 @@ def session_public(row: Session) -> SessionPublic:
 
 
 async def _session_for(db: Db, user: TherapistOrAdmin, session_id: int) -> Session:
-    row = await db.get(Session, session_id)
-    if row is None:
-        raise HTTPException(404, "session not found")
-    try:
-        await patient_for(db, user, row.patient_id)
-    except HTTPException:
-        raise HTTPException(404, "session not found") from None
-    return row
+    return await record_for(db, user, Session, session_id, "session")
 
 
 @router.get("/sessions", response_model=list[SessionPublic], summary="List recorded sessions")

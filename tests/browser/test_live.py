@@ -7,11 +7,13 @@ change acknowledged by the device and then in force, and HOLD reaching the devic
 
 from __future__ import annotations
 
+import io
 import re
 import time
 from pathlib import Path
 
 import httpx
+from PIL import Image
 from playwright.sync_api import Page, expect
 
 from server.cli import demo_prescription
@@ -47,6 +49,15 @@ def scene(system: System, token: str) -> dict[str, object]:
     r.raise_for_status()
     body: dict[str, object] = r.json()
     return body
+
+
+def dark_share(png: bytes) -> float:
+    """The share of the middle of a screenshot that is darker than light grey."""
+    image = Image.open(io.BytesIO(png)).convert("L")
+    w, h = image.size
+    middle = image.crop((w // 4, h // 3, 3 * w // 4, 5 * h // 6))
+    counts = middle.histogram()  # pixels per grey level
+    return sum(counts[:150]) / sum(counts)
 
 
 def long_prescription(system: System, token: str) -> int:
@@ -137,3 +148,37 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     page.get_by_role("button", name="Resume").click()
     expect(page.locator("#ack")).to_contain_text("Resume: acknowledged by the device")
     expect(page.locator("#st-mode")).not_to_have_text("HOLD", timeout=5_000)
+
+
+def test_the_3d_view_comes_through_the_api_port(system: System, page: Page, shots: Path) -> None:
+    """viser's page and WebSocket are reached on the API's own port behind a ticket; the
+    browser asks no other port for anything, and the scene draws."""
+    requests: list[str] = []
+    sockets: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("websocket", lambda ws: sockets.append(ws.url))
+    sign_in(page, system, f"/app/live/{system.station_id}")
+
+    iframe = page.locator("#scene")
+    frame = page.frame_locator("#scene")
+    expect(frame.locator("canvas").first).to_be_visible(timeout=60_000)
+    src = str(iframe.get_attribute("src"))
+    assert re.fullmatch(r"/scene/[A-Za-z0-9_-]{43}/", src), src
+    # The scene arrives over viser's WebSocket through the proxy, and is drawn: the platform
+    # and legs darken the middle of an otherwise light frame.
+    expect(frame.get_by_text("Connected")).to_be_visible(timeout=60_000)
+    deadline = time.monotonic() + 60.0
+    while dark_share(iframe.screenshot()) < 0.02:
+        assert time.monotonic() < deadline, "the 3D view drew no platform"
+        page.wait_for_timeout(250)
+    iframe.screenshot(path=shots / "live-3d.png")
+
+    api = f"127.0.0.1:{system.port}"
+    elsewhere = [
+        u for u in requests + sockets if not u.startswith(("data:", "blob:")) and api not in u
+    ]
+    assert not elsewhere, elsewhere
+    assert f"ws://{api}{src.rstrip('/')}" in sockets
+    # The same address without the ticket's rights is refused.
+    r = httpx.get(f"{system.url}/scene/{'A' * 43}/")
+    assert r.status_code == 403 and "ticket" in r.json()["detail"]

@@ -38,7 +38,7 @@ def port_open(port: int) -> bool:
 @pytest.mark.asyncio
 async def test_a_view_follows_the_newest_sample_and_stops_when_unwatched() -> None:
     hub = Hub()
-    scenes = LiveScenes(hub, host="127.0.0.1", hz=50.0, idle_s=0.5)
+    scenes = LiveScenes(hub, hz=50.0, idle_s=0.5)
     conn = connected(hub, 7)
     try:
         view = await scenes.open(7)
@@ -75,7 +75,7 @@ async def test_a_view_follows_the_newest_sample_and_stops_when_unwatched() -> No
 @pytest.mark.asyncio
 async def test_close_stops_every_view() -> None:
     hub = Hub()
-    scenes = LiveScenes(hub, host="127.0.0.1")
+    scenes = LiveScenes(hub)
     a = await scenes.open(1)
     b = await scenes.open(2)
     assert a.port != b.port

@@ -26,11 +26,11 @@ from sessions.recording import SAMPLE_DTYPE, decode
 from tests.server.live_server import World, bearer, running, seeded
 from tests.server.test_series import recording_bytes, upload
 from webui.app import create_app
+from webui.assets import VIEWER_CSP
 from webui.replay import (
     CLIENT_HTML,
     REPLAY_HZ,
     VIEWER_CAMERA,
-    VIEWER_CSP,
     Replays,
     frame_indices,
     standalone_html,

@@ -403,7 +403,9 @@ function connect() {
 }
 
 // ---- the 3D view -----------------------------------------------------------------------------
-let scenePort = null;
+// viser's client, on this server's own port behind a ticket for this station. Once open, its
+// WebSocket keeps the ticket alive and reconnects by itself; a new ticket is needed only after
+// the page lost the server (a restart forgets tickets) or the view was turned off.
 const SCENE_KEY = "ankle.live.scene";
 
 function sceneWanted() {
@@ -413,14 +415,13 @@ function sceneWanted() {
 $("scene-on").checked = sceneWanted();
 $("scene-on").addEventListener("change", (ev) => {
   localStorage.setItem(SCENE_KEY, ev.target.checked ? "on" : "off");
-  scenePort = null;
   openScene();
 });
 
 async function openScene() {
   const frame = $("scene");
   if (!sceneWanted()) {
-    // about:blank stops the viewer's render loop; the server's view idles out by itself.
+    // about:blank stops the viewer and its connection; the server's view idles out by itself.
     if (frame.getAttribute("src") !== "about:blank") frame.src = "about:blank";
     frame.hidden = true;
     $("scene-note").textContent = "3D view turned off.";
@@ -428,12 +429,9 @@ async function openScene() {
   }
   frame.hidden = false;
   try {
-    const s = await api(`/stations/${stationId}/scene`);
-    if (s.port !== scenePort) {
-      scenePort = s.port;
-      $("scene").src = `${location.protocol}//${location.hostname}:${s.port}${s.path}`;
-      $("scene-note").textContent = `3D view served on port ${s.port}.`;
-    }
+    const t = await api(`/stations/${stationId}/scene/ticket`, { method: "POST" });
+    frame.src = t.path;
+    $("scene-note").textContent = "";
   } catch (e) {
     $("scene-note").textContent = `The 3D view is not available: ${e.message}`;
   }
@@ -468,7 +466,6 @@ async function main() {
   if (state.status) showStatus(state.status);
   connect();
   openScene();
-  setInterval(openScene, 20000); // a view that stopped while the tab slept comes back
 }
 
 main();
