@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from limits import parse
 from pydantic import Field, field_validator, model_validator
@@ -120,7 +121,8 @@ class Settings(BaseSettings):
     )
     public_url: str = Field(
         default="",
-        description="Base URL people and stations use to reach this server. Empty: "
+        description="Base URL people and stations use to reach this server (behind a reverse "
+        "proxy: its https:// address, whose origin is then also allowed). Empty: "
         "http://{host}:{port}, with 127.0.0.1 for a wildcard host.",
     )
 
@@ -146,9 +148,12 @@ class Settings(BaseSettings):
         port = int(data.get("port") if data.get("port") is not None else 8000)
         if not data.get("database_url"):
             data["database_url"] = f"sqlite+aiosqlite:///{data_dir / 'ankle.db'}"
+        public = str(data.get("public_url") or "")
         if not data.get("allowed_origins"):
-            data["allowed_origins"] = [f"http://127.0.0.1:{port}", f"http://localhost:{port}"]
-        if not data.get("public_url"):
+            local = [f"http://127.0.0.1:{port}", f"http://localhost:{port}"]
+            # Behind a reverse proxy the pages are loaded from the public address.
+            data["allowed_origins"] = [_origin(public), *local] if public else local
+        if not public:
             shown = "127.0.0.1" if host in _WILDCARD_HOSTS else host
             if ":" in shown:
                 shown = f"[{shown}]"
@@ -158,3 +163,9 @@ class Settings(BaseSettings):
     @property
     def is_sqlite(self) -> bool:
         return self.database_url.startswith("sqlite")
+
+
+def _origin(url: str) -> str:
+    """The browser origin of ``url``: scheme, host and port (no path)."""
+    parts = urlsplit(url.strip())
+    return f"{parts.scheme}://{parts.netloc}"

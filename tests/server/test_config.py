@@ -40,7 +40,11 @@ def test_environment_variables(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) 
     s = Settings()
     assert (s.data_dir, s.port, s.token_ttl_s) == (tmp_path, 9001, 60)
     assert s.database_url == f"sqlite+aiosqlite:///{tmp_path}/ankle.db"
-    assert s.allowed_origins == ["http://127.0.0.1:9001", "http://localhost:9001"]
+    assert s.allowed_origins == [
+        "https://ankle.clinic.example",
+        "http://127.0.0.1:9001",
+        "http://localhost:9001",
+    ]
     assert s.public_url == "https://ankle.clinic.example"
 
 
@@ -49,3 +53,16 @@ def test_out_of_range_values_are_refused() -> None:
         Settings(port=70000)
     with pytest.raises(ValueError, match="token_ttl_s"):
         Settings(token_ttl_s=0)
+
+
+def test_a_public_address_behind_a_proxy_is_an_allowed_origin() -> None:
+    s = Settings(port=8000, public_url="https://rehab.clinic.example/")
+    assert s.allowed_origins == [
+        "https://rehab.clinic.example",
+        "http://127.0.0.1:8000",
+        "http://localhost:8000",
+    ]
+    # An explicit list is taken as it is.
+    assert Settings(
+        public_url="https://a.example", allowed_origins=["https://b.example"]
+    ).allowed_origins == ["https://b.example"]
