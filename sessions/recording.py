@@ -126,7 +126,8 @@ class SessionEvent(BaseModel):
     t: float | None = Field(default=None, description="Device time, s, when known.")
     kind: str = Field(
         description="rep_done, set_done, rest, mode, limit, fault, watchdog, estop, "
-        "impedance, hold, resume, stop, game_score, note."
+        "supply_low, impedance, hold, resume, stop, interrupted (held too long), game_score, "
+        "note."
     )
     by: str = Field(default="station", description="device, station, patient or therapist:<id>.")
     detail: dict[str, Any] = Field(default_factory=dict)
@@ -144,6 +145,9 @@ class End(BaseModel):
     reason: EndReason
     sets_completed: int
     repetitions_completed: int
+    text: str = Field(
+        default="", description="Why it ended, in words, when not simply completed or stopped."
+    )
 
 
 @dataclass

@@ -46,7 +46,7 @@ TARGET_TOLERANCE_DEG = 2.0
 """Degrees: a sample is on target when measured and commanded angle differ by less."""
 GAP_FACTOR = 5.0
 """A sample interval longer than this many median intervals is a gap in the telemetry."""
-SAFETY_EVENT_KINDS = ("fault", "limit", "estop", "watchdog")
+SAFETY_EVENT_KINDS = ("fault", "limit", "estop", "watchdog", "supply_low", "interrupted")
 """Event kinds listed one by one in :attr:`Summary.faults`."""
 GAME_EVENT = "game_score"
 """Event kind of the patient's game: detail ``game``, ``score``, ``gates``, ``missed``."""
@@ -83,7 +83,9 @@ class FaultSummary(BaseModel):
     model_config = _STRICT
 
     at_s: float = Field(description="Seconds after the session started (station clock).")
-    kind: str = Field(description="fault, limit, estop or watchdog.")
+    kind: str = Field(
+        description="fault, limit, estop, watchdog, supply_low or interrupted (held too long)."
+    )
     by: str = Field(description="Who reported it: device, station, patient or therapist:<id>.")
     text: str = Field(description="What happened, shortened.")
 
@@ -115,6 +117,9 @@ class Summary(BaseModel):
     end_reason: EndReason | None = Field(
         description="completed, stopped, fault or interrupted; null if the recording has no "
         "end record (still running, or cut off)."
+    )
+    end_text: str = Field(
+        default="", description="Why it ended, in words (an interruption, a fault); or empty."
     )
     axes: dict[str, AxisSummary] = Field(
         description="The prescribed ankle axes (roll, pitch, yaw) during exercise."
@@ -150,6 +155,7 @@ def summarize(rec: Recording) -> Summary:
         repetitions_completed=reps_done,
         repetitions_prescribed=_prescribed_repetitions(rec.header.prescription),
         end_reason=rec.end.reason if rec.end is not None else None,
+        end_text=rec.end.text if rec.end is not None else "",
         axes={
             axis: _axis_summary(rec, AXIS_INDEX[axis], active, weights, contiguous)
             for axis in prescribed_axes(rec.header.prescription)

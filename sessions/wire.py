@@ -124,7 +124,33 @@ class EventMsg(BaseModel):
     event: SessionEvent
 
 
-Phase = Literal["idle", "homing", "running", "rest", "paused", "done", "stopped", "fault"]
+Phase = Literal[
+    "idle", "homing", "running", "rest", "paused", "done", "stopped", "fault", "interrupted"
+]
+"""``interrupted``: the exercise ended because it was held longer than the station's limit."""
+
+HoldCode = Literal["pause", "therapist", "station", "watchdog", "supply_low", "device"]
+"""Who or what holds the exercise: the patient's pause, the therapist's HOLD, the station
+itself, the device's watchdog (its link went silent), the device's air supply, or the device
+for a reason the station did not hear."""
+
+
+class HoldInfo(BaseModel):
+    """Why the device (or the exercise, between repetitions) is held, and since when."""
+
+    model_config = _STRICT
+    code: HoldCode
+    text: str = Field(description="What happened, in a sentence for the therapist.")
+    by: str = Field(description="device, station, patient or therapist:<id>.")
+    since: float = Field(description="When the hold began, Unix s.")
+    patient_may_resume: bool = Field(
+        description="Only the patient's own pause may be continued from the patient's page."
+    )
+    ends_at: float | None = Field(
+        default=None,
+        description="When the exercise ends if still held (the station's limit), Unix s; "
+        "null when no exercise is running.",
+    )
 
 
 class StatusMsg(BaseModel):
@@ -149,6 +175,10 @@ class StatusMsg(BaseModel):
     overruns: int = 0
     frames_lost: int = Field(default=0, description="Serial frames lost on the host side.")
     message: str = Field(default="", description="Last error or notice, plain words.")
+    hold: HoldInfo | None = Field(default=None, description="Why it is held; null if not.")
+    fault: str = Field(
+        default="", description="The device's own words for its latched fault or e-stop."
+    )
 
 
 Action = Literal["set_impedance", "hold", "resume", "stop", "start"]

@@ -24,6 +24,7 @@ from device.protocol.messages import DeviceMode, EventKind
 from sessions import wire
 from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
 from sessions.wire import PrescriptionItem
+from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun
@@ -35,6 +36,8 @@ FLUSH_S = 0.2
 """Session samples are written this often and then synced to the disk: at most this much
 (and the disk's own delay) is lost if the station's power is cut; nothing if it is killed."""
 DEVICE_STALE_S = 2.0
+HOLD_CHECK_S = 0.25
+"""How often a held exercise is checked against the hold limit (s)."""
 
 
 @dataclass
@@ -49,6 +52,9 @@ class StationConfig:
     baud: int = 921600
     repeat_after_s: float | None = None
     """With ``autostart``: start it again this long after each session ends (the demo)."""
+    hold_limit_s: float = HOLD_LIMIT_S
+    """An exercise held (paused, HOLD, or held by the device) this long is ended: the
+    platform goes home and the session closes ``interrupted`` with the reason."""
 
 
 class Station:
@@ -65,6 +71,7 @@ class Station:
         self.writer: SessionWriter | None = None
         self.session_id: str | None = None
         self.message = ""
+        self.reasons = Reasons()
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
@@ -81,6 +88,7 @@ class Station:
             asyncio.create_task(self.uploader.run(), name="uploader"),
             asyncio.create_task(self._device_loop(), name="device"),
             asyncio.create_task(self._status_loop(), name="status"),
+            asyncio.create_task(self._hold_watch(), name="hold-watch"),
         ]
         try:
             await asyncio.gather(*tasks)
@@ -167,6 +175,10 @@ class Station:
 
     async def _events(self, dev: DeviceClient) -> None:
         async for e in dev.events():
+            # When it happened: an event may reach the station late (a replay after a stall).
+            latest = dev.latest
+            lag = max(0.0, latest.time - e.time) if latest is not None else 0.0
+            self.reasons.device_event(e, time.time() - lag)
             if self.run_ is not None:
                 self.run_.device_event(e)
             self._event(
@@ -208,6 +220,7 @@ class Station:
             return f"no active prescription {prescription_id} for this patient"
         welcome = self.link.welcome
         hello = self.dev.hello
+        self.message = ""  # the last session's notice is history now
         self.session_id = str(uuid.uuid4())
         header = Header(
             session_id=self.session_id,
@@ -246,6 +259,10 @@ class Station:
             if end is not None:
                 writer.end(end)
             writer.close()
+        if end is not None and end.text:
+            self.message = end.text
+        latest = run.dev.latest
+        self.reasons.settled(latest.mode if latest is not None else None)
         self._segment_base = max(1, (run.last_segment_id + 1) & 0xFFFF)
         self.run_ = None
         self.session_id = None
@@ -314,10 +331,18 @@ class Station:
             elif cmd.action == "hold":
                 if run is not None:
                     run.pause()
+                if run is not None or (dev.latest and dev.latest.mode == DeviceMode.ACTIVE):
+                    self.reasons.asked(cmd.by or "station")  # else it holds nothing
                 await dev.hold()
             elif cmd.action == "resume":
+                if run is not None and run.ending:
+                    return result(False, "REFUSED", "action", "the exercise is ending")
+                hold = self._hold()
+                if cmd.by == "patient" and hold is not None and not hold.patient_may_resume:
+                    return result(False, "REFUSED", "action", patient_resume_refusal(hold))
                 if dev.latest is not None and dev.latest.mode == DeviceMode.HOLD:
                     await dev.resume()
+                self.reasons.resumed()
                 if run is not None:
                     run.resume()
             elif cmd.action == "stop":
@@ -377,6 +402,42 @@ class Station:
             device=_device_info(hello) if hello else None,
         )
 
+    def _hold(self) -> wire.HoldInfo | None:
+        """Why the device or the exercise is held now, and when the exercise ends if it stays
+        held; None when nothing holds."""
+        dev, run = self.dev, self.run_
+        latest = dev.latest if dev is not None else None
+        paused = run is not None and run.phase == "paused" and not run.ending
+        hold = self.reasons.hold(latest.mode if latest is not None else None, paused)
+        if hold is None or run is None or not paused:
+            return hold
+        return hold.model_copy(
+            update={"ends_at": ends_at(hold, run.began, self.config.hold_limit_s)}
+        )
+
+    async def _hold_watch(self) -> None:
+        """End an exercise held past the limit (the device never resumes by itself, and a
+        hold nobody answers would leave the patient's foot in a frozen platform)."""
+        while True:
+            await asyncio.sleep(HOLD_CHECK_S)
+            run, hold = self.run_, self._hold()
+            now = time.time()
+            if run is None or hold is None or hold.ends_at is None or now < hold.ends_at:
+                continue
+            held = now - max(hold.since, run.began)
+            why = f"held {held:.0f} s, longer than the {self.config.hold_limit_s:g} s limit: "
+            why += hold.text
+            log.warning("the exercise ends: %s", why)
+            self._event(
+                SessionEvent(
+                    wall=now,
+                    kind="interrupted",
+                    by="station",
+                    detail={"text": why, "hold": hold.code, "held_s": round(held, 1)},
+                )
+            )
+            run.interrupt(why)
+
     def status(self) -> wire.StatusMsg:
         dev, run = self.dev, self.run_
         latest = dev.latest if dev is not None else None
@@ -399,6 +460,8 @@ class Station:
             overruns=latest.overruns if latest else 0,
             frames_lost=dev.stats.frames_lost if dev else 0,
             message=(run.message if run and run.message else self.message),
+            hold=self._hold(),
+            fault=self.reasons.fault(latest.mode if latest else None, latest.trip if latest else 0),
         )
 
     async def _status_loop(self) -> None:

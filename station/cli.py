@@ -19,6 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from station.app import Station, StationConfig
+from station.reasons import HOLD_LIMIT_S
+
+HOLD_LIMIT_MAX_S = 3600.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -51,6 +54,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="S",
         help="with --autostart: start it again S seconds after each session (a demo)",
+    )
+    p.add_argument(
+        "--hold-limit",
+        type=float,
+        default=HOLD_LIMIT_S,
+        metavar="S",
+        help=f"end an exercise held (paused, HOLD, or held by the device) for S seconds: the "
+        f"platform goes home, the session ends 'interrupted' (default {HOLD_LIMIT_S:g})",
     )
     p.add_argument(
         "--page-port",
@@ -88,6 +99,12 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
     if not args.token:
         print("error: ankle station: --token (or ANKLE_STATION_TOKEN) is required")
         return 2
+    if not 0 < args.hold_limit <= HOLD_LIMIT_MAX_S:  # also refuses nan
+        print(
+            f"error: ankle station: --hold-limit {args.hold_limit:g} is not a time from "
+            f"more than 0 to {HOLD_LIMIT_MAX_S:g} s"
+        )
+        return 2
     if not 0 <= args.page_port <= 65535:
         print(f"error: ankle station: --page-port {args.page_port} is not a port (0..65535)")
         return 2
@@ -110,6 +127,7 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
             spool=args.spool,
             autostart=args.autostart,
             repeat_after_s=args.repeat_after,
+            hold_limit_s=args.hold_limit,
             baud=args.baud,
         )
     )

@@ -52,6 +52,8 @@ class Spool:
                             reason="interrupted",
                             sets_completed=sets,
                             repetitions_completed=reps,
+                            text="the station stopped before the session ended (killed, "
+                            "crashed or lost power); closed when it started again",
                         )
                     )
                 closed.append(rec.header.session_id)

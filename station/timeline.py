@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Literal
 
-from device.client import AxisPlan, DeviceClient, build_segment
+from device.client import AxisPlan, CommandRefused, DeviceClient, build_segment
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
 from device.waveforms import Waveform
@@ -26,7 +26,7 @@ SEGMENT_MARGIN_S = 30.0
 _WAVEFORM = {"hold": Waveform.HOLD, "sine": Waveform.SINE, "ramp": Waveform.RAMP}
 STOPPED_MODES = (DeviceMode.FAULT, DeviceMode.ESTOP)
 
-Phase = Literal["homing", "running", "rest", "paused", "done", "stopped", "fault"]
+Phase = Literal["homing", "running", "rest", "paused", "done", "stopped", "fault", "interrupted"]
 
 
 def axis_plans(
@@ -102,6 +102,10 @@ class ExerciseRun:
         self.phase: Phase = "homing"
         self.rest_until = 0.0
         self.message = ""
+        self.began = time.time()
+        """Unix s: a hold is timed from here at the earliest (see station.reasons.ends_at)."""
+        self._interrupted = False
+        self._homing_note = ""
         self._segment_id = first_segment_id
         self._segment_done = asyncio.Event()
         self._stop = asyncio.Event()
@@ -131,6 +135,21 @@ class ExerciseRun:
 
     def stop(self) -> None:
         self._stop.set()
+        self._resumed.set()  # wakes a paused timeline, which then sees the stop
+
+    def interrupt(self, why: str) -> None:
+        """End the run because it was held too long: the segment is abandoned, the platform
+        sent home, and the session ends ``interrupted`` with ``why``."""
+        self._interrupted = True
+        self.message = why
+        self.phase = "interrupted"  # over for the patient now; the platform goes home
+        self.stop()
+        self._on_change()
+
+    @property
+    def ending(self) -> bool:
+        """Stopped or interrupted, and winding down: nothing may resume it."""
+        return self._stop.is_set()
 
     @property
     def last_segment_id(self) -> int:
@@ -156,7 +175,9 @@ class ExerciseRun:
             await self._home()
             for s in range(1, self.body.sets + 1):
                 for r in range(1, self.body.repetitions + 1):
-                    self.set, self.rep, self.phase = s, r, "running"
+                    self.set, self.rep = s, r
+                    # A pause that came as the last repetition ended holds this one back.
+                    self.phase = "running" if self._resumed.is_set() else "paused"
                     self._on_change()
                     if not await self._repetition():
                         break
@@ -174,18 +195,20 @@ class ExerciseRun:
             latest = self.dev.latest
             if latest is not None and latest.mode in STOPPED_MODES:
                 reason = "fault"
+            elif self._interrupted:
+                reason = "interrupted"
             elif self._stop.is_set() and self.sets_done < self.body.sets:
                 reason = "stopped"
-            self.phase = (
-                "fault" if reason == "fault" else "stopped" if reason == "stopped" else "done"
-            )
+            self.phase = "done" if reason == "completed" else reason
             self.set = self.rep = 0
             self._on_change()
+        said = self.message if reason in ("fault", "interrupted") else ""
         return End(
             ended_at=time.time(),
             reason=reason,
             sets_completed=self.sets_done,
             repetitions_completed=self.reps_done,
+            text="; ".join(t for t in (said, self._homing_note) if t),
         )
 
     async def _home(self) -> None:
@@ -242,20 +265,33 @@ class ExerciseRun:
         return True
 
     async def _abort_segment(self) -> None:
-        """Stop a running segment: hold where it is, then home slowly to READY."""
+        """Stop a running segment: hold where it is, then home slowly to READY.
+
+        A device that refuses to home (its air supply is low) keeps holding where it is,
+        valves closed: the run still ends, and says so."""
         latest = self.dev.latest
         if latest is None or latest.mode in STOPPED_MODES:
             return
         if latest.mode == DeviceMode.ACTIVE:
             await self.dev.hold()
-        await self.dev.arm_home()
+        try:
+            await self.dev.arm_home()
+        except CommandRefused as exc:
+            self._homing_note = (
+                f"the platform could not go home ({exc.nack.text}) and holds where it is"
+            )
+            return
         await self.dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
+        if self._interrupted:
+            self._homing_note = "the platform went home"
 
     async def _rest(self, seconds: float) -> None:
         self.phase = "rest"
         remaining = seconds
         while remaining > 0 and not self._stop.is_set():
             await self._resumed.wait()
+            if self._stop.is_set():
+                break
             self.rest_until = time.monotonic() + remaining
             self._on_change()
             self._event("rest", seconds=round(remaining, 1))

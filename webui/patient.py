@@ -128,6 +128,10 @@ class PageStatus(BaseModel):
     reps_done: int
     rest_remaining_s: float
     message: str
+    hold: wire.HoldInfo | None = Field(
+        description="Why the platform holds: the patient's own pause, or something else that "
+        "only the therapist (or the station's limit) ends."
+    )
 
 
 class Foot(BaseModel):
@@ -285,6 +289,7 @@ def page_status(station: PatientStation) -> PageStatus:
         reps_done=reps_done,
         rest_remaining_s=s.rest_remaining_s,
         message=s.message,
+        hold=s.hold,
     )
 
 

@@ -15,7 +15,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -101,7 +101,8 @@ class System:
         )
         wait_healthy(self.url, self.server, timeout=30.0)
 
-    def start_station(self) -> None:
+    def start_station(self, *args: str) -> None:
+        """Start the station; ``args`` are more of its options (``--hold-limit 3``)."""
         # A free port of its own, never the default: tests run side by side with a demo.
         self.page_port = free_port()
         self.station = self._spawn(
@@ -115,6 +116,7 @@ class System:
             str(self.spool),
             "--page-port",
             str(self.page_port),
+            *args,
             env={"ANKLE_STATION_TOKEN": self.creds["station_token"]},
         )
 
@@ -211,3 +213,64 @@ async def next_of(ws: ClientConnection, kind: type[Any], timeout: float = 30.0) 
 
 def dump(obj: Any) -> str:
     return json.dumps(obj, indent=1, default=str)[:2000]
+
+
+async def status_until(
+    ws: ClientConnection, done: Callable[[wire.StatusMsg], bool], timeout: float
+) -> wire.StatusMsg:
+    deadline = time.monotonic() + timeout
+    while True:
+        status: wire.StatusMsg = await next_of(
+            ws, wire.StatusMsg, timeout=max(0.1, deadline - time.monotonic())
+        )
+        if done(status):
+            return status
+
+
+async def start_exercise(
+    system: System, therapist: httpx.AsyncClient, body: dict[str, Any], *station_args: str
+) -> tuple[int, ClientConnection, wire.StatusMsg]:
+    """Prescribe ``body``, start the station (with ``station_args``), start the exercise from
+    the live view; the prescription, the open live view and the first status naming the
+    session."""
+    r = await therapist.post(
+        f"/api/v1/patients/{system.creds['patient_id']}/prescriptions", json=body
+    )
+    assert r.status_code == 201, r.text
+    pid = int(r.json()["id"])
+    system.start_station(*station_args)
+    ws = await live(system, bearer(therapist))
+    await next_of(ws, wire.Welcome)
+    await status_until(ws, lambda s: s.device_link == "connected", 30)
+    await ws.send(
+        wire.Command(request_id="start", action="start", prescription_id=pid).model_dump_json()
+    )
+    result = await next_of(ws, wire.CommandResult, 10)
+    assert result.request_id == "start" and result.ok, result
+    status = await status_until(ws, lambda s: s.session_id is not None, 5)
+    return pid, ws, status
+
+
+async def active(ws: ClientConnection, timeout: float) -> wire.TelemetryMsg:
+    """The first telemetry of a repetition in progress."""
+    deadline = time.monotonic() + timeout
+    while True:
+        t: wire.TelemetryMsg = await next_of(
+            ws, wire.TelemetryMsg, max(0.1, deadline - time.monotonic())
+        )
+        if t.mode == "ACTIVE":
+            return t
+
+
+async def sessions_of(client: httpx.AsyncClient, pid: int) -> list[dict[str, Any]]:
+    r = await client.get("/api/v1/sessions", params={"prescription_id": pid})
+    assert r.status_code == 200, r.text
+    return list(r.json())
+
+
+async def uploaded(client: httpx.AsyncClient, pid: int, timeout: float) -> list[dict[str, Any]]:
+    deadline = time.monotonic() + timeout
+    while not (found := await sessions_of(client, pid)):
+        assert time.monotonic() < deadline, "the session never reached the server"
+        await asyncio.sleep(0.25)
+    return found

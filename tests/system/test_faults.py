@@ -8,7 +8,6 @@ import asyncio
 import contextlib
 import signal
 import time
-from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
@@ -22,25 +21,24 @@ from websockets.exceptions import ConnectionClosed
 from sessions import wire
 from sessions.recording import decode
 from station import server_link
-from tests.system.harness import System, bearer, free_port, live, next_of, short_strength
+from tests.system.harness import (
+    System,
+    active,
+    bearer,
+    free_port,
+    live,
+    next_of,
+    short_strength,
+    start_exercise,
+    status_until,
+    uploaded,
+)
 
 SAFE_MODES = ("HOLD", "READY")
 
 
 def prescription(repetitions: int) -> dict[str, Any]:
     return short_strength("Fault test", repetitions)
-
-
-async def status_until(
-    ws: ClientConnection, done: Callable[[wire.StatusMsg], bool], timeout: float
-) -> wire.StatusMsg:
-    deadline = time.monotonic() + timeout
-    while True:
-        status: wire.StatusMsg = await next_of(
-            ws, wire.StatusMsg, timeout=max(0.1, deadline - time.monotonic())
-        )
-        if done(status):
-            return status
 
 
 async def presence(ws: ClientConnection, online: bool, timeout: float) -> None:
@@ -51,60 +49,11 @@ async def presence(ws: ClientConnection, online: bool, timeout: float) -> None:
         pass
 
 
-async def start_exercise(
-    system: System, therapist: httpx.AsyncClient, repetitions: int
-) -> tuple[int, ClientConnection, wire.StatusMsg]:
-    """Prescribe, start the station, start the exercise from the live view; the prescription,
-    the open live view and the first status naming the session."""
-    r = await therapist.post(
-        f"/api/v1/patients/{system.creds['patient_id']}/prescriptions",
-        json=prescription(repetitions),
-    )
-    assert r.status_code == 201, r.text
-    pid = int(r.json()["id"])
-    system.start_station()
-    ws = await live(system, bearer(therapist))
-    await next_of(ws, wire.Welcome)
-    await status_until(ws, lambda s: s.device_link == "connected", 30)
-    await ws.send(
-        wire.Command(request_id="start", action="start", prescription_id=pid).model_dump_json()
-    )
-    result = await next_of(ws, wire.CommandResult, 10)
-    assert result.request_id == "start" and result.ok, result
-    status = await status_until(ws, lambda s: s.session_id is not None, 5)
-    return pid, ws, status
-
-
-async def active(ws: ClientConnection, timeout: float) -> wire.TelemetryMsg:
-    """The first telemetry of a repetition in progress."""
-    deadline = time.monotonic() + timeout
-    while True:
-        t: wire.TelemetryMsg = await next_of(
-            ws, wire.TelemetryMsg, max(0.1, deadline - time.monotonic())
-        )
-        if t.mode == "ACTIVE":
-            return t
-
-
-async def sessions_of(client: httpx.AsyncClient, pid: int) -> list[dict[str, Any]]:
-    r = await client.get("/api/v1/sessions", params={"prescription_id": pid})
-    assert r.status_code == 200, r.text
-    return list(r.json())
-
-
-async def uploaded(client: httpx.AsyncClient, pid: int, timeout: float) -> list[dict[str, Any]]:
-    deadline = time.monotonic() + timeout
-    while not (found := await sessions_of(client, pid)):
-        assert time.monotonic() < deadline, "the session never reached the server"
-        await asyncio.sleep(0.25)
-    return found
-
-
 @pytest.mark.asyncio
 async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device_safe(
     system: System, therapist: httpx.AsyncClient
 ) -> None:
-    pid, ws, status = await start_exercise(system, therapist, repetitions=3)
+    pid, ws, status = await start_exercise(system, therapist, prescription(3))
     sid = status.session_id
     assert sid is not None
     spool_file = system.spool / f"{sid}.rec"
@@ -169,7 +118,7 @@ async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device
 async def test_server_killed_mid_session_the_exercise_runs_on_and_uploads(
     system: System, therapist: httpx.AsyncClient
 ) -> None:
-    pid, ws, status = await start_exercise(system, therapist, repetitions=3)
+    pid, ws, status = await start_exercise(system, therapist, prescription(3))
     sid = status.session_id
     try:
         first = await active(ws, 30)

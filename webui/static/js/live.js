@@ -132,15 +132,43 @@ function showLink() {
   else setBadge(badge, "station offline", "offline");
 }
 
-function showMode(mode, trip) {
+function showMode(mode) {
   setBadge($("st-mode"), mode || "–", MODE_CLASS[mode] || "");
-  $("st-trip").textContent = trip ? `trip code ${trip}` : "none";
+}
+
+const clock = (unix) => new Date(unix * 1000).toLocaleTimeString();
+
+// Why the device is held or stopped, from the station's status: also what happened before
+// this page was opened (the server's welcome carries the last status).
+function showWhy() {
+  const s = state.status;
+  const banner = $("why");
+  let level = "";
+  let words = "";
+  if (s && s.fault) {
+    level = "bad";
+    words = `The device stopped: ${s.fault}${s.trip ? ` (trip code ${s.trip})` : ""}.`;
+  } else if (s && s.hold) {
+    const h = s.hold;
+    const held = Math.max(0, Date.now() / 1000 - h.since);
+    level = h.patient_may_resume ? "warn" : "bad";
+    words = `Held for ${fmt.duration(held)}, since ${clock(h.since)}: ${h.text}.`;
+    if (h.ends_at) words += ` Unless resumed, the exercise ends at ${clock(h.ends_at)}.`;
+  } else if (s && s.phase === "interrupted") {
+    level = "warn";
+    words = `The exercise ended: ${s.message || "it was held too long"}.`;
+  }
+  banner.hidden = !words;
+  banner.dataset.level = level;
+  if (banner.textContent !== words) banner.textContent = words;
+  $("st-trip").textContent = s && s.fault ? s.fault : s && s.hold ? `none; held: ${s.hold.text}` : "none";
 }
 
 function showStatus(s) {
   state.status = s;
   $("st-device").textContent = s.device_link === "connected" ? "connected" : "lost";
-  showMode(s.device_mode, s.trip);
+  showMode(s.device_mode);
+  showWhy();
   $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
   $("st-phase").textContent = s.phase;
   $("st-progress").textContent = s.sets ? `set ${s.set} of ${s.sets} · repetition ${s.rep} of ${s.repetitions}` : "–";
@@ -158,7 +186,7 @@ function showStatus(s) {
 function showTelemetry(m) {
   state.frames += 1;
   state.lastTelemetry = m;
-  showMode(m.mode, m.trip);
+  showMode(m.mode);
   state.inForce = m;
   for (const a of AXES) {
     const cell = $(`kb-now-${a}`);
@@ -174,6 +202,7 @@ setInterval(() => {
   const m = state.lastTelemetry;
   // Station clock to this browser's clock: meaningful when both keep network time.
   $("st-age").textContent = m ? `${Math.max(0, Date.now() - m.sent * 1000).toFixed(0)} ms` : "–";
+  showWhy(); // the time held goes on between statuses
 }, 1000);
 
 function describe(e) {
@@ -182,6 +211,7 @@ function describe(e) {
     const extra = [d.text, d.code ? `code ${d.code}` : ""].filter(Boolean).join(", ");
     return `${e.kind}: ${d.from} → ${d.to}${extra ? ` (${extra})` : ""}`;
   }
+  if (e.kind === "interrupted" && d.text) return `exercise ended: ${d.text}`;
   if (e.kind === "impedance" && d.old && d.new) {
     const parts = [];
     for (const [what, unit] of [["stiffness", "K"], ["damping", "B"]]) {

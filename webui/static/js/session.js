@@ -67,7 +67,7 @@ function renderSummary(session, patient) {
   $("facts").replaceChildren(
     ...fact("Date", when),
     ...fact("Duration", fmt.duration(sum.elapsed_s), el("span", { class: "muted" }, ` (exercising ${fmt.duration(sum.duration_s)})`)),
-    ...fact("Ended", endReasonBadge(session.end_reason)),
+    ...fact("Ended", endReasonBadge(session.end_reason), ...(sum.end_text ? [" ", el("span", { id: "end-text" }, sum.end_text)] : [])),
     ...fact("Repetitions", `${reps} of ${prescribed} prescribed`),
     ...fact("Sets completed", sum.sets_completed ?? "–"),
     ...fact("Samples", sum.samples ?? "–"),

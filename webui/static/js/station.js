@@ -15,6 +15,15 @@ const DOING = {
   rom_assessment: "Move your foot as far as is comfortable: toes down, up, in and out.",
 };
 const SAFETY_STOPPED = ["FAULT", "ESTOP"];
+// Why the platform holds when it is not the patient's own pause (the station sends the
+// reason's code): what happened, in plain words. What to do follows in heldWords.
+const HELD_BECAUSE = {
+  watchdog: "The platform stopped to keep you safe: it lost contact with this computer for a moment.",
+  supply_low: "The platform stopped to keep you safe: its air supply is low.",
+  device: "The platform stopped to keep you safe.",
+  station: "The platform stopped to keep you safe.",
+  therapist: "Your therapist has paused the exercise.",
+};
 const RUN_PHASES = ["homing", "running", "rest", "paused"];
 
 let socket = null;
@@ -182,6 +191,39 @@ function platformWords() {
   return ["ok", "The platform is ready"];
 }
 
+// The patient's own pause is theirs to continue; any other hold is not (the station refuses).
+function heldByOthers() {
+  return status !== null && status.phase === "paused" && status.hold !== null && !status.hold.patient_may_resume;
+}
+
+// Coarse on purpose: the line is read out by screen readers whenever it changes.
+function endsIn(endsAt) {
+  const seconds = endsAt - Date.now() / 1000;
+  if (seconds <= 60) {
+    return "in less than a minute";
+  }
+  const minutes = Math.ceil(seconds / 60);
+  return `in about ${minutes} minutes`;
+}
+
+function heldWords(hold) {
+  const what = HELD_BECAUSE[hold.code] || HELD_BECAUSE.device;
+  const ends = hold.ends_at ? `the exercise ends by itself ${endsIn(hold.ends_at)}` : "";
+  const words = [what, "Keep your foot still."];
+  if (hold.code === "therapist") {
+    words.push(ends ? `Your therapist will carry it on; if not, ${ends}.` : "Your therapist will carry it on.");
+    return words.join(" ");
+  }
+  if (status.online) {
+    const told = "Your therapist has been told and can carry on";
+    words.push(ends ? `${told}; if not, ${ends}.` : `${told}.`);
+  } else if (ends) {
+    words.push(`With no connection to your therapist, ${ends}.`);
+  }
+  words.push("Press STOP to end it now.");
+  return words.join(" ");
+}
+
 function todoWords() {
   if (!connected || status === null) {
     return ["warn", "Please wait: the page is connecting to your station."];
@@ -202,7 +244,15 @@ function todoWords() {
       // The countdown has its own line: announcing it every second would drown the rest.
       return ["ok", "Rest and relax your foot. The next set starts by itself."];
     case "paused":
+      if (heldByOthers()) {
+        return ["bad", heldWords(status.hold)];
+      }
       return ["warn", "Paused. Press Continue when you are ready."];
+    case "interrupted":
+      return [
+        "warn",
+        "The exercise ended because the platform was stopped for too long. You can start again when you are ready, or call your therapist.",
+      ];
     case "done":
       return ["ok", "Well done! Today's exercise is finished."];
     case "stopped":
@@ -297,14 +347,18 @@ function render() {
 
   const phase = status ? status.phase : "idle";
   const pause = $("pause");
-  pause.disabled = !connected || !["running", "rest", "paused"].includes(phase);
+  const others = heldByOthers();
+  pause.hidden = others; // nothing for the patient to continue: only STOP is theirs
+  pause.disabled = !connected || !["running", "rest", "paused"].includes(phase) || others;
   setText(pause, phase === "paused" ? "Continue" : "Pause");
-  setText(
-    $("pause-help"),
-    phase === "paused"
-      ? "Carry on with the exercise."
-      : "Pause the exercise. The platform holds still until you continue.",
-  );
+  let help = "Pause the exercise. The platform holds still until you continue.";
+  if (others) {
+    help = "Only your therapist can carry on after this stop.";
+  } else if (phase === "paused") {
+    const ends = status.hold && status.hold.ends_at ? ` If you do not, it ends by itself ${endsIn(status.hold.ends_at)}.` : "";
+    help = `Carry on with the exercise.${ends}`;
+  }
+  setText($("pause-help"), help);
 
   const canStart =
     connected &&
@@ -593,6 +647,9 @@ function overlayWords() {
   const phase = status ? status.phase : "idle";
   if (!game.field) {
     return "No game in this exercise";
+  }
+  if (heldByOthers()) {
+    return status.hold.code === "therapist" ? "Paused by your therapist" : "Stopped to keep you safe";
   }
   if (phase === "paused") {
     return "Paused";

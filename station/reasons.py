@@ -1,0 +1,160 @@
+"""Why the device is held or stopped, as the home station learns it, and how long a hold may last.
+
+Two sources meet here: the device says why it held in its events (its watchdog heard nothing
+from the station, its air supply sagged, it latched a fault), and the station knows on whose
+behalf it sent a HOLD (the patient's pause, the therapist's HOLD). The station's status
+carries the result to the therapist's live view (and, through the server's Welcome, to a view
+opened later) and to the patient's page; the station ends an exercise held longer than its
+limit (:func:`ends_at`).
+
+Plain logic, no I/O: the station feeds it and reads it.
+"""
+
+from __future__ import annotations
+
+import time
+
+from device.protocol import messages as msg
+from device.protocol.messages import DeviceMode, EventKind
+from device.trips import describe
+from sessions.wire import HoldCode, HoldInfo
+
+HOLD_LIMIT_S = 180.0
+"""How long an exercise may stay held before the station ends it (s): long enough for a
+pause to drink water or for the therapist to look into a hold, short enough that a patient is
+not left with a foot in a frozen platform."""
+
+_RANK: dict[HoldCode, int] = {
+    "pause": 0,
+    "station": 1,
+    "therapist": 2,
+    "device": 3,
+    "supply_low": 3,
+    "watchdog": 3,
+}
+"""A stronger reason replaces a weaker one while held: the therapist's HOLD during the
+patient's pause is no longer the patient's to continue, and the device's own reason is the
+one a therapist needs to see."""
+
+_ASKED: dict[HoldCode, str] = {
+    "pause": "the patient paused the exercise",
+    "therapist": "the therapist pressed HOLD",
+    "station": "the station held the platform",
+}
+_STOPPED = (DeviceMode.FAULT, DeviceMode.ESTOP)
+
+
+def asked_code(by: str) -> HoldCode:
+    """The hold code for a HOLD the station sends on behalf of ``by``."""
+    if by == "patient":
+        return "pause"
+    if by.startswith("therapist"):
+        return "therapist"
+    return "station"
+
+
+def ends_at(hold: HoldInfo, began: float, limit_s: float) -> float:
+    """When an exercise that began at ``began`` (Unix s) ends if it stays held: the limit
+    counts from the hold's start, never from before the exercise's own start."""
+    return max(hold.since, began) + limit_s
+
+
+def patient_resume_refusal(hold: HoldInfo) -> str:
+    """Why the patient's page may not continue this hold (only a pause is theirs)."""
+    if hold.code == "therapist":
+        return "your therapist is holding the exercise and will carry it on"
+    return (
+        "the platform stopped to keep you safe; your therapist can carry on, "
+        "or press STOP to end the exercise"
+    )
+
+
+class Reasons:
+    """The current hold and fault, from the station's commands and the device's events."""
+
+    def __init__(self) -> None:
+        self._hold: HoldInfo | None = None
+        self._fault = ""
+        self._unheard_since: float | None = None
+
+    # -- what the station asked --------------------------------------------------------
+    def asked(self, by: str, now: float | None = None) -> None:
+        """The station is sending a HOLD on behalf of ``by`` (before sending it, so that the
+        device's own MODE_CHANGE event finds the reason already there)."""
+        code = asked_code(by)
+        self._set(code, _ASKED[code], by, time.time() if now is None else now)
+
+    def resumed(self) -> None:
+        """The exercise carries on (the device resumed, or a pause between repetitions ended)."""
+        self._hold = None
+
+    def settled(self, mode: DeviceMode | None) -> None:
+        """An exercise ended: a hold outlives it only if the device still holds."""
+        if mode != DeviceMode.HOLD:
+            self._hold = None
+
+    # -- what the device said ------------------------------------------------------------
+    def device_event(self, event: msg.Event, at: float) -> None:
+        """A device event that happened at ``at`` (Unix s)."""
+        if event.mode_to in _STOPPED:
+            self._hold = None
+            self._fault = event.text or describe(event.code)
+            return
+        if event.mode_from in _STOPPED and event.mode_to != event.mode_from:
+            self._fault = ""
+        if event.mode_to == DeviceMode.HOLD and event.mode_from != DeviceMode.HOLD:
+            if event.kind == EventKind.WATCHDOG:
+                self._set(
+                    "watchdog",
+                    f"the device's watchdog held the platform: no frame from the station for "
+                    f"{event.value:.0f} ms (the station or its cable stalled)",
+                    "device",
+                    at,
+                )
+            elif event.kind == EventKind.SUPPLY_LOW:
+                self._set("supply_low", f"the device held the platform: {event.text}", "device", at)
+            elif self._hold is None:
+                self._set("device", f"the device held the platform ({event.text})", "device", at)
+        elif event.mode_from == DeviceMode.HOLD and event.mode_to != DeviceMode.HOLD:
+            self._hold = None
+
+    # -- what the status shows -------------------------------------------------------------
+    def hold(
+        self, mode: DeviceMode | None, paused: bool, now: float | None = None
+    ) -> HoldInfo | None:
+        """The hold to show: while the device holds, or the exercise is paused between
+        repetitions. A device found holding for a reason never heard (its events were lost)
+        still shows that it holds, from when the station first saw it."""
+        if mode != DeviceMode.HOLD and not paused:
+            self._unheard_since = None
+            return None
+        if self._hold is not None or mode != DeviceMode.HOLD:
+            return self._hold
+        # Not stored as the hold: the event that says why may still be on its way.
+        if self._unheard_since is None:
+            self._unheard_since = time.time() if now is None else now
+        return HoldInfo(
+            code="device",
+            text="the device holds the platform; the station did not hear why",
+            by="device",
+            since=self._unheard_since,
+            patient_may_resume=False,
+        )
+
+    def fault(self, mode: DeviceMode | None, trip: int) -> str:
+        """The device's words for its latched fault or e-stop; "" when there is none."""
+        if mode not in _STOPPED:
+            return ""
+        return self._fault or describe(trip)
+
+    def _set(self, code: HoldCode, text: str, by: str, at: float) -> None:
+        old = self._hold
+        if old is not None and _RANK[code] <= _RANK[old.code]:
+            return
+        self._hold = HoldInfo(
+            code=code,
+            text=text,
+            by=by,
+            since=at if old is None else min(old.since, at),
+            patient_may_resume=code == "pause",
+        )

@@ -1,0 +1,128 @@
+"""Why the device holds, as the station learns it: the station's own HOLDs and the device's
+events meet in one place, the stronger reason wins, and a hold is timed from its start."""
+
+from __future__ import annotations
+
+from device.protocol.messages import DeviceMode, Event, EventKind
+from device.trips import Trip, describe
+from sessions.wire import HoldInfo
+from station.reasons import Reasons, ends_at, patient_resume_refusal
+
+A, H, R = DeviceMode.ACTIVE, DeviceMode.HOLD, DeviceMode.READY
+
+
+def event(
+    kind: EventKind,
+    mode_from: DeviceMode,
+    mode_to: DeviceMode,
+    code: int = 0,
+    value: float = 0.0,
+    text: str = "",
+) -> Event:
+    return Event(
+        event_id=1,
+        time=10.0,
+        kind=kind,
+        mode_from=mode_from,
+        mode_to=mode_to,
+        code=code,
+        value=value,
+        text=text,
+    )
+
+
+def held(reasons: Reasons) -> tuple[str, str, float, bool]:
+    """Who holds, by whom, since when, and whether the patient may continue it."""
+    hold = reasons.hold(H, paused=True)
+    assert hold is not None
+    return hold.code, hold.by, hold.since, hold.patient_may_resume
+
+
+def test_the_patients_pause_is_theirs_until_the_device_holds_for_its_own_reason() -> None:
+    reasons = Reasons()
+    reasons.asked("patient", now=100.0)
+    # The device's MODE_CHANGE for the HOLD the station sent does not hide who asked.
+    reasons.device_event(event(EventKind.MODE_CHANGE, A, H, text="hold"), at=100.1)
+    assert held(reasons) == ("pause", "patient", 100.0, True)
+    # The therapist's HOLD during the pause takes it from the patient, from the same start.
+    reasons.asked("therapist:7", now=130.0)
+    assert held(reasons) == ("therapist", "therapist:7", 100.0, False)
+    hold = reasons.hold(H, paused=True)
+    assert hold is not None and "therapist" in patient_resume_refusal(hold)
+    # A later pause by the patient does not weaken it.
+    reasons.asked("patient", now=140.0)
+    assert reasons.hold(H, paused=True) == hold
+    # Resumed: nothing holds.
+    reasons.device_event(event(EventKind.MODE_CHANGE, H, A, text="resumed"), at=150.0)
+    assert reasons.hold(A, paused=False) is None
+
+
+def test_the_watchdog_wins_over_a_pause_sent_as_the_link_stalled() -> None:
+    reasons = Reasons()
+    reasons.asked("patient", now=200.0)
+    reasons.device_event(
+        event(EventKind.WATCHDOG, A, H, value=412.0, text="no valid frame for 412 ms"),
+        at=199.8,
+    )
+    assert held(reasons) == ("watchdog", "device", 199.8, False)
+    hold = reasons.hold(H, paused=True)
+    assert hold is not None and "412 ms" in hold.text
+    assert "keep you safe" in patient_resume_refusal(hold)
+
+
+def test_a_supply_hold_carries_the_devices_words_and_a_fault_replaces_any_hold() -> None:
+    reasons = Reasons()
+    text = "air supply low (4.2 bar): held until it recovers"
+    reasons.device_event(event(EventKind.SUPPLY_LOW, A, H, text=text), at=5.0)
+    hold = reasons.hold(H, paused=True)
+    assert hold is not None and hold.code == "supply_low" and text in hold.text
+    assert reasons.fault(H, 0) == ""
+
+    fault = "SUPPLY_LOSS: the air supply was lost while moving"
+    reasons.device_event(
+        event(EventKind.FAULT, H, DeviceMode.FAULT, code=int(Trip.SUPPLY_LOSS), text=fault), 6.0
+    )
+    assert reasons.hold(DeviceMode.FAULT, paused=False) is None
+    assert reasons.fault(DeviceMode.FAULT, int(Trip.SUPPLY_LOSS)) == fault
+    # Re-armed: no fault any more.
+    reasons.device_event(event(EventKind.MODE_CHANGE, DeviceMode.FAULT, DeviceMode.IDLE), 7.0)
+    assert reasons.fault(DeviceMode.IDLE, 0) == ""
+
+
+def test_a_fault_the_station_never_heard_of_is_told_from_its_trip_code() -> None:
+    assert Reasons().fault(DeviceMode.ESTOP, int(Trip.ESTOP)) == describe(Trip.ESTOP)
+
+
+def test_a_hold_with_no_event_heard_shows_from_when_it_was_first_seen() -> None:
+    reasons = Reasons()
+    first = reasons.hold(H, paused=False, now=50.0)
+    again = reasons.hold(H, paused=False, now=70.0)
+    assert first is not None and first.code == "device" and "did not hear why" in first.text
+    assert again == first  # the same hold, the same start
+    # Its event arrives late: the device's own reason replaces the stand-in.
+    reasons.device_event(event(EventKind.WATCHDOG, A, H, value=250.0), at=49.9)
+    hold = reasons.hold(H, paused=False)
+    assert hold is not None and (hold.code, hold.since) == ("watchdog", 49.9)
+
+
+def test_a_hold_that_ends_with_the_exercise_is_forgotten_unless_the_device_still_holds() -> None:
+    reasons = Reasons()
+    reasons.asked("therapist:1", now=1.0)
+    reasons.settled(H)
+    assert reasons.hold(H, paused=False) is not None
+    reasons.settled(R)
+    assert reasons.hold(H, paused=False, now=2.0) == HoldInfo(
+        code="device",
+        text="the device holds the platform; the station did not hear why",
+        by="device",
+        since=2.0,
+        patient_may_resume=False,
+    )
+
+
+def test_the_limit_counts_from_the_hold_but_never_from_before_the_exercise() -> None:
+    hold = HoldInfo(code="watchdog", text="", by="device", since=100.0, patient_may_resume=False)
+    assert ends_at(hold, began=40.0, limit_s=180.0) == 280.0
+    # A hold older than the exercise (the device held before it started) is timed from
+    # the exercise's start.
+    assert ends_at(hold, began=150.0, limit_s=180.0) == 330.0

@@ -1,0 +1,155 @@
+"""A hold that ends, with real processes: the device's watchdog holds an exercise when the
+station stalls, the station ends it once it has been held past its limit (platform home,
+session ``interrupted`` with the reason), and every viewer is told why the device holds,
+also one that opens after the hold began."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+
+import httpx
+import pytest
+from pydantic import BaseModel
+from websockets.asyncio.client import connect
+from websockets.typing import Origin
+
+from sessions import wire
+from sessions.recording import decode
+from station.reasons import HOLD_LIMIT_S
+from tests.system.harness import (
+    System,
+    active,
+    bearer,
+    live,
+    next_of,
+    short_strength,
+    start_exercise,
+    status_until,
+    uploaded,
+)
+
+LIMIT_S = 3.0
+STALL_S = 1.0
+"""Five times the device's watchdog time (200 ms): the device holds for certain."""
+
+
+def stall(system: System, seconds: float) -> None:
+    """Freeze the station process (its heartbeats to the device stop), then let it go on."""
+    assert system.station is not None
+    os.kill(system.station.pid, signal.SIGSTOP)
+    try:
+        time.sleep(seconds)
+    finally:
+        os.kill(system.station.pid, signal.SIGCONT)
+
+
+@pytest.mark.asyncio
+async def test_a_watchdog_hold_past_the_limit_ends_the_exercise_homed_and_interrupted(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    body = short_strength("Held too long", repetitions=3)
+    pid, ws, status = await start_exercise(system, therapist, body, "--hold-limit", f"{LIMIT_S:g}")
+    sid = status.session_id
+    try:
+        await active(ws, 30)
+        stall(system, STALL_S)
+
+        held = await status_until(ws, lambda s: s.hold is not None, 15)
+        hold = held.hold
+        assert hold is not None
+        assert (hold.code, hold.by, hold.patient_may_resume) == ("watchdog", "device", False)
+        assert "no frame from the station" in hold.text, hold
+        assert (held.phase, held.device_mode, held.session_id) == ("paused", "HOLD", sid), held
+        assert hold.ends_at is not None and hold.ends_at - hold.since == pytest.approx(LIMIT_S)
+        assert held.fault == "", held  # held, not faulted
+
+        # Nobody resumes: the station ends the exercise, the platform goes home, and the
+        # viewer is told why, in the events and in the status.
+        seen: list[BaseModel] = []
+        while True:
+            m = await next_of(ws, BaseModel, 60)
+            seen.append(m)
+            if isinstance(m, wire.StatusMsg) and m.phase == "interrupted" and m.session_id is None:
+                ended = m
+                break
+        modes = [m.device_mode for m in seen if isinstance(m, wire.StatusMsg)]
+        assert "ACTIVE" not in modes, modes  # it never resumed by itself
+        (event,) = [
+            m.event for m in seen if isinstance(m, wire.EventMsg) and m.event.kind == "interrupted"
+        ]
+        assert event.by == "station" and event.detail["hold"] == "watchdog", event
+        assert event.wall >= hold.ends_at, (event.wall, hold)
+        assert f"longer than the {LIMIT_S:g} s limit" in event.detail["text"], event
+        home = await status_until(ws, lambda s: s.device_mode == "READY", 60)
+        assert home.phase == "interrupted" and home.hold is None, home
+        assert "the platform went home" in ended.message + home.message, (ended, home)
+    finally:
+        await ws.close()
+
+    (session,) = await uploaded(therapist, pid, timeout=30)
+    assert session["session_uuid"] == sid
+    assert session["end_reason"] == "interrupted", session
+    summary = session["summary"]
+    assert f"longer than the {LIMIT_S:g} s limit" in summary["end_text"], summary
+    assert "watchdog" in summary["end_text"] and "went home" in summary["end_text"], summary
+    kinds = [f["kind"] for f in summary["faults"]]
+    assert "watchdog" in kinds and "interrupted" in kinds, summary["faults"]
+    assert summary["repetitions_completed"] < 3, summary
+    r = await therapist.get(session["downloads"]["rec"])
+    rec = decode(r.content)
+    assert rec.end is not None and rec.end.reason == "interrupted"
+    assert rec.end.text == summary["end_text"]
+
+
+@pytest.mark.asyncio
+async def test_a_therapists_hold_is_shown_to_a_later_viewer_and_only_the_therapist_resumes(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    body = short_strength("Held by the therapist", repetitions=5)
+    _, ws, status = await start_exercise(system, therapist, body)
+    try:
+        await active(ws, 30)
+        await ws.send(wire.Command(request_id="hold", action="hold").model_dump_json())
+        result = await next_of(ws, wire.CommandResult, 10)
+        assert result.request_id == "hold" and result.ok, result
+        held = await status_until(ws, lambda s: s.hold is not None and s.device_mode == "HOLD", 10)
+        hold = held.hold
+        assert hold is not None
+        assert hold.code == "therapist" and hold.by.startswith("therapist:"), hold
+        assert hold.since <= time.time() and not hold.patient_may_resume
+        assert hold.ends_at is not None  # the default limit:
+        assert hold.ends_at - hold.since == pytest.approx(HOLD_LIMIT_S), hold
+        assert held.phase == "paused"
+
+        # A view opened now learns from the server's welcome why the device holds.
+        later = await live(system, bearer(therapist))
+        try:
+            welcome = await next_of(later, wire.Welcome, 10)
+            assert welcome.status is not None and welcome.status.hold == hold, welcome
+        finally:
+            await later.close()
+
+        # The patient's page may not continue the therapist's hold: the station refuses and
+        # nothing moves.
+        async with connect(
+            f"ws://127.0.0.1:{system.page_port}/ws", origin=Origin(system.page_url.rstrip("/"))
+        ) as page:
+            await page.send(json.dumps({"type": "resume", "id": "r1"}))
+            while (answer := json.loads(await page.recv()))["type"] != "result":
+                pass
+        assert answer["ok"] is False, answer
+        assert "your therapist is holding the exercise" in answer["text"], answer
+        still = await status_until(ws, lambda s: True, 5)
+        assert still.device_mode == "HOLD" and still.hold == hold, still
+
+        # The therapist's Resume carries on, and the hold is gone.
+        await ws.send(wire.Command(request_id="resume", action="resume").model_dump_json())
+        result = await next_of(ws, wire.CommandResult, 10)
+        assert result.request_id == "resume" and result.ok, result
+        going = await status_until(ws, lambda s: s.hold is None, 10)
+        assert going.phase == "running" and going.session_id == status.session_id, going
+    finally:
+        await ws.close()
