@@ -137,7 +137,20 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     expect(page.locator("#kb-ack")).to_contain_text(
         re.compile(r"acknowledged by the device|accepted: applies"), timeout=10_000
     )
-    expect(page.locator("#kb-now-pitch")).to_contain_text("80.0 ·", timeout=15_000)
+    # On a busy machine the station may miss the device's 200 ms watchdog, and the device
+    # holds: the change is then in force once the therapist resumes (never before).
+    deadline = time.monotonic() + 30.0
+    resumed = 0
+    while "80.0 ·" not in page.locator("#kb-now-pitch").inner_text():
+        mode = page.locator("#st-mode").inner_text()
+        why = page.locator("#st-trip").inner_text()
+        assert time.monotonic() < deadline, f"80 not in force: mode {mode}, hold {why!r}"
+        if mode == "HOLD" and resumed < 3:
+            assert "40.0 ·" in page.locator("#kb-now-pitch").inner_text()
+            resumed += 1
+            page.get_by_role("button", name="Resume").click()
+            expect(page.locator("#st-mode")).not_to_have_text("HOLD", timeout=10_000)
+        page.wait_for_timeout(200)
     expect(page.locator("#st-rtt")).to_contain_text("ms")
 
     # HOLD reaches the device, and the device's mode changes on the page.
