@@ -39,6 +39,7 @@ def _parser() -> device_cli.Parser:
     server.add_argument("--data-dir", type=Path, default=None)
     server.add_argument("--host", default=None)
     server.add_argument("--port", type=int, default=None)
+    _add_admin(sub)
     from station.cli import add_arguments
 
     add_arguments(sub.add_parser("station", help="the patient's home station"))
@@ -47,15 +48,82 @@ def _parser() -> device_cli.Parser:
     return parser
 
 
+def _add_admin(sub: argparse._SubParsersAction[device_cli.Parser]) -> None:
+    admin = sub.add_parser(
+        "admin",
+        help="accounts on the server's database (ANKLE_* settings): create the first admin, "
+        "reset a password",
+    )
+    commands = admin.add_subparsers(
+        dest="admin_command", required=True, parser_class=device_cli.Parser
+    )
+    create = commands.add_parser(
+        "create-user",
+        help="create a therapist or admin; without --password-stdin a one-time password is "
+        "printed once and must be changed at the first sign-in",
+    )
+    create.add_argument("--email", required=True)
+    create.add_argument("--name", required=True)
+    create.add_argument("--role", required=True, choices=("admin", "therapist"))
+    create.add_argument(
+        "--password-stdin",
+        action="store_true",
+        help="read the account's own password from the first line of standard input",
+    )
+    reset = commands.add_parser(
+        "reset-password",
+        help="print a new one-time password (changed at the next sign-in); ends every login",
+    )
+    reset.add_argument("--email", required=True)
+    for command in (create, reset):
+        command.add_argument(
+            "--data-dir", type=Path, default=None, help="default: ANKLE_DATA_DIR or ./ankle-data"
+        )
+
+
+def _admin(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from server.cli import AdminError, create_user_async, reset_password_async
+    from server.config import Settings
+
+    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    try:
+        if args.admin_command == "create-user":
+            password = None
+            if args.password_stdin:
+                password = sys.stdin.readline().rstrip("\r\n")
+                if not password:
+                    raise AdminError("--password-stdin: standard input has no password")
+            user, one_time = asyncio.run(
+                create_user_async(settings, args.email, args.name, args.role, password)
+            )
+            print(f"Created {user.role} {user.name} <{user.email}> (id {user.id}).")
+            if one_time is not None:
+                print(f"One-time password: {one_time}")
+                print("It is shown only now and must be changed at the first sign-in.")
+            return 0
+        user, one_time = asyncio.run(reset_password_async(settings, args.email))
+    except AdminError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return device_cli.USAGE_ERROR
+    print(f"New one-time password for {user.name} <{user.email}>: {one_time}")
+    print("It is shown only now and must be changed at the next sign-in; every login of the")
+    print("account has ended.")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] in (["run"], ["console"], ["server"], ["station"]):
+    if argv[:1] in (["run"], ["console"], ["server"], ["station"], ["admin"]):
         try:
             args = parser.parse_args(argv)
         except device_cli.UsageError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return device_cli.USAGE_ERROR
+        if args.command == "admin":
+            return _admin(args)
         if args.command == "console":
             from device.console import run_console
 

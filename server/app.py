@@ -21,6 +21,7 @@ from server.db import create_engine, create_sessionmaker, migrate
 from server.guard import RequestGuard
 from server.headers import SecurityHeaders
 from server.routes import API_PREFIX, ROUTERS
+from server.routes.common import document_must_change
 from server.routes.health import server_version
 from server.routes.uploads import CHUNK_MAX
 from server.security import HashingSlots
@@ -103,6 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(SecurityHeaders)
     for router in ROUTERS:
         app.include_router(router, prefix=API_PREFIX)
+    document_must_change(app)  # on every route, the dashboard's included
     # The live router names its own full paths (/ws/..., /api/v1/schemas/ws).
     app.include_router(live.router)
     return app

@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import secrets
 import subprocess
 import time
 import urllib.error
@@ -20,18 +19,21 @@ from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
+from pydantic import ValidationError
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
-from server import audit
+from server import accounts, audit
 from server.app import create_app
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
 from server.models import Patient, Prescription, Role, Station, User
 from server.routes import API_PREFIX
-from server.schemas import UserCreate
-from server.security import hash_password, new_token, token_hash
+from server.routes.stations import revoke
+from server.schemas import UserCreate, UserPublic
+from server.security import HashingSlots, hash_password, new_password, new_token, token_hash
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
+from sessions.wire import error_text
 
 DEMO_EMAIL = "therapist@demo.local"
 DEMO_THERAPIST_NAME = "Demo Therapist"
@@ -100,12 +102,7 @@ async def _ensure_user(
     user = (await db.execute(select(User).where(User.email == valid.email))).scalar_one_or_none()
     if user is not None:
         return user, False
-    password_hash = await asyncio.to_thread(hash_password, valid.password)
-    user = User(email=valid.email, name=valid.name, role=valid.role, password_hash=password_hash)
-    db.add(user)
-    await db.flush()
-    new = {"email": user.email, "name": user.name, "role": user.role}
-    audit.record(db, audit.SYSTEM, "user.create", "user", user.id, None, None, new)
+    user, _ = await accounts.create_user(db, HashingSlots(1), audit.SYSTEM, valid)
     return user, True
 
 
@@ -113,8 +110,9 @@ async def ensure_user_async(
     settings: Settings, email: str, name: str, role: Role, password: str
 ) -> bool:
     """Create the account unless one with this email exists (then nothing changes).
-    True if it was created. Raises pydantic's ValidationError for a malformed email or a
-    password shorter than 10 characters."""
+    True if it was created. The password is the owner's own: no change is asked of them.
+    Raises pydantic's ValidationError for a malformed email or a password shorter than 10
+    characters."""
     async with _database(settings) as sessionmaker, sessionmaker() as db:
         _, created = await _ensure_user(db, email, name, role, password)
         await db.commit()
@@ -124,6 +122,44 @@ async def ensure_user_async(
 def ensure_user(settings: Settings, email: str, name: str, role: Role, password: str) -> bool:
     """``ensure_user_async`` for code outside an event loop (the command line)."""
     return asyncio.run(ensure_user_async(settings, email, name, role, password))
+
+
+class AdminError(Exception):
+    """``ankle admin`` refuses: the one-line message says why (exit 2)."""
+
+
+async def create_user_async(
+    settings: Settings, email: str, name: str, role: str, password: str | None
+) -> tuple[UserPublic, str | None]:
+    """``ankle admin create-user``: the new account, and the one-time password the server
+    made when none was given (to print once; it must be changed at the first sign-in).
+    Raises AdminError for bad input or a taken email."""
+    try:
+        valid = UserCreate(email=email, name=name, role=role, password=password)  # type: ignore[arg-type]
+    except ValidationError as exc:
+        raise AdminError(error_text(exc, limit=300)) from None
+    async with _database(settings) as sessionmaker, sessionmaker() as db:
+        try:
+            user, one_time = await accounts.create_user(db, HashingSlots(1), audit.SYSTEM, valid)
+        except accounts.AccountRefused as exc:
+            raise AdminError(f"{exc}: {valid.email}") from None
+        await db.commit()
+        return UserPublic.model_validate(user), one_time
+
+
+async def reset_password_async(settings: Settings, email: str) -> tuple[UserPublic, str]:
+    """``ankle admin reset-password``: a new one-time password for the account (to print
+    once), to be changed at the next sign-in; every login of the account ends (a running
+    server closes their live views at its next periodic re-check). Raises AdminError for
+    an unknown email."""
+    wanted = email.strip().lower()
+    async with _database(settings) as sessionmaker, sessionmaker() as db:
+        user = (await db.execute(select(User).where(User.email == wanted))).scalar_one_or_none()
+        if user is None:
+            raise AdminError(f"no user has the email {wanted!r}")
+        password = await accounts.reset_password(db, HashingSlots(1), audit.SYSTEM, user)
+        await db.commit()
+        return UserPublic.model_validate(user), password
 
 
 def demo_prescription() -> PrescriptionBody:
@@ -136,7 +172,7 @@ def demo_prescription() -> PrescriptionBody:
 
 
 async def _seed_demo(db: AsyncSession) -> dict[str, Any]:
-    password = secrets.token_urlsafe(12)
+    password = new_password()
     therapist, created = await _ensure_user(
         db, DEMO_EMAIL, DEMO_THERAPIST_NAME, "therapist", password
     )
@@ -145,6 +181,7 @@ async def _seed_demo(db: AsyncSession) -> dict[str, Any]:
         # account gets a new one rather than being locked out.
         therapist.password_hash = await asyncio.to_thread(hash_password, password)
         therapist.active = True
+        therapist.must_change_password = False  # demo credentials work as printed
     patient = (
         await db.execute(
             select(Patient).where(
@@ -175,17 +212,7 @@ async def _seed_demo(db: AsyncSession) -> dict[str, Any]:
         )
     ).scalars()
     for old in old_stations:
-        old.revoked = True
-        audit.record(
-            db,
-            audit.SYSTEM,
-            "station.revoke",
-            "station",
-            old.id,
-            patient.id,
-            {"revoked": False},
-            {"revoked": True},
-        )
+        revoke(db, audit.SYSTEM, old)
     token = new_token()
     station = Station(patient_id=patient.id, name=DEMO_STATION_NAME, token_hash=token_hash(token))
     db.add(station)

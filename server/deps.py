@@ -65,7 +65,14 @@ def not_found(what: str) -> HTTPException:
 
 LoginFailure = Literal["unknown", "expired", "inactive"]
 """Why a token does not sign anyone in: no such login (never issued, logged out, or ended by
-a password change), past its expiry, or its user is deactivated."""
+a password change or reset), past its expiry, or its user may not act: deactivated, or
+holding a printed or reset password they must change first (``LoginStanding.must_change``).
+"""
+
+MUST_CHANGE_PASSWORD = (
+    "you must change your password before anything else: it was printed or reset, so "
+    "someone else has seen it (POST /api/v1/auth/password)"
+)
 
 
 class LoginStanding(NamedTuple):
@@ -73,13 +80,17 @@ class LoginStanding(NamedTuple):
     failure: LoginFailure | None
     """None when the token signs ``user`` in now."""
     expires_at: datetime | None
+    must_change: bool = False
+    """The login would sign ``user`` in but for a password they must change first: it may
+    change that password, ask who it is and log out (``SignedInUser``), nothing else."""
 
 
 async def login_standing(db: AsyncSession, token: str) -> LoginStanding:
     """Who holds the login ``token``, until when, and, if it does not sign them in now, why.
 
-    The one place a user's token is judged: HTTP requests (``authenticate_user``), the live
-    view's handshake and the live links' re-checks all ask here.
+    The one place a user's token is judged: HTTP requests (``current_user``,
+    ``signed_in_user``), the live view's handshake and the live links' re-checks all ask
+    here.
     """
     digest = token_hash(token)
     row = (
@@ -98,6 +109,8 @@ async def login_standing(db: AsyncSession, token: str) -> LoginStanding:
         return LoginStanding(user, "expired", login.expires_at)
     if not user.active:
         return LoginStanding(user, "inactive", login.expires_at)
+    if user.must_change_password:
+        return LoginStanding(user, "inactive", login.expires_at, must_change=True)
     return LoginStanding(user, None, login.expires_at)
 
 
@@ -118,19 +131,45 @@ async def authenticate_station(db: AsyncSession, token: str) -> Station | None:
     return station
 
 
+async def _signed_in(
+    db: AsyncSession, credentials: HTTPAuthorizationCredentials | None
+) -> LoginStanding:
+    """The standing of a request's login; 401 unless it signs someone in (perhaps only to
+    change their password)."""
+    if credentials is None:
+        raise unauthorized()
+    standing = await login_standing(db, credentials.credentials)
+    if standing.user is None or (standing.failure is not None and not standing.must_change):
+        raise unauthorized("invalid or expired token")
+    return standing
+
+
+async def signed_in_user(
+    db: Db,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_user_bearer)],
+) -> User:
+    """The logged-in user, even one who must change their password first: only changing
+    it, ``/auth/me`` and logging out take this one. 401 as ``current_user``."""
+    standing = await _signed_in(db, credentials)
+    assert standing.user is not None
+    return standing.user
+
+
 async def current_user(
     db: Db,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_user_bearer)],
 ) -> User:
-    """The logged-in therapist or admin; 401 if the token is missing, unknown or expired."""
-    if credentials is None:
-        raise unauthorized()
-    user = await authenticate_user(db, credentials.credentials)
-    if user is None:
-        raise unauthorized("invalid or expired token")
-    return user
+    """The logged-in therapist or admin; 401 if the token is missing, unknown or expired,
+    403 if they must change a printed or reset password first. (Demo accounts are created
+    without that mark, so the demo's printed password works as it is.)"""
+    standing = await _signed_in(db, credentials)
+    if standing.must_change:
+        raise forbidden(MUST_CHANGE_PASSWORD)
+    assert standing.user is not None
+    return standing.user
 
 
+SignedInUser = Annotated[User, Depends(signed_in_user)]
 CurrentUser = Annotated[User, Depends(current_user)]
 
 
@@ -195,15 +234,39 @@ def may_manage_stations(user: User, patient: Patient) -> bool:
     return user.role == "admin" or patient.therapist_id == user.id
 
 
+def conflict(detail: str) -> HTTPException:
+    return HTTPException(status.HTTP_409_CONFLICT, detail=detail)
+
+
+PATIENT_ARCHIVED = (
+    "the patient is archived, so their record is read-only: unarchive them first "
+    "(POST /api/v1/patients/{id}/unarchive)"
+)
+
+
+def require_current(patient: Patient) -> None:
+    """An archived patient's record is read-only: 409 for any change but unarchiving."""
+    if patient.archived_at is not None:
+        raise conflict(PATIENT_ARCHIVED.replace("{id}", str(patient.id)))
+
+
 async def patient_for(
-    db: AsyncSession, user: User, patient_id: int, *, write: bool = False
+    db: AsyncSession,
+    user: User,
+    patient_id: int,
+    *,
+    write: bool = False,
+    even_archived: bool = False,
 ) -> Patient:
     """The patient ``user`` may read (or, with ``write``, change); else 404, the same 404
-    as for an id that does not exist."""
+    as for an id that does not exist. A change to an archived patient is a 409, unless
+    ``even_archived`` (archiving and unarchiving themselves)."""
     patient = await db.get(Patient, patient_id)
     allowed = may_write if write else may_read
     if patient is None or not allowed(user, patient):
         raise not_found("patient")
+    if write and not even_archived:
+        require_current(patient)
     return patient
 
 

@@ -17,6 +17,8 @@ from pydantic import (
     ConfigDict,
     Field,
     StringConstraints,
+    ValidationInfo,
+    field_validator,
     model_validator,
 )
 
@@ -74,7 +76,12 @@ class UserCreate(BaseModel):
     email: Email
     name: Name = Field(description="Shown in the dashboard and the audit log.")
     role: Role = Field(description="therapist: own patients; admin: users, stations, audit.")
-    password: Password
+    password: Password | None = Field(
+        default=None,
+        description="Leave out (the usual case): the server makes a one-time password, "
+        "answers it once, and its owner must change it at the first sign-in. Give one only "
+        "when the account's owner chose it themselves.",
+    )
 
 
 class UserPublic(BaseModel):
@@ -84,15 +91,53 @@ class UserPublic(BaseModel):
     email: str
     name: str
     role: Role
-    active: bool = Field(description="An inactive account cannot log in.")
+    active: bool = Field(description="An inactive (deactivated) account cannot log in.")
+    must_change_password: bool = Field(
+        description="The password was printed or reset: until its owner changes it "
+        "(POST /auth/password), their sign-in may only change it, read /auth/me and log out."
+    )
     created_at: datetime
+
+
+class UserCreated(UserPublic):
+    one_time_password: str | None = Field(
+        description="The password the server made, shown this once (null when the request "
+        "gave one). Hand it to the account's owner, who must change it at the first sign-in."
+    )
+
+
+class PasswordReset(BaseModel):
+    user: UserPublic
+    one_time_password: str = Field(
+        description="The account's new password, shown this once; its owner must change it "
+        "at the next sign-in. Every login of the account has ended."
+    )
+
+
+class PasswordChange(BaseModel):
+    model_config = _STRICT
+
+    current_password: str = Field(
+        max_length=PASSWORD_MAX_LENGTH, description="The password this account signs in with now."
+    )
+    new_password: Password
+
+    @field_validator("new_password")
+    @classmethod
+    def _new_differs(cls, value: str, info: ValidationInfo) -> str:
+        if value == info.data.get("current_password"):
+            raise ValueError("the new password must differ from the current one")
+        return value
 
 
 class TokenPublic(BaseModel):
     access_token: str = Field(description="Send as 'Authorization: Bearer <token>'.")
     token_type: Literal["bearer"] = "bearer"
     expires_at: datetime = Field(description="UTC; log in again after it.")
-    user: UserPublic
+    user: UserPublic = Field(
+        description="Who signed in; with user.must_change_password, the token serves only "
+        "to change the password (POST /auth/password), /auth/me and logging out."
+    )
 
 
 # --- patients ---------------------------------------------------------------------------
@@ -147,6 +192,22 @@ class PatientPublic(BaseModel):
     notes: str
     created_at: datetime
     updated_at: datetime
+    archived_at: datetime | None = Field(
+        description="When the therapist archived the patient (read-only, left out of the "
+        "default list), UTC; null for a current patient."
+    )
+
+
+class PatientArchived(PatientPublic):
+    """What archiving did besides marking the record."""
+
+    stations_revoked: list[int] = Field(
+        description="Ids of the patient's stations revoked now: their tokens are refused and "
+        "their live links closed (the devices go back to the clinic)."
+    )
+    prescriptions_cancelled: list[int] = Field(
+        description="Ids of the active prescriptions withdrawn now."
+    )
 
 
 # --- prescriptions ----------------------------------------------------------------------

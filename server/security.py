@@ -63,6 +63,12 @@ def burn_verify(password: str) -> None:
     verify_password(_dummy_hash(), password)
 
 
+def new_password() -> str:
+    """A one-time password for a person to type once: 16 URL-safe characters (96 random
+    bits), printed or shown once and changed at the next sign-in."""
+    return secrets.token_urlsafe(12)
+
+
 def new_token() -> str:
     """A fresh bearer token: 32 random bytes, URL-safe base64 (43 characters)."""
     return secrets.token_urlsafe(32)

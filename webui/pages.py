@@ -58,3 +58,13 @@ async def live(station_id: int) -> FileResponse:
 @router.get("/app/sessions/{session_id}")
 async def session(session_id: int) -> FileResponse:
     return page("session.html")
+
+
+@router.get("/app/password")
+async def password() -> FileResponse:
+    return page("password.html")
+
+
+@router.get("/app/accounts")
+async def accounts() -> FileResponse:
+    return page("accounts.html")

@@ -1,17 +1,27 @@
-"""Patients: each belongs to one therapist, who alone changes them."""
+"""Patients: each belongs to one therapist, who alone changes them, and archives them when
+the treatment ends.
+
+An archived patient's record is kept whole and read-only (``server.deps.require_current``:
+409 for any change but unarchiving) and left out of the default list. Archiving also
+withdraws their active prescriptions and revokes their stations (each audited), so no
+device keeps exercising or streaming for them: the devices go back to the clinic.
+Unarchiving brings none of that back; the therapist prescribes and provisions anew.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Query, Request, status
 from sqlalchemy import select
 
 from server import audit
 from server.deps import Db, Therapist, TherapistOrAdmin, patient_for
-from server.models import Patient
-from server.routes.common import FORBIDDEN, NOT_FOUND, UNAUTHORIZED
-from server.schemas import PatientCreate, PatientPublic, PatientUpdate
+from server.models import Patient, Prescription, Station, utcnow
+from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
+from server.routes.prescriptions import cancel
+from server.routes.stations import revoke
+from server.schemas import PatientArchived, PatientCreate, PatientPublic, PatientUpdate
 
 router = APIRouter(prefix="/patients", tags=["patients"])
 
@@ -28,9 +38,20 @@ def clinical_fields(patient: Patient) -> dict[str, Any]:
     summary="List patients",
     responses=UNAUTHORIZED,
 )
-async def list_patients(user: TherapistOrAdmin, db: Db) -> list[PatientPublic]:
+async def list_patients(
+    user: TherapistOrAdmin,
+    db: Db,
+    archived: Annotated[
+        bool,
+        Query(description="false: current patients (the default); true: archived ones only."),
+    ] = False,
+) -> list[PatientPublic]:
     """A therapist sees their own patients; an admin sees all of them, read-only."""
     query = select(Patient).order_by(Patient.id)
+    if archived:
+        query = query.where(Patient.archived_at.is_not(None))
+    else:
+        query = query.where(Patient.archived_at.is_(None))
     if user.role != "admin":
         query = query.where(Patient.therapist_id == user.id)
     return [PatientPublic.model_validate(p) for p in (await db.execute(query)).scalars()]
@@ -77,13 +98,14 @@ async def get_patient(patient_id: int, user: TherapistOrAdmin, db: Db) -> Patien
     "/{patient_id}",
     response_model=PatientPublic,
     summary="Change a patient's details",
-    responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND},
+    responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND, **CONFLICT},
 )
 async def update_patient(
     patient_id: int, body: PatientUpdate, user: Therapist, db: Db
 ) -> PatientPublic:
-    """The patient's own therapist only. Fields left out keep their value. Audited as
-    patient.update with the old and new value of each changed field."""
+    """The patient's own therapist only; 409 if the patient is archived. Fields left out
+    keep their value. Audited as patient.update with the old and new value of each changed
+    field."""
     patient = await patient_for(db, user, patient_id, write=True)
     before = clinical_fields(patient)
     for name, value in body.model_dump(exclude_unset=True).items():
@@ -99,6 +121,103 @@ async def update_patient(
             patient.id,
             old,
             new,
+        )
+        await db.commit()
+    return PatientPublic.model_validate(patient)
+
+
+@router.post(
+    "/{patient_id}/archive",
+    response_model=PatientArchived,
+    summary="Archive a patient (treatment ended)",
+    responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND},
+)
+async def archive_patient(
+    patient_id: int, user: Therapist, db: Db, request: Request
+) -> PatientArchived:
+    """The patient's own therapist only. The record becomes read-only and leaves the
+    default patient list (``GET /patients?archived=true`` lists it); their active
+    prescriptions are withdrawn and their stations revoked at once: a connected station is
+    cut off (code 4003) and its device stops streaming. Sessions a station has not uploaded
+    yet stay on it. Archiving twice changes nothing. Audited as patient.archive, with a
+    prescription.cancel and a station.revoke row for each (``because``: patient.archive)."""
+    patient = await patient_for(db, user, patient_id, write=True, even_archived=True)
+    if patient.archived_at is not None:
+        return PatientArchived(
+            **PatientPublic.model_validate(patient).model_dump(),
+            stations_revoked=[],
+            prescriptions_cancelled=[],
+        )
+    actor = audit.user_actor(user)
+    patient.archived_at = utcnow()
+    audit.record(
+        db,
+        actor,
+        "patient.archive",
+        "patient",
+        patient.id,
+        patient.id,
+        {"archived": False},
+        {"archived": True},
+    )
+    active = (
+        (
+            await db.execute(
+                select(Prescription)
+                .where(Prescription.patient_id == patient.id, Prescription.status == "active")
+                .order_by(Prescription.id)
+            )
+        )
+        .scalars()
+        .all()
+    )
+    for prescription in active:
+        cancel(db, user, prescription, because="patient.archive")
+    stations = (
+        (
+            await db.execute(
+                select(Station)
+                .where(Station.patient_id == patient.id, Station.revoked.is_(False))
+                .order_by(Station.id)
+            )
+        )
+        .scalars()
+        .all()
+    )
+    for station in stations:
+        revoke(db, actor, station, because="patient.archive")
+    await db.commit()
+    await request.app.state.hub.recheck()
+    return PatientArchived(
+        **PatientPublic.model_validate(patient).model_dump(),
+        stations_revoked=[s.id for s in stations],
+        prescriptions_cancelled=[p.id for p in active],
+    )
+
+
+@router.post(
+    "/{patient_id}/unarchive",
+    response_model=PatientPublic,
+    summary="Bring an archived patient back",
+    responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND},
+)
+async def unarchive_patient(patient_id: int, user: Therapist, db: Db) -> PatientPublic:
+    """The patient's own therapist only. The record can be changed again and is back in
+    the default list; withdrawn prescriptions and revoked stations stay so (prescribe and
+    provision anew). Unarchiving a current patient changes nothing. Audited as
+    patient.unarchive."""
+    patient = await patient_for(db, user, patient_id, write=True, even_archived=True)
+    if patient.archived_at is not None:
+        patient.archived_at = None
+        audit.record(
+            db,
+            audit.user_actor(user),
+            "patient.unarchive",
+            "patient",
+            patient.id,
+            patient.id,
+            {"archived": True},
+            {"archived": False},
         )
         await db.commit()
     return PatientPublic.model_validate(patient)

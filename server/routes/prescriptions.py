@@ -14,7 +14,16 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
-from server.deps import Db, Therapist, TherapistOrAdmin, may_read, may_write, not_found, patient_for
+from server.deps import (
+    Db,
+    Therapist,
+    TherapistOrAdmin,
+    may_read,
+    may_write,
+    not_found,
+    patient_for,
+    require_current,
+)
 from server.models import Patient, Prescription, PrescriptionStatus, Station, User
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.schemas import PrescriptionCreate, PrescriptionPublic, PrescriptionUpdate
@@ -40,6 +49,8 @@ async def prescription_for(
     allowed = may_write if write else may_read
     if prescription is None or patient is None or not allowed(user, patient):
         raise not_found("prescription")
+    if write:
+        require_current(patient)
     return prescription
 
 
@@ -90,7 +101,7 @@ async def list_prescriptions(
     response_model=PrescriptionPublic,
     status_code=status.HTTP_201_CREATED,
     summary="Prescribe an exercise",
-    responses=_ERRORS,
+    responses={**_ERRORS, **CONFLICT},
 )
 async def create_prescription(
     patient_id: int, body: PrescriptionCreate, user: Therapist, db: Db, request: Request
@@ -187,7 +198,19 @@ async def cancel_prescription(
     active. Audited as prescription.cancel."""
     prescription = await prescription_for(db, user, prescription_id, write=True)
     _require_active(prescription)
+    cancel(db, user, prescription)
+    await db.commit()
+    await notify_stations(request, db, prescription.patient_id)
+    return PrescriptionPublic.from_row(prescription)
+
+
+def cancel(db: AsyncSession, user: User, prescription: Prescription, because: str = "") -> None:
+    """Withdraw an active prescription in ``db``'s transaction, with its audit row
+    (``because``: the action that caused it, when it was not asked for by itself)."""
     prescription.status = "cancelled"
+    new: dict[str, Any] = {"status": "cancelled"}
+    if because:
+        new["because"] = because
     audit.record(
         db,
         audit.user_actor(user),
@@ -196,8 +219,5 @@ async def cancel_prescription(
         prescription.id,
         prescription.patient_id,
         {"status": "active"},
-        {"status": "cancelled"},
+        new,
     )
-    await db.commit()
-    await notify_stations(request, db, prescription.patient_id)
-    return PrescriptionPublic.from_row(prescription)

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter, Request, status
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
-from server.deps import Db, TherapistOrAdmin, may_manage_stations, not_found
+from server.deps import Db, TherapistOrAdmin, may_manage_stations, not_found, require_current
 from server.models import Patient, Station, User
-from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.common import CONFLICT, NOT_FOUND, UNAUTHORIZED
 from server.schemas import StationCreate, StationProvisioned, StationPublic
 from server.security import new_token, token_hash
 
@@ -20,9 +22,32 @@ def _online(request: Request, station: Station) -> bool:
     return bool(request.app.state.hub.online(station.id))
 
 
-async def _manageable(db: AsyncSession, user: User, patient_id: int) -> bool:
+async def _manageable(db: AsyncSession, user: User, patient_id: int) -> Patient | None:
     patient = await db.get(Patient, patient_id)
-    return patient is not None and may_manage_stations(user, patient)
+    return patient if patient is not None and may_manage_stations(user, patient) else None
+
+
+def revoke(db: AsyncSession, actor: str, station: Station, because: str = "") -> bool:
+    """Revoke ``station`` in ``db``'s transaction, with its audit row; False if it was
+    revoked already (nothing changes). ``because``: the action that caused it, if any. The
+    caller commits, then calls the hub's ``recheck`` so that its open link closes."""
+    if station.revoked:
+        return False
+    station.revoked = True
+    new: dict[str, Any] = {"revoked": True}
+    if because:
+        new["because"] = because
+    audit.record(
+        db,
+        actor,
+        "station.revoke",
+        "station",
+        station.id,
+        station.patient_id,
+        {"revoked": False},
+        new,
+    )
+    return True
 
 
 @router.post(
@@ -30,15 +55,18 @@ async def _manageable(db: AsyncSession, user: User, patient_id: int) -> bool:
     response_model=StationProvisioned,
     status_code=status.HTTP_201_CREATED,
     summary="Provision a home station for a patient",
-    responses={**UNAUTHORIZED, **NOT_FOUND},
+    responses={**UNAUTHORIZED, **NOT_FOUND, **CONFLICT},
 )
 async def provision_station(
     patient_id: int, body: StationCreate, user: TherapistOrAdmin, db: Db, request: Request
 ) -> StationProvisioned:
     """The patient's therapist or an admin. The answer carries the station's token; it is
-    shown this once and only its hash is stored. Audited as station.provision."""
-    if not await _manageable(db, user, patient_id):
+    shown this once and only its hash is stored. 409 for an archived patient. Audited as
+    station.provision."""
+    patient = await _manageable(db, user, patient_id)
+    if patient is None:
         raise not_found("patient")
+    require_current(patient)
     token = new_token()
     station = Station(patient_id=patient_id, name=body.name, token_hash=token_hash(token))
     db.add(station)
@@ -94,18 +122,7 @@ async def revoke_station(
     station = await db.get(Station, station_id)
     if station is None or not await _manageable(db, user, station.patient_id):
         raise not_found("station")
-    if not station.revoked:
-        station.revoked = True
-        audit.record(
-            db,
-            audit.user_actor(user),
-            "station.revoke",
-            "station",
-            station.id,
-            station.patient_id,
-            {"revoked": False},
-            {"revoked": True},
-        )
+    if revoke(db, audit.user_actor(user), station):
         await db.commit()
         await request.app.state.hub.recheck()  # its open link goes too
     return StationPublic.from_row(station, _online(request, station))

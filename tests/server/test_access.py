@@ -29,12 +29,21 @@ def matrix(w: World) -> list[tuple[str, str, dict[str, Any] | None, dict[str, in
         "role": "therapist",
         "password": "0123456789",
     }
+    admin_only = {**user_any, "t1": 403, "t2": 403}
+    # A wrong current password: every signed-in user may ask, nobody's password changes.
+    wrong_current = {"current_password": "not the password", "new_password": "0123456789"}
+    no_user = 999_999  # admins get as far as the lookup, and nothing changes
     return [
         ("GET", "/health", None, dict.fromkeys(ROLES, 200)),
         ("GET", "/auth/me", None, user_any),
-        ("GET", "/users", None, {**user_any, "t1": 403, "t2": 403}),
-        ("POST", "/users", new_user, {**user_any, "t1": 403, "t2": 403, "admin": 201}),
+        ("POST", "/auth/password", wrong_current, {**user_any, "t1": 400, "t2": 400, "admin": 400}),
+        ("GET", "/users", None, admin_only),
+        ("POST", "/users", new_user, {**admin_only, "admin": 201}),
+        ("POST", f"/users/{no_user}/reset-password", None, {**admin_only, "admin": 404}),
+        ("POST", f"/users/{no_user}/deactivate", None, {**admin_only, "admin": 404}),
+        ("POST", f"/users/{no_user}/reactivate", None, {**admin_only, "admin": 404}),
         ("GET", "/patients", None, user_any),
+        ("GET", "/patients?archived=true", None, user_any),
         (
             "POST",
             "/patients",
@@ -60,6 +69,9 @@ def matrix(w: World) -> list[tuple[str, str, dict[str, Any] | None, dict[str, in
         ("GET", "/station/me", None, station_only),
         ("GET", "/station/prescriptions", None, station_only),
         ("GET", "/audit", None, user_any),
+        # Last: archiving p1 revokes s1 and makes the record read-only for the rows above.
+        ("POST", f"/patients/{w.p1}/archive", None, owner_writes),
+        ("POST", f"/patients/{w.p1}/unarchive", None, owner_writes),
     ]
 
 
@@ -88,6 +100,8 @@ ELSEWHERE: list[tuple[str, str, dict[str, Any] | None]] = [
     ("PATCH", "/prescriptions/{rx}", STRENGTH),
     ("POST", "/prescriptions/{rx}/cancel", None),
     ("POST", "/stations/{s}/revoke", None),
+    ("POST", "/patients/{p}/archive", None),
+    ("POST", "/patients/{p}/unarchive", None),
 ]
 
 

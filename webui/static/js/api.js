@@ -15,7 +15,19 @@ export function currentUser() {
 
 export function signIn(tokenPublic) {
   sessionStorage.setItem(TOKEN_KEY, tokenPublic.access_token);
-  sessionStorage.setItem(USER_KEY, JSON.stringify(tokenPublic.user));
+  rememberUser(tokenPublic.user);
+}
+
+/** Keep the signed-in user's record (after a sign-in, or a change such as a new password). */
+export function rememberUser(user) {
+  sessionStorage.setItem(USER_KEY, JSON.stringify(user));
+}
+
+export const PASSWORD_PAGE = "/app/password";
+
+/** Where a user whose password was printed or reset goes first, then back to `next`. */
+export function passwordUrl(next) {
+  return `${PASSWORD_PAGE}?next=${encodeURIComponent(next)}`;
 }
 
 export function signOut() {
@@ -37,6 +49,11 @@ const never = () => new Promise(() => {});
 export function requireSignIn() {
   if (!token()) {
     location.replace(loginUrl());
+    return never();
+  }
+  // A printed or reset password: the API refuses everything else until it is changed.
+  if (currentUser()?.must_change_password && location.pathname !== PASSWORD_PAGE) {
+    location.replace(passwordUrl(location.pathname + location.search));
     return never();
   }
   return Promise.resolve();
@@ -168,6 +185,26 @@ export function showErrors(form, error) {
   if (first) first.focus();
 }
 
+/**
+ * Run `action(form)` when the form is submitted: its button disabled meanwhile, earlier
+ * errors cleared, and an error the action throws shown beside the fields it names.
+ */
+export function onSubmit(form, action) {
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const button = form.querySelector("button[type=submit]");
+    if (button) button.disabled = true;
+    clearErrors(form);
+    try {
+      await action(form);
+    } catch (e) {
+      showErrors(form, e);
+    } finally {
+      if (button) button.disabled = false;
+    }
+  });
+}
+
 export function clearErrors(form) {
   for (const n of form.querySelectorAll('[aria-invalid="true"]')) n.removeAttribute("aria-invalid");
   for (const n of form.querySelectorAll("[data-error-for]")) n.textContent = "";
@@ -185,11 +222,17 @@ export function renderHeader() {
   if (!top) return;
   top.replaceChildren(
     el("a", { class: "brand", href: "/app/patients" }, "Ankle telerehabilitation"),
-    el("nav", { "aria-label": "Main" }, el("a", { href: "/app/patients" }, "Patients")),
+    el(
+      "nav",
+      { "aria-label": "Main" },
+      el("a", { href: "/app/patients" }, "Patients"),
+      user?.role === "admin" ? el("a", { href: "/app/accounts" }, "Accounts") : null,
+    ),
     el(
       "div",
       { class: "who" },
       user ? `${user.name} (${user.role})` : "",
+      user ? el("a", { href: PASSWORD_PAGE }, "Change password") : null,
       el(
         "button",
         {

@@ -1,4 +1,4 @@
-import { api, showErrors, signIn } from "./api.js";
+import { api, passwordUrl, showErrors, signIn } from "./api.js";
 
 const form = document.getElementById("login");
 form.addEventListener("submit", async (ev) => {
@@ -13,7 +13,9 @@ form.addEventListener("submit", async (ev) => {
     signIn(tok);
     const next = new URLSearchParams(location.search).get("next");
     // Only a path on this site: never an open redirect.
-    location.href = next && next.startsWith("/app/") ? next : "/app/patients";
+    const target = next && next.startsWith("/app/") ? next : "/app/patients";
+    // A printed or reset password is changed first; the API refuses the rest until then.
+    location.href = tok.user.must_change_password ? passwordUrl(target) : target;
   } catch (e) {
     showErrors(form, e);
   } finally {

@@ -1,14 +1,20 @@
 // One patient: details, home station, prescriptions, session history and progress.
 
-import { api, clearErrors, currentUser, el, fmt, pathId, renderHeader, requireSignIn, showErrors } from "./api.js";
+import { api, clearErrors, currentUser, el, fmt, onSubmit, pathId, renderHeader, requireSignIn } from "./api.js";
 import { endReasonBadge, stationBadge } from "./badges.js";
+import { confirmButton, showSecret } from "./confirm.js";
+import { SIDE_WORDS, fillPatientForm, patientBody, setUpPatientForm } from "./patient-form.js";
 import { renderProgress } from "./progress.js";
 
 await requireSignIn();
 renderHeader();
 
 const patientId = pathId(2);
-const canWrite = currentUser()?.role === "therapist";
+// The API shows a therapist only their own patients, and lets only them change one; an
+// admin reads. An archived patient is read-only for everyone.
+const isTherapist = currentUser()?.role === "therapist";
+let patient = null;
+const canWrite = () => isTherapist && patient !== null && !patient.archived_at;
 const STATION_POLL_MS = 5000;
 const SESSION_POLL_MS = 15000;
 
@@ -17,7 +23,6 @@ let exercises = new Map();
 let prescriptions = [];
 let sessions = [];
 
-const SIDE_WORDS = { left: "Left", right: "Right", both: "Both" };
 const AXIS_WORDS = {
   roll: "Roll (inversion / eversion)",
   pitch: "Pitch (plantar / dorsiflexion)",
@@ -29,6 +34,7 @@ function exerciseName(kind) {
 }
 
 function renderDetails(p) {
+  patient = p;
   document.title = `${p.display_name} · Ankle telerehabilitation`;
   $("name").textContent = p.display_name;
   $("crumb-name").textContent = p.display_name;
@@ -40,6 +46,103 @@ function renderDetails(p) {
     ...fact("Added", fmt.day(p.created_at)),
     ...fact("Notes", p.notes ? el("span", { class: "pt-notes" }, p.notes) : "–"),
   );
+  const note = $("archived-note");
+  note.hidden = !p.archived_at;
+  note.textContent = p.archived_at
+    ? `Archived on ${fmt.day(p.archived_at)}: this record is read-only. Its prescriptions were withdrawn and its stations revoked.`
+    : "";
+  $("details-actions").replaceChildren(...detailActions(p));
+  $("prescribe-link").hidden = !canWrite();
+  // Admins provision too; nobody for an archived patient (the API refuses it).
+  $("provision").hidden = Boolean(p.archived_at);
+}
+
+function detailActions(p) {
+  if (!isTherapist) return [];
+  if (p.archived_at) {
+    const back = el("button", { type: "button", class: "secondary" }, "Unarchive");
+    back.addEventListener("click", async () => {
+      back.disabled = true;
+      try {
+        renderDetails(await api(`/patients/${patientId}/unarchive`, { method: "POST" }));
+        flash(`${p.display_name} is a current patient again. Prescribe and provision a station to resume.`);
+      } catch (e) {
+        flash(`Not unarchived: ${e.message}`);
+        back.disabled = false;
+      }
+    });
+    return [back];
+  }
+  const edit = el("button", { type: "button", class: "secondary" }, "Edit details");
+  edit.addEventListener("click", () => openEdit(p));
+  const archive = confirmButton({
+    label: "Archive patient",
+    question:
+      `Archive ${p.display_name}? Their active prescriptions are withdrawn and their home stations revoked now: ` +
+      "each device stops streaming at once and goes back to the clinic. The record stays, read-only.",
+    yes: "Yes, archive",
+    no: "Keep as is",
+    action: async () => {
+      const done = await api(`/patients/${patientId}/archive`, { method: "POST" });
+      await refresh();
+      const n = (k, word) => `${k} ${word}${k === 1 ? "" : "s"}`;
+      flash(
+        `Archived. ${n(done.prescriptions_cancelled.length, "prescription")} withdrawn, ` +
+          `${n(done.stations_revoked.length, "station")} revoked.`,
+      );
+      $("details-title").focus();
+    },
+  });
+  return [edit, archive];
+}
+
+function openEdit(p) {
+  const form = $("edit-patient");
+  clearErrors(form);
+  fillPatientForm(form, p);
+  form.hidden = false;
+  $("details-actions").hidden = true;
+  form.elements.display_name.focus();
+}
+
+function closeEdit() {
+  $("edit-patient").hidden = true;
+  $("details-actions").hidden = false;
+}
+
+$("edit-cancel").addEventListener("click", () => {
+  closeEdit();
+  $("details-title").focus();
+});
+
+onSubmit($("edit-patient"), async (form) => {
+  renderDetails(await api(`/patients/${patientId}`, { method: "PATCH", body: patientBody(form) }));
+  closeEdit();
+  flash("Details saved.");
+  $("details-title").focus();
+});
+
+function flash(text) {
+  $("flash").textContent = text;
+  $("flash").hidden = false;
+}
+
+function revokeControl(s) {
+  return confirmButton({
+    label: "Revoke",
+    ariaLabel: `Revoke the station “${s.name}”`,
+    question:
+      `Revoke “${s.name}”? Its token stops working now: the device stops streaming at once and can no longer ` +
+      "fetch exercises or upload sessions (any not yet uploaded stay on the station). This cannot be undone; provision a new station instead.",
+    yes: "Yes, revoke",
+    no: "Keep it",
+    action: async () => {
+      await api(`/stations/${s.id}/revoke`, { method: "POST" });
+      renderStations(await api(`/stations?patient_id=${patientId}`));
+      flash(`The station “${s.name}” is revoked.`);
+      $("stations-title").focus();
+    },
+  });
 }
 
 function renderStations(stations) {
@@ -56,7 +159,8 @@ function renderStations(stations) {
         "li",
         { dataset: { stationId: s.id } },
         el("div", { class: "row" }, stationBadge(s), el("strong", {}, s.name),
-          s.revoked ? null : el("a", { href: `/app/live/${s.id}` }, "Watch live")),
+          s.revoked ? null : el("a", { href: `/app/live/${s.id}` }, "Watch live"),
+          s.revoked ? null : revokeControl(s)),
         el("div", { class: "muted small" }, s.last_seen_at ? `Last seen ${fmt.date(s.last_seen_at)}` : "Never connected yet"),
       ),
     ),
@@ -65,7 +169,9 @@ function renderStations(stations) {
 
 async function pollStations() {
   try {
-    renderStations(await api(`/stations?patient_id=${patientId}`));
+    const stations = await api(`/stations?patient_id=${patientId}`);
+    // Not while a Revoke is asking for confirmation: the question would vanish under the user.
+    if (!$("stations").querySelector("[data-confirming]")) renderStations(stations);
   } catch (e) {
     /* a missed poll is retried; the badges keep their last known state */
   }
@@ -73,69 +179,28 @@ async function pollStations() {
 }
 
 function showToken(station) {
-  const box = $("token-box");
-  const input = el("input", { id: "station-token", readonly: true, value: station.token, class: "pt-token-value", spellcheck: "false" });
-  box.replaceChildren(
-    el("h3", {}, `Token for the station “${station.name}”: shown only this once`),
-    el(
-      "p",
-      {},
+  showSecret($("token-box"), {
+    id: "station-token",
+    noun: "token",
+    title: `Token for the station “${station.name}”: shown only this once`,
+    explain:
       "Enter this token in the home station's configuration now (ANKLE_STATION_TOKEN). " +
-        "The server keeps only a fingerprint of it and cannot show it again. " +
-        "If it is lost, revoke the station and provision a new one.",
-    ),
-    el("label", { for: "station-token" }, "Station token"),
-    input,
-    el(
-      "div",
-      { class: "row pt-token-actions" },
-      el("button", { type: "button", class: "secondary", onclick: () => copyToken(input) }, "Copy token"),
-      el("button", { type: "button", onclick: () => hideToken(box) }, "I have saved it: hide the token"),
-      el("span", { class: "small", role: "status", id: "copy-status" }),
-    ),
-  );
-  box.hidden = false;
-  box.focus();
-  input.select();
+      "The server keeps only a fingerprint of it and cannot show it again. " +
+      "If it is lost, revoke the station and provision a new one.",
+    label: "Station token",
+    value: station.token,
+    after: $("station-name"),
+  });
 }
 
-function hideToken(box) {
-  box.replaceChildren();
-  box.hidden = true;
-  $("station-name").focus();
-}
-
-async function copyToken(input) {
-  input.select();
-  const status = $("copy-status");
-  try {
-    await navigator.clipboard.writeText(input.value);
-    status.textContent = "Copied.";
-  } catch (e) {
-    // Clipboard access needs a secure page; the text is selected for Ctrl+C instead.
-    status.textContent = "Press Ctrl+C to copy the selected token.";
-  }
-}
-
-$("provision").addEventListener("submit", async (ev) => {
-  ev.preventDefault();
-  const form = ev.currentTarget;
-  const button = form.querySelector("button[type=submit]");
-  button.disabled = true;
-  clearErrors(form);
-  try {
-    const station = await api(`/patients/${patientId}/stations`, {
-      method: "POST",
-      body: { name: form.elements.name.value },
-    });
-    form.reset();
-    showToken(station);
-    renderStations(await api(`/stations?patient_id=${patientId}`));
-  } catch (e) {
-    showErrors(form, e);
-  } finally {
-    button.disabled = false;
-  }
+onSubmit($("provision"), async (form) => {
+  const station = await api(`/patients/${patientId}/stations`, {
+    method: "POST",
+    body: { name: form.elements.name.value },
+  });
+  form.reset();
+  showToken(station);
+  renderStations(await api(`/stations?patient_id=${patientId}`));
 });
 
 function targetWords(a) {
@@ -196,48 +261,28 @@ function timelineWords(b, totalS) {
   return `${b.sets} × ${b.repetitions} repetitions of ${fmt.num(b.repetition_s, 1)} s${rest} (${fmt.duration(totalS)} in all); ${b.sessions_per_week} sessions per week`;
 }
 
-function withdrawControls(rx, slot) {
-  const ask = el("button", { type: "button", class: "danger" }, "Withdraw");
-  ask.addEventListener("click", () => {
-    const keep = el("button", { type: "button", class: "secondary" }, "Keep it");
-    const confirm = el("button", { type: "button", class: "danger" }, "Yes, withdraw");
-    const error = el("span", { class: "field-error", role: "alert" });
-    keep.addEventListener("click", () => {
-      slot.replaceChildren(ask);
-      ask.focus();
-    });
-    confirm.addEventListener("click", async () => {
-      confirm.disabled = true;
-      try {
-        await api(`/prescriptions/${rx.id}/cancel`, { method: "POST" });
-        await loadPrescriptions();
-        renderSessions();
-        $("rx-title").focus();
-      } catch (e) {
-        error.textContent = e.message;
-        confirm.disabled = false;
-      }
-    });
-    slot.replaceChildren(
-      el("span", {}, "The station stops offering it. Withdraw?"),
-      confirm,
-      keep,
-      error,
-    );
-    confirm.focus();
+function withdrawControl(rx) {
+  return confirmButton({
+    label: "Withdraw",
+    question: "The station stops offering it. Withdraw?",
+    yes: "Yes, withdraw",
+    no: "Keep it",
+    action: async () => {
+      await api(`/prescriptions/${rx.id}/cancel`, { method: "POST" });
+      await loadPrescriptions();
+      renderSessions();
+      $("rx-title").focus();
+    },
   });
-  return ask;
 }
 
 function prescriptionCard(rx) {
   const b = rx.body;
   const actions = el("div", { class: "row pt-actions" });
-  if (canWrite) {
-    const slot = el("span", { class: "row" });
-    slot.append(withdrawControls(rx, slot));
+  if (canWrite()) {
     actions.append(
       el("a", { class: "button secondary", href: `/app/patients/${patientId}/prescribe?edit=${rx.id}`, "aria-label": `Edit ${b.title || exerciseName(b.exercise)}` }, "Edit"),
-      slot,
+      withdrawControl(rx),
     );
   }
   return el(
@@ -347,24 +392,32 @@ function showFlash() {
   history.replaceState(null, "", location.pathname);
 }
 
-async function main() {
-  if (patientId === null) throw new Error("no patient in this address");
-  $("prescribe-link").href = `/app/patients/${patientId}/prescribe`;
-  $("prescribe-link").hidden = !canWrite;
-  $("rx-title").tabIndex = -1;
-  const [patient, stations, rxs, list, library] = await Promise.all([
+/** Fetch and draw the patient, their stations and prescriptions (after an archive too). */
+async function refresh() {
+  const [p, stations, rxs] = await Promise.all([
     api(`/patients/${patientId}`),
     api(`/stations?patient_id=${patientId}`),
     api(`/patients/${patientId}/prescriptions`),
-    api(`/sessions?patient_id=${patientId}&limit=500`),
-    api("/exercises"),
   ]);
-  exercises = new Map(library.map((x) => [x.kind, x]));
   prescriptions = rxs;
-  sessions = list;
-  renderDetails(patient);
+  renderDetails(p);
   renderStations(stations);
   renderPrescriptions();
+}
+
+async function main() {
+  if (patientId === null) throw new Error("no patient in this address");
+  $("prescribe-link").href = `/app/patients/${patientId}/prescribe`;
+  $("rx-title").tabIndex = -1;
+  $("stations-title").tabIndex = -1;
+  const [list, library] = await Promise.all([
+    api(`/sessions?patient_id=${patientId}&limit=500`),
+    api("/exercises"),
+    isTherapist ? setUpPatientForm($("edit-patient")) : null,
+  ]);
+  exercises = new Map(library.map((x) => [x.kind, x]));
+  sessions = list;
+  await refresh();
   renderSessions();
   showFlash();
   setTimeout(pollStations, STATION_POLL_MS);

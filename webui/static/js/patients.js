@@ -1,9 +1,9 @@
 // The therapist's patients: who they are, whether their station is online, when they last
 // exercised; and a form to add one.
 
-import { api, clearErrors, currentUser, el, fmt, renderHeader, requireSignIn, showErrors } from "./api.js";
-import { applyBounds, loadSchemas, prop } from "./schema.js";
+import { api, currentUser, el, fmt, onSubmit, renderHeader, requireSignIn } from "./api.js";
 import { endReasonBadge, stationBadge } from "./badges.js";
+import { SIDE_WORDS, patientBody, setUpPatientForm } from "./patient-form.js";
 
 await requireSignIn();
 renderHeader();
@@ -13,8 +13,8 @@ const listStatus = document.getElementById("list-status");
 const loadError = document.getElementById("load-error");
 const form = document.getElementById("add-patient");
 const added = document.getElementById("added");
-
-const SIDE_WORDS = { left: "Left", right: "Right", both: "Both" };
+// ?archived=true lists the archived patients (read-only records) instead of the current ones.
+const archived = new URLSearchParams(location.search).get("archived") === "true";
 
 function stationCell(stations) {
   if (!stations.length) return el("span", { class: "muted" }, "None provisioned");
@@ -44,7 +44,10 @@ async function lastSessions(patients) {
 }
 
 async function loadList() {
-  const [patients, stations] = await Promise.all([api("/patients"), api("/stations")]);
+  const [patients, stations] = await Promise.all([
+    api(`/patients?archived=${archived}`),
+    api("/stations"),
+  ]);
   const last = await lastSessions(patients);
   const byPatient = new Map();
   for (const s of stations) {
@@ -65,9 +68,23 @@ async function loadList() {
   );
   table.tBodies[0].replaceChildren(...rows);
   table.hidden = !patients.length;
+  const count = `${patients.length} ${archived ? "archived " : ""}patient${patients.length === 1 ? "" : "s"}.`;
   listStatus.textContent = patients.length
-    ? `${patients.length} patient${patients.length === 1 ? "" : "s"}.`
-    : "No patients yet. Add your first patient with the form below.";
+    ? count
+    : archived
+      ? "No archived patients."
+      : "No patients yet. Add your first patient with the form below.";
+}
+
+function showWhichList() {
+  const link = document.getElementById("other-list");
+  if (!archived) return;
+  document.title = "Archived patients · Ankle telerehabilitation";
+  document.querySelector("h1").textContent = "Archived patients";
+  document.getElementById("list-title").textContent = "Your archived patients";
+  document.getElementById("add-section").hidden = true;
+  link.href = "/app/patients";
+  link.textContent = "Back to current patients";
 }
 
 async function setUpForm() {
@@ -79,54 +96,22 @@ async function setUpForm() {
     );
     return;
   }
-  const schemas = await loadSchemas();
-  for (const name of ["display_name", "reference", "birth_year", "notes"]) {
-    applyBounds(form.elements[name], prop(schemas, "PatientCreate", name));
-  }
-  // The API refuses a birth year in the future; "now" is the one bound it cannot publish.
-  form.elements.birth_year.max = String(new Date().getFullYear());
-  const sides = form.elements.affected_side;
-  for (const side of prop(schemas, "PatientCreate", "affected_side").enum) {
-    sides.append(el("option", { value: side }, SIDE_WORDS[side] || side));
-  }
+  await setUpPatientForm(form);
 }
 
-function formBody() {
-  const f = form.elements;
-  const text = (v) => (v.trim() === "" ? null : v.trim());
-  const year = f.birth_year.value.trim();
-  return {
-    display_name: f.display_name.value,
-    reference: text(f.reference.value),
-    // A number input holding text reads as "": send what was typed so the API says why.
-    birth_year: year === "" ? (f.birth_year.validity.badInput ? "not a number" : null) : Number(year),
-    affected_side: f.affected_side.value || null,
-    notes: f.notes.value,
-  };
-}
-
-form.addEventListener("submit", async (ev) => {
-  ev.preventDefault();
-  const button = form.querySelector("button[type=submit]");
-  button.disabled = true;
+onSubmit(form, async () => {
   added.textContent = "";
-  clearErrors(form);
-  try {
-    const patient = await api("/patients", { method: "POST", body: formBody() });
-    form.reset();
-    await loadList();
-    added.replaceChildren(
-      `Added “${patient.display_name}”. `,
-      el("a", { href: `/app/patients/${patient.id}` }, "Open their page"),
-    );
-  } catch (e) {
-    showErrors(form, e);
-  } finally {
-    button.disabled = false;
-  }
+  const patient = await api("/patients", { method: "POST", body: patientBody(form) });
+  form.reset();
+  await loadList();
+  added.replaceChildren(
+    `Added “${patient.display_name}”. `,
+    el("a", { href: `/app/patients/${patient.id}` }, "Open their page"),
+  );
 });
 
 async function main() {
+  showWhichList();
   try {
     await Promise.all([loadList(), setUpForm()]);
   } catch (e) {
