@@ -63,11 +63,11 @@ def not_found(what: str) -> HTTPException:
     return HTTPException(status.HTTP_404_NOT_FOUND, detail=f"{what} not found")
 
 
-LoginFailure = Literal["unknown", "expired", "inactive"]
+LoginFailure = Literal["unknown", "expired", "inactive", "must_change"]
 """Why a token does not sign anyone in: no such login (never issued, logged out, or ended by
-a password change or reset), past its expiry, or its user may not act: deactivated, or
-holding a printed or reset password they must change first (``LoginStanding.must_change``).
-"""
+a password change or reset), past its expiry, its user deactivated, or its user holding a
+printed or reset password they must change first (such a login may change that password,
+ask who it is and log out: ``SignedInUser``, nothing else)."""
 
 MUST_CHANGE_PASSWORD = (
     "you must change your password before anything else: it was printed or reset, so "
@@ -80,9 +80,6 @@ class LoginStanding(NamedTuple):
     failure: LoginFailure | None
     """None when the token signs ``user`` in now."""
     expires_at: datetime | None
-    must_change: bool = False
-    """The login would sign ``user`` in but for a password they must change first: it may
-    change that password, ask who it is and log out (``SignedInUser``), nothing else."""
 
 
 async def login_standing(db: AsyncSession, token: str) -> LoginStanding:
@@ -110,7 +107,7 @@ async def login_standing(db: AsyncSession, token: str) -> LoginStanding:
     if not user.active:
         return LoginStanding(user, "inactive", login.expires_at)
     if user.must_change_password:
-        return LoginStanding(user, "inactive", login.expires_at, must_change=True)
+        return LoginStanding(user, "must_change", login.expires_at)
     return LoginStanding(user, None, login.expires_at)
 
 
@@ -139,7 +136,7 @@ async def _signed_in(
     if credentials is None:
         raise unauthorized()
     standing = await login_standing(db, credentials.credentials)
-    if standing.user is None or (standing.failure is not None and not standing.must_change):
+    if standing.user is None or standing.failure not in (None, "must_change"):
         raise unauthorized("invalid or expired token")
     return standing
 
@@ -163,7 +160,7 @@ async def current_user(
     403 if they must change a printed or reset password first. (Demo accounts are created
     without that mark, so the demo's printed password works as it is.)"""
     standing = await _signed_in(db, credentials)
-    if standing.must_change:
+    if standing.failure == "must_change":
         raise forbidden(MUST_CHANGE_PASSWORD)
     assert standing.user is not None
     return standing.user

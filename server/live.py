@@ -48,6 +48,7 @@ _LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
     "unknown": (wire.CLOSE_SIGNED_OUT, "signed out; sign in again"),
     "expired": (wire.CLOSE_EXPIRED, "the sign-in expired; sign in again"),
     "inactive": (wire.CLOSE_DEACTIVATED, "this account was deactivated"),
+    "must_change": (wire.CLOSE_MUST_CHANGE, "change your password first"),
 }
 NO_ACCESS = "you may no longer see this patient"
 

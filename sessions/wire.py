@@ -60,6 +60,8 @@ CLOSE_DEACTIVATED = 4006
 """The viewer's account was deactivated."""
 CLOSE_NO_ACCESS = 4007
 """The viewer may no longer see this station's patient."""
+CLOSE_MUST_CHANGE = 4008
+"""The viewer's password was printed or reset: it must be changed before anything else."""
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 

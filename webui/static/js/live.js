@@ -405,6 +405,7 @@ link.addEventListener("message", (ev) => {
       4005: "Your sign-in expired. Sign in again to keep watching.",
       4006: "Your account was deactivated. Ask your administrator.",
       4007: "You may no longer see this patient, so the live view was closed.",
+      4008: "Your password must be changed before you can watch. Sign in again to change it.",
     }[m.code];
     if (ended) {
       state.closedForGood = true;
