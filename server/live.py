@@ -15,7 +15,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -28,12 +27,12 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
 
-from server import audit
+from server import audit, live_audit
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station, utcnow
 from server.tickets import ViewTickets
 from sessions import wire
-from sessions.prescription import AXIS_INDEX, PrescriptionBody
+from sessions.prescription import PrescriptionBody
 
 log = logging.getLogger("ankle.server.live")
 router = APIRouter()
@@ -42,6 +41,10 @@ VIEW_HZ = 50.0
 """Most telemetry messages a viewer gets per second (the station sends 100)."""
 COMMAND_TIMEOUT_S = 3.0
 """A command with no answer from the station by then is reported as TIMEOUT."""
+LATE_KEPT = 1000
+"""Timed-out commands remembered so that a late answer still has its outcome audited."""
+AUDIT_FLUSH_S = 5.0
+"""How long shutdown waits for queued audit rows to be written."""
 CONTROL_QUEUE_MAX = 1000
 """Events and status a viewer may fall behind by before it is closed as too slow."""
 _LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
@@ -60,6 +63,7 @@ class Viewer:
     """The login it was opened with: re-checked whenever credentials may have changed."""
     user_id: int
     station_id: int
+    patient_id: int
     may_command: bool
     control: collections.deque[str] = field(default_factory=collections.deque)
     wake: asyncio.Event = field(default_factory=asyncio.Event)
@@ -82,6 +86,16 @@ class StationConn:
     messages: int = 0
 
 
+@dataclass(eq=False)
+class InFlight:
+    """A command claimed by its request_id: being audited, then on its way to the device."""
+
+    asked: live_audit.Asked
+    conn: StationConn
+    timer: asyncio.TimerHandle | None = None
+    """Runs from the moment it is sent."""
+
+
 class Hub:
     """Connected stations and their viewers, in one process."""
 
@@ -91,9 +105,12 @@ class Hub:
         this process changed them (``Settings.live_recheck_s``)."""
         self.stations: dict[int, StationConn] = {}
         self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
-        self._pending: dict[str, tuple[int, asyncio.TimerHandle]] = {}
+        self._pending: dict[str, InFlight] = {}
+        self._late: collections.OrderedDict[str, InFlight] = collections.OrderedDict()
         self.sessionmaker: async_sessionmaker[AsyncSession] | None = None
-        self._audit: asyncio.Queue[tuple[dict[str, Any], asyncio.Future[None]]] = asyncio.Queue()
+        self._audit: asyncio.Queue[tuple[dict[str, Any], asyncio.Future[None] | None]] = (
+            asyncio.Queue()
+        )
         self._audit_task: asyncio.Task[None] | None = None
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
@@ -109,31 +126,56 @@ class Hub:
         database session per live change, a hundred therapists' changes contended for
         SQLite's write lock and their acknowledgements took seconds (``ankle bench server``).
         """
-        if self._audit_task is None or self._audit_task.done():
-            self._audit_task = asyncio.create_task(self._audit_writer())
         done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._audit.put_nowait((row, done))
+        self._queue_audit(row, done)
         await done
 
+    def audit_soon(self, row: dict[str, Any]) -> None:
+        """Queue one audit row without waiting for it: rows queued before it are written
+        before it or in its transaction. A row that cannot be written is logged."""
+        self._queue_audit(row, None)
+
+    def _queue_audit(self, row: dict[str, Any], done: asyncio.Future[None] | None) -> None:
+        if self._audit_task is None or self._audit_task.done():
+            self._audit_task = asyncio.create_task(self._audit_writer())
+        self._audit.put_nowait((row, done))
+
     async def _audit_writer(self) -> None:
-        assert self.sessionmaker is not None
         while True:
             batch = [await self._audit.get()]
             while not self._audit.empty():
                 batch.append(self._audit.get_nowait())
             try:
-                async with self.sessionmaker() as db:
-                    for row, _ in batch:
-                        audit.record(db, **row)
-                    await db.commit()
-            except Exception as exc:  # every waiter hears of it; the writer keeps going
-                for _, done in batch:
-                    if not done.done():
+                error = await self._commit(batch)
+                failed = [] if error is None else [(batch[0], error)]
+                if error is not None and len(batch) > 1:
+                    # One row the database refuses must not take the others: one at a time.
+                    failed = [(one, e) for one in batch if (e := await self._commit([one]))]
+                for (row, done), exc in failed:  # its waiter hears of it; the writer goes on
+                    if done is None:
+                        log.error("audit row %s %s not written: %s", row["action"], row["new"], exc)
+                    elif not done.done():
                         done.set_exception(exc)
-            else:
-                for _, done in batch:
-                    if not done.done():
-                        done.set_result(None)
+            finally:
+                for _ in batch:
+                    self._audit.task_done()
+
+    async def _commit(
+        self, batch: list[tuple[dict[str, Any], asyncio.Future[None] | None]]
+    ) -> Exception | None:
+        """Write ``batch`` in one transaction and tell its waiters; the error if it failed."""
+        assert self.sessionmaker is not None
+        try:
+            async with self.sessionmaker() as db:
+                for row, _ in batch:
+                    audit.record(db, **row)
+                await db.commit()
+        except Exception as exc:
+            return exc
+        for _, done in batch:
+            if done is not None and not done.done():
+                done.set_result(None)
+        return None
 
     async def recheck(self) -> None:
         """Check the credentials of every open link against the database now, and close
@@ -207,7 +249,13 @@ class Hub:
                 await conn.ws.send_text(message.model_dump_json())
 
     async def close(self) -> None:
-        """Close every live connection (at shutdown)."""
+        """Close every live connection (at shutdown), after writing every queued audit row."""
+        for request_id in list(self._pending):
+            self._unanswered(request_id, "OFFLINE", "the server shut down before an answer came")
+        writer = self._audit_task
+        if writer is not None and not writer.done():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._audit.join(), AUDIT_FLUSH_S)
         for task in (self._audit_task, self._recheck_task):
             if task is not None:
                 task.cancel()
@@ -225,27 +273,66 @@ class Hub:
                 continue  # its writer closes it as too slow
             v.push(text)
 
-    def expect_result(self, request_id: str, station_id: int) -> None:
-        loop = asyncio.get_running_loop()
-        handle = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
-        self._pending[request_id] = (station_id, handle)
+    # -- commands in flight: each ends in exactly one audited outcome ----------------------
+    def claim(self, asked: live_audit.Asked, conn: StationConn) -> bool:
+        """Hold ``asked``'s request_id until its outcome; False if a command sent with it may
+        still be answered (the answers could not be told apart)."""
+        request_id = asked.command.request_id
+        if request_id in self._pending or request_id in self._late:
+            return False
+        self._pending[request_id] = InFlight(asked, conn)
+        return True
+
+    def release(self, request_id: str) -> None:
+        """Forget a claimed command that was not sent."""
+        self._pending.pop(request_id, None)
+
+    def sent(self, request_id: str) -> None:
+        """The command is on its way: TIMEOUT unless answered within COMMAND_TIMEOUT_S."""
+        entry = self._pending.get(request_id)
+        if entry is not None:
+            loop = asyncio.get_running_loop()
+            entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
 
     def result(self, station_id: int, result: wire.CommandResult) -> None:
-        entry = self._pending.pop(result.request_id, None)
-        if entry is not None:
-            entry[1].cancel()
+        """A station's answer: to the viewers, and its outcome to the audit log."""
+        for book in (self._pending, self._late):
+            entry = book.get(result.request_id)
+            if entry is not None and entry.asked.station_id == station_id:
+                del book[result.request_id]
+                if entry.timer is not None:
+                    entry.timer.cancel()
+                row = entry.asked.outcome_row(
+                    live_audit.outcome_of(result), result, late=book is self._late
+                )
+                self.audit_soon(row)
+                break
         self.broadcast(station_id, result.model_dump_json())
 
-    def _timeout(self, request_id: str) -> None:
+    def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:
         entry = self._pending.pop(request_id, None)
         if entry is not None:
-            text = f"no answer from the station within {COMMAND_TIMEOUT_S:g} s"
-            self.broadcast(
-                entry[0],
-                wire.CommandResult(
-                    request_id=request_id, ok=False, code="TIMEOUT", text=text
-                ).model_dump_json(),
-            )
+            if entry.timer is not None:
+                entry.timer.cancel()
+            result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
+            self.audit_soon(entry.asked.outcome_row("unanswered", result))
+            self.broadcast(entry.asked.station_id, result.model_dump_json())
+        return entry
+
+    def _timeout(self, request_id: str) -> None:
+        text = f"no answer from the station within {COMMAND_TIMEOUT_S:g} s"
+        entry = self._unanswered(request_id, "TIMEOUT", text)
+        if entry is not None:
+            self._late[request_id] = entry
+            while len(self._late) > LATE_KEPT:
+                self._late.popitem(last=False)
+
+    def link_lost(self, conn: StationConn, request_id: str | None = None) -> None:
+        """The link ``conn`` ended: its commands sent and not answered (or just
+        ``request_id``) will never be answered."""
+        for rid, entry in list(self._pending.items()):
+            if entry.conn is conn and (rid == request_id or (request_id is None and entry.timer)):
+                self._unanswered(rid, "OFFLINE", "the station's link closed before it answered")
 
 
 def _hub(ws: WebSocket) -> Hub:
@@ -416,6 +503,7 @@ async def station_socket(ws: WebSocket) -> None:
         pass
     finally:
         silence.stop()
+        hub.link_lost(conn)
         if hub.stations.get(station.id) is conn:
             del hub.stations[station.id]
             hub.broadcast(station.id, wire.Presence(online=False).model_dump_json())
@@ -461,18 +549,22 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
     hub = _hub(ws)
     token, subprotocol = _bearer(ws)
     standing: LoginStanding | None = None
+    station: Station | None = None
     refused = True
     if token and _origin_ok(ws):
         assert hub.sessionmaker is not None
         async with hub.sessionmaker() as db:
             standing, code, _ = await view_standing(db, token, station_id)
+            station = await db.get(Station, station_id)  # loaded by view_standing already
         refused = code != 0
-    if refused or token is None or standing is None or standing.user is None:
+    if refused or token is None or standing is None or standing.user is None or not station:
         await ws.close(wire.CLOSE_POLICY)  # the same for a station that does not exist
         return
     user = standing.user
     await ws.accept(subprotocol=subprotocol)
-    viewer = Viewer(ws, token, user.id, station_id, may_command=user.role == "therapist")
+    viewer = Viewer(
+        ws, token, user.id, station_id, station.patient_id, may_command=user.role == "therapist"
+    )
     hub.viewers[station_id].add(viewer)
     expiry = _close_at_expiry(hub, ws, standing.expires_at)
     conn = hub.stations.get(station_id)
@@ -583,59 +675,51 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
 
 
 async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
-    def answer(code: str, text: str) -> None:
-        viewer.push(
-            wire.CommandResult(
-                request_id=cmd.request_id, ok=False, code=code, text=text
-            ).model_dump_json()
+    """Relay a viewer's command to its station; every command ends in one audited outcome
+    (``server/live_audit.py``), whoever refuses it."""
+    conn = hub.stations.get(viewer.station_id)
+    cmd = cmd.model_copy(update={"by": f"therapist:{viewer.user_id}"})
+    asked = live_audit.Asked(
+        actor=f"user:{viewer.user_id}",
+        station_id=viewer.station_id,
+        patient_id=viewer.patient_id,
+        command=cmd,
+        replaced=live_audit.in_force(conn.latest if conn else None, cmd),
+    )
+
+    def refuse(code: str, text: str, field: str = "") -> None:
+        result = wire.CommandResult(
+            request_id=cmd.request_id, ok=False, code=code, field=field, text=text
         )
+        viewer.push(result.model_dump_json())
+        hub.audit_soon(asked.outcome_row("refused", result))
 
     if not viewer.may_command:
-        answer("FORBIDDEN", "only the patient's therapist may change a running exercise")
+        refuse("FORBIDDEN", "only the patient's therapist may change a running exercise")
         return
-    conn = hub.stations.get(viewer.station_id)
     if conn is None:
-        answer("OFFLINE", "the station is not connected")
+        refuse("OFFLINE", "the station is not connected")
         return
-    cmd = cmd.model_copy(update={"by": f"therapist:{viewer.user_id}"})
-    if cmd.action == "set_impedance":
+    if not hub.claim(asked, conn):
+        refuse(
+            "DUPLICATE", "a command sent with this request_id may still be answered", "request_id"
+        )
+        return
+    if cmd.action in live_audit.SAFE_ACTIONS:
+        hub.audit_soon(asked.request_row())  # a HOLD or Stop never waits for the database
+    else:
         try:
-            await _audit_impedance(hub, viewer, conn, cmd)
-        except Exception as exc:  # a change that cannot be audited is not made
-            log.error("audit of a live change failed: %s", exc)
-            answer("AUDIT", "the change could not be recorded, so it was not sent; try again")
+            await hub.audit(**asked.request_row())
+        except Exception as exc:  # a command that cannot be audited is not sent
+            log.error("audit of a live command failed: %s", exc)
+            hub.release(cmd.request_id)
+            refuse("AUDIT", "the command could not be recorded, so it was not sent; try again")
             return
-    hub.expect_result(cmd.request_id, conn.station_id)
+    hub.sent(cmd.request_id)
     try:
         await conn.ws.send_text(cmd.model_dump_json())
     except Exception:
-        hub.result(
-            conn.station_id,
-            wire.CommandResult(
-                request_id=cmd.request_id, ok=False, code="OFFLINE", text="station link lost"
-            ),
-        )
-
-
-async def _audit_impedance(hub: Hub, viewer: Viewer, conn: StationConn, cmd: wire.Command) -> None:
-    """A live K/B change is a clinical change: audited with the values it replaced."""
-    old: dict[str, Any] = {}
-    if conn.latest is not None:
-        latest = json.loads(conn.latest)
-        old = {
-            "stiffness": {a: latest["stiffness"][AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
-            "damping": {a: latest["damping"][AXIS_INDEX[a]] for a in (cmd.damping or {})},
-        }
-    new = {"stiffness": cmd.stiffness or {}, "damping": cmd.damping or {}}
-    await hub.audit(
-        actor=f"user:{viewer.user_id}",
-        action="impedance.change",
-        entity="station",
-        entity_id=conn.station_id,
-        patient_id=conn.patient_id,
-        old=old,
-        new=new | {"request_id": cmd.request_id},
-    )
+        hub.link_lost(conn, cmd.request_id)
 
 
 @router.get("/api/v1/schemas/ws", tags=["live"], summary="WebSocket message schemas")

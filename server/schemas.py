@@ -302,7 +302,11 @@ class AuditPublic(BaseModel):
     id: int
     at: datetime
     actor: str = Field(description="'user:<id>', 'station:<id>' or 'system'.")
-    action: str = Field(description="'<entity>.<verb>', e.g. 'prescription.update'.")
+    action: str = Field(
+        description="'<entity>.<verb>', e.g. 'prescription.update'; a live command: "
+        "'hold.request' then 'hold.accepted', 'hold.refused' or 'hold.unanswered' (K/B: "
+        "'impedance.request', then 'impedance.change' only when the device accepted it)."
+    )
     entity: str
     entity_id: str
     patient_id: int | None

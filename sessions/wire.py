@@ -213,7 +213,11 @@ class CommandResult(BaseModel):
     type: Literal["result"] = "result"
     request_id: str
     ok: bool
-    code: str = Field(default="", description="NACK code, or OFFLINE / TIMEOUT / REFUSED.")
+    code: str = Field(
+        default="",
+        description="The device's NACK code; the station's REFUSED, OFFLINE or TIMEOUT; or the "
+        "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT or TIMEOUT.",
+    )
     field: str = ""
     text: str = ""
     rtt_ms: float = Field(default=0.0, description="Station to device and back, ms.")

@@ -28,11 +28,27 @@ async def list_audit(
     action: Annotated[
         str | None, Query(max_length=64, description="Only this action, e.g. patient.update.")
     ] = None,
+    station_id: Annotated[
+        int | None,
+        Query(description="Only rows about this station: its live commands, provisioning."),
+    ] = None,
+    request_id: Annotated[
+        str | None,
+        Query(
+            max_length=64,
+            description="Only the rows of one live command: its request and its outcome.",
+        ),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=500, description="Rows per page.")] = 100,
     offset: Annotated[int, Query(ge=0, description="Rows to skip (newest first).")] = 0,
 ) -> list[AuditPublic]:
     """An admin reads every row; a therapist the rows about their own patients (rows about
-    accounts or other therapists' patients are not shown)."""
+    accounts or other therapists' patients are not shown).
+
+    A live command leaves two rows with the same ``request_id`` in ``new``: ``<kind>.request``
+    when it is sent and its outcome, ``<kind>.accepted`` (a K/B change: ``impedance.change``),
+    ``<kind>.refused`` or ``<kind>.unanswered``, with ``code``, ``field`` and ``text``;
+    ``kind`` is ``impedance``, ``hold``, ``resume``, ``stop`` or ``start``."""
     query = select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit).offset(offset)
     if user.role != "admin":
         own = select(Patient.id).where(Patient.therapist_id == user.id)
@@ -41,4 +57,8 @@ async def list_audit(
         query = query.where(AuditEntry.patient_id == patient_id)
     if action is not None:
         query = query.where(AuditEntry.action == action)
+    if station_id is not None:
+        query = query.where(AuditEntry.entity == "station", AuditEntry.entity_id == str(station_id))
+    if request_id is not None:
+        query = query.where(AuditEntry.new["request_id"].as_string() == request_id)
     return [AuditPublic.model_validate(e) for e in (await db.execute(query)).scalars()]

@@ -1,125 +1,430 @@
-"""Who may call what: every endpoint against every kind of caller, and tenant isolation.
+"""Who may call what: every route the server serves, against every kind of caller.
 
-t1 owns patient p1 (stations s1 and a spare, prescription rx1); t2 owns p2. ``station`` is
-s1's token. A therapist reaching for another therapist's records gets the very same 404 as
-for a record that does not exist.
+The routes come from the app's own OpenAPI document (the app ``ankle server`` runs: the API
+with the dashboard), read at test time; ``ACCESS`` says what each identity must be answered
+on each of them. A route in OpenAPI that ``ACCESS`` does not cover fails the test, with the
+row to add; a row for a route that no longer exists fails too. WebSocket routes and the
+routes left out of OpenAPI (pages, scripts) are not in the document: they are listed here
+explicitly, and the app's own route list is checked against those lists.
+
+The identities: ``anon`` (no token), ``wrong`` (a token nobody was given), ``station`` (s1's
+token: the station of the owner's patient), ``other`` (t2, another therapist), ``admin`` and
+``owner`` (t1, whose patient p1 has stations s1 and a spare, prescription rx1 and a recorded
+session). Each route is called by each identity in that order, the owner last, so that a
+change the owner may make happens after every other identity saw the record unchanged.
+Another therapist reaching for the owner's records gets the very same 404, byte for byte,
+as for a record that does not exist.
 """
 
 from __future__ import annotations
 
+import hashlib
+import re
+import uuid
+from collections.abc import AsyncIterator, Callable, Mapping
+from contextlib import AbstractAsyncContextManager
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import httpx
+import numpy as np
 import pytest
+import pytest_asyncio
+from fastapi import FastAPI
+from fastapi.routing import iter_route_contexts
+from starlette.routing import WebSocketRoute
+from websockets.asyncio.client import connect
+from websockets.exceptions import InvalidStatus
 
-from tests.server.live_server import STRENGTH, Live, World, bearer
+from server.config import Settings
+from server.routes import API_PREFIX
+from sessions.recording import SAMPLE_DTYPE
+from tests.server.live_server import PASSWORD, STRENGTH, Live, World, bearer, copy_seeded, running
+from tests.server.test_series import recording_bytes, upload
+from tests.server.ws_client import station_ws, viewer_ws, ws_url
+from webui.app import create_app  # what `ankle server` runs: the API with the dashboard
 
-# Mutating calls by the owner run last so that the others see the record unchanged.
-ROLES = ("anon", "station", "t2", "admin", "t1")
+IDENTITIES = ("anon", "wrong", "station", "other", "admin", "owner")
+WRONG_TOKEN = "x" * 43
+MISSING_ID = 999_999
 
 
-def matrix(w: World) -> list[tuple[str, str, dict[str, Any] | None, dict[str, int]]]:
-    """(method, path, JSON body, expected status per role)."""
-    user_any = {"anon": 401, "station": 401, "t2": 200, "admin": 200, "t1": 200}
-    owner_or_admin_reads = {"anon": 401, "station": 401, "t2": 404, "admin": 200, "t1": 200}
-    owner_writes = {"anon": 401, "station": 401, "t2": 404, "admin": 403, "t1": 200}
-    station_only = {"anon": 401, "station": 200, "t2": 401, "admin": 401, "t1": 401}
-    new_user = {
-        "email": "n@clinic.test",
-        "name": "N",
-        "role": "therapist",
-        "password": "0123456789",
+@dataclass(frozen=True)
+class Records:
+    """What the calls name: the seeded world, a session recorded on s1, a fresh upload."""
+
+    world: World
+    session_id: int
+    upload_id: str
+    upload: bytes
+    spare_user_id: int
+    """A therapist no identity signs in as: the account the admin routes change."""
+
+    def token(self, identity: str) -> str | None:
+        if identity == "wrong":
+            return WRONG_TOKEN
+        return self.world.token({"other": "t2", "owner": "t1"}.get(identity, identity))
+
+
+RECORD_OF: dict[str, Callable[[Records], object]] = {
+    "patient_id": lambda r: r.world.p1,
+    "prescription_id": lambda r: r.world.rx1,
+    "station_id": lambda r: r.world.s1_id,
+    "session_id": lambda r: r.session_id,
+    "fmt": lambda r: "csv",
+    "name": lambda r: "uPlot.iife.min.js",
+    "ticket": lambda r: "t" * 43,  # made up: no ticket was issued
+    "path": lambda r: "index.html",
+}
+"""Which record a path parameter names, unless a row says otherwise (``at``)."""
+
+
+def answers(
+    owner: int, admin: int, other: int, station: int = 401, anon: int = 401
+) -> dict[str, int]:
+    """The status each identity gets (a wrong token is always 401, as no token is)."""
+    return {
+        "anon": anon,
+        "wrong": anon,
+        "station": station,
+        "other": other,
+        "admin": admin,
+        "owner": owner,
     }
-    admin_only = {**user_any, "t1": 403, "t2": 403}
-    # A wrong current password: every signed-in user may ask, nobody's password changes.
-    wrong_current = {"current_password": "not the password", "new_password": "0123456789"}
-    no_user = 999_999  # admins get as far as the lookup, and nothing changes
-    return [
-        ("GET", "/health", None, dict.fromkeys(ROLES, 200)),
-        ("GET", "/auth/me", None, user_any),
-        ("POST", "/auth/password", wrong_current, {**user_any, "t1": 400, "t2": 400, "admin": 400}),
-        ("GET", "/users", None, admin_only),
-        ("POST", "/users", new_user, {**admin_only, "admin": 201}),
-        ("POST", f"/users/{no_user}/reset-password", None, {**admin_only, "admin": 404}),
-        ("POST", f"/users/{no_user}/deactivate", None, {**admin_only, "admin": 404}),
-        ("POST", f"/users/{no_user}/reactivate", None, {**admin_only, "admin": 404}),
-        ("GET", "/patients", None, user_any),
-        ("GET", "/patients?archived=true", None, user_any),
-        (
-            "POST",
-            "/patients",
-            {"display_name": "X"},
-            {**user_any, "admin": 403, "t1": 201, "t2": 201},
-        ),
-        ("GET", f"/patients/{w.p1}", None, owner_or_admin_reads),
-        ("PATCH", f"/patients/{w.p1}", {"notes": "better"}, owner_writes),
-        ("GET", "/exercises", None, user_any),
-        ("GET", f"/patients/{w.p1}/prescriptions", None, owner_or_admin_reads),
-        ("POST", f"/patients/{w.p1}/prescriptions", STRENGTH, {**owner_writes, "t1": 201}),
-        ("GET", f"/prescriptions/{w.rx1}", None, owner_or_admin_reads),
-        ("PATCH", f"/prescriptions/{w.rx1}", {**STRENGTH, "sets": 2}, owner_writes),
-        ("POST", f"/prescriptions/{w.rx1}/cancel", None, owner_writes),
-        (
-            "POST",
-            f"/patients/{w.p1}/stations",
-            {"name": "New"},
-            {**owner_or_admin_reads, "admin": 201, "t1": 201},
-        ),
-        ("GET", "/stations", None, user_any),
-        ("POST", f"/stations/{w.s1_spare_id}/revoke", None, owner_or_admin_reads),
-        ("GET", "/station/me", None, station_only),
-        ("GET", "/station/prescriptions", None, station_only),
-        ("GET", "/audit", None, user_any),
-        # Last: archiving p1 revokes s1 and makes the record read-only for the rows above.
-        ("POST", f"/patients/{w.p1}/archive", None, owner_writes),
-        ("POST", f"/patients/{w.p1}/unarchive", None, owner_writes),
-    ]
+
+
+PUBLIC = dict.fromkeys(IDENTITIES, 200)
+ANY_USER = answers(owner=200, admin=200, other=200)
+OWNER_OR_ADMIN = answers(owner=200, admin=200, other=404)
+OWNER_WRITES = answers(owner=200, admin=403, other=404)
+ADMIN_ONLY = answers(owner=403, admin=200, other=403)
+STATION_ONLY = answers(owner=401, admin=401, other=401, station=200)
+
+
+@dataclass(frozen=True)
+class Call:
+    """How to call one route, and what each identity must be answered."""
+
+    expect: Mapping[str, int]
+    body: Any = None
+    """JSON body, or a function of the records giving it."""
+    content: Callable[[Records], bytes] | None = None
+    headers: Mapping[str, str] = field(default_factory=dict)
+    at: Mapping[str, Callable[[Records], object]] = field(default_factory=dict)
+    """Records for path parameters that do not name ``RECORD_OF``'s."""
+    last: bool = False
+    """Run after every other route (it ends the callers' sign-ins)."""
+
+
+NEW_USER = {"email": "n@clinic.test", "name": "N", "role": "therapist", "password": "0123456789"}
+
+
+def upload_done(r: Records) -> dict[str, Any]:
+    return {"size": len(r.upload), "sha256": hashlib.sha256(r.upload).hexdigest()}
+
+
+UPLOAD = {"session_id": lambda r: r.upload_id}
+SPARE_USER = {"user_id": lambda r: r.spare_user_id}
+
+ACCESS: dict[tuple[str, str], Call] = {
+    ("GET", "/health"): Call(PUBLIC),
+    ("GET", "/schemas/ws"): Call(PUBLIC),
+    (
+        "POST",
+        "/auth/login",
+    ): Call(PUBLIC, body={"email": "t1@clinic.test", "password": PASSWORD}),
+    ("GET", "/auth/me"): Call(ANY_USER),
+    ("POST", "/auth/password"): Call(
+        ANY_USER, body={"current_password": PASSWORD, "new_password": "a brand new passphrase"}
+    ),
+    ("GET", "/users"): Call(ADMIN_ONLY),
+    ("POST", "/users"): Call(answers(owner=403, admin=201, other=403), body=NEW_USER),
+    ("POST", "/users/{user_id}/reset-password"): Call(ADMIN_ONLY, at=SPARE_USER),
+    ("POST", "/users/{user_id}/deactivate"): Call(ADMIN_ONLY, at=SPARE_USER),
+    ("POST", "/users/{user_id}/reactivate"): Call(ADMIN_ONLY, at=SPARE_USER),
+    ("GET", "/patients"): Call(ANY_USER),
+    ("POST", "/patients"): Call(
+        answers(owner=201, admin=403, other=201), body={"display_name": "X"}
+    ),
+    ("GET", "/patients/{patient_id}"): Call(OWNER_OR_ADMIN),
+    ("PATCH", "/patients/{patient_id}"): Call(OWNER_WRITES, body={"notes": "better"}),
+    ("GET", "/exercises"): Call(ANY_USER),
+    ("GET", "/patients/{patient_id}/prescriptions"): Call(OWNER_OR_ADMIN),
+    ("POST", "/patients/{patient_id}/prescriptions"): Call(
+        answers(owner=201, admin=403, other=404), body=STRENGTH
+    ),
+    ("GET", "/prescriptions/{prescription_id}"): Call(OWNER_OR_ADMIN),
+    ("PATCH", "/prescriptions/{prescription_id}"): Call(OWNER_WRITES, body={**STRENGTH, "sets": 2}),
+    ("POST", "/prescriptions/{prescription_id}/cancel"): Call(OWNER_WRITES),
+    ("POST", "/patients/{patient_id}/stations"): Call(
+        answers(owner=201, admin=201, other=404), body={"name": "New"}
+    ),
+    ("GET", "/stations"): Call(ANY_USER),
+    ("POST", "/stations/{station_id}/revoke"): Call(
+        OWNER_OR_ADMIN, at={"station_id": lambda r: r.world.s1_spare_id}
+    ),
+    ("GET", "/stations/{station_id}/scene"): Call(OWNER_OR_ADMIN),
+    ("POST", "/stations/{station_id}/scene/ticket"): Call(OWNER_OR_ADMIN),
+    ("GET", "/station/me"): Call(STATION_ONLY),
+    ("GET", "/station/prescriptions"): Call(STATION_ONLY),
+    ("GET", "/sessions"): Call(ANY_USER),
+    ("GET", "/sessions/{session_id}"): Call(OWNER_OR_ADMIN),
+    ("GET", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),
+    ("GET", "/sessions/{session_id}/series"): Call(OWNER_OR_ADMIN),
+    ("GET", "/sessions/{session_id}/replay"): Call(OWNER_OR_ADMIN),
+    ("GET", "/sessions/{session_id}/replay.viser"): Call(OWNER_OR_ADMIN),
+    # An upload in the order a station makes one: bytes, where it stands, complete.
+    ("PATCH", "/uploads/{session_id}"): Call(
+        answers(owner=401, admin=401, other=401, station=204),
+        content=lambda r: r.upload,
+        headers={"Upload-Offset": "0"},
+        at=UPLOAD,
+    ),
+    ("HEAD", "/uploads/{session_id}"): Call(STATION_ONLY, at=UPLOAD),
+    ("POST", "/uploads/{session_id}/complete"): Call(
+        answers(owner=401, admin=401, other=401, station=201), body=upload_done, at=UPLOAD
+    ),
+    ("GET", "/audit"): Call(ANY_USER),
+    # Archiving revokes the patient's stations and freezes the record: after everything else.
+    ("POST", "/patients/{patient_id}/archive"): Call(OWNER_WRITES, last=True),
+    ("POST", "/patients/{patient_id}/unarchive"): Call(OWNER_WRITES, last=True),
+    ("POST", "/auth/logout"): Call(answers(owner=204, admin=204, other=204), last=True),
+}
+"""(method, path under ``/api/v1``) → the call. Run in this order."""
+
+WEBSOCKETS: dict[str, dict[str, bool]] = {
+    "/ws/station": {**dict.fromkeys(IDENTITIES, False), "station": True},
+    "/ws/live/{station_id}": {**dict.fromkeys(IDENTITIES, False), "admin": True, "owner": True},
+    # The 3D view: a ticket in the path opens it, never a bearer token (a made-up ticket here).
+    "/scene/{ticket}": dict.fromkeys(IDENTITIES, False),
+}
+"""WebSocket route → whether each identity's handshake is accepted (else HTTP 403)."""
+
+UNLISTED: dict[str, int] = {
+    "/api/v1/openapi.json": 200,
+    "/api/v1/docs": 200,
+    "/api/v1/replay/viewer": 400,  # plays only a blob: URL the dashboard made
+    "/": 307,
+    "/favicon.ico": 200,
+    "/app": 307,
+    "/app/": 307,
+    "/app/login": 200,
+    "/app/patients": 200,
+    "/app/patients/{patient_id}": 200,
+    "/app/patients/{patient_id}/prescribe": 200,
+    "/app/live/{station_id}": 200,
+    "/app/sessions/{session_id}": 200,
+    "/vendor/{name}": 200,
+    "/static/js/axes.js": 200,
+    "/app/accounts": 200,
+    "/app/password": 200,
+    # The 3D view's proxy: nothing without a ticket (a made-up one here).
+    "/scene": 403,
+    "/scene/": 403,
+    "/scene/{ticket}": 403,
+    "/scene/{ticket}/{path:path}": 403,
+}
+"""GET routes left out of OpenAPI → what a caller without a token gets: pages and scripts
+that carry no record (each page asks the API, with the therapist's token, for what it
+shows). ``/static`` is a folder of files, not a route."""
+
+
+def operations(app: FastAPI) -> list[tuple[str, str]]:
+    """Every (method, path under API_PREFIX) in the app's OpenAPI document."""
+    out = []
+    for path, item in app.openapi()["paths"].items():
+        assert path.startswith(API_PREFIX), f"{path} is outside {API_PREFIX}"
+        for method in item:
+            if method in {"get", "put", "post", "patch", "delete", "head", "options"}:
+                out.append((method.upper(), path.removeprefix(API_PREFIX)))
+    return out
+
+
+def parameters(path: str) -> list[str]:
+    return re.findall(r"{(\w+)(?::\w+)?}", path)
+
+
+def concrete(path: str, call: Call | None, records: Records | None) -> str:
+    """``path`` with each parameter replaced by the record it names (None: a missing id)."""
+    values = {}
+    for name in parameters(path):
+        if records is None:
+            values[name] = {"fmt": "csv", "path": "index.html"}.get(name, str(MISSING_ID))
+            continue
+        chosen = (call.at if call else {}).get(name) or RECORD_OF.get(name)
+        assert chosen is not None, f"{path}: say which record {{{name}}} names (Call(at=...))"
+        values[name] = str(chosen(records))
+    return re.sub(r"{(\w+)(?::\w+)?}", lambda m: values[m.group(1)], path)
+
+
+def coverage(ops: list[tuple[str, str]]) -> str:
+    """What ACCESS lacks or has too many of against the OpenAPI operations ``ops``."""
+    missing = [op for op in ops if op not in ACCESS]
+    stale = [op for op in ACCESS if op not in ops]
+    problems = []
+    if missing:
+        rows = "\n".join(
+            f"    {op!r}: Call(answers(owner=..., admin=..., other=..., station=401)),"
+            for op in missing
+        )
+        problems.append(
+            "routes in OpenAPI with no row in ACCESS (tests/server/test_access.py): add each, "
+            "with the status every identity must get (and body=, at= if the call needs "
+            f"them):\n{rows}"
+        )
+    if stale:
+        problems.append(f"rows in ACCESS for routes that no longer exist: remove {stale}")
+    return "\n".join(problems)
+
+
+def test_the_table_covers_exactly_the_routes_in_openapi(tmp_path: Path) -> None:
+    """Fails for a new route until its row says who may call it."""
+    problems = coverage(operations(create_app(Settings(data_dir=tmp_path))))
+    assert not problems, problems
+
+
+def test_websocket_and_unlisted_routes_are_listed(tmp_path: Path) -> None:
+    """Routes OpenAPI does not show must be listed here, or they would escape the matrix."""
+    app = create_app(Settings(data_dir=tmp_path))
+    websockets: set[str] = set()
+    unlisted: set[str] = set()
+    for context in iter_route_contexts(app.routes):
+        if context.path is None:  # a mount: /static, a folder of files
+            continue
+        if isinstance(context.route, WebSocketRoute):
+            websockets.add(context.path)
+        elif getattr(context.route, "include_in_schema", True) is False:
+            unlisted.add(context.path)
+    assert websockets == set(WEBSOCKETS), (
+        f"WebSocket routes {sorted(websockets ^ set(WEBSOCKETS))} differ from WEBSOCKETS: "
+        "list each with the identities whose handshake is accepted"
+    )
+    assert unlisted == set(UNLISTED), (
+        f"routes left out of OpenAPI {sorted(unlisted ^ set(UNLISTED))} differ from UNLISTED: "
+        "list each with what a caller without a token gets"
+    )
+
+
+@pytest_asyncio.fixture
+async def served(seeded: tuple[Path, World], tmp_path: Path) -> AsyncIterator[Live]:
+    """``ankle server``'s app (API and dashboard) on a private copy of the seeded database."""
+    template, _ = seeded
+    settings = Settings(data_dir=copy_seeded(template, tmp_path))
+    async with running(settings, create_app) as server:
+        yield server
+
+
+def short_recording() -> np.ndarray[Any, Any]:
+    rows = np.zeros(300, SAMPLE_DTYPE)
+    rows["t"] = np.arange(300) / 100.0
+    rows["wall"] = 1_700_000_000.0 + rows["t"]
+    return rows
+
+
+@pytest_asyncio.fixture
+async def records(served: Live, world: World) -> Records:
+    session_id = await upload(served, world, short_recording())
+    upload_id = str(uuid.uuid4())
+    data = recording_bytes(upload_id, short_recording(), world.s1_id, world.p1, world.rx1)
+    spare = await served.client.post(
+        "/users",
+        json={**NEW_USER, "email": "spare@clinic.test", "name": "Spare"},
+        headers=bearer(world.admin),
+    )
+    assert spare.status_code == 201, spare.text
+    return Records(world, session_id, upload_id, data, spare.json()["id"])
+
+
+async def call(
+    client: httpx.AsyncClient, method: str, path: str, call: Call, r: Records, token: str | None
+) -> httpx.Response:
+    body = call.body(r) if callable(call.body) else call.body
+    return await client.request(
+        method,
+        path,
+        json=body,
+        content=call.content(r) if call.content else None,
+        headers={**call.headers, **(bearer(token) if token else {})},
+    )
 
 
 @pytest.mark.asyncio
-async def test_every_endpoint_for_every_role(live: Live, world: World) -> None:
-    wrong = []
-    for method, path, body, expected in matrix(world):
-        for role in ROLES:
-            token = world.token(role)
-            headers = bearer(token) if token else {}
-            r = await live.client.request(method, path, json=body, headers=headers)
-            if r.status_code != expected[role]:
-                wrong.append(f"{method} {path} as {role}: {r.status_code}, not {expected[role]}")
-            if r.status_code == 401:
-                assert r.headers["www-authenticate"] == "Bearer"
+async def test_every_route_answers_every_identity_as_the_table_says(
+    served: Live, records: Records
+) -> None:
+    ops = operations(served.app)
+    problems = coverage(ops)
+    assert not problems, problems
+    ordered = sorted(ops, key=lambda op: (ACCESS[op].last, list(ACCESS).index(op)))
+    client, wrong = served.client, []
+    for method, template in ordered:
+        row = ACCESS[(method, template)]
+        path = concrete(template, row, records)
+        for identity in IDENTITIES:
+            token = records.token(identity)
+            r = await call(client, method, path, row, records, token)
+            if r.status_code != row.expect[identity]:
+                wrong.append(
+                    f"{method} {template} as {identity}: {r.status_code}, not "
+                    f"{row.expect[identity]} ({r.text[:120]})"
+                )
+            if r.status_code == 401 and r.headers.get("www-authenticate") != "Bearer":
+                wrong.append(f"{method} {template} as {identity}: 401 without WWW-Authenticate")
+            if identity == "other" and row.expect["other"] == 404:
+                # Someone else's record is indistinguishable from none at all.
+                none = await call(
+                    client, method, concrete(template, row, None), row, records, token
+                )
+                if (none.status_code, none.content) != (r.status_code, r.content):
+                    wrong.append(
+                        f"{method} {template}: another's record answers {r.status_code} "
+                        f"{r.content!r}, a missing one {none.status_code} {none.content!r}"
+                    )
     assert not wrong, "\n".join(wrong)
 
 
-ELSEWHERE: list[tuple[str, str, dict[str, Any] | None]] = [
-    ("GET", "/patients/{p}", None),
-    ("PATCH", "/patients/{p}", {"notes": "x"}),
-    ("GET", "/patients/{p}/prescriptions", None),
-    ("POST", "/patients/{p}/prescriptions", STRENGTH),
-    ("POST", "/patients/{p}/stations", {"name": "x"}),
-    ("GET", "/prescriptions/{rx}", None),
-    ("PATCH", "/prescriptions/{rx}", STRENGTH),
-    ("POST", "/prescriptions/{rx}/cancel", None),
-    ("POST", "/stations/{s}/revoke", None),
-    ("POST", "/patients/{p}/archive", None),
-    ("POST", "/patients/{p}/unarchive", None),
-]
+@pytest.mark.asyncio
+async def test_every_websocket_handshake_is_refused_but_to_whom_the_table_says(
+    served: Live, records: Records
+) -> None:
+    wrong = []
+    for template, accepted in WEBSOCKETS.items():
+        for identity in IDENTITIES:
+            token = records.token(identity) or ""
+            opened: AbstractAsyncContextManager[object]
+            if template == "/ws/station":
+                opened = station_ws(served, token)
+            elif template == "/ws/live/{station_id}":
+                opened = viewer_ws(served, token, records.world.s1_id)
+            else:
+                made_up = template.format(ticket="t" * 43)
+                opened = connect(ws_url(served, made_up), additional_headers=bearer(token))
+            try:
+                async with opened:
+                    got = True
+            except InvalidStatus as exc:
+                got = False
+                if exc.response.status_code != 403:
+                    wrong.append(f"{template} as {identity}: HTTP {exc.response.status_code}")
+            if got != accepted[identity]:
+                wrong.append(f"{template} as {identity}: {'accepted' if got else 'refused'}")
+    assert not wrong, "\n".join(wrong)
 
 
 @pytest.mark.asyncio
-async def test_someone_elses_record_is_indistinguishable_from_none(
-    live: Live, world: World
+async def test_routes_outside_openapi_show_nothing_without_a_token(
+    served: Live, records: Records
 ) -> None:
-    """t1 asking for t2's patient, prescription or station, and for ids that do not exist."""
-    for method, template, body in ELSEWHERE:
-        others = template.format(p=world.p2, rx=world.rx2, s=world.s2_id)
-        missing = template.format(p=999_999, rx=999_999, s=999_999)
-        a = await live.client.request(method, others, json=body, headers=bearer(world.t1))
-        b = await live.client.request(method, missing, json=body, headers=bearer(world.t1))
-        assert a.status_code == b.status_code == 404, (method, template)
-        assert a.json() == b.json()
-        assert a.headers["content-length"] == b.headers["content-length"]
+    root = f"http://127.0.0.1:{served.client.base_url.port}"
+    async with httpx.AsyncClient(base_url=root) as client:
+        got = {
+            path: (await client.get(concrete(path, None, records))).status_code for path in UNLISTED
+        }
+    assert got == UNLISTED
 
 
+# -- what the lists hold ------------------------------------------------------------------------
 @pytest.mark.asyncio
 async def test_lists_show_only_the_callers_patients(live: Live, world: World) -> None:
     async def ids(path: str, who: str) -> set[int]:

@@ -24,34 +24,10 @@ from tests.server.ws_client import (
     close_of,
     closed_with,
     station_ws,
+    telemetry,
     viewer_ws,
     welcomed,
 )
-
-
-def _telemetry(**change: Any) -> dict[str, Any]:
-    six = [0.0] * 6
-    body: dict[str, Any] = {
-        "type": "telemetry",
-        "sent": time.time(),
-        "t": 1.0,
-        "mode": "READY",
-        "trip": 0,
-        "segment_id": 0,
-        "set": 0,
-        "rep": 0,
-        "pose": six,
-        "pose_cmd": six,
-        "legs": six,
-        "pressures": [0.0] * 12,
-        "wrench": six,
-        "stiffness": six,
-        "damping": six,
-        "lag_ms": 0.0,
-        "overruns": 0,
-        "frames_dropped": 0,
-    }
-    return body | change
 
 
 async def online(live: Live, world: World, station_id: int) -> bool:
@@ -132,14 +108,14 @@ BAD_MESSAGES: list[tuple[str, str | bytes, int, str]] = [
     ("unknown type", json.dumps({"type": "launch", "sent": 1.0}), wire.CLOSE_MALFORMED, "type"),
     ("no type", json.dumps({"sent": 1.0}), wire.CLOSE_MALFORMED, "type"),
     # Python's json writes NaN as the bare token, as a careless sender would.
-    ("NaN", json.dumps(_telemetry(t=float("nan"))), wire.CLOSE_MALFORMED, "telemetry.t"),
+    ("NaN", json.dumps(telemetry(t=float("nan"))), wire.CLOSE_MALFORMED, "telemetry.t"),
     (
         "NaN in a vector",
-        json.dumps(_telemetry(pose=[0.0, 0.0, float("nan"), 0.0, 0.0, 0.0])),
+        json.dumps(telemetry(pose=[0.0, 0.0, float("nan"), 0.0, 0.0, 0.0])),
         wire.CLOSE_MALFORMED,
         "telemetry.pose",
     ),
-    ("5-element pose", json.dumps(_telemetry(pose=[0.0] * 5)), wire.CLOSE_MALFORMED, "pose"),
+    ("5-element pose", json.dumps(telemetry(pose=[0.0] * 5)), wire.CLOSE_MALFORMED, "pose"),
     (
         "extra field",
         json.dumps({"type": "heartbeat", "sent": 1.0, "admin": True}),
@@ -149,7 +125,7 @@ BAD_MESSAGES: list[tuple[str, str | bytes, int, str]] = [
     ("binary frame", HELLO.encode(), wire.CLOSE_MALFORMED, "text"),
     (
         "too big",
-        json.dumps(_telemetry(mode="A" * wire.MAX_MESSAGE_BYTES)),
+        json.dumps(telemetry(mode="A" * wire.MAX_MESSAGE_BYTES)),
         wire.CLOSE_TOO_BIG,
         str(wire.MAX_MESSAGE_BYTES),
     ),
@@ -284,7 +260,7 @@ async def test_an_out_of_range_command_is_closed_and_never_reaches_the_station(
         assert not [m for m in got if isinstance(m, wire.Command)], got
         assert any(isinstance(m, wire.Heartbeat) for m in got), "the station link stays up"
     r = await live.client.get(
-        "/audit", params={"action": "impedance.change"}, headers=bearer(world.admin)
+        "/audit", params={"action": "impedance.request"}, headers=bearer(world.admin)
     )
     assert r.status_code == 200 and r.json() == [], r.text
     await assert_offline(live, world, world.s1_id)
@@ -315,6 +291,6 @@ async def test_a_valid_command_is_relayed_and_audited(live: Live, world: World) 
     assert message.stiffness == {"pitch": 80.0}
     assert message.by == f"therapist:{world.t1_id}"
     r = await live.client.get(
-        "/audit", params={"action": "impedance.change"}, headers=bearer(world.admin)
+        "/audit", params={"action": "impedance.request"}, headers=bearer(world.admin)
     )
     assert [row["new"]["stiffness"] for row in r.json()] == [{"pitch": 80.0}]

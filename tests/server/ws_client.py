@@ -6,6 +6,7 @@ import asyncio
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
@@ -75,3 +76,29 @@ async def welcomed(ws: ClientConnection) -> wire.Welcome:
     welcome = wire.STATION_DOWN.validate_json(await asyncio.wait_for(ws.recv(), 5))
     assert isinstance(welcome, wire.Welcome), welcome
     return welcome
+
+
+def telemetry(**change: Any) -> dict[str, Any]:
+    """One telemetry message as a station sends it (at rest, READY), with ``change``."""
+    six = [0.0] * 6
+    body: dict[str, Any] = {
+        "type": "telemetry",
+        "sent": time.time(),
+        "t": 1.0,
+        "mode": "READY",
+        "trip": 0,
+        "segment_id": 0,
+        "set": 0,
+        "rep": 0,
+        "pose": six,
+        "pose_cmd": six,
+        "legs": six,
+        "pressures": [0.0] * 12,
+        "wrench": six,
+        "stiffness": six,
+        "damping": six,
+        "lag_ms": 0.0,
+        "overruns": 0,
+        "frames_dropped": 0,
+    }
+    return body | change

@@ -1,0 +1,122 @@
+"""The audit trail of a therapist's live commands: K/B, HOLD, Resume, Stop and Start.
+
+The log is append-only, so a command leaves two rows linked by its ``request_id`` rather
+than one row that is later corrected:
+
+- ``<kind>.request`` when it is sent: who asked, which station and patient, what was asked
+  (and for K/B the values in force that it would replace). Resume, Start and K/B, which make
+  the platform move or change what the patient feels, are sent only once this row is
+  committed: a command that cannot be audited is not sent. HOLD and Stop are never delayed
+  or refused for the database: their row is queued before they go out and written beside.
+- its outcome: ``<kind>.accepted`` (K/B: ``impedance.change``, the only row that says the
+  values changed), ``<kind>.refused`` with the code, field and reason of whoever refused it
+  (the device's NACK, the station, or the server itself: ``FORBIDDEN``, ``OFFLINE``,
+  ``DUPLICATE``, ``AUDIT``; a command the server refuses is never sent and has no request
+  row), or ``<kind>.unanswered`` (``TIMEOUT``, the station's link lost, the server shut
+  down): what the device did is not known. An answer that arrives after its TIMEOUT still
+  writes its outcome, marked ``late``.
+
+``kind`` is ``impedance`` (``set_impedance``), ``hold``, ``resume``, ``stop`` or ``start``.
+Rows go through the hub's batched writer; outcomes are queued, never awaited, so a station's
+answer costs the relay no database round trip.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from sessions import wire
+from sessions.prescription import AXIS_INDEX
+
+Outcome = Literal["accepted", "refused", "unanswered"]
+Phase = Literal["request", "accepted", "refused", "unanswered"]
+
+KIND: dict[str, str] = {
+    "set_impedance": "impedance",
+    "hold": "hold",
+    "resume": "resume",
+    "stop": "stop",
+    "start": "start",
+}
+"""The audit name of each command action."""
+SAFE_ACTIONS = frozenset({"hold", "stop"})
+"""Commands that take motion away: sent at once, their request row written beside them."""
+UNANSWERED_CODES = frozenset({"TIMEOUT"})
+"""Codes in a station's answer that mean the device never answered (it may have acted)."""
+
+
+def action(command: str, phase: Phase) -> str:
+    """The audit action of one row about a command (``hold.request``, ``impedance.change``)."""
+    kind = KIND[command]
+    if kind == "impedance" and phase == "accepted":
+        return "impedance.change"
+    return f"{kind}.{phase}"
+
+
+def outcome_of(result: wire.CommandResult) -> Outcome:
+    """What a station's answer means for the record."""
+    if result.ok:
+        return "accepted"
+    return "unanswered" if result.code in UNANSWERED_CODES else "refused"
+
+
+def in_force(latest: str | None, cmd: wire.Command) -> dict[str, Any] | None:
+    """The K and B a ``set_impedance`` would replace, from the station's newest telemetry
+    (JSON text, as relayed); None for the other commands, {} when no telemetry came yet."""
+    if cmd.action != "set_impedance":
+        return None
+    if latest is None:
+        return {}
+    sample = json.loads(latest)
+    return {
+        "stiffness": {a: sample["stiffness"][AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
+        "damping": {a: sample["damping"][AXIS_INDEX[a]] for a in (cmd.damping or {})},
+    }
+
+
+@dataclass(frozen=True)
+class Asked:
+    """One command as the audit log tells it: everything its rows need."""
+
+    actor: str
+    station_id: int
+    patient_id: int | None
+    command: wire.Command
+    replaced: dict[str, Any] | None
+    """K/B in force when asked (set_impedance only)."""
+
+    def what(self) -> dict[str, Any]:
+        """What was asked, with the request_id that links the rows."""
+        cmd = self.command
+        asked: dict[str, Any] = {"request_id": cmd.request_id}
+        if cmd.action == "set_impedance":
+            asked |= {"stiffness": cmd.stiffness or {}, "damping": cmd.damping or {}}
+        elif cmd.action == "start":
+            asked["prescription_id"] = cmd.prescription_id
+        return asked
+
+    def _row(self, phase: Phase, old: Any, new: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "actor": self.actor,
+            "action": action(self.command.action, phase),
+            "entity": "station",
+            "entity_id": self.station_id,
+            "patient_id": self.patient_id,
+            "old": old,
+            "new": new,
+        }
+
+    def request_row(self) -> dict[str, Any]:
+        return self._row("request", self.replaced, self.what())
+
+    def outcome_row(
+        self, outcome: Outcome, result: wire.CommandResult, late: bool = False
+    ) -> dict[str, Any]:
+        """The outcome: ``old`` holds the replaced values only when a change was made."""
+        answer: dict[str, Any] = {"code": result.code, "field": result.field, "text": result.text}
+        if late:
+            answer["late"] = True
+        old = self.replaced if outcome == "accepted" else None
+        return self._row(outcome, old, self.what() | answer)
