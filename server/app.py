@@ -25,7 +25,7 @@ from server.routes.common import document_must_change
 from server.routes.health import server_version
 from server.routes.uploads import CHUNK_MAX
 from server.security import HashingSlots
-from server.throttle import LoginThrottle
+from server.throttle import LoginGate, LoginThrottle
 from server.tickets import ViewTickets
 
 DESCRIPTION = """\
@@ -101,6 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Added last, so outermost: a body is refused before CORS or any route sees it, and
     # every answer, refusals included, carries the security headers.
     app.add_middleware(RequestGuard, default=settings.body_max_bytes, limit_for=body_limit)
+    app.add_middleware(LoginGate, path=f"{API_PREFIX}/auth/login")
     app.add_middleware(SecurityHeaders)
     for router in ROUTERS:
         app.include_router(router, prefix=API_PREFIX)

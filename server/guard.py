@@ -20,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import json
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -45,7 +45,10 @@ def too_large_text(limit: int) -> str:
     )
 
 
-async def _answer(send: Send, status: int, body: dict[str, Any]) -> None:
+async def answer(
+    send: Send, status: int, body: dict[str, Any], headers: Sequence[tuple[bytes, bytes]] = ()
+) -> None:
+    """A whole JSON answer from a middleware, before (or instead of) any route."""
     payload = json.dumps(body).encode()  # ensure_ascii: always encodable, whatever it quotes
     await send(
         {
@@ -54,6 +57,7 @@ async def _answer(send: Send, status: int, body: dict[str, Any]) -> None:
             "headers": [
                 (b"content-type", b"application/json"),
                 (b"content-length", str(len(payload)).encode()),
+                *headers,
             ],
         }
     )
@@ -131,7 +135,7 @@ class RequestGuard:
             elif name == b"content-type":
                 content_type = value.decode("latin-1")
         if length is not None and length > limit:
-            await _answer(send, 413, {"detail": too_large_text(limit)})
+            await answer(send, 413, {"detail": too_large_text(limit)})
             return
         if not (chunked or length):
             await self.app(scope, receive, send)
@@ -151,7 +155,7 @@ class RequestGuard:
             chunk = message.get("body", b"")
             size += len(chunk)
             if size > limit:
-                await _answer(send, 413, {"detail": too_large_text(limit)})
+                await answer(send, 413, {"detail": too_large_text(limit)})
                 return
             parts.append(chunk)
             if not message.get("more_body", False):
@@ -159,7 +163,7 @@ class RequestGuard:
         body = b"".join(parts)
         error = lone_surrogate(body)
         if error is not None:
-            await _answer(send, 422, {"detail": [error]})
+            await answer(send, 422, {"detail": [error]})
             return
         replayed = False
 
@@ -197,4 +201,4 @@ class RequestGuard:
         with contextlib.suppress(BodyTooLarge):  # raised by counted(), answered here
             await self.app(scope, counted, watched)
         if over and not started:
-            await _answer(send, 413, {"detail": too_large_text(limit)})
+            await answer(send, 413, {"detail": too_large_text(limit)})

@@ -151,6 +151,40 @@ async def test_a_hundred_wrong_sign_ins_at_once_starve_neither_health_nor_a_coll
 
 
 @pytest.mark.asyncio
+async def test_a_busy_address_is_refused_before_its_body_is_read(
+    seeded: tuple[Path, World], tmp_path: Path
+) -> None:
+    """With a sign-in of this address in progress (and at most one allowed), another is
+    answered 429 at once, although its body never comes: no route waited for it."""
+    async with throttled(seeded, tmp_path, login_pending_max=1) as live:
+        port = live.client.base_url.port
+        head = (
+            "POST /api/v1/auth/login HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            "Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n"
+        )
+
+        async def no_body() -> bytes:
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            try:
+                writer.write(head.encode())
+                await writer.drain()
+                return await asyncio.wait_for(reader.read(4096), 10)
+            finally:
+                writer.close()
+
+        throttle = live.app.state.login_throttle
+        async with throttle.attempt("someone@clinic.test", "127.0.0.1"):
+            answer = await no_body()
+        status, _, rest = answer.decode("latin-1").partition("\r\n")
+        assert status == "HTTP/1.1 429 Too Many Requests", answer
+        assert "retry-after: 1" in rest.lower()
+        assert "too many sign-ins for this address at once" in rest
+        # The same request with the address free is not answered until its body comes.
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(no_body(), 1.0)
+
+
+@pytest.mark.asyncio
 async def test_sign_ins_are_in_the_audit_log(live: Live, world: World) -> None:
     await sign_in(live.client, "t1@clinic.test", "wrong password")
     await sign_in(live.client, "nobody@clinic.test", "wrong password")
