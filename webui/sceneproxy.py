@@ -34,7 +34,7 @@ from starlette.websockets import WebSocketDisconnect
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, WebSocketException
 
-from server.live import _origin_ok
+from server.live import origin_ok
 from server.tickets import Ticket, ViewTickets
 from sessions import wire
 from webui.assets import VIEWER_CSP
@@ -143,7 +143,7 @@ async def scene_root(ticket: str, request: Request) -> Response:
 @router.websocket(SCENE_PREFIX + "/{ticket}")
 async def scene_socket(ws: WebSocket, ticket: str) -> None:
     found = _station(ws.app, ticket)
-    if found is None or not _origin_ok(ws):
+    if found is None or not origin_ok(ws):
         await ws.close(wire.CLOSE_POLICY)
         return
     held, station_id = found
