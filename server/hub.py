@@ -383,6 +383,7 @@ class Hub:
         elif kind == "replaced" and isinstance(station_id, int):
             conn = self.stations.pop(station_id, None)
             if conn is not None:  # it stays online, elsewhere: no presence change to tell
+                await self.relay.release(station_id)  # the other process's claim stays
                 await close_link(conn.ws, wire.CLOSE_REPLACED, "the station connected again")
 
     # -- shutdown --------------------------------------------------------------------------
