@@ -15,6 +15,7 @@ import collections
 import contextlib
 import dataclasses
 import itertools
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -30,7 +31,7 @@ from server.audit import AuditWriter
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station
 from server.relay import LocalRelay, Message, Relay
-from server.tickets import ViewTickets
+from server.tickets import Ticket, ViewTickets
 from sessions import wire
 from sessions.prescription import PrescriptionBody
 
@@ -154,6 +155,10 @@ async def prescriptions_of(db: AsyncSession, patient_id: int) -> wire.Prescripti
     )
 
 
+def _ticket_key(value: str) -> str:
+    return f"ticket:{value}"
+
+
 class Hub:
     """Connected stations and their viewers: this process's, and the others' by the relay."""
 
@@ -227,6 +232,9 @@ class Hub:
                 if code and self.tickets is not None:
                     log.info("3D view ticket ended (%d): %s", code, reason)
                     self.tickets.revoke(ticket)
+                    await self.relay.unshare(_ticket_key(ticket.value))
+                elif ticket.in_use:  # a view open on it keeps it alive on every process
+                    await self.share_ticket(ticket)
             for viewers in list(self.viewers.values()):
                 for v in list(viewers):
                     _, code, reason = await view_standing(db, v.token, v.station_id)
@@ -319,6 +327,25 @@ class Hub:
             status=status,
             server_time=time.time(),
         )
+
+    # -- 3D views' tickets ------------------------------------------------------------------
+    async def share_ticket(self, ticket: Ticket) -> None:
+        """Make a ticket just issued here valid on every process."""
+        if self.tickets is not None:
+            await self.relay.share(
+                _ticket_key(ticket.value), json.dumps(ticket.shared()), self.tickets.ttl_s
+            )
+
+    async def ticket(self, value: str) -> Ticket | None:
+        """The live ticket ``value`` names, issued on this process or another; each look-up
+        keeps it alive for every process."""
+        if self.tickets is None:
+            return None
+        shared = await self.relay.look_up(_ticket_key(value), self.tickets.ttl_s)
+        ticket = self.tickets.valid(value)
+        if ticket is None and shared is not None:
+            ticket = self.tickets.adopt(value, json.loads(shared))
+        return ticket
 
     # -- viewers ---------------------------------------------------------------------------
     async def viewer_joined(self, viewer: Viewer) -> None:

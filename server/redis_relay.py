@@ -212,6 +212,16 @@ class RedisRelay(Relay):
             with contextlib.suppress(Exception):
                 await self._pubsub.unsubscribe(self._view(station_id), self._tele(station_id))
 
+    async def share(self, key: str, value: str, ttl_s: float) -> None:
+        await self.redis.set(f"{PREFIX}shared:{key}", value, px=max(1, round(ttl_s * 1000)))
+
+    async def look_up(self, key: str, ttl_s: float) -> str | None:
+        value = await self.redis.getex(f"{PREFIX}shared:{key}", px=max(1, round(ttl_s * 1000)))
+        return None if value is None else str(value)
+
+    async def unshare(self, key: str) -> None:
+        await self.redis.delete(f"{PREFIX}shared:{key}")
+
     def send(self, process: str, message: Message) -> None:
         self._out.put_nowait((self._proc(process), json.dumps(message), None))
 

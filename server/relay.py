@@ -11,7 +11,8 @@ another process must see goes through a :class:`Relay`:
   results, for the station's viewers on every process;
 - messages addressed to one process (a command for the station it holds, and its refusal
   back; a prescription push; "your station connected elsewhere") or to all of them (re-check
-  every link's credentials; a 3D view's ticket ended).
+  every link's credentials);
+- what must be found on any process: a 3D view's ticket (``share``, ``look_up``).
 
 :class:`LocalRelay` is the only-one-process engine, the embedded default: every call is a
 no-op or an empty answer, so the hub's own direct path is all that runs and nothing is
@@ -104,6 +105,17 @@ class Relay(abc.ABC):
     async def unwatch(self, station_id: int) -> None: ...
 
     @abc.abstractmethod
+    async def share(self, key: str, value: str, ttl_s: float) -> None:
+        """Keep ``value`` under ``key`` for every process, for ``ttl_s`` (a 3D view's ticket)."""
+
+    @abc.abstractmethod
+    async def look_up(self, key: str, ttl_s: float) -> str | None:
+        """What another process shared under ``key``, kept ``ttl_s`` longer; None if none."""
+
+    @abc.abstractmethod
+    async def unshare(self, key: str) -> None: ...
+
+    @abc.abstractmethod
     def send(self, process: str, message: Message) -> None:
         """``message`` to one process; queued, in order."""
 
@@ -148,6 +160,15 @@ class LocalRelay(Relay):
         return None
 
     async def unwatch(self, station_id: int) -> None:
+        return None
+
+    async def share(self, key: str, value: str, ttl_s: float) -> None:
+        return None
+
+    async def look_up(self, key: str, ttl_s: float) -> str | None:
+        return None
+
+    async def unshare(self, key: str) -> None:
         return None
 
     def send(self, process: str, message: Message) -> None:
