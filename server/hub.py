@@ -18,8 +18,9 @@ import itertools
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from fastapi import WebSocket
 from sqlalchemy import select
@@ -56,6 +57,7 @@ LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
 NO_ACCESS = "you may no longer see this patient"
 
 _viewer_keys = itertools.count(1)
+T = TypeVar("T")
 
 
 @dataclass(eq=False)
@@ -232,7 +234,7 @@ class Hub:
                 if code and self.tickets is not None:
                     log.info("3D view ticket ended (%d): %s", code, reason)
                     self.tickets.revoke(ticket)
-                    await self.relay.unshare(_ticket_key(ticket.value))
+                    await self._ask("ticket", self.relay.unshare(_ticket_key(ticket.value)), None)
                 elif ticket.in_use:  # a view open on it keeps it alive on every process
                     await self.share_ticket(ticket)
             for viewers in list(self.viewers.values()):
@@ -268,7 +270,8 @@ class Hub:
     async def online_of(self, station_ids: list[int]) -> set[int]:
         """Those of ``station_ids`` connected to this server process or another."""
         here = {s for s in station_ids if s in self.stations}
-        elsewhere = await self.relay.owners([s for s in station_ids if s not in here])
+        away = [s for s in station_ids if s not in here]
+        elsewhere = await self._ask("owners", self.relay.owners(away), {})
         return here | elsewhere.keys()
 
     async def station_joined(self, conn: StationConn) -> None:
@@ -277,7 +280,7 @@ class Hub:
         if old is not None:
             await close_link(old.ws, wire.CLOSE_REPLACED, "the station connected again")
         self.stations[conn.station_id] = conn
-        before = await self.relay.claim(conn.station_id)
+        before = await self._ask("claim", self.relay.claim(conn.station_id), None)
         if before is not None:
             self.relay.send(before, {"type": "replaced", "station_id": conn.station_id})
 
@@ -295,7 +298,7 @@ class Hub:
         """Push a station's patient's active prescriptions to it, wherever it is connected."""
         conn = self.stations.get(station_id)
         if conn is None:
-            owner = await self.relay.owner(station_id)
+            owner = await self._ask("owner", self.relay.owner(station_id), None)
             if owner is not None and owner != self.relay.process:
                 self.relay.send(owner, {"type": "prescriptions", "station_id": station_id})
             return
@@ -316,9 +319,10 @@ class Hub:
         """What a new viewer of the station is told first."""
         conn = self.stations.get(station_id)
         online, status = conn is not None, conn.status if conn else None
-        if conn is None and await self.relay.owner(station_id) is not None:
+        owner = None if conn else await self._ask("owner", self.relay.owner(station_id), None)
+        if owner is not None:
             online = True
-            text = await self.relay.last_status(station_id)
+            text = await self._ask("status", self.relay.last_status(station_id), None)
             status = None if text is None else wire.StatusMsg.model_validate_json(text)
         return wire.Welcome(
             station_id=station_id,
@@ -328,12 +332,24 @@ class Hub:
             server_time=time.time(),
         )
 
+    async def _ask(self, what: str, call: Awaitable[T], away: T) -> T:
+        """``call``'s answer, or ``away`` if the relay cannot be reached: this process's own
+        links go on working, and the others are as if elsewhere unknown."""
+        try:
+            return await call
+        except Exception as exc:
+            log.warning("the relay is unreachable (%s): %s", what, exc)
+            return away
+
     # -- 3D views' tickets ------------------------------------------------------------------
     async def share_ticket(self, ticket: Ticket) -> None:
         """Make a ticket just issued here valid on every process."""
         if self.tickets is not None:
-            await self.relay.share(
-                _ticket_key(ticket.value), json.dumps(ticket.shared()), self.tickets.ttl_s
+            value = json.dumps(ticket.shared())
+            await self._ask(
+                "ticket",
+                self.relay.share(_ticket_key(ticket.value), value, self.tickets.ttl_s),
+                None,
             )
 
     async def ticket(self, value: str) -> Ticket | None:
@@ -341,7 +357,8 @@ class Hub:
         keeps it alive for every process."""
         if self.tickets is None:
             return None
-        shared = await self.relay.look_up(_ticket_key(value), self.tickets.ttl_s)
+        look_up = self.relay.look_up(_ticket_key(value), self.tickets.ttl_s)
+        shared = await self._ask("ticket", look_up, None)
         ticket = self.tickets.valid(value)
         if ticket is None and shared is not None:
             ticket = self.tickets.adopt(value, json.loads(shared))
@@ -358,7 +375,7 @@ class Hub:
 
     async def watch(self, station_id: int) -> None:
         """Something here shows the station (a viewer, a 3D view): hear it from anywhere."""
-        await self.relay.watch(station_id)
+        await self._ask("watch", self.relay.watch(station_id), None)
 
     async def unwatch(self, station_id: int) -> None:
         with contextlib.suppress(Exception):
@@ -436,11 +453,7 @@ class Hub:
         """A viewer's command to its station, wherever the station is connected; ``reply``
         takes a refusal meant for that viewer alone."""
         if asker.station_id not in self.stations:
-            try:
-                owner = await self.relay.owner(asker.station_id)
-            except Exception:
-                log.exception("asking the relay where station %d is failed", asker.station_id)
-                owner = None
+            owner = await self._ask("owner", self.relay.owner(asker.station_id), None)
             if owner is not None and owner != self.relay.process:
                 forward = {
                     "type": "command",

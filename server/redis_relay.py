@@ -33,6 +33,8 @@ from server.relay import Listener, Message, Relay
 log = logging.getLogger("ankle.server.relay")
 
 PREFIX = "ankle:"
+RETRY_S = 0.5
+"""Between attempts to hear Redis again after the connection dropped."""
 _RELEASE = """
 if redis.call('get', KEYS[1]) == ARGV[1] then
   return redis.call('del', KEYS[1], KEYS[2])
@@ -158,8 +160,8 @@ class RedisRelay(Relay):
                 if keys:
                     await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
                 await self._check_watched()
-            except Exception:  # Redis is away: the next beat tries again
-                log.exception("refreshing the relay's leases failed")
+            except Exception as exc:  # Redis is away: the next beat tries again
+                log.warning("refreshing the relay's leases failed: %s", exc)
 
     async def _check_watched(self) -> None:
         watched = [s for s in self._watching if s not in self._mine]
@@ -242,8 +244,8 @@ class RedisRelay(Relay):
                             pipe.set(status_key, payload.partition(" ")[2], px=self._lease_ms())
                         pipe.publish(channel, payload)
                     await pipe.execute()
-            except Exception:
-                log.exception("publishing %d live message(s) failed", len(batch))
+            except Exception as exc:
+                log.warning("publishing %d live message(s) failed: %s", len(batch), exc)
             finally:
                 for _ in batch:
                     self._out.task_done()
@@ -260,8 +262,8 @@ class RedisRelay(Relay):
                     for station_id, raw in dirty.items():
                         pipe.publish(self._tele(station_id), raw)
                     heard = await pipe.execute()
-            except Exception:
-                log.exception("publishing telemetry failed")
+            except Exception as exc:
+                log.warning("publishing telemetry failed: %s", exc)
                 continue
             for station_id, count in zip(dirty, heard, strict=True):
                 if not count:  # nobody listens any more
@@ -277,9 +279,9 @@ class RedisRelay(Relay):
                         self._dispatch(listener, item["channel"], item["data"])
             except asyncio.CancelledError:
                 raise
-            except Exception:  # the connection dropped: redis-py reconnects on the next read
-                log.exception("the relay's subscription failed; listening again")
-                await asyncio.sleep(0.5)
+            except Exception as exc:  # the connection dropped: redis-py reconnects on a read
+                log.warning("the relay's subscription failed (%s); listening again", exc)
+                await asyncio.sleep(RETRY_S)
 
     def _dispatch(self, listener: Listener, channel: str, data: str) -> None:
         kind, _, name = channel[len(PREFIX) :].partition(":")

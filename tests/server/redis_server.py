@@ -12,6 +12,7 @@ import socket
 import subprocess
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -28,41 +29,47 @@ def free_port() -> int:
         return port
 
 
-@pytest.fixture(scope="session")
-def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """The base URL of a private redis-server (``redis://127.0.0.1:PORT``)."""
+@contextmanager
+def spawned_redis(workdir: Path) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
+    """A redis-server of its own in ``workdir``, answering: the process and its URL."""
     binary = shutil.which("redis-server")
     if binary is None:
         pytest.fail("redis-server is not installed: apt-get install redis-server (Debian)")
-    workdir: Path = tmp_path_factory.mktemp("redis")
     port = free_port()
     args = [binary, "--port", str(port), "--bind", "127.0.0.1", "--dir", str(workdir)]
     args += ["--save", "", "--appendonly", "no"]
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     url = f"redis://127.0.0.1:{port}"
     try:
-        client = redis.Redis.from_url(url)
-        deadline = time.monotonic() + START_S
-        while True:
-            try:
-                if client.ping():
-                    break
-            except redis.ConnectionError:
-                pass
-            if proc.poll() is not None:
-                pytest.fail(f"redis-server exited with code {proc.returncode}")
-            if time.monotonic() > deadline:
-                pytest.fail(f"redis-server did not answer within {START_S:g} s")
-            time.sleep(0.05)
-        client.close()
-        yield url
+        with redis.Redis.from_url(url) as client:
+            deadline = time.monotonic() + START_S
+            while True:
+                try:
+                    if client.ping():
+                        break
+                except redis.ConnectionError:
+                    pass
+                if proc.poll() is not None:
+                    pytest.fail(f"redis-server exited with code {proc.returncode}")
+                if time.monotonic() > deadline:
+                    pytest.fail(f"redis-server did not answer within {START_S:g} s")
+                time.sleep(0.05)
+        yield proc, url
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture(scope="session")
+def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """The base URL of a private redis-server (``redis://127.0.0.1:PORT``) for the session."""
+    with spawned_redis(tmp_path_factory.mktemp("redis")) as (_, url):
+        yield url
 
 
 @pytest.fixture

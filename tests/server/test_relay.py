@@ -34,7 +34,7 @@ from tests.server.live_server import (
     login,
     running,
 )
-from tests.server.redis_server import free_port
+from tests.server.redis_server import free_port, spawned_redis
 from tests.server.ws_client import (
     closed_with,
     station_ws,
@@ -328,3 +328,32 @@ async def test_a_killed_process_s_stations_go_offline_within_the_lease(
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.asyncio
+async def test_without_its_redis_a_process_keeps_its_own_links_and_answers(
+    seeded: tuple[Path, World], tmp_path: Path
+) -> None:
+    """Redis going away is not a 500: each process goes on with the links it holds."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    (tmp_path / "redis").mkdir()
+    with spawned_redis(tmp_path / "redis") as (proc, url):
+        async with (
+            running(settings(data_dir, f"{url}/0")) as a,
+            station_ws(a, world.s1) as station,
+            viewer_ws(a, world.t1, world.s1_id) as view,
+        ):
+            await welcomed(station)
+            await until_online(a, world.t1, world.s1_id, True)
+            proc.kill()
+            proc.wait(10)
+            assert await online(a, world.t1, world.s1_id)  # held here: still known
+            assert not await online(a, world.t1, world.s1_spare_id)
+            await view.send(command("no-redis"))
+            cmd = await next_where(station, is_(wire.Command), wire.STATION_DOWN)
+            await station.send(
+                wire.CommandResult(request_id=cmd.request_id, ok=True).model_dump_json()
+            )
+            result = await next_where(view, is_(wire.CommandResult))
+            assert (result.request_id, result.ok) == ("no-redis", True)
