@@ -53,6 +53,11 @@ return 0
 """
 
 
+def _name(kind: str, what: object) -> str:
+    """A key (``station``, ``status``, ``shared``) or channel (``view``, ``tele``, ``proc``)."""
+    return f"{PREFIX}{kind}:{what}"
+
+
 class RedisRelay(Relay):
     def __init__(self, url: str, lease_s: float = 10.0, view_hz: float = 50.0) -> None:
         self.redis = aioredis.Redis.from_url(url, decode_responses=True)
@@ -77,32 +82,11 @@ class RedisRelay(Relay):
         self._release = self.redis.register_script(_RELEASE)
         self._refresh = self.redis.register_script(_REFRESH)
 
-    # -- names -----------------------------------------------------------------------------
-    @staticmethod
-    def _station_key(station_id: int) -> str:
-        return f"{PREFIX}station:{station_id}"
-
-    @staticmethod
-    def _status_key(station_id: int) -> str:
-        return f"{PREFIX}status:{station_id}"
-
-    @staticmethod
-    def _view(station_id: int) -> str:
-        return f"{PREFIX}view:{station_id}"
-
-    @staticmethod
-    def _tele(station_id: int) -> str:
-        return f"{PREFIX}tele:{station_id}"
-
-    @staticmethod
-    def _proc(process: str) -> str:
-        return f"{PREFIX}proc:{process}"
-
     # -- life ------------------------------------------------------------------------------
     async def start(self, listener: Listener) -> None:
         self._listener = listener
         self._pubsub = self.redis.pubsub(ignore_subscribe_messages=True)
-        await self._pubsub.subscribe(self._proc(self.process), f"{PREFIX}all")
+        await self._pubsub.subscribe(_name("proc", self.process), f"{PREFIX}all")
         self._tasks = [
             asyncio.create_task(self._listen(), name="relay-listen"),
             asyncio.create_task(self._publisher(), name="relay-publish"),
@@ -128,8 +112,8 @@ class RedisRelay(Relay):
     async def claim(self, station_id: int) -> str | None:
         self._mine.add(station_id)
         async with self.redis.pipeline(transaction=False) as pipe:
-            pipe.set(self._station_key(station_id), self.process, px=self._lease_ms(), get=True)
-            pipe.pubsub_numsub(self._tele(station_id))
+            pipe.set(_name("station", station_id), self.process, px=self._lease_ms(), get=True)
+            pipe.pubsub_numsub(_name("tele", station_id))
             before, ((_, listening),) = await pipe.execute()
         if listening:
             self._watched.add(station_id)
@@ -139,13 +123,13 @@ class RedisRelay(Relay):
         self._mine.discard(station_id)
         self._watched.discard(station_id)
         self._dirty.pop(station_id, None)
-        keys = [self._station_key(station_id), self._status_key(station_id)]
+        keys = [_name("station", station_id), _name("status", station_id)]
         await self._release(keys=keys, args=[self.process])
 
     async def owners(self, station_ids: list[int]) -> dict[int, str]:
         if not station_ids:
             return {}
-        held = await self.redis.mget([self._station_key(s) for s in station_ids])
+        held = await self.redis.mget([_name("station", s) for s in station_ids])
         return {s: str(p) for s, p in zip(station_ids, held, strict=True) if p}
 
     def _lease_ms(self) -> int:
@@ -156,7 +140,7 @@ class RedisRelay(Relay):
         while True:
             await asyncio.sleep(self.lease_s / 3)
             try:
-                keys = [k for s in self._mine for k in (self._station_key(s), self._status_key(s))]
+                keys = [k for s in self._mine for k in (_name("station", s), _name("status", s))]
                 if keys:
                     await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
                 await self._check_watched()
@@ -178,8 +162,8 @@ class RedisRelay(Relay):
 
     # -- live data -------------------------------------------------------------------------
     def publish(self, station_id: int, text: str, status: bool = False) -> None:
-        status_key = self._status_key(station_id) if status else None
-        self._out.put_nowait((self._view(station_id), f"{self.process} {text}", status_key))
+        status_key = _name("status", station_id) if status else None
+        self._out.put_nowait((_name("view", station_id), f"{self.process} {text}", status_key))
 
     def telemetry(self, station_id: int, raw: str) -> None:
         if station_id in self._watched:
@@ -189,7 +173,7 @@ class RedisRelay(Relay):
         return self._latest.get(station_id)
 
     async def last_status(self, station_id: int) -> str | None:
-        text = await self.redis.get(self._status_key(station_id))
+        text = await self.redis.get(_name("status", station_id))
         return None if text is None else str(text)
 
     async def watch(self, station_id: int) -> None:
@@ -197,7 +181,7 @@ class RedisRelay(Relay):
         if self._watching[station_id] > 1:
             return
         assert self._pubsub is not None
-        await self._pubsub.subscribe(self._view(station_id), self._tele(station_id))
+        await self._pubsub.subscribe(_name("view", station_id), _name("tele", station_id))
         holder = await self.owner(station_id)
         self._holder[station_id] = holder
         if holder is not None and holder != self.process:
@@ -212,20 +196,20 @@ class RedisRelay(Relay):
         self._latest.pop(station_id, None)
         if self._pubsub is not None:
             with contextlib.suppress(Exception):
-                await self._pubsub.unsubscribe(self._view(station_id), self._tele(station_id))
+                await self._pubsub.unsubscribe(_name("view", station_id), _name("tele", station_id))
 
     async def share(self, key: str, value: str, ttl_s: float) -> None:
-        await self.redis.set(f"{PREFIX}shared:{key}", value, px=max(1, round(ttl_s * 1000)))
+        await self.redis.set(_name("shared", key), value, px=max(1, round(ttl_s * 1000)))
 
     async def look_up(self, key: str, ttl_s: float) -> str | None:
-        value = await self.redis.getex(f"{PREFIX}shared:{key}", px=max(1, round(ttl_s * 1000)))
+        value = await self.redis.getex(_name("shared", key), px=max(1, round(ttl_s * 1000)))
         return None if value is None else str(value)
 
     async def unshare(self, key: str) -> None:
-        await self.redis.delete(f"{PREFIX}shared:{key}")
+        await self.redis.delete(_name("shared", key))
 
     def send(self, process: str, message: Message) -> None:
-        self._out.put_nowait((self._proc(process), json.dumps(message), None))
+        self._out.put_nowait((_name("proc", process), json.dumps(message), None))
 
     def everyone(self, message: Message) -> None:
         self._out.put_nowait((f"{PREFIX}all", json.dumps(message | {"from": self.process}), None))
@@ -260,7 +244,7 @@ class RedisRelay(Relay):
             try:
                 async with self.redis.pipeline(transaction=False) as pipe:
                     for station_id, raw in dirty.items():
-                        pipe.publish(self._tele(station_id), raw)
+                        pipe.publish(_name("tele", station_id), raw)
                     heard = await pipe.execute()
             except Exception as exc:
                 log.warning("publishing telemetry failed: %s", exc)
