@@ -357,3 +357,22 @@ async def test_without_its_redis_a_process_keeps_its_own_links_and_answers(
             )
             result = await next_where(view, is_(wire.CommandResult))
             assert (result.request_id, result.ok) == ("no-redis", True)
+
+
+@pytest.mark.asyncio
+async def test_a_process_that_stops_tells_the_others_its_stations_went_offline(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """Without waiting for the lease: here it is far longer than the test's deadline."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    long = Settings(data_dir=data_dir, relay_url=relay_url, relay_lease_s=300.0)
+    async with running(long) as a, viewer_ws(a, world.t1, world.s1_id) as view:
+        await next_where(view, is_(wire.Welcome))
+        async with running(long) as b, station_ws(b, world.s1) as station:
+            await welcomed(station)
+            assert (await next_where(view, is_(wire.Presence))).online
+            await until_online(a, world.t1, world.s1_id, True)
+        # B has shut down (the station's link with it).
+        await next_where(view, lambda m: isinstance(m, wire.Presence) and not m.online)
+        await until_online(a, world.t1, world.s1_id, False)
