@@ -376,3 +376,54 @@ async def test_a_process_that_stops_tells_the_others_its_stations_went_offline(
         # B has shut down (the station's link with it).
         await next_where(view, lambda m: isinstance(m, wire.Presence) and not m.online)
         await until_online(a, world.t1, world.s1_id, False)
+
+
+@pytest.mark.asyncio
+async def test_an_unanswered_command_ends_once_on_the_station_s_process(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """The station's process keeps the timer (TIMEOUT) and hears the link end (OFFLINE); the
+    viewer on the other process is told, and each command has one outcome row."""
+    world = seeded[1]
+    async with (
+        two_servers(seeded, tmp_path, relay_url) as (a, b),
+        viewer_ws(b, world.t1, world.s1_id) as view,
+    ):
+        await next_where(view, is_(wire.Welcome))
+        async with station_ws(a, world.s1) as station:
+            await welcomed(station)
+            await next_where(view, lambda m: isinstance(m, wire.Presence) and m.online)
+            hold = wire.Command(request_id="hold-late", action="hold").model_dump_json()
+            await view.send(hold)
+            assert (
+                await next_where(station, is_(wire.Command), wire.STATION_DOWN)
+            ).action == "hold"
+            beats = [asyncio.create_task(_beat(station)), asyncio.create_task(_beat(view))]
+            try:
+                timeout = await next_where(view, is_(wire.CommandResult))
+            finally:
+                for task in beats:
+                    task.cancel()
+            assert (timeout.request_id, timeout.code) == ("hold-late", "TIMEOUT")
+            await view.send(wire.Command(request_id="stop-lost", action="stop").model_dump_json())
+            await next_where(station, is_(wire.Command), wire.STATION_DOWN)
+        lost = await next_where(view, is_(wire.CommandResult))
+        assert (lost.request_id, lost.code) == ("stop-lost", "OFFLINE")
+        for request_id, action in (("hold-late", "hold"), ("stop-lost", "stop")):
+            deadline = time.monotonic() + WAIT_S
+            while True:
+                r = await b.client.get(
+                    "/audit", params={"request_id": request_id}, headers=bearer(world.admin)
+                )
+                actions = sorted(row["action"] for row in r.json())
+                if actions == [f"{action}.request", f"{action}.unanswered"]:
+                    break
+                assert time.monotonic() < deadline, actions
+                await asyncio.sleep(0.1)
+
+
+async def _beat(ws: ClientConnection) -> None:
+    """Heartbeats, so that a silent wait is not taken for a dead link."""
+    while True:
+        await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+        await asyncio.sleep(wire.HEARTBEAT_S)
