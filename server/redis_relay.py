@@ -183,7 +183,13 @@ class RedisRelay(Relay):
         if self._watching[station_id] > 1:
             return
         assert self._pubsub is not None
-        await self._pubsub.subscribe(_name("view", station_id), _name("tele", station_id))
+        try:
+            await self._pubsub.subscribe(_name("view", station_id), _name("tele", station_id))
+        except Exception:
+            self._watching[station_id] -= 1  # the next watcher tries again
+            if not self._watching[station_id]:
+                del self._watching[station_id]
+            raise
         holder = await self.owner(station_id)
         self._holder[station_id] = holder
         if holder is not None and holder != self.process:
