@@ -25,6 +25,7 @@ from websockets.asyncio.client import ClientConnection
 
 from server.config import Settings
 from sessions import wire
+from sessions.recording import SessionEvent
 from tests.server.live_server import (
     STRENGTH,
     Live,
@@ -142,6 +143,9 @@ async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
             await station.send(event.model_dump_json())
             got = await next_where(view, is_(wire.StatusMsg))
             assert got.device_mode == "HOLD"
+            rep = wire.EventMsg(event=SessionEvent(wall=time.time(), kind="rep_done"))
+            await station.send(rep.model_dump_json())
+            assert (await next_where(view, is_(wire.EventMsg))).event.kind == "rep_done"
 
             # A K/B from the viewer on B reaches the station on A, and its answer comes back.
             await view.send(command("kb-1"))
