@@ -101,6 +101,22 @@ async def until_online(live: Live, token: str, station_id: int, expected: bool) 
     return time.monotonic() - began
 
 
+async def until_audited(live: Live, token: str, request_id: str, expected: list[str]) -> None:
+    """Wait until the command's audit rows are ``expected`` (actions, sorted): outcomes are
+    written just after the answer is relayed."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        r = await live.client.get(
+            "/audit", params={"request_id": request_id}, headers=bearer(token)
+        )
+        assert r.status_code == 200, r.text
+        actions = sorted(row["action"] for row in r.json())
+        if actions == expected:
+            return
+        assert time.monotonic() < deadline, actions
+        await asyncio.sleep(0.1)
+
+
 async def stream(ws: ClientConnection, t: float) -> None:
     """Telemetry at 100 Hz with device time ``t``, as a station sends it."""
     message = wire.TelemetryMsg.model_validate(telemetry(t=t)).model_dump_json()
@@ -160,19 +176,9 @@ async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
             await station.send(answer.model_dump_json())
             result = await next_where(view, is_(wire.CommandResult))
             assert (result.request_id, result.ok) == ("kb-1", True)
-            # The station's process audited the single outcome.
-            r = await a.client.get(
-                "/audit", params={"request_id": "kb-1"}, headers=bearer(world.admin)
-            )
-            actions = sorted(row["action"] for row in r.json())
-            deadline = time.monotonic() + WAIT_S
-            while actions != ["impedance.change", "impedance.refused", "impedance.request"]:
-                assert time.monotonic() < deadline, actions
-                await asyncio.sleep(0.1)
-                r = await b.client.get(
-                    "/audit", params={"request_id": "kb-1"}, headers=bearer(world.admin)
-                )
-                actions = sorted(row["action"] for row in r.json())
+            # The station's process audited the single outcome (the refusal has its own row).
+            expected = ["impedance.change", "impedance.refused", "impedance.request"]
+            await until_audited(b, world.admin, "kb-1", expected)
 
             # The station leaves: the viewer on B is told, and both processes agree.
             streaming.cancel()
@@ -414,16 +420,9 @@ async def test_an_unanswered_command_ends_once_on_the_station_s_process(
         lost = await next_where(view, is_(wire.CommandResult))
         assert (lost.request_id, lost.code) == ("stop-lost", "OFFLINE")
         for request_id, action in (("hold-late", "hold"), ("stop-lost", "stop")):
-            deadline = time.monotonic() + WAIT_S
-            while True:
-                r = await b.client.get(
-                    "/audit", params={"request_id": request_id}, headers=bearer(world.admin)
-                )
-                actions = sorted(row["action"] for row in r.json())
-                if actions == [f"{action}.request", f"{action}.unanswered"]:
-                    break
-                assert time.monotonic() < deadline, actions
-                await asyncio.sleep(0.1)
+            await until_audited(
+                b, world.admin, request_id, [f"{action}.request", f"{action}.unanswered"]
+            )
 
 
 async def _beat(ws: ClientConnection) -> None:
