@@ -56,7 +56,7 @@ from lab.targets import table as bench_table
 
 TELEMETRY_HZ = 100
 VIEW_HZ = 50.0
-"""The server's conflation rate (``server.live.VIEW_HZ``), what a viewer should see."""
+"""The server's conflation rate (``server.hub.VIEW_HZ``), what a viewer should see."""
 LATENCY_MS = 50.0
 """A live view this late is still live: the target of ``telemetry_latency_ms_p99``."""
 SWEEP: tuple[int, ...] = (25, 50, 100, 150, 200)

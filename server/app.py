@@ -20,6 +20,8 @@ from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
 from server.guard import RequestGuard
 from server.headers import SecurityHeaders
+from server.hub import VIEW_HZ, Hub
+from server.relay import open_relay
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.common import document_must_change
 from server.routes.health import server_version
@@ -42,13 +44,14 @@ N·m·s/rad, times seconds, timestamps UTC.
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     engine = create_engine(settings)
-    hub = live.Hub(recheck_s=settings.live_recheck_s)
+    relay = open_relay(settings.relay_url, settings.relay_lease_s, VIEW_HZ)
+    hub = Hub(recheck_s=settings.live_recheck_s, relay=relay)
     try:
         await migrate(engine)
         app.state.engine = engine
         app.state.sessionmaker = hub.sessionmaker = create_sessionmaker(engine)
         app.state.hub = hub
-        hub.start_rechecks()
+        await hub.start()
         app.state.hashing = HashingSlots(settings.password_hash_concurrency)
         app.state.login_throttle = LoginThrottle(settings)
         # Here, not in the dashboard, so that whatever ends a user's access can end theirs.

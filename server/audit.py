@@ -7,12 +7,17 @@ or an entry for a change that was rolled back. Nothing in the API updates or del
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 from collections.abc import Mapping
 from typing import Any
 
-from sqlalchemy.ext.asyncio import AsyncSession
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
 from server.models import AuditEntry, Station, User
+
+log = logging.getLogger("ankle.server.audit")
 
 SYSTEM = "system"
 
@@ -60,3 +65,79 @@ def record(
     )
     db.add(entry)
     return entry
+
+
+_Queued = tuple[dict[str, Any], "asyncio.Future[None] | None"]
+
+
+class AuditWriter:
+    """Rows written outside a request's transaction (the live links'), in batches.
+
+    One writer commits every row waiting at that moment in one transaction: with one
+    database session per live change, a hundred therapists' changes contended for SQLite's
+    write lock and their acknowledgements took seconds (``ankle bench server``).
+    """
+
+    def __init__(self, sessionmaker: async_sessionmaker[AsyncSession] | None = None) -> None:
+        self.sessionmaker = sessionmaker
+        self._queue: asyncio.Queue[_Queued] = asyncio.Queue()
+        self._task: asyncio.Task[None] | None = None
+
+    async def write(self, **row: Any) -> None:
+        """Write one row (``record``'s arguments); returns once it is committed."""
+        done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._put(row, done)
+        await done
+
+    def write_soon(self, row: dict[str, Any]) -> None:
+        """Queue one row without waiting for it: rows queued before it are written before it
+        or in its transaction. A row that cannot be written is logged."""
+        self._put(row, None)
+
+    async def close(self, flush_s: float) -> None:
+        """Wait up to ``flush_s`` for the queued rows to be written, then stop."""
+        task = self._task
+        if task is not None and not task.done():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._queue.join(), flush_s)
+            task.cancel()
+
+    def _put(self, row: dict[str, Any], done: asyncio.Future[None] | None) -> None:
+        if self._task is None or self._task.done():
+            self._task = asyncio.create_task(self._writer())
+        self._queue.put_nowait((row, done))
+
+    async def _writer(self) -> None:
+        while True:
+            batch = [await self._queue.get()]
+            while not self._queue.empty():
+                batch.append(self._queue.get_nowait())
+            try:
+                error = await self._commit(batch)
+                failed = [] if error is None else [(batch[0], error)]
+                if error is not None and len(batch) > 1:
+                    # One row the database refuses must not take the others: one at a time.
+                    failed = [(one, e) for one in batch if (e := await self._commit([one]))]
+                for (row, done), exc in failed:  # its waiter hears of it; the writer goes on
+                    if done is None:
+                        log.error("audit row %s %s not written: %s", row["action"], row["new"], exc)
+                    elif not done.done():
+                        done.set_exception(exc)
+            finally:
+                for _ in batch:
+                    self._queue.task_done()
+
+    async def _commit(self, batch: list[_Queued]) -> Exception | None:
+        """Write ``batch`` in one transaction and tell its waiters; the error if it failed."""
+        assert self.sessionmaker is not None
+        try:
+            async with self.sessionmaker() as db:
+                for row, _ in batch:
+                    record(db, **row)
+                await db.commit()
+        except Exception as exc:
+            return exc
+        for _, done in batch:
+            if done is not None and not done.done():
+                done.set_result(None)
+        return None

@@ -63,6 +63,19 @@ class Settings(BaseSettings):
         "process changed none (a change made in the database directly, or by another server "
         "process), seconds. Changes made through this server close the links at once.",
     )
+    relay_url: str = Field(
+        default="",
+        description="Where server processes share live links: empty for one process alone "
+        "(the embedded default); redis://host:port/db for a Redis that every server process "
+        "of the site uses, so a station and its viewers may be on different processes.",
+    )
+    relay_lease_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=300.0,
+        description="With a relay: a station stays online this long after its server process "
+        "stopped answering (a lease refreshed every third of it), seconds.",
+    )
     view_ticket_ttl_s: float = Field(
         default=TICKET_TTL_S,
         gt=0.0,
@@ -135,6 +148,14 @@ class Settings(BaseSettings):
             raise ValueError(
                 f"{value!r} is not a rate such as '10 per 15 minutes' or '30/hour'"
             ) from None
+        return value
+
+    @field_validator("relay_url")
+    @classmethod
+    def _relay(cls, value: str) -> str:
+        scheme = urlsplit(value).scheme.lower()
+        if value and scheme not in ("redis", "rediss", "unix"):
+            raise ValueError(f"{value!r} is not a relay: use redis://host:port/db, or nothing")
         return value
 
     @model_validator(mode="before")

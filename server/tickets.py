@@ -3,7 +3,9 @@
 A page framed in the dashboard cannot send the API's bearer token: a browser loads a frame and
 its WebSocket by URL alone. So an authenticated route checks the user's access once and issues
 a ticket, 256 random bits, that names the user and the one thing it shows; the frame's URL
-carries the ticket. Tickets live in this process's memory only.
+carries the ticket. Tickets live in this process's memory; with a relay between server
+processes the hub also shares each one (``Ticket.shared``), and a process asked for a ticket
+it does not know adopts it from there (``ViewTickets.adopt``).
 
 A ticket ends :data:`TICKET_TTL_S` after it was issued or last in use (a connection open on
 it keeps it alive, so a view watched for an hour keeps working), or at once when revoked:
@@ -19,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any
 
 TICKET_TTL_S = 60.0
 """How long an unused ticket works, s: enough to load a frame, too short to be worth stealing."""
@@ -44,6 +47,10 @@ class Ticket:
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     """Set when the ticket is revoked: whoever holds a connection on it closes it."""
 
+    def shared(self) -> dict[str, Any]:
+        """What another process needs to adopt it."""
+        return {"user_id": self.user_id, "subject": list(self.subject), "login": self.login}
+
 
 class ViewTickets:
     """The tickets of one server process."""
@@ -68,6 +75,19 @@ class ViewTickets:
             expires_at=self.clock() + self.ttl_s,
         )
         self._tickets[ticket.value] = ticket
+        return ticket
+
+    def adopt(self, value: str, shared: dict[str, Any]) -> Ticket:
+        """A ticket another process issued (``Ticket.shared``), known here from now on."""
+        kind, subject_id = shared["subject"]
+        ticket = Ticket(
+            value,
+            int(shared["user_id"]),
+            (str(kind), int(subject_id)),
+            login=str(shared["login"]),
+            expires_at=self.clock() + self.ttl_s,
+        )
+        self._tickets[value] = ticket
         return ticket
 
     def valid(self, value: str) -> Ticket | None:

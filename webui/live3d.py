@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import viser
 
-from server.live import Hub
+from server.hub import Hub
 from webui.scene import PlatformScene
 
 log = logging.getLogger("ankle.webui.live3d")
@@ -65,7 +65,12 @@ class LiveScenes:
         async with self._lock:
             view = self.views.get(station_id)
             if view is None:
-                view = await asyncio.to_thread(self._start, station_id)
+                await self.hub.watch(station_id)  # its telemetry, wherever the station is
+                try:
+                    view = await asyncio.to_thread(self._start, station_id)
+                except BaseException:
+                    await self.hub.unwatch(station_id)
+                    raise
                 view.task = asyncio.create_task(self._feed(view), name=f"scene-{station_id}")
                 self.views[station_id] = view
                 log.info("3D view of station %d on port %d", station_id, view.port)
@@ -93,10 +98,10 @@ class LiveScenes:
         try:
             while True:
                 await asyncio.sleep(self.period)
-                conn = self.hub.stations.get(view.station_id)
-                if conn is not None and conn.latest is not None and conn.seq != view.seq:
-                    view.seq = conn.seq
-                    t = json.loads(conn.latest)
+                newest = self.hub.latest(view.station_id)
+                if newest is not None and newest[0] != view.seq:
+                    view.seq = newest[0]
+                    t = json.loads(newest[1])
                     view.scene.update(t["pose"], t["pose_cmd"], t["pressures"], t["wrench"])
                 if view.clients or self.hub.viewers.get(view.station_id):
                     view.touched = time.monotonic()
@@ -105,6 +110,7 @@ class LiveScenes:
         finally:
             if self.views.get(view.station_id) is view:
                 del self.views[view.station_id]
+            await self.hub.unwatch(view.station_id)
             await asyncio.to_thread(view.server.stop)
             log.info("3D view of station %d stopped", view.station_id)
 

@@ -87,6 +87,7 @@ async def station_scene_ticket(
     tickets: ViewTickets = request.app.state.view_tickets
     assert credentials is not None  # the user was authenticated by it
     ticket = tickets.issue(user.id, (STATION, station_id), login=credentials.credentials)
+    await request.app.state.hub.share_ticket(ticket)  # the page may load from another process
     return SceneTicketPublic(
         station_id=station_id, path=scene_path(ticket), expires_s=tickets.ttl_s
     )

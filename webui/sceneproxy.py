@@ -34,7 +34,8 @@ from starlette.websockets import WebSocketDisconnect
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, WebSocketException
 
-from server.live import _origin_ok
+from server.hub import Hub
+from server.live import origin_ok
 from server.tickets import Ticket, ViewTickets
 from sessions import wire
 from webui.assets import VIEWER_CSP
@@ -66,9 +67,9 @@ def scene_path(ticket: Ticket) -> str:
     return f"{SCENE_PREFIX}/{ticket.value}/"
 
 
-def _station(app: FastAPI, value: str) -> tuple[Ticket, int] | None:
-    tickets: ViewTickets = app.state.view_tickets
-    ticket = tickets.valid(value)
+async def _station(app: FastAPI, value: str) -> tuple[Ticket, int] | None:
+    hub: Hub = app.state.hub
+    ticket = await hub.ticket(value)  # issued here, or by another server process
     if ticket is None or ticket.subject[0] != STATION:
         return None
     return ticket, ticket.subject[1]
@@ -89,7 +90,7 @@ async def no_ticket() -> JSONResponse:
 
 @router.get(SCENE_PREFIX + "/{ticket}/{path:path}")
 async def scene_file(ticket: str, path: str, request: Request) -> Response:
-    found = _station(request.app, ticket)
+    found = await _station(request.app, ticket)
     if found is None:
         return _refused(403, REFUSED)
     if path and not _FILE.match(path):
@@ -134,7 +135,7 @@ async def _body(answer: httpx.Response) -> AsyncIterator[bytes]:
 async def scene_root(ticket: str, request: Request) -> Response:
     """The page's address without its slash: viser's client needs the slash, since it makes
     its WebSocket's address by dropping one."""
-    if _station(request.app, ticket) is None:
+    if await _station(request.app, ticket) is None:
         return _refused(403, REFUSED)
     query = f"?{request.url.query}" if request.url.query else ""
     return Response(status_code=307, headers={"Location": f"{ticket}/{query}"})
@@ -142,8 +143,8 @@ async def scene_root(ticket: str, request: Request) -> Response:
 
 @router.websocket(SCENE_PREFIX + "/{ticket}")
 async def scene_socket(ws: WebSocket, ticket: str) -> None:
-    found = _station(ws.app, ticket)
-    if found is None or not _origin_ok(ws):
+    found = await _station(ws.app, ticket)
+    if found is None or not origin_ok(ws):
         await ws.close(wire.CLOSE_POLICY)
         return
     held, station_id = found

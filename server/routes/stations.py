@@ -18,8 +18,8 @@ from server.security import new_token, token_hash
 router = APIRouter(tags=["stations"])
 
 
-def _online(request: Request, station: Station) -> bool:
-    return bool(request.app.state.hub.online(station.id))
+async def _online(request: Request, station: Station) -> bool:
+    return bool(await request.app.state.hub.online(station.id))
 
 
 async def _manageable(db: AsyncSession, user: User, patient_id: int) -> Patient | None:
@@ -82,7 +82,7 @@ async def provision_station(
         {"name": station.name, "patient_id": patient_id},
     )
     await db.commit()
-    public = StationPublic.from_row(station, _online(request, station))
+    public = StationPublic.from_row(station, await _online(request, station))
     return StationProvisioned(**public.model_dump(), token=token)
 
 
@@ -104,8 +104,9 @@ async def list_stations(
         )
     if patient_id is not None:
         query = query.where(Station.patient_id == patient_id)
-    stations = (await db.execute(query)).scalars()
-    return [StationPublic.from_row(s, _online(request, s)) for s in stations]
+    stations = list((await db.execute(query)).scalars())
+    online = await request.app.state.hub.online_of([s.id for s in stations])
+    return [StationPublic.from_row(s, s.id in online) for s in stations]
 
 
 @router.post(
@@ -125,4 +126,4 @@ async def revoke_station(
     if revoke(db, audit.user_actor(user), station):
         await db.commit()
         await request.app.state.hub.recheck()  # its open link goes too
-    return StationPublic.from_row(station, _online(request, station))
+    return StationPublic.from_row(station, await _online(request, station))

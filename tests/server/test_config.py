@@ -66,3 +66,13 @@ def test_a_public_address_behind_a_proxy_is_an_allowed_origin() -> None:
     assert Settings(
         public_url="https://a.example", allowed_origins=["https://b.example"]
     ).allowed_origins == ["https://b.example"]
+
+
+def test_the_relay_is_redis_or_nothing() -> None:
+    assert Settings().relay_url == ""
+    assert Settings(relay_url="redis://cache:6379/2").relay_url == "redis://cache:6379/2"
+    with pytest.raises(ValueError, match="relay_url") as refused:
+        Settings(relay_url="http://cache:6379")
+    assert "redis://host:port/db" in str(refused.value)
+    with pytest.raises(ValueError, match="relay_lease_s"):
+        Settings(relay_lease_s=0)

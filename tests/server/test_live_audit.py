@@ -19,7 +19,7 @@ import pytest
 from sqlalchemy import text
 from websockets.asyncio.client import ClientConnection
 
-from server.live import COMMAND_TIMEOUT_S
+from server.hub import COMMAND_TIMEOUT_S
 from sessions import wire
 from sessions.prescription import AXIS_INDEX
 from tests.server.live_server import Live, World, bearer

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from server.live import Hub, StationConn
+from server.hub import Hub, StationConn
 from webui.live3d import LiveScenes
 
 

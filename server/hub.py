@@ -1,0 +1,577 @@
+"""The live hub: the stations and viewers connected to this server process, and, through the
+relay (:mod:`server.relay`), those connected to the others.
+
+A station's telemetry is never queued for a viewer: the hub keeps the latest sample per
+station and each viewer is sent the newest one at most ``VIEW_HZ`` times a second. Events,
+status and command results are never dropped. A command is claimed, timed and audited by
+the process that holds the station's link, wherever its viewer is; its result reaches the
+station's viewers on every process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import dataclasses
+import itertools
+import json
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import TypeVar
+
+from fastapi import WebSocket
+from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
+from starlette.websockets import WebSocketState
+
+from server import live_audit
+from server.audit import AuditWriter
+from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
+from server.models import Patient, Prescription, Station
+from server.relay import LocalRelay, Message, Relay
+from server.tickets import Ticket, ViewTickets
+from sessions import wire
+from sessions.prescription import PrescriptionBody
+
+log = logging.getLogger("ankle.server.live")
+
+VIEW_HZ = 50.0
+"""Most telemetry messages a viewer gets per second (the station sends 100)."""
+COMMAND_TIMEOUT_S = 3.0
+"""A command with no answer from the station by then is reported as TIMEOUT."""
+LATE_KEPT = 1000
+"""Timed-out commands remembered so that a late answer still has its outcome audited."""
+AUDIT_FLUSH_S = 5.0
+"""How long shutdown waits for queued audit rows to be written."""
+CONTROL_QUEUE_MAX = 1000
+"""Events and status a viewer may fall behind by before it is closed as too slow."""
+LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
+    "unknown": (wire.CLOSE_SIGNED_OUT, "signed out; sign in again"),
+    "expired": (wire.CLOSE_EXPIRED, "the sign-in expired; sign in again"),
+    "inactive": (wire.CLOSE_DEACTIVATED, "this account was deactivated"),
+    "must_change": (wire.CLOSE_MUST_CHANGE, "change your password first"),
+}
+NO_ACCESS = "you may no longer see this patient"
+
+_viewer_keys = itertools.count(1)
+T = TypeVar("T")
+
+
+@dataclass(eq=False)
+class Viewer:
+    ws: WebSocket
+    token: str
+    """The login it was opened with: re-checked whenever credentials may have changed."""
+    user_id: int
+    station_id: int
+    patient_id: int
+    may_command: bool
+    control: collections.deque[str] = field(default_factory=collections.deque)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    seq: int = 0
+    key: int = field(default_factory=lambda: next(_viewer_keys))
+    """Names it to this process, for an answer that comes back through the relay."""
+
+    def push(self, text: str) -> None:
+        self.control.append(text)
+        self.wake.set()
+
+
+@dataclass(eq=False)
+class StationConn:
+    ws: WebSocket
+    token: str
+    station_id: int
+    patient_id: int
+    status: wire.StatusMsg | None = None
+    latest: str | None = None
+    seq: int = 0
+    messages: int = 0
+
+
+@dataclass(frozen=True)
+class Asker:
+    """Who sends a command to which station: what the station's process needs to judge and
+    audit it, wherever the viewer is."""
+
+    user_id: int
+    station_id: int
+    patient_id: int
+    may_command: bool
+    viewer: int = 0
+    """The viewer's key on its own process: where a refusal goes back to."""
+
+
+@dataclass(eq=False)
+class InFlight:
+    """A command claimed by its request_id: being audited, then on its way to the device."""
+
+    asked: live_audit.Asked
+    conn: StationConn
+    timer: asyncio.TimerHandle | None = None
+    """Runs from the moment it is sent."""
+
+
+async def close_link(ws: WebSocket, code: int, reason: str) -> None:
+    if ws.client_state != WebSocketState.DISCONNECTED:
+        with contextlib.suppress(Exception):
+            await ws.close(code, reason[:120])
+
+
+async def view_standing(
+    db: AsyncSession, token: str, station_id: int
+) -> tuple[LoginStanding, int, str]:
+    """Whether the login ``token`` may watch the station now: (standing, 0, "") if it may,
+    else the close code and the reason. Checked at the handshake and at every re-check."""
+    standing = await login_standing(db, token)
+    if standing.failure is not None:
+        return standing, *LOGIN_CLOSE[standing.failure]
+    assert standing.user is not None
+    station = await db.get(Station, station_id)
+    patient = None if station is None else await db.get(Patient, station.patient_id)
+    if patient is None or not may_read(standing.user, patient):
+        return standing, wire.CLOSE_NO_ACCESS, NO_ACCESS
+    return standing, 0, ""
+
+
+async def prescriptions_of(db: AsyncSession, patient_id: int) -> wire.Prescriptions:
+    """The patient's active prescriptions, as a station is sent them."""
+    rows = await db.scalars(
+        select(Prescription)
+        .where(Prescription.patient_id == patient_id, Prescription.status == "active")
+        .order_by(Prescription.id)
+    )
+    return wire.Prescriptions(
+        items=[
+            wire.PrescriptionItem(
+                id=p.id,
+                version=p.version,
+                patient_id=p.patient_id,
+                body=PrescriptionBody.model_validate(p.body),
+            )
+            for p in rows
+        ]
+    )
+
+
+def _ticket_key(value: str) -> str:
+    return f"ticket:{value}"
+
+
+class Hub:
+    """Connected stations and their viewers: this process's, and the others' by the relay."""
+
+    def __init__(self, recheck_s: float = 30.0, relay: Relay | None = None) -> None:
+        self.recheck_s = recheck_s
+        """How often every open link's credentials are checked again even when nothing
+        changed them through a server (``Settings.live_recheck_s``)."""
+        self.relay: Relay = LocalRelay() if relay is None else relay
+        self.stations: dict[int, StationConn] = {}
+        self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
+        self._pending: dict[str, InFlight] = {}
+        self._late: collections.OrderedDict[str, InFlight] = collections.OrderedDict()
+        self.writer = AuditWriter()
+        self._recheck_lock = asyncio.Lock()
+        self._recheck_asked = 0
+        self._recheck_done = 0
+        self._recheck_task: asyncio.Task[None] | None = None
+        self.tickets: ViewTickets | None = None
+        """The 3D views' tickets, ended with the sign-in they were issued to."""
+
+    @property
+    def sessionmaker(self) -> async_sessionmaker[AsyncSession] | None:
+        return self.writer.sessionmaker
+
+    @sessionmaker.setter
+    def sessionmaker(self, maker: async_sessionmaker[AsyncSession] | None) -> None:
+        self.writer.sessionmaker = maker
+
+    async def start(self) -> None:
+        """Re-check in the background and hear the other processes."""
+        await self.relay.start(self)
+        self.start_rechecks()
+
+    # -- credentials -----------------------------------------------------------------------
+    async def recheck(self) -> None:
+        """Check the credentials of every open link, on every server process, and close
+        each link whose credentials no longer hold, with the close code that says why.
+
+        Every route that ends or narrows someone's trust (logout, a password change or
+        reset, deactivation, a patient moved or archived, a station revoked) calls this
+        after its commit: this process's links close within the request, the others' as
+        soon as the relay carries the word. Callers that arrive while a pass runs share the
+        next pass: a burst of changes costs two passes, not one each.
+        """
+        self.relay.everyone({"type": "recheck"})
+        await self._recheck_here()
+
+    async def _recheck_here(self) -> None:
+        self._recheck_asked += 1
+        asked = self._recheck_asked
+        async with self._recheck_lock:
+            if self._recheck_done >= asked:
+                return  # a pass that began after this call was made has covered it
+            began = self._recheck_asked
+            await self._recheck_pass()
+            self._recheck_done = began
+
+    async def _recheck_pass(self) -> None:
+        tickets = self.tickets.live() if self.tickets is not None else []
+        if self.sessionmaker is None or not (
+            self.stations or any(self.viewers.values()) or tickets
+        ):
+            return
+        ends: list[tuple[WebSocket, int, str]] = []
+        async with self.sessionmaker() as db:
+            for ticket in tickets:
+                kind, station_id = ticket.subject
+                if kind != "station":  # the only kind of view today
+                    continue
+                _, code, reason = await view_standing(db, ticket.login, station_id)
+                if code and self.tickets is not None:
+                    log.info("3D view ticket ended (%d): %s", code, reason)
+                    self.tickets.revoke(ticket)
+                    await self._ask("ticket", self.relay.unshare(_ticket_key(ticket.value)), None)
+                elif ticket.in_use:  # a view open on it keeps it alive on every process
+                    await self.share_ticket(ticket)
+            for viewers in list(self.viewers.values()):
+                for v in list(viewers):
+                    _, code, reason = await view_standing(db, v.token, v.station_id)
+                    if code:
+                        ends.append((v.ws, code, reason))
+            for conn in list(self.stations.values()):
+                if await authenticate_station(db, conn.token) is None:
+                    ends.append((conn.ws, wire.CLOSE_REVOKED, "the station's token was revoked"))
+        for ws, code, reason in ends:
+            log.info("live link closed (%d): %s", code, reason)
+            await close_link(ws, code, reason)
+
+    def start_rechecks(self) -> None:
+        """Re-check every ``recheck_s`` in the background (idempotent)."""
+        if self._recheck_task is None or self._recheck_task.done():
+            self._recheck_task = asyncio.create_task(self._recheck_forever())
+
+    async def _recheck_forever(self) -> None:
+        while True:
+            await asyncio.sleep(self.recheck_s)
+            try:
+                await self._recheck_here()  # every process runs its own
+            except Exception:  # the database is away: the next pass tries again
+                log.exception("re-checking live links' credentials failed")
+
+    # -- stations --------------------------------------------------------------------------
+    async def online(self, station_id: int) -> bool:
+        """Connected to this server process or another."""
+        return station_id in await self.online_of([station_id])
+
+    async def online_of(self, station_ids: list[int]) -> set[int]:
+        """Those of ``station_ids`` connected to this server process or another."""
+        here = {s for s in station_ids if s in self.stations}
+        away = [s for s in station_ids if s not in here]
+        elsewhere = await self._ask("owners", self.relay.owners(away), {})
+        return here | elsewhere.keys()
+
+    async def station_joined(self, conn: StationConn) -> None:
+        """``conn`` is the station's link now: an older one, here or elsewhere, is closed."""
+        old = self.stations.get(conn.station_id)
+        if old is not None:
+            await close_link(old.ws, wire.CLOSE_REPLACED, "the station connected again")
+        self.stations[conn.station_id] = conn
+        before = await self._ask("claim", self.relay.claim(conn.station_id), None)
+        if before is not None:
+            self.relay.send(before, {"type": "replaced", "station_id": conn.station_id})
+
+    async def station_left(self, conn: StationConn) -> None:
+        """``conn``'s link ended: its commands will not be answered; if it was still the
+        station's link, the station is offline."""
+        self.link_lost(conn)
+        if self.stations.get(conn.station_id) is conn:
+            del self.stations[conn.station_id]
+            self.broadcast(conn.station_id, wire.Presence(online=False).model_dump_json())
+            with contextlib.suppress(Exception):
+                await self.relay.release(conn.station_id)
+
+    async def prescriptions_changed(self, station_id: int) -> None:
+        """Push a station's patient's active prescriptions to it, wherever it is connected."""
+        conn = self.stations.get(station_id)
+        if conn is None:
+            owner = await self._ask("owner", self.relay.owner(station_id), None)
+            if owner is not None and owner != self.relay.process:
+                self.relay.send(owner, {"type": "prescriptions", "station_id": station_id})
+            return
+        if self.sessionmaker is not None:
+            async with self.sessionmaker() as db:
+                message = await prescriptions_of(db, conn.patient_id)
+            with contextlib.suppress(Exception):
+                await conn.ws.send_text(message.model_dump_json())
+
+    def latest(self, station_id: int) -> tuple[int, str] | None:
+        """The station's newest telemetry sample (raw) and a number that changes with each."""
+        conn = self.stations.get(station_id)
+        if conn is None:
+            return self.relay.latest(station_id)
+        return None if conn.latest is None else (conn.seq, conn.latest)
+
+    async def welcome(self, station_id: int, patient_id: int) -> wire.Welcome:
+        """What a new viewer of the station is told first."""
+        conn = self.stations.get(station_id)
+        online, status = conn is not None, conn.status if conn else None
+        owner = None if conn else await self._ask("owner", self.relay.owner(station_id), None)
+        if owner is not None:
+            online = True
+            text = await self._ask("status", self.relay.last_status(station_id), None)
+            status = None if text is None else wire.StatusMsg.model_validate_json(text)
+        return wire.Welcome(
+            station_id=station_id,
+            patient_id=patient_id if online else 0,
+            online=online,
+            status=status,
+            server_time=time.time(),
+        )
+
+    async def _ask(self, what: str, call: Awaitable[T], away: T) -> T:
+        """``call``'s answer, or ``away`` if the relay cannot be reached: this process's own
+        links go on working, and the others are as if elsewhere unknown."""
+        try:
+            return await call
+        except Exception as exc:
+            log.warning("the relay is unreachable (%s): %s", what, exc)
+            return away
+
+    # -- 3D views' tickets ------------------------------------------------------------------
+    async def share_ticket(self, ticket: Ticket) -> None:
+        """Make a ticket just issued here valid on every process."""
+        if self.tickets is not None:
+            value = json.dumps(ticket.shared())
+            await self._ask(
+                "ticket",
+                self.relay.share(_ticket_key(ticket.value), value, self.tickets.ttl_s),
+                None,
+            )
+
+    async def ticket(self, value: str) -> Ticket | None:
+        """The live ticket ``value`` names, issued on this process or another; each look-up
+        keeps it alive for every process."""
+        if self.tickets is None:
+            return None
+        look_up = self.relay.look_up(_ticket_key(value), self.tickets.ttl_s)
+        shared = await self._ask("ticket", look_up, None)
+        ticket = self.tickets.valid(value)
+        if ticket is None and shared is not None:
+            ticket = self.tickets.adopt(value, json.loads(shared))
+        return ticket
+
+    # -- viewers ---------------------------------------------------------------------------
+    async def viewer_joined(self, viewer: Viewer) -> None:
+        self.viewers[viewer.station_id].add(viewer)
+        await self.watch(viewer.station_id)
+
+    async def viewer_left(self, viewer: Viewer) -> None:
+        self.viewers[viewer.station_id].discard(viewer)
+        await self.unwatch(viewer.station_id)
+
+    async def watch(self, station_id: int) -> None:
+        """Something here shows the station (a viewer, a 3D view): hear it from anywhere."""
+        await self._ask("watch", self.relay.watch(station_id), None)
+
+    async def unwatch(self, station_id: int) -> None:
+        with contextlib.suppress(Exception):
+            await self.relay.unwatch(station_id)
+
+    def broadcast(self, station_id: int, text: str, status: bool = False) -> None:
+        """To the station's viewers here and on every other process."""
+        self.deliver(station_id, text)
+        self.relay.publish(station_id, text, status)
+
+    # -- what the relay brings (server.relay.Listener) ---------------------------------------
+    def deliver(self, station_id: int, text: str) -> None:
+        for v in list(self.viewers.get(station_id, ())):
+            if len(v.control) >= CONTROL_QUEUE_MAX:
+                continue  # its writer closes it as too slow
+            v.push(text)
+
+    def telemetry_came(self, station_id: int) -> None:
+        for v in self.viewers.get(station_id, ()):
+            v.wake.set()
+
+    def gone(self, station_id: int) -> None:
+        if station_id not in self.stations:
+            self.deliver(station_id, wire.Presence(online=False).model_dump_json())
+
+    async def on_message(self, message: Message) -> None:
+        kind, station_id = message["type"], message.get("station_id")
+        if kind == "recheck":
+            await self._recheck_here()
+        elif kind == "command" and isinstance(station_id, int):
+            asker = Asker(**message["asker"])
+            cmd = wire.Command.model_validate(message["command"])
+            process, key = message["reply_to"], asker.viewer
+
+            def reply(text: str) -> None:
+                self.relay.send(
+                    process,
+                    {"type": "reply", "station_id": station_id, "viewer": key, "text": text},
+                )
+
+            await self._command_here(asker, cmd, reply)
+        elif kind == "reply" and isinstance(station_id, int):
+            for v in self.viewers.get(station_id, ()):
+                if v.key == message["viewer"]:
+                    v.push(message["text"])
+        elif kind == "prescriptions" and station_id in self.stations:
+            assert isinstance(station_id, int)
+            await self.prescriptions_changed(station_id)
+        elif kind == "replaced" and isinstance(station_id, int):
+            conn = self.stations.pop(station_id, None)
+            if conn is not None:  # it stays online, elsewhere: no presence change to tell
+                await self.relay.release(station_id)  # the other process's claim stays
+                await close_link(conn.ws, wire.CLOSE_REPLACED, "the station connected again")
+
+    # -- shutdown --------------------------------------------------------------------------
+    async def close(self) -> None:
+        """Close every live connection (at shutdown), after writing every queued audit row."""
+        for request_id in list(self._pending):
+            self._unanswered(request_id, "OFFLINE", "the server shut down before an answer came")
+        await self.writer.close(AUDIT_FLUSH_S)
+        if self._recheck_task is not None:
+            self._recheck_task.cancel()
+        for conn in list(self.stations.values()):
+            with contextlib.suppress(Exception):
+                await conn.ws.close(wire.CLOSE_NORMAL, "server shutting down")
+        for viewers in list(self.viewers.values()):
+            for v in list(viewers):
+                with contextlib.suppress(Exception):
+                    await v.ws.close(wire.CLOSE_NORMAL, "server shutting down")
+        with contextlib.suppress(Exception):
+            await self.relay.close()
+
+    # -- commands: each ends in exactly one audited outcome ---------------------------------
+    async def command(self, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]) -> None:
+        """A viewer's command to its station, wherever the station is connected; ``reply``
+        takes a refusal meant for that viewer alone."""
+        if asker.station_id not in self.stations:
+            owner = await self._ask("owner", self.relay.owner(asker.station_id), None)
+            if owner is not None and owner != self.relay.process:
+                forward = {
+                    "type": "command",
+                    "station_id": asker.station_id,
+                    "asker": dataclasses.asdict(asker),
+                    "command": cmd.model_dump(mode="json"),
+                    "reply_to": self.relay.process,
+                }
+                self.relay.send(owner, forward)
+                return
+        await self._command_here(asker, cmd, reply)
+
+    async def _command_here(
+        self, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]
+    ) -> None:
+        """Judge, audit and send a command to a station connected here (or refuse it)."""
+        conn = self.stations.get(asker.station_id)
+        cmd = cmd.model_copy(update={"by": f"therapist:{asker.user_id}"})
+        asked = live_audit.Asked(
+            actor=f"user:{asker.user_id}",
+            station_id=asker.station_id,
+            patient_id=asker.patient_id,
+            command=cmd,
+            replaced=live_audit.in_force(conn.latest if conn else None, cmd),
+        )
+
+        def refuse(code: str, text: str, field: str = "") -> None:
+            result = wire.CommandResult(
+                request_id=cmd.request_id, ok=False, code=code, field=field, text=text
+            )
+            reply(result.model_dump_json())
+            self.writer.write_soon(asked.outcome_row("refused", result))
+
+        if not asker.may_command:
+            refuse("FORBIDDEN", "only the patient's therapist may change a running exercise")
+            return
+        if conn is None:
+            refuse("OFFLINE", "the station is not connected")
+            return
+        if not self.claim(asked, conn):
+            refuse(
+                "DUPLICATE",
+                "a command sent with this request_id may still be answered",
+                "request_id",
+            )
+            return
+        if cmd.action in live_audit.SAFE_ACTIONS:
+            self.writer.write_soon(asked.request_row())  # a HOLD or Stop never waits
+        else:
+            try:
+                await self.writer.write(**asked.request_row())
+            except Exception as exc:  # a command that cannot be audited is not sent
+                log.error("audit of a live command failed: %s", exc)
+                self.release(cmd.request_id)
+                refuse("AUDIT", "the command could not be recorded, so it was not sent; try again")
+                return
+        self.sent(cmd.request_id)
+        try:
+            await conn.ws.send_text(cmd.model_dump_json())
+        except Exception:
+            self.link_lost(conn, cmd.request_id)
+
+    def claim(self, asked: live_audit.Asked, conn: StationConn) -> bool:
+        """Hold ``asked``'s request_id until its outcome; False if a command sent with it may
+        still be answered (the answers could not be told apart)."""
+        request_id = asked.command.request_id
+        if request_id in self._pending or request_id in self._late:
+            return False
+        self._pending[request_id] = InFlight(asked, conn)
+        return True
+
+    def release(self, request_id: str) -> None:
+        """Forget a claimed command that was not sent."""
+        self._pending.pop(request_id, None)
+
+    def sent(self, request_id: str) -> None:
+        """The command is on its way: TIMEOUT unless answered within COMMAND_TIMEOUT_S."""
+        entry = self._pending.get(request_id)
+        if entry is not None:
+            loop = asyncio.get_running_loop()
+            entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
+
+    def result(self, station_id: int, result: wire.CommandResult) -> None:
+        """A station's answer: to the viewers, and its outcome to the audit log."""
+        for book in (self._pending, self._late):
+            entry = book.get(result.request_id)
+            if entry is not None and entry.asked.station_id == station_id:
+                del book[result.request_id]
+                if entry.timer is not None:
+                    entry.timer.cancel()
+                row = entry.asked.outcome_row(
+                    live_audit.outcome_of(result), result, late=book is self._late
+                )
+                self.writer.write_soon(row)
+                break
+        self.broadcast(station_id, result.model_dump_json())
+
+    def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:
+        entry = self._pending.pop(request_id, None)
+        if entry is not None:
+            if entry.timer is not None:
+                entry.timer.cancel()
+            result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
+            self.writer.write_soon(entry.asked.outcome_row("unanswered", result))
+            self.broadcast(entry.asked.station_id, result.model_dump_json())
+        return entry
+
+    def _timeout(self, request_id: str) -> None:
+        text = f"no answer from the station within {COMMAND_TIMEOUT_S:g} s"
+        entry = self._unanswered(request_id, "TIMEOUT", text)
+        if entry is not None:
+            self._late[request_id] = entry
+            while len(self._late) > LATE_KEPT:
+                self._late.popitem(last=False)
+
+    def link_lost(self, conn: StationConn, request_id: str | None = None) -> None:
+        """The link ``conn`` ended: its commands sent and not answered (or just
+        ``request_id``) will never be answered."""
+        for rid, entry in list(self._pending.items()):
+            if entry.conn is conn and (rid == request_id or (request_id is None and entry.timer)):
+                self._unanswered(rid, "OFFLINE", "the station's link closed before it answered")
