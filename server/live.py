@@ -27,7 +27,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
 
-from server import audit, live_audit
+from server import audit, live_audit, metrics
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station, utcnow
 from server.tickets import ViewTickets
@@ -293,6 +293,7 @@ class Hub:
         if entry is not None:
             loop = asyncio.get_running_loop()
             entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
+            metrics.command_sent(request_id, entry.asked.command.action)
 
     def result(self, station_id: int, result: wire.CommandResult) -> None:
         """A station's answer: to the viewers, and its outcome to the audit log."""
@@ -300,6 +301,7 @@ class Hub:
             entry = book.get(result.request_id)
             if entry is not None and entry.asked.station_id == station_id:
                 del book[result.request_id]
+                metrics.command_answered(result.request_id, "accepted" if result.ok else "refused")
                 if entry.timer is not None:
                     entry.timer.cancel()
                 row = entry.asked.outcome_row(
@@ -312,6 +314,7 @@ class Hub:
     def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:
         entry = self._pending.pop(request_id, None)
         if entry is not None:
+            metrics.command_answered(request_id, code)
             if entry.timer is not None:
                 entry.timer.cancel()
             result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
@@ -513,6 +516,7 @@ async def station_socket(ws: WebSocket) -> None:
 
 def _on_station_message(hub: Hub, conn: StationConn, raw: str, message: Any) -> None:
     conn.messages += 1
+    metrics.received("station", message)
     if isinstance(message, wire.TelemetryMsg):
         conn.latest = raw
         conn.seq += 1
@@ -584,6 +588,7 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
         while not writer.done():
             raw = await _receive(ws, silence)
             message = wire.VIEWER_UP.validate_json(raw)
+            metrics.received("viewer", message)
             if isinstance(message, wire.Command):
                 await _on_command(hub, viewer, message)
     except ValidationError as exc:
@@ -660,11 +665,13 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
             return
         while v.control:
             await v.ws.send_text(v.control.popleft())
+            metrics.sent("viewer", "control")
         conn = hub.stations.get(v.station_id)
         sent = False
         if conn is not None and conn.latest is not None and conn.seq != v.seq:
             v.seq = conn.seq
             await v.ws.send_text(conn.latest)
+            metrics.sent("viewer", "telemetry")
             sent = True
         now = time.monotonic()
         if now - last_beat >= wire.HEARTBEAT_S:
@@ -718,6 +725,7 @@ async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
     hub.sent(cmd.request_id)
     try:
         await conn.ws.send_text(cmd.model_dump_json())
+        metrics.sent("station", "command")
     except Exception:
         hub.link_lost(conn, cmd.request_id)
 

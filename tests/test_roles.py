@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import subprocess
 import sys
 import textwrap
@@ -24,6 +23,8 @@ from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
+
+from tests.processes import free_port, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = "ankle-telerehab"
@@ -120,12 +121,6 @@ def run_probe(blocked: set[str], code: str, cwd: Path, timeout: float = 180.0) -
     return out
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextmanager
 def serving(proc: subprocess.Popen[str], url: str, deadline_s: float = 120.0) -> Iterator[bytes]:
     """Wait until ``url`` answers, yield its body, then stop the process."""
@@ -143,12 +138,7 @@ def serving(proc: subprocess.Popen[str], url: str, deadline_s: float = 120.0) ->
                 time.sleep(0.3)
         yield body
     finally:
-        proc.terminate()
-        try:
-            proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
+        stop(proc)
 
 
 def test_the_heavy_packages_are_where_they_belong() -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import sysconfig
@@ -22,6 +21,8 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+
+from tests.processes import free_port, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 PASSWORD = "a wheel-installed passphrase"
@@ -107,12 +108,6 @@ def test_the_modules_come_from_the_wheel(installed: Path) -> None:
         assert found["missing"] == []
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _get(url: str, data: dict[str, str] | None = None) -> tuple[int, bytes, str]:
     body = None if data is None else json.dumps(data).encode()
     request = urllib.request.Request(url, data=body, headers={"Content-Type": "application/json"})
@@ -148,7 +143,7 @@ def test_the_installed_server_serves_pages_scripts_health_and_sign_in(
         env=env,
         stdin=PASSWORD + "\n",
     )
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
     proc = subprocess.Popen(
         [ankle, "server", "--data-dir", "data", "--port", str(port)],
@@ -185,9 +180,4 @@ def test_the_installed_server_serves_pages_scripts_health_and_sign_in(
         )
         assert status == 401
     finally:
-        proc.terminate()
-        try:
-            proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
+        stop(proc)
