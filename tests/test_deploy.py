@@ -61,7 +61,7 @@ def test_every_role_has_a_unit_that_runs_the_installed_command() -> None:
         assert command in keys["ExecStart"][0], name
         assert keys["Restart"][0] in {"always", "on-failure"}, name
     server = unit("ankle-server@.service")
-    assert any("ANKLE_PORT=%i" in env for env in server["Environment"])
+    assert "--port %i" in server["ExecStart"][0] and "--host 127.0.0.1" in server["ExecStart"][0]
 
 
 def test_the_proxy_sample_fits_the_servers_limits_and_heartbeats() -> None:
