@@ -79,14 +79,26 @@ _SENT_KEPT = 10_000
 
 
 # -- what the live relay reports, one line at each place ---------------------------------
+_live_series: dict[tuple[str, str, str], Any] = {}
+"""(direction, peer, type) -> its counter: looking a labelled series up costs more than
+counting on it, and this runs for every live message (the types are the wire's few)."""
+
+
+def _live(direction: str, peer: str, kind: str) -> Any:
+    series = _live_series.get((direction, peer, kind))
+    if series is None:
+        series = _live_series[direction, peer, kind] = LIVE_MESSAGES.labels(direction, peer, kind)
+    return series
+
+
 def received(peer: str, message: Any) -> None:
     """A live message arrived from a ``station`` or a ``viewer``."""
-    LIVE_MESSAGES.labels("in", peer, getattr(message, "type", "unknown")).inc()
+    _live("in", peer, getattr(message, "type", "unknown")).inc()
 
 
 def sent(peer: str, kind: str, count: int = 1) -> None:
     """``count`` live messages of ``kind`` left for ``peer``s."""
-    LIVE_MESSAGES.labels("out", peer, kind).inc(count)
+    _live("out", peer, kind).inc(count)
 
 
 def command_sent(request_id: str, action: str) -> None:
