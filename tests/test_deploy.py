@@ -98,3 +98,28 @@ def test_nginx_accepts_the_sample(tmp_path: Path) -> None:
         text=True,
     )
     assert done.returncode == 0, done.stderr
+
+
+CADDY = DEPLOY / "caddy" / "Caddyfile"
+
+
+def test_the_caddy_sample_fits_the_servers_limits_and_heartbeats() -> None:
+    text = CADDY.read_text()
+    (size,) = re.findall(r"max_size (\d+)MB", text)
+    assert int(size) * 1000 * 1000 >= max(Settings().body_max_bytes, CHUNK_MAX)
+    for timeout in re.findall(r"(?:read|write)_timeout (\S+)", text):
+        assert _seconds(timeout) > wire.HEARTBEAT_TIMEOUT_S
+    assert len(re.findall(r"127\.0\.0\.1:\d+", text)) >= 2
+
+
+@pytest.mark.skipif(shutil.which("caddy") is None, reason="caddy is not installed here")
+def test_caddy_accepts_the_sample(tmp_path: Path) -> None:
+    done = subprocess.run(
+        ["caddy", "validate", "--config", str(CADDY), "--adapter", "caddyfile"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={"HOME": str(tmp_path), "PATH": "/usr/bin:/bin:/usr/local/bin"},
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Valid configuration" in done.stdout + done.stderr
