@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench setup clean
+.PHONY: run test lint bench setup clean lock
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,16 @@ lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+
+# Pinned requirements per role, resolved from pyproject.toml's ranges (requirements/ROLE.txt):
+# install with `pip install -r requirements/server.txt` then the project with `--no-deps`.
+LOCK_ROLES := device station server dev
+lock: setup
+	for role in $(LOCK_ROLES); do \
+		extras="--extra $$role"; [ $$role = server ] && extras="$$extras --extra postgres"; \
+		$(BIN)/uv pip compile pyproject.toml $$extras --universal --python-version 3.11 \
+			--no-header --quiet -o requirements/$$role.txt || exit 1; \
+	done
 
 bench: setup
 	$(BIN)/ankle bench control --plots bench-output

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from device import cli as device_cli
+from device import installed_version
 from lab import cli as lab_cli
 
 
@@ -17,6 +18,7 @@ def _parser() -> device_cli.Parser:
         description="Ankle telerehabilitation on the Rutgers Ankle: server, home station, "
         "device, simulation, benchmarks.",
     )
+    parser.add_argument("--version", action="version", version=f"ankle {installed_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=device_cli.Parser)
     run = sub.add_parser(
         "run",

@@ -14,8 +14,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
-from device.hardware import HARDWARE_KINDS
-from device.plant.params import PATIENTS
+from device.plant.params import HARDWARE_KINDS, PATIENTS
 
 USAGE_ERROR = 2
 
@@ -243,7 +242,7 @@ def dispatch(
 ) -> int:
     """Parse and run (``run``, default :func:`run_command`), turning usage and command errors
     into one line and exit code 2."""
-    from device.rig import CommandError
+    from device.commands import CommandError
 
     try:
         args = parser.parse_args(argv)

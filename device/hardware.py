@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from device.plant import model
 from device.plant.faults import Fault, FaultKind, fault_row
-from device.plant.params import PlantConfig, PlantParams, build_params
+from device.plant.params import HARDWARE_KINDS, PlantConfig, PlantParams, build_params
 
 
 class HardwareError(RuntimeError):
@@ -92,9 +92,6 @@ class SimulatedHardware(Hardware):
         """Remove every fault. Sensors read true at once; a stuck valve moves with its coil
         again; a lost or drooped supply recovers through its line, as a real one would."""
         self.state.faults[:] = 0.0
-
-
-HARDWARE_KINDS = ("sim", "board")
 
 
 def open_hardware(kind: str, config: PlantConfig = PlantConfig(), seed: int = 0) -> Hardware:

@@ -25,7 +25,6 @@ from abc import ABC, abstractmethod
 from urllib.parse import urlsplit
 
 import serial
-import serial_asyncio_fast
 
 READ_MAX = 4096
 """Most bytes read per poll: bounds the work a garbage burst can cause in one chunk."""
@@ -220,6 +219,8 @@ async def open_stream(
 ) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
     """The host's asyncio streams to a port name or pyserial URL (``socket://H:P``)."""
     try:
+        import serial_asyncio_fast  # the host's side only: the device service never needs it
+
         reader, writer = await serial_asyncio_fast.open_serial_connection(
             url=url, baudrate=baud, exclusive=not url.startswith("socket://")
         )

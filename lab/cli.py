@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from device.cli import Parser, add_plant_options, fault_spec, finite_float, ranged
+from device.commands import CommandError
 from device.geometry import AXES
-from device.rig import CommandError
 
 
 def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:

@@ -15,12 +15,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from sqlalchemy.exc import OperationalError
 
-from server import errors, live
+from server import errors, live, metrics
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
 from server.guard import RequestGuard
 from server.headers import SecurityHeaders
 from server.hub import VIEW_HZ, Hub
+from server.logs import RequestIds
 from server.relay import open_relay
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.common import document_must_change
@@ -44,6 +45,7 @@ N·m·s/rad, times seconds, timestamps UTC.
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     engine = create_engine(settings)
+    metrics.watch_database(engine)
     relay = open_relay(settings.relay_url, settings.relay_lease_s, VIEW_HZ)
     hub = Hub(recheck_s=settings.live_recheck_s, relay=relay)
     try:
@@ -106,9 +108,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(RequestGuard, default=settings.body_max_bytes, limit_for=body_limit)
     app.add_middleware(LoginGate, path=f"{API_PREFIX}/auth/login")
     app.add_middleware(SecurityHeaders)
+    app.add_middleware(metrics.HttpMetrics)
+    app.add_middleware(RequestIds)  # outermost: every log line of a request carries its id
     for router in ROUTERS:
         app.include_router(router, prefix=API_PREFIX)
     document_must_change(app)  # on every route, the dashboard's included
     # The live router names its own full paths (/ws/..., /api/v1/schemas/ws).
     app.include_router(live.router)
+    app.include_router(metrics.router)
     return app

@@ -27,6 +27,7 @@ from server import accounts, audit
 from server.app import create_app
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, migrate
+from server.logs import uvicorn_log_config
 from server.models import Patient, Prescription, Role, Station, User
 from server.routes import API_PREFIX
 from server.routes.stations import revoke
@@ -80,6 +81,7 @@ def serve(
         host=settings.host,
         port=settings.port,
         log_level="info",
+        log_config=uvicorn_log_config(settings.log_format),
         ws_per_message_deflate=False,
     )
     uvicorn.Server(config).run()

@@ -11,9 +11,10 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from limits import parse
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from server.logs import LogFormat
 from server.tickets import TICKET_TTL_S
 
 MiB = 1024 * 1024
@@ -43,6 +44,16 @@ class Settings(BaseSettings):
         "postgresql+asyncpg://user@host/db.",
     )
     host: str = Field(default="127.0.0.1", description="Interface to listen on.")
+    log_format: LogFormat = Field(
+        default="text",
+        description="'text': uvicorn's lines, for people; 'json': one JSON object a line with "
+        "request_id (HTTP) and link_id (live links), for a log collector.",
+    )
+    metrics_token: SecretStr | None = Field(
+        default=None,
+        description="Unset: /metrics answers loopback clients only. Set: it answers anyone "
+        "sending 'Authorization: Bearer <token>', and no one else.",
+    )
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port; 0 picks a free one.")
     allowed_origins: list[str] = Field(
         default_factory=list,

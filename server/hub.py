@@ -27,7 +27,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
 
-from server import live_audit
+from server import live_audit, metrics
 from server.audit import AuditWriter
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station
@@ -513,6 +513,7 @@ class Hub:
         self.sent(cmd.request_id)
         try:
             await conn.ws.send_text(cmd.model_dump_json())
+            metrics.sent("station", "command")
         except Exception:
             self.link_lost(conn, cmd.request_id)
 
@@ -535,6 +536,7 @@ class Hub:
         if entry is not None:
             loop = asyncio.get_running_loop()
             entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
+            metrics.command_sent(request_id, entry.asked.command.action)
 
     def result(self, station_id: int, result: wire.CommandResult) -> None:
         """A station's answer: to the viewers, and its outcome to the audit log."""
@@ -542,6 +544,7 @@ class Hub:
             entry = book.get(result.request_id)
             if entry is not None and entry.asked.station_id == station_id:
                 del book[result.request_id]
+                metrics.command_answered(result.request_id, "accepted" if result.ok else "refused")
                 if entry.timer is not None:
                     entry.timer.cancel()
                 row = entry.asked.outcome_row(
@@ -554,6 +557,7 @@ class Hub:
     def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:
         entry = self._pending.pop(request_id, None)
         if entry is not None:
+            metrics.command_answered(request_id, code)
             if entry.timer is not None:
                 entry.timer.cancel()
             result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)

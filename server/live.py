@@ -23,6 +23,7 @@ from typing import Any
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
+from server import metrics
 from server.deps import LoginStanding, authenticate_station
 from server.hub import (
     CONTROL_QUEUE_MAX,
@@ -191,6 +192,7 @@ async def station_socket(ws: WebSocket) -> None:
 
 def _on_station_message(hub: Hub, conn: StationConn, raw: str, message: Any) -> None:
     conn.messages += 1
+    metrics.received("station", message)
     if isinstance(message, wire.TelemetryMsg):
         conn.latest = raw
         conn.seq += 1
@@ -253,6 +255,7 @@ async def live_socket(ws: WebSocket, station_id: int) -> None:
         while not writer.done():
             raw = await _receive(ws, silence)
             message = wire.VIEWER_UP.validate_json(raw)
+            metrics.received("viewer", message)
             if isinstance(message, wire.Command):
                 await _on_command(hub, viewer, message)
     except ValidationError as exc:
@@ -313,11 +316,13 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
             return
         while v.control:
             await v.ws.send_text(v.control.popleft())
+            metrics.sent("viewer", "control")
         newest = hub.latest(v.station_id)
         sent = False
         if newest is not None and newest[0] != v.seq:
             v.seq = newest[0]
             await v.ws.send_text(newest[1])
+            metrics.sent("viewer", "telemetry")
             sent = True
         now = time.monotonic()
         if now - last_beat >= wire.HEARTBEAT_S:

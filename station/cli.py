@@ -16,10 +16,12 @@ import signal
 import socket
 from collections.abc import Callable, Coroutine
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from station.app import Station, StationConfig
 from station.reasons import HOLD_LIMIT_S
+
+if TYPE_CHECKING:  # loaded by run(): `ankle --help` needs no device link or web client
+    from station.app import Station
 
 HOLD_LIMIT_MAX_S = 3600.0
 
@@ -91,7 +93,7 @@ def port_taken(host: str, port: int) -> str | None:
     return None
 
 
-PageServer = Callable[[Station, str, int], Coroutine[Any, Any, None]]
+PageServer = Callable[["Station", str, int], Coroutine[Any, Any, None]]
 """Serves the patient's page for a station on (host, port) until cancelled."""
 
 
@@ -119,6 +121,8 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
             return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
+    from station.app import Station, StationConfig
+
     station = Station(
         StationConfig(
             device=args.device,

@@ -21,10 +21,17 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus, WebSocketException
 
 from sessions import wire
+from station.backoff import Backoff
 
 log = logging.getLogger("ankle.station.server")
 
 TELEMETRY_QUEUE = 32
+RECONNECT_FIRST_S = 1.0
+"""The first wait after the link drops is drawn from 0..1 s, so stations that all lost a
+restarted server come back spread over a second, not in the same instant."""
+RECONNECT_MAX_S = 10.0
+REFUSED_WAIT_S = 30.0
+"""Added to the wait when the server refused this station (token, revoked, version)."""
 
 
 class ServerLink:
@@ -60,9 +67,10 @@ class ServerLink:
         self._wake.set()
 
     async def run(self) -> None:
-        backoff = 0.5
+        backoff = Backoff(RECONNECT_FIRST_S, RECONNECT_MAX_S)
         while True:
             connects = self.connects
+            refused = False
             try:
                 async with connect(
                     f"{self.url}/ws/station",
@@ -72,23 +80,21 @@ class ServerLink:
                     ping_interval=None,  # the application heartbeat is ours, once a second
                 ) as ws:
                     await self._session(ws)
-                    backoff = 0.5
             except InvalidStatus as exc:
                 self.last_error = f"server refused the station ({exc.response.status_code})"
             except (OSError, WebSocketException, TimeoutError) as exc:
                 self.last_error = f"server unreachable ({type(exc).__name__})"
             except _Closed as exc:
                 self.last_error = str(exc)
-                if exc.code in (wire.CLOSE_POLICY, wire.CLOSE_REVOKED, wire.CLOSE_VERSION):
-                    backoff = 30.0
+                refused = exc.code in (wire.CLOSE_POLICY, wire.CLOSE_REVOKED, wire.CLOSE_VERSION)
             finally:
                 self.connected.clear()
                 self.welcome = None
-            if self.connects != connects and backoff < 30.0:
-                backoff = 0.5  # the link was up: a server that just went away is retried soon
-            log.info("server link down: %s; retrying in %.1f s", self.last_error, backoff)
-            await asyncio.sleep(backoff)
-            backoff = min(backoff * 2, 10.0)
+            if self.connects != connects:
+                backoff.reset()  # the link was up: a server that just went away is retried soon
+            wait = backoff.next() + (REFUSED_WAIT_S if refused else 0.0)
+            log.info("server link down: %s; retrying in %.2f s", self.last_error, wait)
+            await asyncio.sleep(wait)
 
     async def _session(self, ws: ClientConnection) -> None:
         await ws.send(self._hello().model_dump_json())

@@ -23,11 +23,17 @@ from typing import Any
 
 import httpx
 
+from station.backoff import Backoff
 from station.spool import Spool
 
 log = logging.getLogger("ankle.station.upload")
 CHUNK = 1 << 20
 """Bytes per PATCH: small enough to resend cheaply on a poor home connection."""
+
+
+RETRY_FIRST_S = 2.0
+RETRY_MAX_S = 60.0
+"""Retries of a failed upload wait a jittered 0..2 s, 0..4 s, … up to 60 s (station/backoff.py)."""
 
 
 class UploadError(Exception):
@@ -119,17 +125,17 @@ class Uploader:
 
     async def run(self, period: float = 5.0) -> None:
         """Keep uploading: at start, when woken (a session ended) and every ``period``."""
-        backoff = 1.0
+        backoff = Backoff(RETRY_FIRST_S, RETRY_MAX_S)
         while True:
             try:
                 await self.upload_all()
                 self.last_error = ""
-                backoff = 1.0
+                backoff.reset()
                 wait = period
             except (httpx.HTTPError, OSError) as exc:
                 self.last_error = f"server unreachable ({type(exc).__name__})"
-                wait = backoff
-                backoff = min(backoff * 2, 30.0)
+                wait = backoff.next()
+                log.info("upload failed: %s; retrying in %.2f s", self.last_error, wait)
             self._wake.clear()
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(wait):  # not wait_for: see ServerLink

@@ -1,7 +1,8 @@
 """Files the browser loads: our pages and scripts, and the chart libraries from npm.
 
 The libraries are installed from the npm registry with ``webui/package-lock.json`` by the
-setup step (``make setup`` runs ``npm ci``); nothing third-party is committed. They are served
+setup step (``make setup`` runs ``npm ci``); nothing third-party is committed. A wheel built
+after that step carries the five files below (pyproject.toml's package-data). They are served
 under ``/vendor/`` by a fixed name, so a page never depends on a package's folder layout.
 """
 

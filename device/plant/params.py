@@ -630,6 +630,10 @@ TICK_HZ = 7000
 """Interrupt rate of the controller (paper, section 3: 4 ms / 28)."""
 
 
+HARDWARE_KINDS = ("sim", "board")
+"""What the controller reads and drives (``open_hardware``): this simulation or the real I/O
+board. Named here, in a module without compiled code, so command lines load fast."""
+
 PATIENTS = ("relaxed", "resisting", "absent")
 """The simulated patient: a relaxed foot, one that co-contracts, or no foot at all."""
 

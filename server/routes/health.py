@@ -3,23 +3,19 @@
 from __future__ import annotations
 
 import shutil
-from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import APIRouter, Request, Response, status
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
+from device import installed_version
 from server.deps import Db
 from server.schemas import HealthPublic
 
 router = APIRouter(tags=["health"])
 
 
-def server_version() -> str:
-    try:
-        return version("ankle-telerehab")
-    except PackageNotFoundError:  # running from a source tree that was never installed
-        return "0+unknown"
+server_version = installed_version
 
 
 @router.get("/health", response_model=HealthPublic, summary="Server version and database state")

@@ -224,6 +224,8 @@ UNLISTED: dict[str, int] = {
     "/scene/": 403,
     "/scene/{ticket}": 403,
     "/scene/{ticket}/{path:path}": 403,
+    # Prometheus: loopback callers only (this test's client is one), tests/server/test_metrics.py
+    "/metrics": 200,
 }
 """GET routes left out of OpenAPI → what a caller without a token gets: pages and scripts
 that carry no record (each page asks the API, with the therapist's token, for what it
