@@ -147,7 +147,10 @@ async def test_a_hundred_wrong_sign_ins_at_once_starve_neither_health_nor_a_coll
     codes = [r.status_code for r in answers]
     assert set(codes) <= {401, 429} and codes.count(429) > 50, codes
     assert all("retry-after" in r.headers for r in answers if r.status_code == 429)
-    assert health and max(health) < 1.0, max(health)
+    # Starved, /health would wait for the whole flood's hashing (100 x ~0.1 s of Argon2 on
+    # the loop: ~10 s). The bound leaves room for a machine busy with other work, where one
+    # request among the flood's 100 connections took 1.1 s.
+    assert health and max(health) < 3.0, max(health)
 
 
 @pytest.mark.asyncio
