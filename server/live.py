@@ -1,9 +1,11 @@
 """Live links: home stations stream in, therapists watch and adjust, over WebSocket.
 
-One :class:`Hub` per process keeps who is connected. A station's telemetry is never queued
-for a viewer: the hub keeps the latest sample per station and each viewer is sent the newest
-one at most ``VIEW_HZ`` times a second (a slow browser sees fresh data late, never old data
-later). Events, status and command results are never dropped. A therapist's command goes to
+One :class:`Hub` per process keeps who is connected. A station's telemetry comes in batches
+of samples and is never queued for a viewer: the hub keeps the newest few batches per station
+and each viewer is sent every batch while it keeps up and the newest one when it falls behind
+(a slow browser sees fresh data late, never a growing backlog).
+Events, status and command results are never dropped, and a viewer is sent them before any
+telemetry waiting with them. A therapist's command goes to
 the station, which asks the device; the device's own ACK or NACK comes back to the viewers
 as a :class:`~sessions.wire.CommandResult` (or TIMEOUT / OFFLINE if it cannot).
 
@@ -37,14 +39,16 @@ from sessions.prescription import PrescriptionBody
 log = logging.getLogger("ankle.server.live")
 router = APIRouter()
 
-VIEW_HZ = 50.0
-"""Most telemetry messages a viewer gets per second (the station sends 100)."""
 COMMAND_TIMEOUT_S = 3.0
 """A command with no answer from the station by then is reported as TIMEOUT."""
 LATE_KEPT = 1000
 """Timed-out commands remembered so that a late answer still has its outcome audited."""
 AUDIT_FLUSH_S = 5.0
 """How long shutdown waits for queued audit rows to be written."""
+RECENT_BATCHES = 8
+"""Telemetry batches kept per station (about 0.3 s at 25 a second): a viewer that missed
+no more than these (two arrived together, or a send was slow) is sent each one; one that
+missed more has fallen behind and is sent the newest."""
 CONTROL_QUEUE_MAX = 1000
 """Events and status a viewer may fall behind by before it is closed as too slow."""
 _LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
@@ -81,9 +85,33 @@ class StationConn:
     station_id: int
     patient_id: int
     status: wire.StatusMsg | None = None
-    latest: str | None = None
+    recent: collections.deque[tuple[int, str]] = field(
+        default_factory=lambda: collections.deque(maxlen=RECENT_BATCHES)
+    )
+    """The newest telemetry batches with their numbers, as received (what viewers are sent)."""
+    batch: wire.TelemetryBatchBase | None = None
+    """The newest batch, validated."""
     seq: int = 0
+    """The newest batch's number."""
     messages: int = 0
+
+    def telemetry(self, raw: str, batch: wire.TelemetryBatchBase) -> None:
+        self.seq += 1
+        self.recent.append((self.seq, raw))
+        self.batch = batch
+
+    def newest(self) -> wire.TelemetryMsg | None:
+        """The station's newest sample, if any came."""
+        return self.batch.newest() if self.batch is not None else None
+
+    def after(self, seq: int) -> list[tuple[int, str]]:
+        """The batches a viewer that has had batch ``seq`` has not had, oldest first; only the
+        newest if it missed more than ``RECENT_BATCHES`` (or ``seq`` is another link's)."""
+        if not self.recent:
+            return []
+        if self.recent[0][0] - 1 <= seq <= self.seq:
+            return [(n, raw) for n, raw in self.recent if n > seq]
+        return [self.recent[-1]]
 
 
 @dataclass(eq=False)
@@ -513,9 +541,8 @@ async def station_socket(ws: WebSocket) -> None:
 
 def _on_station_message(hub: Hub, conn: StationConn, raw: str, message: Any) -> None:
     conn.messages += 1
-    if isinstance(message, wire.TelemetryMsg):
-        conn.latest = raw
-        conn.seq += 1
+    if isinstance(message, wire.TelemetryBatch):
+        conn.telemetry(raw, message)
         for v in hub.viewers.get(conn.station_id, ()):
             v.wake.set()
     elif isinstance(message, wire.StatusMsg):
@@ -642,12 +669,12 @@ _background: set[asyncio.Task[None]] = set()
 
 
 async def _viewer_writer(hub: Hub, v: Viewer) -> None:
-    """Send control messages as they come and the newest telemetry at most VIEW_HZ."""
-    period = 1.0 / VIEW_HZ
+    """Send control messages as they come, then the telemetry batches the viewer has not had
+    (:meth:`StationConn.after`), control again before each; a heartbeat every HEARTBEAT_S."""
     last_beat = 0.0
     loop = asyncio.get_running_loop()
     while True:
-        if not v.wake.is_set():  # while streaming it is: telemetry came during the sleep
+        if not v.wake.is_set():
             # Wait at most HEARTBEAT_S (the heartbeat is due): one timer, not wait_for's task.
             timer = loop.call_later(wire.HEARTBEAT_S, v.wake.set)
             try:
@@ -658,20 +685,18 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
         if len(v.control) >= CONTROL_QUEUE_MAX:
             await _close(v.ws, wire.CLOSE_TIMEOUT, "the viewer is not keeping up")
             return
-        while v.control:
+        while v.control:  # never behind telemetry: results and events go first
             await v.ws.send_text(v.control.popleft())
         conn = hub.stations.get(v.station_id)
-        sent = False
-        if conn is not None and conn.latest is not None and conn.seq != v.seq:
-            v.seq = conn.seq
-            await v.ws.send_text(conn.latest)
-            sent = True
-        now = time.monotonic()
+        for seq, raw in conn.after(v.seq) if conn is not None else ():
+            while v.control:
+                await v.ws.send_text(v.control.popleft())
+            v.seq = seq
+            await v.ws.send_text(raw)
+        now = loop.time()
         if now - last_beat >= wire.HEARTBEAT_S:
             await v.ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
             last_beat = now
-        if sent:
-            await asyncio.sleep(period)  # conflation: newer samples replace this one meanwhile
 
 
 async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
@@ -684,7 +709,7 @@ async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
         station_id=viewer.station_id,
         patient_id=viewer.patient_id,
         command=cmd,
-        replaced=live_audit.in_force(conn.latest if conn else None, cmd),
+        replaced=live_audit.in_force(conn.newest() if conn else None, cmd),
     )
 
     def refuse(code: str, text: str, field: str = "") -> None:
