@@ -34,7 +34,7 @@ self.addEventListener("message", (ev) => {
         // A batch of samples as columns (sessions/wire.py TelemetryBatch): one sample each.
         const n = msg.t.length;
         for (let i = 0; i < n; i++) {
-          const sample = { sent: msg.sent };
+          const sample = { type: "telemetry", sent: msg.sent };
           for (const key in msg) if (Array.isArray(msg[key])) sample[key] = msg[key][i];
           telemetry.push(sample);
         }
