@@ -6,14 +6,18 @@ database is given N therapists, each with a patient, a station and a login token
 directly (no Argon2 logins to wait for). The load comes from two more processes:
 
 - ``stations``: N simulated home stations, no device. Each connects to ``/ws/station``,
-  says hello, then sends a :class:`~sessions.wire.TelemetryMsg` at 100 Hz stamped with
-  ``sent = time.time()``, a heartbeat and a status once a second, and answers every
-  :class:`~sessions.wire.Command` at once with an ``ok`` :class:`~sessions.wire.CommandResult`.
-  Their phases are spread over the 10 ms period, as independent stations' would be.
+  says hello, then sends telemetry as the real station does: a
+  :class:`~sessions.wire.TelemetryBatch` of 4 samples 25 times a second (100 samples a
+  second) stamped with ``sent = time.time()``, a heartbeat and a status once a second, and
+  answers every :class:`~sessions.wire.Command` at once with an ``ok``
+  :class:`~sessions.wire.CommandResult`. Their phases are spread over the 40 ms period, as
+  independent stations' would be.
 - ``viewers``: one (or more) therapist per station on ``/ws/live/{id}``. Each takes the
-  latency of every telemetry message it gets (receive time - ``sent``; same machine, same
-  clock), sends a heartbeat and a ``set_impedance`` command once a second and times the
-  command to its result (which includes the server's audit write of the change).
+  latency of every telemetry batch it gets (receive time - ``sent``; same machine, same
+  clock) and counts its samples, sends a heartbeat, a ``set_impedance`` and (half a second
+  later) a ``hold`` command once a second, and times each command from its sending to its
+  result (a K/B change includes the server's audit write of its request row; a HOLD does
+  not wait for the database).
 
 After all are connected and a short warm-up, the processes measure the same window. With
 ``sweep`` the same server then carries growing numbers of stations for a few seconds each,
@@ -23,8 +27,9 @@ latency p99 held with no connection lost.
 On a small machine all three processes share the cores: the numbers are what the server
 does while the load generator takes its part of the machine (``loadgen_cpu_pct``), and
 whatever else runs there (``machine_cpu_pct``, all cores). ``server_cpu_us_per_message`` is
-the server's CPU time over the station messages it took in: its cost per message, which
-depends less on the neighbours than latency does.
+the server's CPU time over the station telemetry messages it took in: its cost per message,
+which depends less on the neighbours than latency does (``server_cpu_us_per_sample`` is the
+same per sample; before batches the two were one).
 """
 
 from __future__ import annotations
@@ -55,8 +60,10 @@ from lab.targets import Target
 from lab.targets import table as bench_table
 
 TELEMETRY_HZ = 100
-VIEW_HZ = 50.0
-"""The server's conflation rate (``server.hub.VIEW_HZ``), what a viewer should see."""
+"""Samples a second per station."""
+SAMPLES_PER_BATCH = 4
+"""Samples per telemetry message, as the real station at its default ``--batch-hz``."""
+BATCH_HZ = TELEMETRY_HZ // SAMPLES_PER_BATCH
 LATENCY_MS = 50.0
 """A live view this late is still live: the target of ``telemetry_latency_ms_p99``."""
 SWEEP: tuple[int, ...] = (25, 50, 100, 150, 200)
@@ -77,9 +84,10 @@ TARGETS: tuple[Target, ...] = (
     Target(
         "telemetry_hz_per_station", "telemetry sent per station (Hz)", 0.98 * TELEMETRY_HZ, "min"
     ),
-    # What a live view needs (the issue's floor); the relay's own cap is VIEW_HZ.
-    Target("viewer_hz", "telemetry received per viewer (Hz)", 30.0, "min"),
+    # What a live view needs (the issue's floor).
+    Target("viewer_hz", "telemetry samples received per viewer (Hz)", 30.0, "min"),
     Target("kb_change_to_ack_ms_p99", "K/B change to the station's answer p99 (ms)", 100.0, "max"),
+    Target("hold_to_ack_ms_p99", "HOLD to the station's answer p99 (ms)", 100.0, "max"),
     Target("disconnects", "connections lost", 0, "eq"),
     Target("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms", 100, "min"),
 )
@@ -89,17 +97,20 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("viewers", "viewers connected"),
     ("seconds", "measurement window (s)"),
     ("telemetry_hz_per_station", "telemetry sent per station (Hz)"),
-    ("viewer_hz", "telemetry received per viewer (Hz)"),
+    ("viewer_hz", "telemetry samples received per viewer (Hz)"),
     ("telemetry_latency_ms_p50", "telemetry station to viewer p50 (ms)"),
     ("telemetry_latency_ms_p99", "telemetry station to viewer p99 (ms)"),
     ("telemetry_latency_ms_max", "telemetry station to viewer max (ms)"),
     ("kb_change_to_ack_ms_p50", "K/B change to the station's answer p50 (ms)"),
     ("kb_change_to_ack_ms_p99", "K/B change to the station's answer p99 (ms)"),
+    ("hold_to_ack_ms_p50", "HOLD to the station's answer p50 (ms)"),
+    ("hold_to_ack_ms_p99", "HOLD to the station's answer p99 (ms)"),
     ("commands", "commands timed"),
     ("commands_failed", "commands refused or unanswered"),
     ("disconnects", "connections lost"),
     ("server_cpu_pct", "server CPU (% of one core)"),
-    ("server_cpu_us_per_message", "server CPU per station message (us)"),
+    ("server_cpu_us_per_message", "server CPU per station telemetry message (us)"),
+    ("server_cpu_us_per_sample", "server CPU per telemetry sample (us)"),
     ("loadgen_cpu_pct", "load generator CPU (% of one core)"),
     ("machine_cpu_pct", "whole machine busy, all cores (%)"),
     ("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms"),
@@ -344,23 +355,28 @@ def measure(
     cpu = [100.0 * (b - a) / seconds for a, b in zip(cpu0, cpu1, strict=True)]
     n_viewers = max(seen["connected"], 1)
     latency: list[float] = seen["latency_ms"]
-    acks: list[float] = seen["ack_ms"]
+    acks: list[float] = seen["ack_ms"]["set_impedance"]
+    holds: list[float] = seen["ack_ms"]["hold"]
+    server_cpu_us = 1e6 * (cpu1[0] - cpu0[0])
     return {
         "stations": sent["connected"],
         "viewers": seen["connected"],
         "seconds": seconds,
         "telemetry_hz_per_station": sent["telemetry"] / seconds / max(sent["connected"], 1),
-        "viewer_hz": len(latency) / seconds / n_viewers,
+        "viewer_hz": seen["samples"] / seconds / n_viewers,
         "telemetry_latency_ms_p50": _pct(latency, 50),
         "telemetry_latency_ms_p99": _pct(latency, 99),
         "telemetry_latency_ms_max": max(latency) if latency else math.nan,
         "kb_change_to_ack_ms_p50": _pct(acks, 50),
         "kb_change_to_ack_ms_p99": _pct(acks, 99),
-        "commands": len(acks),
+        "hold_to_ack_ms_p50": _pct(holds, 50),
+        "hold_to_ack_ms_p99": _pct(holds, 99),
+        "commands": len(acks) + len(holds),
         "commands_failed": seen["commands_failed"],
         "disconnects": sent["disconnects"] + seen["disconnects"],
         "server_cpu_pct": cpu[0],
-        "server_cpu_us_per_message": 1e6 * (cpu1[0] - cpu0[0]) / max(sent["telemetry"], 1),
+        "server_cpu_us_per_message": server_cpu_us / max(sent["batches"], 1),
+        "server_cpu_us_per_sample": server_cpu_us / max(sent["telemetry"], 1),
         "loadgen_cpu_pct": cpu[1] + cpu[2],
         "stations_cpu_pct": cpu[1],
         "viewers_cpu_pct": cpu[2],
@@ -420,6 +436,7 @@ def run(
                     "telemetry_latency_ms_p50",
                     "telemetry_latency_ms_p99",
                     "kb_change_to_ack_ms_p99",
+                    "hold_to_ack_ms_p99",
                     "disconnects",
                     "server_cpu_pct",
                 )
@@ -458,15 +475,16 @@ def table(result: dict[str, Any]) -> str:
         lines = [
             "",
             "| stations | viewers | sent/station (Hz) | viewer (Hz) | latency p50 (ms) "
-            "| latency p99 (ms) | K/B ack p99 (ms) | lost | server CPU (%) |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+            "| latency p99 (ms) | K/B ack p99 (ms) | HOLD ack p99 (ms) | lost | server CPU (%) |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for s in sweep:
             lines.append(
                 f"| {s['stations']} | {s['viewers']} | {s['telemetry_hz_per_station']:.1f} "
                 f"| {s['viewer_hz']:.1f} | {s['telemetry_latency_ms_p50']:.1f} "
                 f"| {s['telemetry_latency_ms_p99']:.1f} | {s['kb_change_to_ack_ms_p99']:.1f} "
-                f"| {s['disconnects']} | {s['server_cpu_pct']:.0f} |"
+                f"| {s['hold_to_ack_ms_p99']:.1f} | {s['disconnects']} "
+                f"| {s['server_cpu_pct']:.0f} |"
             )
         text += "\n".join(lines)
     return text
@@ -501,8 +519,9 @@ async def _connect_all(items: list[list[Any]], open_one: Any) -> list[Any]:
 
 
 def _telemetry_templates(count: int = TEMPLATES) -> list[tuple[str, str]]:
-    """Plausible telemetry messages as text, each split where ``sent`` goes. Their numbers
-    differ, as a moving device's do (identical messages would make compression free)."""
+    """Plausible telemetry batches (``SAMPLES_PER_BATCH`` samples each) as text, each split
+    where ``sent`` goes. Their numbers differ, as a moving device's do (identical messages
+    would make compression free)."""
     from sessions import wire
 
     rng = random.Random(1)
@@ -512,25 +531,28 @@ def _telemetry_templates(count: int = TEMPLATES) -> list[tuple[str, str]]:
 
     out = []
     for i in range(count):
-        text = wire.TelemetryMsg(
-            sent=0.0,
-            t=round(12.0 + i * 0.01, 6),
-            mode="ACTIVE",
-            trip=0,
-            segment_id=1,
-            set=1,
-            rep=3,
-            pose=six(0.1),
-            pose_cmd=six(0.1),
-            legs=six(0.05),
-            pressures=[round(rng.uniform(1e5, 6e5), 1) for _ in range(12)],
-            wrench=six(20.0),
-            stiffness=[20000.0, 20000.0, 20000.0, 30.0, 30.0, 10.0],
-            damping=[200.0, 200.0, 200.0, 1.0, 1.0, 0.5],
-            lag_ms=round(rng.uniform(0.0, 0.5), 3),
-            overruns=0,
-            frames_dropped=0,
-        ).model_dump_json()
+        rows = [
+            {
+                "t": round(12.0 + (i * SAMPLES_PER_BATCH + j) / TELEMETRY_HZ, 6),
+                "mode": "ACTIVE",
+                "trip": 0,
+                "segment_id": 1,
+                "set": 1,
+                "rep": 3,
+                "pose": six(0.1),
+                "pose_cmd": six(0.1),
+                "legs": six(0.05),
+                "pressures": [round(rng.uniform(1e5, 6e5), 1) for _ in range(12)],
+                "wrench": six(20.0),
+                "stiffness": [20000.0, 20000.0, 20000.0, 30.0, 30.0, 10.0],
+                "damping": [200.0, 200.0, 200.0, 1.0, 1.0, 0.5],
+                "lag_ms": round(rng.uniform(0.0, 0.5), 3),
+                "overruns": 0,
+                "frames_dropped": 0,
+            }
+            for j in range(SAMPLES_PER_BATCH)
+        ]
+        text = wire.TelemetryBatch.of(rows, sent=0.0).model_dump_json()
         head, tail = text.split('"sent":0.0', 1)
         out.append((head + '"sent":', tail))
     return out
@@ -547,7 +569,7 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
     templates = _telemetry_templates()
     hello = wire.StationHello(protocol=wire.PROTOCOL, software="ankle bench").model_dump_json()
     live: set[ClientConnection] = set()
-    stats = {"telemetry": 0, "disconnects": 0, "skipped": 0}
+    stats = {"telemetry": 0, "batches": 0, "disconnects": 0, "skipped": 0}
     closing = False
 
     async def answer(ws: ClientConnection) -> None:
@@ -587,15 +609,15 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
 
     async def tick() -> None:
         loop = asyncio.get_running_loop()
-        dt = 1.0 / TELEMETRY_HZ / PHASES
+        dt = 1.0 / BATCH_HZ / PHASES
         next_t = loop.time()
         k = 0
-        beat_slot = random.randrange(TELEMETRY_HZ)
+        beat_slot = random.randrange(BATCH_HZ)
         while time.time() < window.end:
             slot = slots[k % PHASES]
             now = time.time()
             counting = window.inside(now)
-            second = (k // PHASES) % TELEMETRY_HZ == beat_slot
+            second = (k // PHASES) % BATCH_HZ == beat_slot
             for j, ws in enumerate(slot):
                 if ws not in live:
                     continue
@@ -613,7 +635,8 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
                 except ConnectionClosed:
                     continue
                 if counting:
-                    stats["telemetry"] += 1
+                    stats["telemetry"] += SAMPLES_PER_BATCH
+                    stats["batches"] += 1
             k += 1
             next_t += dt
             delay = next_t - loop.time()
@@ -644,13 +667,15 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
     url = config["url"]
     window = _Window()
     latency: list[float] = []
-    acks: list[float] = []
-    pending: dict[str, float] = {}
+    samples = 0
+    acks: dict[str, list[float]] = {"set_impedance": [], "hold": []}
+    pending: dict[str, tuple[str, float]] = {}
     stats = {"disconnects": 0, "commands_failed": 0}
     live: set[ClientConnection] = set()
     closing = False
 
     async def watch(ws: ClientConnection) -> None:
+        nonlocal samples
         try:
             async for raw in ws:
                 now = time.time()
@@ -659,11 +684,13 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
                 if kind == "telemetry":
                     if window.inside(now):
                         latency.append(round((now - message["sent"]) * 1e3, 3))
+                        samples += len(message["t"])
                 elif kind == "result":
-                    sent = pending.pop(message["request_id"], None)
-                    if sent is not None:
+                    asked = pending.pop(message["request_id"], None)
+                    if asked is not None:
+                        action, sent = asked
                         if message["ok"]:
-                            acks.append(round((time.perf_counter() - sent) * 1e3, 3))
+                            acks[action].append(round((time.perf_counter() - sent) * 1e3, 3))
                         else:
                             stats["commands_failed"] += 1
         except ConnectionClosed:
@@ -695,7 +722,8 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
         slots[i % len(slots)].append((i, ws))
 
     async def tick() -> None:
-        """Every viewer once a second, spread: a heartbeat and a K/B change."""
+        """Every viewer once a second, spread: a heartbeat and a K/B change, and half a
+        second later a HOLD."""
         loop = asyncio.get_running_loop()
         dt = 1.0 / len(slots)
         next_t = loop.time()
@@ -716,10 +744,17 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
                             stiffness={"pitch": k_pitch},
                             damping={"pitch": 1.0},
                         )
-                        pending[rid] = time.perf_counter()
+                        pending[rid] = (cmd.action, time.perf_counter())
                         await ws.send(cmd.model_dump_json())
                 except ConnectionClosed:
                     continue
+            for i, ws in slots[(k + len(slots) // 2) % len(slots)]:
+                if ws not in live or not commanding:
+                    continue
+                hold = wire.Command(request_id=f"h{i}-{k}", action="hold")
+                pending[hold.request_id] = (hold.action, time.perf_counter())
+                with contextlib.suppress(ConnectionClosed):
+                    await ws.send(hold.model_dump_json())
             k += 1
             next_t += dt
             delay = next_t - loop.time()
@@ -737,7 +772,13 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
     await asyncio.gather(*(ws.close() for ws in conns), return_exceptions=True)
     for w in watchers:
         w.cancel()
-    return {"connected": len(conns), "latency_ms": latency, "ack_ms": acks, **stats}
+    return {
+        "connected": len(conns),
+        "latency_ms": latency,
+        "samples": samples,
+        "ack_ms": acks,
+        **stats,
+    }
 
 
 def _worker(role: str, stdin: IO[str]) -> int:

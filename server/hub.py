@@ -1,9 +1,11 @@
 """The live hub: the stations and viewers connected to this server process, and, through the
 relay (:mod:`server.relay`), those connected to the others.
 
-A station's telemetry is never queued for a viewer: the hub keeps the latest sample per
-station and each viewer is sent the newest one at most ``VIEW_HZ`` times a second. Events,
-status and command results are never dropped. A command is claimed, timed and audited by
+A station's telemetry comes in batches of samples and is never queued for a viewer: the hub
+keeps the newest few batches per station, and each viewer is sent every batch while it keeps
+up and the newest one when it falls behind (a slow browser sees fresh data late, never a
+growing backlog). Events, status and command results are never dropped, and a viewer is sent
+them before any telemetry waiting with them. A command is claimed, timed and audited by
 the process that holds the station's link, wherever its viewer is; its result reaches the
 station's viewers on every process.
 """
@@ -18,7 +20,7 @@ import itertools
 import json
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TypeVar
 
@@ -31,7 +33,7 @@ from server import live_audit, metrics
 from server.audit import AuditWriter
 from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
 from server.models import Patient, Prescription, Station
-from server.relay import LocalRelay, Message, Relay
+from server.relay import RECENT_BATCHES, LocalRelay, Message, Relay
 from server.tickets import Ticket, ViewTickets
 from sessions import wire
 from sessions.prescription import PrescriptionBody
@@ -39,7 +41,8 @@ from sessions.prescription import PrescriptionBody
 log = logging.getLogger("ankle.server.live")
 
 VIEW_HZ = 50.0
-"""Most telemetry messages a viewer gets per second (the station sends 100)."""
+"""How often a process sends the telemetry batches of its stations to the other processes
+watching them, per second (a station sends 25 batches a second)."""
 COMMAND_TIMEOUT_S = 3.0
 """A command with no answer from the station by then is reported as TIMEOUT."""
 LATE_KEPT = 1000
@@ -87,9 +90,39 @@ class StationConn:
     station_id: int
     patient_id: int
     status: wire.StatusMsg | None = None
-    latest: str | None = None
+    recent: collections.deque[tuple[int, str]] = field(
+        default_factory=lambda: collections.deque(maxlen=RECENT_BATCHES)
+    )
+    """The newest telemetry batches with their numbers, as received (what viewers are sent)."""
+    batch: wire.TelemetryBatchBase | None = None
+    """The newest batch, validated."""
     seq: int = 0
+    """The newest batch's number."""
     messages: int = 0
+
+    def telemetry(self, raw: str, batch: wire.TelemetryBatchBase) -> None:
+        self.seq += 1
+        self.recent.append((self.seq, raw))
+        self.batch = batch
+
+    def newest(self) -> wire.TelemetryMsg | None:
+        """The station's newest sample, if any came."""
+        return self.batch.newest() if self.batch is not None else None
+
+    def after(self, seq: int) -> list[tuple[int, str]]:
+        """The batches a viewer that has had batch ``seq`` has not had, oldest first; only the
+        newest if it missed more than ``RECENT_BATCHES`` (or ``seq`` is another link's)."""
+        return unseen(self.recent, seq)
+
+
+def unseen(recent: Sequence[tuple[int, str]], seq: int) -> list[tuple[int, str]]:
+    """Of the numbered batches ``recent`` (oldest first, numbered one by one), those after
+    ``seq``; only the newest if batches between ``seq`` and the oldest kept were missed."""
+    if not recent:
+        return []
+    if recent[0][0] - 1 <= seq <= recent[-1][0]:
+        return [(n, raw) for n, raw in recent if n > seq]
+    return [recent[-1]]
 
 
 @dataclass(frozen=True)
@@ -308,12 +341,26 @@ class Hub:
             with contextlib.suppress(Exception):
                 await conn.ws.send_text(message.model_dump_json())
 
-    def latest(self, station_id: int) -> tuple[int, str] | None:
-        """The station's newest telemetry sample (raw) and a number that changes with each."""
+    def after(self, station_id: int, seq: int) -> list[tuple[int, str]]:
+        """The telemetry batches (raw, numbered) of the station a viewer that has had batch
+        ``seq`` has not had (:meth:`StationConn.after`). Of a station on another process,
+        those the relay brought."""
         conn = self.stations.get(station_id)
-        if conn is None:
-            return self.relay.latest(station_id)
-        return None if conn.latest is None else (conn.seq, conn.latest)
+        if conn is not None:
+            return conn.after(seq)
+        return unseen(self.relay.recent(station_id), seq)
+
+    def newest(self, station_id: int) -> tuple[int, wire.TelemetryMsg] | None:
+        """The station's newest sample, with the number of the batch it came in."""
+        conn = self.stations.get(station_id)
+        if conn is not None:
+            sample = conn.newest()
+            return None if sample is None else (conn.seq, sample)
+        relayed = self.relay.recent(station_id)
+        if not relayed:
+            return None
+        batch = wire.STATION_UP.validate_json(relayed[-1][1])
+        return (relayed[-1][0], batch.newest()) if isinstance(batch, wire.TelemetryBatch) else None
 
     async def welcome(self, station_id: int, patient_id: int) -> wire.Welcome:
         """What a new viewer of the station is told first."""
@@ -477,7 +524,7 @@ class Hub:
             station_id=asker.station_id,
             patient_id=asker.patient_id,
             command=cmd,
-            replaced=live_audit.in_force(conn.latest if conn else None, cmd),
+            replaced=live_audit.in_force(conn.newest() if conn else None, cmd),
         )
 
         def refuse(code: str, text: str, field: str = "") -> None:

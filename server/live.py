@@ -1,12 +1,13 @@
 """Live links: home stations stream in, therapists watch and adjust, over WebSocket.
 
 The hub (:mod:`server.hub`) keeps who is connected, here and, through the relay, on the
-other server processes; this module holds the two sockets. Each viewer is sent the
-station's newest telemetry at most ``VIEW_HZ`` times a second (a slow browser sees fresh
-data late, never old data later). Events, status and command results are never dropped. A
-therapist's command goes to the station, which asks the device; the device's own ACK or
-NACK comes back to the viewers as a :class:`~sessions.wire.CommandResult` (or TIMEOUT /
-OFFLINE if it cannot).
+other server processes; this module holds the two sockets. A station's telemetry comes in
+batches of samples and is never queued for a viewer: each viewer is sent every batch while
+it keeps up and the newest one when it falls behind (a slow browser sees fresh data late,
+never a growing backlog). Events, status and command results are never dropped, and a viewer
+is sent them before any telemetry waiting with them. A therapist's command goes to the
+station, which asks the device; the device's own ACK or NACK comes back to the viewers as a
+:class:`~sessions.wire.CommandResult` (or TIMEOUT / OFFLINE if it cannot).
 
 Message schemas: ``GET /api/v1/schemas/ws`` (WebSocket routes are not in OpenAPI).
 """
@@ -28,7 +29,6 @@ from server.deps import LoginStanding, authenticate_station
 from server.hub import (
     CONTROL_QUEUE_MAX,
     LOGIN_CLOSE,
-    VIEW_HZ,
     Asker,
     Hub,
     StationConn,
@@ -193,9 +193,8 @@ async def station_socket(ws: WebSocket) -> None:
 def _on_station_message(hub: Hub, conn: StationConn, raw: str, message: Any) -> None:
     conn.messages += 1
     metrics.received("station", message)
-    if isinstance(message, wire.TelemetryMsg):
-        conn.latest = raw
-        conn.seq += 1
+    if isinstance(message, wire.TelemetryBatch):
+        conn.telemetry(raw, message)
         hub.telemetry_came(conn.station_id)
         hub.relay.telemetry(conn.station_id, raw)
     elif isinstance(message, wire.StatusMsg):
@@ -298,12 +297,12 @@ _background: set[asyncio.Task[None]] = set()
 
 
 async def _viewer_writer(hub: Hub, v: Viewer) -> None:
-    """Send control messages as they come and the newest telemetry at most VIEW_HZ."""
-    period = 1.0 / VIEW_HZ
+    """Send control messages as they come, then the telemetry batches the viewer has not had
+    (:meth:`Hub.after`), control again before each; a heartbeat every HEARTBEAT_S."""
     last_beat = 0.0
     loop = asyncio.get_running_loop()
     while True:
-        if not v.wake.is_set():  # while streaming it is: telemetry came during the sleep
+        if not v.wake.is_set():
             # Wait at most HEARTBEAT_S (the heartbeat is due): one timer, not wait_for's task.
             timer = loop.call_later(wire.HEARTBEAT_S, v.wake.set)
             try:
@@ -314,22 +313,20 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
         if len(v.control) >= CONTROL_QUEUE_MAX:
             await close_link(v.ws, wire.CLOSE_TIMEOUT, "the viewer is not keeping up")
             return
-        while v.control:
+        while v.control:  # never behind telemetry: results and events go first
             await v.ws.send_text(v.control.popleft())
             metrics.sent("viewer", "control")
-        newest = hub.latest(v.station_id)
-        sent = False
-        if newest is not None and newest[0] != v.seq:
-            v.seq = newest[0]
-            await v.ws.send_text(newest[1])
+        for seq, raw in hub.after(v.station_id, v.seq):
+            while v.control:
+                await v.ws.send_text(v.control.popleft())
+                metrics.sent("viewer", "control")
+            v.seq = seq
+            await v.ws.send_text(raw)
             metrics.sent("viewer", "telemetry")
-            sent = True
-        now = time.monotonic()
+        now = loop.time()
         if now - last_beat >= wire.HEARTBEAT_S:
             await v.ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
             last_beat = now
-        if sent:
-            await asyncio.sleep(period)  # conflation: newer samples replace this one meanwhile
 
 
 async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:

@@ -23,7 +23,6 @@ answer costs the relay no database round trip.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -62,17 +61,16 @@ def outcome_of(result: wire.CommandResult) -> Outcome:
     return "unanswered" if result.code in UNANSWERED_CODES else "refused"
 
 
-def in_force(latest: str | None, cmd: wire.Command) -> dict[str, Any] | None:
-    """The K and B a ``set_impedance`` would replace, from the station's newest telemetry
-    (JSON text, as relayed); None for the other commands, {} when no telemetry came yet."""
+def in_force(newest: wire.TelemetryMsg | None, cmd: wire.Command) -> dict[str, Any] | None:
+    """The K and B a ``set_impedance`` would replace, from the station's newest sample; None
+    for the other commands, {} when no telemetry came yet."""
     if cmd.action != "set_impedance":
         return None
-    if latest is None:
+    if newest is None:
         return {}
-    sample = json.loads(latest)
     return {
-        "stiffness": {a: sample["stiffness"][AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
-        "damping": {a: sample["damping"][AXIS_INDEX[a]] for a in (cmd.damping or {})},
+        "stiffness": {a: newest.stiffness[AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
+        "damping": {a: newest.damping[AXIS_INDEX[a]] for a in (cmd.damping or {})},
     }
 
 

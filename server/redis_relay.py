@@ -20,17 +20,19 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import itertools
 import json
 import logging
 import os
 import secrets
 import socket
+from collections.abc import Sequence
 from typing import Any
 
 import redis.asyncio as aioredis
 from redis.asyncio.client import PubSub
 
-from server.relay import Listener, Message, Relay
+from server.relay import RECENT_BATCHES, Listener, Message, Relay
 
 log = logging.getLogger("ankle.server.relay")
 
@@ -72,12 +74,14 @@ class RedisRelay(Relay):
         """Stations claimed by this process."""
         self._watched: set[int] = set()
         """Stations of this process that another process watches: their telemetry goes out."""
-        self._dirty: dict[int, str] = {}
+        self._dirty: dict[int, list[str]] = {}
+        """Batches of this process's watched stations waiting for the next pipeline, in order."""
         self._watching: collections.Counter[int] = collections.Counter()
         self._holder: dict[int, str | None] = {}
         """The process each station watched here was last seen on."""
-        self._latest: dict[int, tuple[int, str]] = {}
-        self._seq = 0
+        self._recent: dict[int, collections.deque[tuple[int, str]]] = {}
+        """The newest batches of each station watched here, numbered per station."""
+        self._seq: collections.Counter[int] = collections.Counter()
         self._out: asyncio.Queue[tuple[str, str, str | None]] = asyncio.Queue()
         self._tasks: list[asyncio.Task[None]] = []
         self._handling: set[asyncio.Task[None]] = set()
@@ -155,7 +159,7 @@ class RedisRelay(Relay):
         for station_id in watched:
             holder = holders.get(station_id)
             if holder is None and self._holder.get(station_id) is not None:
-                self._latest.pop(station_id, None)
+                self._recent.pop(station_id, None)
                 if self._listener is not None:
                     self._listener.gone(station_id)
             elif holder is not None:
@@ -169,10 +173,10 @@ class RedisRelay(Relay):
 
     def telemetry(self, station_id: int, raw: str) -> None:
         if station_id in self._watched:
-            self._dirty[station_id] = raw
+            self._dirty.setdefault(station_id, []).append(raw)
 
-    def latest(self, station_id: int) -> tuple[int, str] | None:
-        return self._latest.get(station_id)
+    def recent(self, station_id: int) -> Sequence[tuple[int, str]]:
+        return self._recent.get(station_id, ())
 
     async def last_status(self, station_id: int) -> str | None:
         text = await self.redis.get(_name("status", station_id))
@@ -201,7 +205,7 @@ class RedisRelay(Relay):
             return
         del self._watching[station_id]
         self._holder.pop(station_id, None)
-        self._latest.pop(station_id, None)
+        self._recent.pop(station_id, None)
         if self._pubsub is not None:
             with contextlib.suppress(Exception):
                 await self._pubsub.unsubscribe(_name("view", station_id), _name("tele", station_id))
@@ -251,13 +255,15 @@ class RedisRelay(Relay):
             dirty, self._dirty = self._dirty, {}
             try:
                 async with self.redis.pipeline(transaction=False) as pipe:
-                    for station_id, raw in dirty.items():
-                        pipe.publish(_name("tele", station_id), raw)
+                    for station_id, raws in dirty.items():
+                        for raw in raws:  # every batch: a chart on another process loses none
+                            pipe.publish(_name("tele", station_id), raw)
                     heard = await pipe.execute()
             except Exception as exc:
                 log.warning("publishing telemetry failed: %s", exc)
                 continue
-            for station_id, count in zip(dirty, heard, strict=True):
+            counts = [heard[i - 1] for i in itertools.accumulate(len(r) for r in dirty.values())]
+            for station_id, count in zip(dirty, counts, strict=True):
                 if not count:  # nobody listens any more
                     self._watched.discard(station_id)
 
@@ -280,8 +286,11 @@ class RedisRelay(Relay):
         if kind == "tele":
             station_id = int(name)
             if station_id not in self._mine:
-                self._seq += 1
-                self._latest[station_id] = (self._seq, data)
+                self._seq[station_id] += 1
+                recent = self._recent.setdefault(
+                    station_id, collections.deque(maxlen=RECENT_BATCHES)
+                )
+                recent.append((self._seq[station_id], data))
                 listener.telemetry_came(station_id)
         elif kind == "view":
             origin, _, text = data.partition(" ")

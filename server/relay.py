@@ -5,8 +5,8 @@ another process must see goes through a :class:`Relay`:
 
 - presence: which process each station is connected to, as a lease the process refreshes
   (a process that dies lets its stations go offline when their leases run out);
-- the newest telemetry sample of a station, for viewers elsewhere (sent only while some
-  other process watches it, at most ``view_hz`` a second: viewers conflate to it anyway);
+- every telemetry batch of a station, for viewers elsewhere (sent only while some other
+  process watches it, gathered into one pipeline every ``1 / view_hz`` s);
 - events, status (the last one kept for a viewer's welcome), presence changes and command
   results, for the station's viewers on every process;
 - messages addressed to one process (a command for the station it holds, and its refusal
@@ -23,9 +23,15 @@ one place an engine is chosen.
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 Message = dict[str, Any]
+RECENT_BATCHES = 8
+"""Telemetry batches kept per station (about 0.3 s at 25 a second), on the station's process
+and on each process that watches it: a viewer that missed no more than these (two arrived
+together, or a send was slow) is sent each one; one that missed more has fallen behind and is
+sent the newest."""
 """A message addressed to a process: JSON-able, with a ``type``."""
 
 
@@ -37,7 +43,7 @@ class Listener(Protocol):
         viewers."""
 
     def telemetry_came(self, station_id: int) -> None:
-        """A newer sample of a station connected elsewhere is in ``Relay.latest``."""
+        """A newer batch of a station connected elsewhere is in ``Relay.recent``."""
 
     def gone(self, station_id: int) -> None:
         """A watched station's process stopped holding its lease without saying goodbye."""
@@ -88,9 +94,9 @@ class Relay(abc.ABC):
         newest at most ``view_hz`` times a second."""
 
     @abc.abstractmethod
-    def latest(self, station_id: int) -> tuple[int, str] | None:
-        """The newest sample of a station connected elsewhere, with a number that changes
-        with each new one; None if none came."""
+    def recent(self, station_id: int) -> Sequence[tuple[int, str]]:
+        """The newest telemetry batches of a station connected elsewhere (at most
+        ``RECENT_BATCHES``, oldest first), each with its number; empty if none came."""
 
     @abc.abstractmethod
     async def last_status(self, station_id: int) -> str | None:
@@ -150,8 +156,8 @@ class LocalRelay(Relay):
     def telemetry(self, station_id: int, raw: str) -> None:
         return None
 
-    def latest(self, station_id: int) -> tuple[int, str] | None:
-        return None
+    def recent(self, station_id: int) -> Sequence[tuple[int, str]]:
+        return ()
 
     async def last_status(self, station_id: int) -> str | None:
         return None

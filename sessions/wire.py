@@ -9,12 +9,12 @@ Links and their handshake (``PROTOCOL`` is the version; a mismatch closes with
 :data:`CLOSE_VERSION` and a reason naming both versions):
 - ``/ws/station``: the station authenticates with its bearer token (``Authorization``
   header) and sends :class:`StationHello`; the server answers :class:`Welcome`, then pushes
-  :class:`Prescriptions` and :class:`Command`\\ s; the station streams :class:`TelemetryMsg`,
+  :class:`Prescriptions` and :class:`Command`\\ s; the station streams :class:`TelemetryBatch`,
   :class:`EventMsg`, :class:`StatusMsg` and :class:`CommandResult`.
 - ``/ws/live/{station_id}``: a therapist authenticates with the subprotocol pair
   ``["ankle.v1", "bearer.<token>"]`` (browsers cannot set headers) or the header; receives
-  :class:`Welcome`, then telemetry conflated to the latest sample per tick, events, status,
-  presence and the results of commands; sends :class:`Command`.
+  :class:`Welcome`, then every telemetry batch while it keeps up (the newest batch when it
+  falls behind), events, status, presence and the results of commands; sends :class:`Command`.
 
 Both sides send :class:`Heartbeat` every ``HEARTBEAT_S`` and drop a link silent for
 ``HEARTBEAT_TIMEOUT_S``: the WebSocket library's 20 s keepalive is far too slow to tell a
@@ -23,14 +23,16 @@ therapist that the live view is stale.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from collections.abc import Mapping, Sequence
+from typing import Annotated, Any, Literal, cast
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, create_model, model_validator
 
 from sessions.prescription import DAMPING_MAX, STIFFNESS_MAX, Axis, PrescriptionBody
 from sessions.recording import DeviceInfo, SessionEvent
 
-PROTOCOL = 1
+PROTOCOL = 2
+"""2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message."""
 SUBPROTOCOL = "ankle.v1"
 BEARER_PREFIX = "bearer."
 HEARTBEAT_S = 1.0
@@ -94,11 +96,14 @@ class Welcome(BaseModel):
 
 
 class TelemetryMsg(BaseModel):
-    """One device sample as the station received it (SI units: m, rad, N, N·m, Pa)."""
+    """One device sample as the station received it (SI units: m, rad, N, N·m, Pa).
+
+    Not a message of its own on the links (since protocol 2): samples travel in a
+    :class:`TelemetryBatch`, whose :meth:`~TelemetryBatchBase.newest` gives one back."""
 
     model_config = _STRICT
     type: Literal["telemetry"] = "telemetry"
-    sent: float = Field(description="Station wall clock when sent, Unix s.")
+    sent: float = Field(description="Station wall clock when sent (its batch's), Unix s.")
     t: float = Field(description="Device time, s.")
     mode: str = Field(description="Device mode name: IDLE, HOMING, READY, ACTIVE, HOLD, ...")
     trip: int = Field(description="Latched trip code, 0 if none.")
@@ -117,6 +122,81 @@ class TelemetryMsg(BaseModel):
     lag_ms: float = Field(description="Device pacing lag, ms.")
     overruns: int
     frames_dropped: int = Field(description="Frames the device dropped (CRC, length, ...).")
+
+
+BATCH_MAX = 50
+"""Most samples in one :class:`TelemetryBatch` (50 samples are about 25 KB of JSON)."""
+SAMPLE_COLUMNS: tuple[str, ...] = tuple(
+    name for name in TelemetryMsg.model_fields if name not in ("type", "sent")
+)
+"""The columns of a batch, one per field of :class:`TelemetryMsg` but its ``sent``."""
+
+
+class TelemetryBatchBase(BaseModel):
+    """Several device samples in one message, as columns: each field of
+    :class:`TelemetryMsg` (but ``type`` and ``sent``) is a list with one item per sample,
+    oldest first. Key names travel once per batch instead of once per sample, and the link
+    carries a few messages a second instead of one per sample.
+
+    ``{"type": "telemetry", "sent": 1700000000.04, "t": [12.00, 12.01, 12.02, 12.03],
+    "mode": ["ACTIVE", ...], "pose": [[x, y, z, roll, pitch, yaw], ...], ...}``
+    """
+
+    model_config = _STRICT
+    type: Literal["telemetry"] = "telemetry"
+    sent: float = Field(description="Station wall clock when the batch was sent, Unix s.")
+
+    @model_validator(mode="after")
+    def _same_length(self) -> TelemetryBatchBase:
+        n = len(self.column("t"))
+        for name in SAMPLE_COLUMNS:
+            if len(self.column(name)) != n:
+                raise ValueError(f"{name} has {len(self.column(name))} samples, t has {n}")
+        return self
+
+    def column(self, name: str) -> list[Any]:
+        return cast(list[Any], getattr(self, name))
+
+    def __len__(self) -> int:
+        return len(self.column("t"))
+
+    def sample(self, i: int) -> TelemetryMsg:
+        """Sample ``i`` (negative from the newest) as a :class:`TelemetryMsg`."""
+        values = {name: self.column(name)[i] for name in SAMPLE_COLUMNS}
+        return TelemetryMsg.model_construct(sent=self.sent, **values)
+
+    def samples(self) -> list[TelemetryMsg]:
+        return [self.sample(i) for i in range(len(self))]
+
+    def newest(self) -> TelemetryMsg:
+        """The newest sample: what the server's readers (3D view, K/B in force) look at."""
+        return self.sample(-1)
+
+    @staticmethod
+    def of(rows: Sequence[Mapping[str, Any]], sent: float) -> TelemetryBatchBase:
+        """A batch (validated) of ``rows``, each a sample's fields by name (a
+        ``TelemetryMsg.model_dump()`` or the station's dict), oldest first."""
+        return TelemetryBatch.model_validate(
+            {"sent": sent} | {n: [row[n] for row in rows] for n in SAMPLE_COLUMNS}
+        )
+
+
+def _column(name: str) -> Any:
+    info = TelemetryMsg.model_fields[name]
+    item = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+    return (
+        Annotated[list[item], Field(min_length=1, max_length=BATCH_MAX)],  # type: ignore[valid-type]
+        Field(description=f"Per sample: {info.description or name}"),
+    )
+
+
+TelemetryBatch: type[TelemetryBatchBase] = create_model(
+    "TelemetryBatch",
+    __base__=TelemetryBatchBase,
+    __module__=__name__,
+    **{name: _column(name) for name in SAMPLE_COLUMNS},
+)
+"""The telemetry message (:class:`TelemetryBatchBase` with one column per sample field)."""
 
 
 class EventMsg(BaseModel):
@@ -244,13 +324,13 @@ class Presence(BaseModel):
 
 
 StationUp = Annotated[
-    StationHello | TelemetryMsg | EventMsg | StatusMsg | CommandResult | Heartbeat,
+    StationHello | TelemetryBatch | EventMsg | StatusMsg | CommandResult | Heartbeat,  # type: ignore[valid-type]
     Field(discriminator="type"),
 ]
 StationDown = Annotated[Welcome | Prescriptions | Command | Heartbeat, Field(discriminator="type")]
 ViewerUp = Annotated[Command | Heartbeat, Field(discriminator="type")]
 ViewerDown = Annotated[
-    Welcome | TelemetryMsg | EventMsg | StatusMsg | CommandResult | Presence | Heartbeat,
+    Welcome | TelemetryBatch | EventMsg | StatusMsg | CommandResult | Presence | Heartbeat,  # type: ignore[valid-type]
     Field(discriminator="type"),
 ]
 

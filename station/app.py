@@ -25,7 +25,7 @@ from sessions import wire
 from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
 from sessions.wire import PrescriptionItem
 from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
-from station.server_link import ServerLink
+from station.server_link import BATCH_HZ, ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun
 from station.uploader import Uploader
@@ -55,6 +55,8 @@ class StationConfig:
     hold_limit_s: float = HOLD_LIMIT_S
     """An exercise held (paused, HOLD, or held by the device) this long is ended: the
     platform goes home and the session closes ``interrupted`` with the reason."""
+    batch_hz: float = BATCH_HZ
+    """Telemetry messages a second to the server, each with the samples since the last."""
 
 
 class Station:
@@ -62,7 +64,9 @@ class Station:
         self.config = config
         self.spool = Spool(config.spool)
         self.dev: DeviceClient | None = None
-        self.link = ServerLink(config.server, config.token, self._hello, self._on_server)
+        self.link = ServerLink(
+            config.server, config.token, self._hello, self._on_server, config.batch_hz
+        )
         self.uploader = Uploader(config.server, config.token, self.spool)
         self.prescriptions: list[PrescriptionItem] = [
             PrescriptionItem.model_validate(p) for p in self.spool.load_prescriptions()
@@ -171,7 +175,7 @@ class Station:
                 if wall - last_flush >= FLUSH_S:
                     self.writer.flush_soon()
                     last_flush = wall
-            self.link.send_telemetry(_telemetry_msg(t, wall, s, r))
+            self.link.send_sample(_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0)
 
     async def _events(self, dev: DeviceClient) -> None:
         async for e in dev.events():
@@ -526,23 +530,24 @@ def _device_info(hello: msg.DeviceHello) -> DeviceInfo:
     )
 
 
-def _telemetry_msg(t: msg.Telemetry, wall: float, s: int, r: int) -> wire.TelemetryMsg:
-    return wire.TelemetryMsg(
-        sent=wall,
-        t=t.time,
-        mode=t.mode.name,
-        trip=int(t.trip),
-        segment_id=t.segment_id,
-        set=s,
-        rep=r,
-        pose=list(t.pose),
-        pose_cmd=list(t.pose_cmd),
-        legs=list(t.legs),
-        pressures=list(t.pressures),
-        wrench=list(t.wrench),
-        stiffness=list(t.stiffness),
-        damping=list(t.damping),
-        lag_ms=t.pacing_lag_ms,
-        overruns=t.overruns,
-        frames_dropped=t.frames_dropped,
-    )
+def _sample(t: msg.Telemetry, s: int, r: int) -> dict[str, Any]:
+    """One sample's fields as :class:`~sessions.wire.TelemetryMsg` names them (its batch
+    gives the ``sent``); validated when its batch is made."""
+    return {
+        "t": t.time,
+        "mode": t.mode.name,
+        "trip": int(t.trip),
+        "segment_id": t.segment_id,
+        "set": s,
+        "rep": r,
+        "pose": list(t.pose),
+        "pose_cmd": list(t.pose_cmd),
+        "legs": list(t.legs),
+        "pressures": list(t.pressures),
+        "wrench": list(t.wrench),
+        "stiffness": list(t.stiffness),
+        "damping": list(t.damping),
+        "lag_ms": t.pacing_lag_ms,
+        "overruns": t.overruns,
+        "frames_dropped": t.frames_dropped,
+    }

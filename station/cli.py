@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from station.reasons import HOLD_LIMIT_S
+from station.server_link import BATCH_HZ, BATCH_HZ_MAX
 
 if TYPE_CHECKING:  # loaded by run(): `ankle --help` needs no device link or web client
     from station.app import Station
@@ -66,6 +67,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         f"platform goes home, the session ends 'interrupted' (default {HOLD_LIMIT_S:g})",
     )
     p.add_argument(
+        "--batch-hz",
+        type=float,
+        default=BATCH_HZ,
+        metavar="HZ",
+        help=f"telemetry messages a second to the server, each carrying the samples since the "
+        f"last (default {BATCH_HZ:g}: 4 samples of the device's 100 Hz; 1..{BATCH_HZ_MAX:g})",
+    )
+    p.add_argument(
         "--page-port",
         type=int,
         default=8765,
@@ -107,6 +116,12 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
             f"more than 0 to {HOLD_LIMIT_MAX_S:g} s"
         )
         return 2
+    if not 1 <= args.batch_hz <= BATCH_HZ_MAX:  # also refuses nan
+        print(
+            f"error: ankle station: --batch-hz {args.batch_hz:g} is not a rate from 1 to "
+            f"{BATCH_HZ_MAX:g} messages a second"
+        )
+        return 2
     if not 0 <= args.page_port <= 65535:
         print(f"error: ankle station: --page-port {args.page_port} is not a port (0..65535)")
         return 2
@@ -132,6 +147,7 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
             autostart=args.autostart,
             repeat_after_s=args.repeat_after,
             hold_limit_s=args.hold_limit,
+            batch_hz=args.batch_hz,
             baud=args.baud,
         )
     )

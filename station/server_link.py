@@ -1,9 +1,13 @@
 """The station's WebSocket to the server: reconnects by itself, never blocks the exercise.
 
-Outgoing messages go through two queues: telemetry is bounded and drops the oldest sample
-(a live view wants the newest; the session file has every sample), while events, status and
-command results are never dropped and wait for the next connection. Incoming prescriptions
-and commands are handed to the station's callbacks.
+Samples are sent in batches (:class:`~sessions.wire.TelemetryBatch`): about ``batch_hz``
+messages a second, each with the samples that came since the last (4 at the device's 100 Hz
+and the default 25 Hz). Outgoing messages go through two queues: telemetry is bounded and
+drops the oldest batch (a live view wants the newest; the session file has every sample),
+while events, status and command results are never dropped and wait for the next connection;
+the writer sends every control message queued before the next batch goes. Incoming
+prescriptions and commands are handed to the station's callbacks; a command is handled in a
+task of its own, so one waiting for the device's answer never keeps the next from being read.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import collections
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Coroutine, Mapping
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
@@ -26,6 +30,12 @@ from station.backoff import Backoff
 log = logging.getLogger("ankle.station.server")
 
 TELEMETRY_QUEUE = 32
+"""Batches kept while the server is slow or away (about 1.3 s at 25 a second)."""
+BATCH_HZ = 25.0
+"""Telemetry messages a second by default (``ankle station --batch-hz``)."""
+BATCH_HZ_MAX = 50.0
+"""Most telemetry messages a second (``--batch-hz``): each message costs the server and
+every viewer about as much as a whole batch, so fewer, fuller ones are cheaper."""
 RECONNECT_FIRST_S = 1.0
 """The first wait after the link drops is drawn from 0..1 s, so stations that all lost a
 restarted server come back spread over a second, not in the same instant."""
@@ -40,7 +50,8 @@ class ServerLink:
         url: str,
         token: str,
         hello: Callable[[], wire.StationHello],
-        on_message: Callable[[Any], Awaitable[None]],
+        on_message: Callable[[Any], Coroutine[Any, Any, None]],
+        batch_hz: float = BATCH_HZ,
     ) -> None:
         self.url = url.rstrip("/").replace("http://", "ws://").replace("https://", "wss://")
         self.token = token
@@ -54,12 +65,21 @@ class ServerLink:
         self.last_error = ""
         self.connects = 0
         self.telemetry_dropped = 0
+        self.batch_hz = batch_hz
+        self._rows: list[Mapping[str, Any]] = []
+        self._handling: set[asyncio.Task[None]] = set()
 
-    def send_telemetry(self, message: wire.TelemetryMsg) -> None:
-        if len(self.telemetry) == self.telemetry.maxlen:
-            self.telemetry_dropped += 1
-        self.telemetry.append(message.model_dump_json())
-        self._wake.set()
+    def send_sample(self, row: Mapping[str, Any], device_hz: float) -> None:
+        """Add one device sample (a :class:`~sessions.wire.TelemetryMsg`'s fields but
+        ``sent``) to the batch; the batch is queued once it holds ``device_hz / batch_hz``."""
+        self._rows.append(row)
+        if len(self._rows) >= max(1, round(device_hz / self.batch_hz)):
+            rows, self._rows = self._rows, []
+            batch = wire.TelemetryBatch.of(rows, sent=time.time())
+            if len(self.telemetry) == self.telemetry.maxlen:
+                self.telemetry_dropped += 1
+            self.telemetry.append(batch.model_dump_json())
+            self._wake.set()
 
     def send(self, message: BaseModel) -> None:
         """Queue a message that must arrive (event, status, result)."""
@@ -135,7 +155,13 @@ class ServerLink:
             except ValidationError as exc:
                 await ws.close(wire.CLOSE_MALFORMED, wire.error_text(exc))
                 return
-            if not isinstance(message, wire.Heartbeat):
+            if isinstance(message, wire.Command):
+                # Not awaited here: a K/B change waiting for the device's ACK must not hold a
+                # HOLD behind it. Tasks start in order, so the device is asked in order.
+                task = asyncio.create_task(self._on_message(message))
+                self._handling.add(task)
+                task.add_done_callback(self._handling.discard)
+            elif not isinstance(message, wire.Heartbeat):
                 await self._on_message(message)
 
     async def _write(self, ws: ClientConnection, reader: asyncio.Task[None]) -> None:
@@ -146,11 +172,14 @@ class ServerLink:
                 if now >= next_beat:
                     await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
                     next_beat = now + wire.HEARTBEAT_S
-                while self.control:
-                    await ws.send(self.control[0])
-                    self.control.popleft()  # only once the library has taken it
-                while self.telemetry:
-                    await ws.send(self.telemetry.popleft())
+                # Control first, and looked at again before each batch: a result queued
+                # while a batch was being sent goes next.
+                while self.control or self.telemetry:
+                    if self.control:
+                        await ws.send(self.control[0])
+                        self.control.popleft()  # only once the library has taken it
+                    else:
+                        await ws.send(self.telemetry.popleft())
             except ConnectionClosed:
                 return
             self._wake.clear()

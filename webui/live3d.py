@@ -4,15 +4,14 @@ viser is not ASGI, so it cannot be mounted in the FastAPI app: each view is its 
 ``ViserServer`` on a free port of the loopback interface (:data:`VIEW_HOST`), which no other
 machine reaches. Browsers see it only through the API's port, behind a ticket
 (:mod:`webui.sceneproxy`). A view is fed from the hub's newest telemetry sample at
-``SCENE_HZ`` (the station sends 100 Hz; each scene update costs about 0.25 ms) and is stopped
-once no therapist has watched the station for ``IDLE_S``.
+``SCENE_HZ`` (the station sends 100 samples a second; each scene update costs about
+0.25 ms) and is stopped once no therapist has watched the station for ``IDLE_S``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import time
 from collections.abc import AsyncIterator
@@ -98,11 +97,10 @@ class LiveScenes:
         try:
             while True:
                 await asyncio.sleep(self.period)
-                newest = self.hub.latest(view.station_id)
+                newest = self.hub.newest(view.station_id)
                 if newest is not None and newest[0] != view.seq:
-                    view.seq = newest[0]
-                    t = json.loads(newest[1])
-                    view.scene.update(t["pose"], t["pose_cmd"], t["pressures"], t["wrench"])
+                    view.seq, t = newest
+                    view.scene.update(t.pose, t.pose_cmd, t.pressures, t.wrench)
                 if view.clients or self.hub.viewers.get(view.station_id):
                     view.touched = time.monotonic()
                 elif time.monotonic() - view.touched > self.idle_s:

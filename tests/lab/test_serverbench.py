@@ -29,8 +29,10 @@ def test_a_small_run_measures_every_key() -> None:
     assert out["disconnects"] == 0
     assert 0 < out["telemetry_latency_ms_p50"] <= out["telemetry_latency_ms_p99"] < 1000
     assert out["telemetry_hz_per_station"] > 50  # 100 configured
-    assert 0 < out["viewer_hz"] <= bench.VIEW_HZ * 1.1
+    assert 0 < out["viewer_hz"] <= bench.TELEMETRY_HZ * 1.1
     assert out["commands"] > 0 and 0 < out["kb_change_to_ack_ms_p50"] < 3000
+    assert 0 < out["hold_to_ack_ms_p50"] <= out["hold_to_ack_ms_p99"] < 3000
+    assert out["server_cpu_us_per_message"] > out["server_cpu_us_per_sample"] > 0
     assert out["server_cpu_pct"] > 0
     assert out["max_stations_p99_under_50ms"] in (5, None)
     assert "sweep" not in out
@@ -48,6 +50,7 @@ def test_the_table_shows_every_row_the_sweep_and_a_missing_value() -> None:
         "telemetry_latency_ms_p50": 6.0,
         "telemetry_latency_ms_p99": 12.0,
         "kb_change_to_ack_ms_p99": 30.0,
+        "hold_to_ack_ms_p99": 9.0,
         "disconnects": 0,
         "server_cpu_pct": 20.0,
     }
@@ -55,5 +58,5 @@ def test_the_table_shows_every_row_the_sweep_and_a_missing_value() -> None:
     text = bench.table(result)
     for _, label in bench.ROWS:
         assert label in text
-    assert "| 25 | 25 | 100.0 | 48.0 | 6.0 | 12.0 | 30.0 | 0 | 20 |" in text
+    assert "| 25 | 25 | 100.0 | 48.0 | 6.0 | 12.0 | 30.0 | 9.0 | 0 | 20 |" in text
     assert json.loads(json.dumps(bench.jsonable({"x": math.nan})))["x"] is None

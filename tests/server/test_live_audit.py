@@ -160,7 +160,7 @@ async def test_each_command_is_audited_when_sent_and_with_the_devices_answer(
         station(live, world, ack, **in_force) as link,
         viewer(live, world.t1, world.s1_id) as v,
     ):
-        await v.next_of(wire.TelemetryMsg)  # the K/B in force reached the server
+        await v.next_of(wire.TelemetryBatch)  # the K/B in force reached the server
         asked: list[tuple[str, str, dict[str, Any]]] = [
             ("kb", "set_impedance", {"stiffness": {"pitch": 80.0}, "damping": {"pitch": 3.0}}),
             ("hold", "hold", {}),
@@ -227,7 +227,7 @@ async def test_a_refused_kb_change_is_recorded_as_refused_and_never_as_a_change(
         station(live, world, nack, stiffness=vector(pitch=40.0)),
         viewer(live, world.t1, world.s1_id) as v,
     ):
-        await v.next_of(wire.TelemetryMsg)
+        await v.next_of(wire.TelemetryBatch)
         await v.send("kb-low", "set_impedance", damping={"pitch": 0.1})
         result = await v.next_of(wire.CommandResult, "kb-low")
         assert (result.ok, result.code) == (False, "OUT_OF_RANGE")
@@ -256,7 +256,7 @@ async def test_an_unanswered_command_is_recorded_as_such_and_a_late_answer_too(
         station(live, world, silent, stiffness=vector(pitch=40.0)) as link,
         viewer(live, world.t1, world.s1_id) as v,
     ):
-        await v.next_of(wire.TelemetryMsg)
+        await v.next_of(wire.TelemetryBatch)
         t0 = time.monotonic()
         await v.send("kb-slow", "set_impedance", stiffness={"pitch": 60.0})
         cmd = await link.next_command()

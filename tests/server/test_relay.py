@@ -9,6 +9,7 @@ viewer watches from the other.
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 import subprocess
@@ -118,11 +119,11 @@ async def until_audited(live: Live, token: str, request_id: str, expected: list[
 
 
 async def stream(ws: ClientConnection, t: float) -> None:
-    """Telemetry at 100 Hz with device time ``t``, as a station sends it."""
-    message = wire.TelemetryMsg.model_validate(telemetry(t=t)).model_dump_json()
+    """Telemetry batches 25 times a second with device time ``t``, as a station sends them."""
+    message = wire.TelemetryBatch.model_validate(telemetry(t=t)).model_dump_json()
     while True:
         await ws.send(message)
-        await asyncio.sleep(0.01)
+        await asyncio.sleep(0.04)
 
 
 def command(request_id: str) -> str:
@@ -153,8 +154,8 @@ async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
             assert welcome.status is not None and welcome.status.device_mode == "READY"
             streaming = asyncio.create_task(stream(station, t=42.5))
             stack.callback(streaming.cancel)
-            sample = await next_where(view, is_(wire.TelemetryMsg))
-            assert sample.t == 42.5
+            batch = await next_where(view, is_(wire.TelemetryBatch))
+            assert batch.newest().t == 42.5
             event = wire.StatusMsg(sent=time.time(), device_link="connected", device_mode="HOLD")
             await station.send(event.model_dump_json())
             got = await next_where(view, is_(wire.StatusMsg))
@@ -275,12 +276,12 @@ async def test_the_station_connecting_to_another_process_replaces_its_old_link(
                 presence = await next_where(view, is_(wire.Presence))
                 assert presence.online
                 assert await online(a, world.t1, world.s1_id)
-                await new.send(wire.TelemetryMsg.model_validate(telemetry(t=7.0)).model_dump_json())
+                await new.send(json.dumps(telemetry(t=7.0)))
                 # Telemetry from B reaches the viewer on A.
                 streaming = asyncio.create_task(stream(new, t=7.0))
                 try:
-                    sample = await next_where(view, is_(wire.TelemetryMsg))
-                    assert sample.t == 7.0
+                    batch = await next_where(view, is_(wire.TelemetryBatch))
+                    assert batch.newest().t == 7.0
                 finally:
                     streaming.cancel()
 

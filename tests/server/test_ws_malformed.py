@@ -151,7 +151,7 @@ async def test_a_bad_message_closes_the_station_link(
         await assert_offline(live, world, world.s1_id)
         # The viewer saw the station come and go, and nothing of the bad message.
         seen = await drain(viewer, 0.3)
-    assert not [m for m in seen if isinstance(m, wire.TelemetryMsg)], seen
+    assert not [m for m in seen if isinstance(m, wire.TelemetryBatch)], seen
     presence = [m.online for m in seen if isinstance(m, wire.Presence)]
     assert presence == [True, False], seen
 

@@ -78,12 +78,10 @@ async def welcomed(ws: ClientConnection) -> wire.Welcome:
     return welcome
 
 
-def telemetry(**change: Any) -> dict[str, Any]:
-    """One telemetry message as a station sends it (at rest, READY), with ``change``."""
+def sample(**change: Any) -> dict[str, Any]:
+    """One sample's fields (a TelemetryMsg but ``type`` and ``sent``), at rest, READY."""
     six = [0.0] * 6
     body: dict[str, Any] = {
-        "type": "telemetry",
-        "sent": time.time(),
         "t": 1.0,
         "mode": "READY",
         "trip": 0,
@@ -102,3 +100,10 @@ def telemetry(**change: Any) -> dict[str, Any]:
         "frames_dropped": 0,
     }
     return body | change
+
+
+def telemetry(**change: Any) -> dict[str, Any]:
+    """A telemetry message as a station sends it: a batch of one sample with ``change``
+    (JSON-ready, so that tests can also send what validation would refuse)."""
+    one = sample(**change)
+    return {"type": "telemetry", "sent": time.time()} | {k: [v] for k, v in one.items()}

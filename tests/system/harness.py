@@ -192,7 +192,8 @@ _last_beat: dict[int, float] = {}
 
 
 async def next_of(ws: ClientConnection, kind: type[Any], timeout: float = 30.0) -> Any:
-    """The next message of a type, skipping the others; sends the viewer's heartbeat."""
+    """The next message of a type, skipping the others; sends the viewer's heartbeat. For
+    ``TelemetryMsg``: the newest sample of the next telemetry batch."""
     deadline = time.monotonic() + timeout
     while True:
         now = time.monotonic()
@@ -207,6 +208,8 @@ async def next_of(ws: ClientConnection, kind: type[Any], timeout: float = 30.0) 
         except TimeoutError:
             continue
         message = wire.VIEWER_DOWN.validate_json(raw)
+        if kind is wire.TelemetryMsg and isinstance(message, wire.TelemetryBatch):
+            return message.newest()
         if isinstance(message, kind):
             return message
 

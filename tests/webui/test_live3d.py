@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 import socket
 from typing import Any
@@ -11,15 +10,23 @@ from typing import Any
 import pytest
 
 from server.hub import Hub, StationConn
+from sessions import wire
+from tests.server.ws_client import sample
 from webui.live3d import LiveScenes
 
 
-def telemetry(pitch_deg: float) -> str:
-    pose = [0.0, 0.0, 0.0, 0.0, math.radians(pitch_deg), 0.0]
-    return json.dumps(
-        {"type": "telemetry", "pose": pose, "pose_cmd": pose, "pressures": [2e5] * 12}
-        | {"wrench": [0.0, 0.0, -50.0, 0.0, 1.0, 0.0]}
-    )
+def feed(conn: StationConn, seq: int, *pitch_deg: float) -> None:
+    """A batch of samples at these pitches (the last is the newest), as the hub keeps it."""
+    rows = []
+    for deg in pitch_deg:
+        pose = [0.0, 0.0, 0.0, 0.0, math.radians(deg), 0.0]
+        rows.append(
+            sample(pose=pose, pose_cmd=pose, pressures=[2e5] * 12)
+            | {"wrench": [0.0, 0.0, -50.0, 0.0, 1.0, 0.0]}
+        )
+    batch = wire.TelemetryBatch.of(rows, sent=0.0)
+    conn.telemetry(batch.model_dump_json(), batch)
+    assert conn.seq == seq
 
 
 def connected(hub: Hub, station_id: int) -> StationConn:
@@ -45,7 +52,7 @@ async def test_a_view_follows_the_newest_sample_and_stops_when_unwatched() -> No
         assert port_open(view.port)
         assert (await scenes.open(7)) is view  # one server per station, however many ask
 
-        conn.latest, conn.seq = telemetry(10.0), 1
+        feed(conn, 1, 30.0, 10.0)  # the newest is drawn
         for _ in range(50):
             await asyncio.sleep(0.02)
             if view.scene.updates:
@@ -57,7 +64,7 @@ async def test_a_view_follows_the_newest_sample_and_stops_when_unwatched() -> No
         # The same sample is not drawn twice; a new one is.
         await asyncio.sleep(0.1)
         assert view.scene.updates == 1
-        conn.latest, conn.seq = telemetry(-5.0), 2
+        feed(conn, 2, -5.0)
         await asyncio.sleep(0.1)
         assert view.scene.updates == 2
         assert view.scene.platform.wxyz[2] == pytest.approx(-math.sin(math.radians(2.5)), abs=1e-6)

@@ -1,6 +1,7 @@
 // The live link's socket, in a worker: the heartbeat and the command results keep flowing
 // while the page's own thread is busy drawing (the 3D view shares it), so a slow frame never
-// costs the therapist the link. Telemetry is passed on in batches; everything else at once.
+// costs the therapist the link. Telemetry comes in batches of samples (columns); the page is
+// passed every sample, every BATCH_MS; everything else at once.
 
 const HEARTBEAT_MS = 1000;
 const BATCH_MS = 50;
@@ -30,8 +31,14 @@ self.addEventListener("message", (ev) => {
     ws.addEventListener("message", (e) => {
       const msg = JSON.parse(e.data);
       if (msg.type === "telemetry") {
-        telemetry.push(msg);
-        if (telemetry.length > 500) telemetry.shift(); // the page fell 10 s behind: keep the newest
+        // A batch of samples as columns (sessions/wire.py TelemetryBatch): one sample each.
+        const n = msg.t.length;
+        for (let i = 0; i < n; i++) {
+          const sample = { type: "telemetry", sent: msg.sent };
+          for (const key in msg) if (Array.isArray(msg[key])) sample[key] = msg[key][i];
+          telemetry.push(sample);
+        }
+        if (telemetry.length > 2000) telemetry.splice(0, telemetry.length - 2000); // 20 s behind: keep the newest
       } else if (msg.type !== "heartbeat") {
         post([...telemetry.splice(0), msg]); // in order: samples before the event that follows
       }

@@ -19,7 +19,6 @@ const state = {
   activeAxes: AXES,
   limits: { stiffness: Infinity, damping: Infinity },
   pending: new Map(),
-  inForce: null,
   frames: 0,
   rate: 0,
   lastTelemetry: null,
@@ -105,6 +104,7 @@ function drawSoon() {
   // At most one redraw per animation frame however fast telemetry comes.
   requestAnimationFrame(() => {
     drawQueued = false;
+    showNewest();
     charts.angle.setData([buf.t, ...AXES.flatMap((_, i) => [buf.angle[i], buf.target[i]])]);
     charts.torque.setData([buf.t, ...buf.torque]);
     charts.pressure.setData([buf.t, ...buf.dp]);
@@ -183,17 +183,22 @@ function showStatus(s) {
   }
 }
 
+// Every sample goes into the charts; the numbers show the newest, once per frame.
 function showTelemetry(m) {
   state.frames += 1;
   state.lastTelemetry = m;
+  record(m);
+  drawSoon();
+}
+
+function showNewest() {
+  const m = state.lastTelemetry;
+  if (!m) return;
   showMode(m.mode);
-  state.inForce = m;
   for (const a of AXES) {
     const cell = $(`kb-now-${a}`);
     if (cell) cell.textContent = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
   }
-  record(m);
-  drawSoon();
 }
 
 setInterval(() => {
