@@ -49,7 +49,7 @@ async def test_requests_database_links_messages_and_commands_are_counted(
         station(live, world, ack, stiffness=vector(pitch=40.0)) as _,
         viewer(live, world.t1, world.s1_id) as v,
     ):
-        await v.next_of(wire.TelemetryMsg)
+        await v.next_of(wire.TelemetryBatch)
         await v.send("m-hold", "hold")
         assert (await v.next_of(wire.CommandResult, "m-hold")).ok
         during = await scrape(live)
