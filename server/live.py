@@ -28,7 +28,14 @@ from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
 
 from server import audit, live_audit
-from server.deps import LoginFailure, LoginStanding, authenticate_station, login_standing, may_read
+from server.deps import (
+    Id,
+    LoginFailure,
+    LoginStanding,
+    authenticate_station,
+    login_standing,
+    may_read,
+)
 from server.models import Patient, Prescription, Station, utcnow
 from server.tickets import ViewTickets
 from sessions import wire
@@ -545,7 +552,7 @@ async def _heartbeats(ws: WebSocket) -> None:
 
 # -- /ws/live/{station_id} -----------------------------------------------------------------
 @router.websocket("/ws/live/{station_id}")
-async def live_socket(ws: WebSocket, station_id: int) -> None:
+async def live_socket(ws: WebSocket, station_id: Id) -> None:
     hub = _hub(ws)
     token, subprotocol = _bearer(ws)
     standing: LoginStanding | None = None

@@ -45,7 +45,7 @@ from fastapi.responses import FileResponse, PlainTextResponse, RedirectResponse,
 from numpy.typing import NDArray
 from viser.infra import StateSerializer
 
-from server.deps import Db, TherapistOrAdmin
+from server.deps import Db, Id, TherapistOrAdmin
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.sessions import _session_for, recording_path, session_time
 from sessions.recording import Recording, read
@@ -204,9 +204,7 @@ def _sha256(path: Path) -> str:
     },
     summary="The session's 3D replay as one HTML page",
 )
-async def replay_page(
-    session_id: int, request: Request, db: Db, user: TherapistOrAdmin
-) -> Response:
+async def replay_page(session_id: Id, request: Request, db: Db, user: TherapistOrAdmin) -> Response:
     path = await _replay_file(request, db, user, session_id)
     html = await asyncio.to_thread(lambda: standalone_html(path.read_bytes()))
     return Response(
@@ -233,7 +231,7 @@ async def replay_page(
     summary="The session's 3D replay as a viser recording",
 )
 async def replay_recording(
-    session_id: int, request: Request, db: Db, user: TherapistOrAdmin
+    session_id: Id, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
     path = await _replay_file(request, db, user, session_id)
     return FileResponse(

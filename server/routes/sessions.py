@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from device.protocol.messages import DeviceMode
-from server.deps import Db, TherapistOrAdmin, record_for
+from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
@@ -84,9 +84,9 @@ async def _session_for(db: Db, user: TherapistOrAdmin, session_id: int) -> Sessi
 async def list_sessions(
     db: Db,
     user: TherapistOrAdmin,
-    patient_id: int | None = None,
-    station_id: int | None = None,
-    prescription_id: int | None = None,
+    patient_id: Id | None = None,
+    station_id: Id | None = None,
+    prescription_id: Id | None = None,
     since: Annotated[datetime | None, Query(description="Started at or after (ISO 8601).")] = None,
     until: Annotated[datetime | None, Query(description="Started before (ISO 8601).")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
@@ -116,7 +116,7 @@ async def list_sessions(
     responses=NOT_FOUND,
     summary="One session with its summary",
 )
-async def get_session(session_id: int, db: Db, user: TherapistOrAdmin) -> SessionPublic:
+async def get_session(session_id: Id, db: Db, user: TherapistOrAdmin) -> SessionPublic:
     return session_public(await _session_for(db, user, session_id))
 
 
@@ -134,7 +134,7 @@ async def get_session(session_id: int, db: Db, user: TherapistOrAdmin) -> Sessio
     summary="Download a session",
 )
 async def download(
-    session_id: int, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
+    session_id: Id, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
     row = await _session_for(db, user, session_id)
     if row.file_path is None:
@@ -373,7 +373,7 @@ def session_series(session_id: int, rec: Recording, points: int) -> SessionSerie
     summary="The whole session for charts, decimated keeping every peak",
 )
 async def get_series(
-    session_id: int,
+    session_id: Id,
     db: Db,
     user: TherapistOrAdmin,
     points: Annotated[
