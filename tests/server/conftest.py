@@ -1,5 +1,5 @@
 """Fixtures for the server tests; the helpers live in ``live_server``."""
 
-from tests.server.live_server import empty, live, seeded, world
+from tests.server.live_server import empty, fresh, live, seeded, world
 
-__all__ = ["empty", "live", "seeded", "world"]
+__all__ = ["empty", "fresh", "live", "seeded", "world"]

@@ -221,8 +221,10 @@ def store(request: pytest.FixtureRequest) -> Store:
 
 def parametrize_stores(metafunc: pytest.Metafunc) -> None:
     """``pytest_generate_tests`` for the server tests: a test marked ``both_stores`` that
-    uses a store runs once per store."""
-    if "store" in metafunc.fixturenames and metafunc.definition.get_closest_marker("both_stores"):
+    uses a store runs once per store, unless it is also marked ``sqlite_only`` (it reaches
+    into SQLite itself: its file, its PRAGMAs, its trigger syntax)."""
+    marked = metafunc.definition.get_closest_marker
+    if "store" in metafunc.fixturenames and marked("both_stores") and not marked("sqlite_only"):
         metafunc.parametrize("store", STORES, indirect=True)
 
 
@@ -280,6 +282,13 @@ async def live(
 @pytest.fixture
 def world(seeded_store: tuple[Path | str, World]) -> World:
     return seeded_store[1]
+
+
+@pytest.fixture
+def fresh(seeds: Seeds, store: Store, tmp_path: Path) -> Iterator[Settings]:
+    """Settings for a new, empty database on the test's store."""
+    with on_store(seeds, store, tmp_path / "data") as settings:
+        yield settings
 
 
 @pytest_asyncio.fixture

@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -31,13 +30,6 @@ from tests.server.postgres import Cluster
 pytestmark = pytest.mark.both_stores
 
 PROCESSES = 4
-
-
-@pytest.fixture
-def fresh(seeds: Seeds, store: Store, tmp_path: Path) -> Iterator[Settings]:
-    """Settings for a new, empty database on the test's store."""
-    with on_store(seeds, store, tmp_path / "data") as settings:
-        yield settings
 
 
 def _environment(settings: Settings) -> dict[str, str]:
