@@ -179,7 +179,7 @@ router = APIRouter(tags=["sessions"], responses=UNAUTHORIZED, lifespan=_lifespan
 
 async def _replay_file(request: Request, db: Db, user: TherapistOrAdmin, session_id: int) -> Path:
     row = await _session_for(db, user, session_id)
-    source = recording_path(row)
+    source = recording_path(request, row)
     sha256 = row.sha256
     if sha256 is None:
         sha256 = await asyncio.to_thread(_sha256, source)

@@ -264,7 +264,7 @@ async def upload_complete(
             size_bytes=body.size,
             sha256=digest,
             summary=summary.model_dump(mode="json"),
-            file_path=str(final),
+            file_path=str(final.relative_to(request.app.state.settings.data_dir)),
             upload_complete=True,
         )
         # Moved only now that every check has passed, and moved back if the row cannot be

@@ -13,6 +13,7 @@ import httpx
 import pytest
 
 from server.cli import wait_healthy
+from server.config import Settings
 from tests.server.live_server import Seeds, Store, World, bearer, on_store, running
 from tests.server.postgres import free_port
 from tests.server.test_series import recording_bytes, samples
@@ -110,3 +111,19 @@ async def test_a_session_uploaded_through_one_process_is_served_by_another(
                 f"/sessions/{session_id}/download/rec", headers=bearer(world.t1)
             )
             assert got.status_code == 200 and got.content == data
+        # Another host mounts the shared data directory elsewhere (or it was restored to a
+        # new place): the session is still found, in every format.
+        moved = tmp_path.with_name(tmp_path.name + "-elsewhere")
+        tmp_path.rename(moved)
+        try:
+            url = settings.database_url.replace(str(tmp_path), str(moved))
+            elsewhere = Settings(data_dir=moved, database_url=url)
+            async with running(elsewhere) as c:
+                t1 = bearer(world.t1)
+                for fmt in ("rec", "csv"):
+                    got = await c.client.get(f"/sessions/{session_id}/download/{fmt}", headers=t1)
+                    assert got.status_code == 200, got.text
+                r = await c.client.get(f"/sessions/{session_id}/series", headers=t1)
+                assert r.status_code == 200, r.text
+        finally:
+            moved.rename(tmp_path)
