@@ -3,6 +3,7 @@ starts them on one port, and a session filed through one is served by every othe
 
 from __future__ import annotations
 
+import asyncio
 import signal
 import subprocess
 import sys
@@ -127,3 +128,23 @@ async def test_a_session_uploaded_through_one_process_is_served_by_another(
                 assert r.status_code == 200, r.text
         finally:
             moved.rename(tmp_path)
+
+
+@pytest.mark.asyncio
+async def test_one_upload_sent_to_two_processes_at_once_is_taken_once(
+    seeds: Seeds, store: Store, seeded_store: tuple[Path | str, World], tmp_path: Path
+) -> None:
+    """A station's retry landing on another process while the first attempt is still being
+    written: one is taken (204), the other told the offset (409), never a 500 or a
+    corrupted file."""
+    template, world = seeded_store
+    with on_store(seeds, store, tmp_path, template) as settings:
+        async with running(settings) as a, running(settings) as b:
+            for _ in range(8):
+                sid = str(uuid.uuid4())
+                data = recording_bytes(sid, samples()[:600], world.s1_id, world.p1, world.rx1)
+                statuses = await asyncio.gather(put(a, world, sid, data), put(b, world, sid, data))
+                assert sorted(statuses) == [204, 409], statuses
+                assert await held(a, world, sid) == len(data)
+                r = await complete(b, world, sid, data)
+                assert r.status_code == 201, r.text
