@@ -12,10 +12,12 @@ from pathlib import Path
 
 import httpx
 import pytest
+from websockets.exceptions import InvalidStatus
 
 from server.errors import DATABASE_AWAY
 from tests.server.live_server import Live, Seeds, World, bearer, on_store, running
 from tests.server.postgres import Cluster
+from tests.server.ws_client import station_ws, viewer_ws
 
 
 async def _answers_while_away(live: Live, world: World) -> list[httpx.Response]:
@@ -27,6 +29,17 @@ async def _answers_while_away(live: Live, world: World) -> list[httpx.Response]:
         await c.post("/auth/login", json={"email": "t1@clinic.test", "password": "x" * 12}),
         await c.get("/station/prescriptions", headers=bearer(world.s1)),
     ]
+
+
+async def _handshakes_while_away(live: Live, world: World) -> list[int]:
+    """The HTTP status of each live link's handshake (a station's, a therapist's view)."""
+    statuses = []
+    for link in (station_ws(live, world.s1), viewer_ws(live, world.t1, world.s1_id)):
+        with pytest.raises(InvalidStatus) as refused:
+            async with link:
+                pass  # pragma: no cover
+        statuses.append(refused.value.response.status_code)
+    return statuses
 
 
 def _assert_away(answers: list[httpx.Response]) -> None:
@@ -69,6 +82,7 @@ async def test_postgresql_stopped_and_started_under_a_running_server(
             try:
                 _assert_away(await _answers_while_away(live, world))
                 await _health_says_away(live)
+                assert await _handshakes_while_away(live, world) == [503, 503]
             finally:
                 await _run_off_loop(cluster.start)
             await _works_again(live, world)
