@@ -30,6 +30,21 @@ from tests.server.postgres import Cluster
 pytestmark = pytest.mark.both_stores
 
 PROCESSES = 4
+MIGRATE_WHEN_TOLD = """
+import asyncio, sys
+from server.config import Settings
+from server.db import create_engine, migrate, revisions
+
+async def main():
+    engine = create_engine(Settings())
+    print("ready", flush=True)
+    sys.stdin.readline()
+    await migrate(engine)
+    print((await revisions(engine)).current)
+    await engine.dispose()
+
+asyncio.run(main())
+"""
 
 
 def _environment(settings: Settings) -> dict[str, str]:
@@ -53,23 +68,29 @@ def _ankle(settings: Settings, *argv: str, capsys: pytest.CaptureFixture[str]) -
 def test_processes_starting_together_on_an_empty_database_all_migrate(
     fresh: Settings,
 ) -> None:
-    """Four ``ankle db upgrade`` at once, the same migration as each server's start: all
-    succeed and the schema is built once."""
-    ankle = [sys.executable, "-c", "import sys; from ankle.cli import main; sys.exit(main())"]
+    """Four processes run the migration every server runs at start (and ``ankle db
+    upgrade``), released together once all are loaded: all succeed and reach head."""
     procs = [
         subprocess.Popen(
-            [*ankle, "db", "upgrade"],
+            [sys.executable, "-c", MIGRATE_WHEN_TOLD],
             env=_environment(fresh),
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
         for _ in range(PROCESSES)
     ]
-    results = [(p.wait(timeout=120), *p.communicate()) for p in procs]
-    for code, out, err in results:
+    for p in procs:  # every one imported and waiting
+        assert p.stdout is not None and p.stdout.readline() == "ready\n", p.communicate()
+    for p in procs:
+        assert p.stdin is not None
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    results = [(*p.communicate(timeout=120), p.returncode) for p in procs]
+    for out, err, code in results:
         assert code == 0, err
-        assert f"revision {head_revision()}; head {head_revision()}; up to date" in out
+        assert out == f"{head_revision()}\n"
 
 
 def test_ankle_db_current_upgrade_and_sql(
