@@ -41,7 +41,15 @@ def _parser() -> device_cli.Parser:
     server.add_argument("--data-dir", type=Path, default=None)
     server.add_argument("--host", default=None)
     server.add_argument("--port", type=int, default=None)
+    server.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="server processes sharing the port (default 1); more than one needs the Redis "
+        "relay (ANKLE_RELAY_URL) so that a station and its viewers may sit on different ones",
+    )
     _add_admin(sub)
+    _add_db(sub)
     from station.cli import add_arguments
 
     add_arguments(sub.add_parser("station", help="the patient's home station"))
@@ -83,6 +91,66 @@ def _add_admin(sub: argparse._SubParsersAction[device_cli.Parser]) -> None:
         )
 
 
+def _add_db(sub: argparse._SubParsersAction[device_cli.Parser]) -> None:
+    db = sub.add_parser(
+        "db",
+        help="the server's database schema (ANKLE_DATABASE_URL): upgrade, show the revision, "
+        "print the SQL and the grants for a DBA",
+    )
+    commands = db.add_subparsers(dest="db_command", required=True, parser_class=device_cli.Parser)
+    commands.add_parser("upgrade", help="bring the schema up to date (safe to run at any time)")
+    commands.add_parser("current", help="the database's revision and the one this server needs")
+    sql = commands.add_parser(
+        "sql", help="print the SQL that upgrades the schema, without connecting (for a DBA)"
+    )
+    sql.add_argument(
+        "--from", dest="start", default=None, help="the database's revision (default: empty)"
+    )
+    grants = commands.add_parser(
+        "grants",
+        help="print the SQL giving the server's PostgreSQL role its privileges (the audit "
+        "log: insert and read only)",
+    )
+    grants.add_argument("--role", required=True, help="the role the server connects as")
+    for command in commands.choices.values():
+        command.add_argument(
+            "--data-dir", type=Path, default=None, help="default: ANKLE_DATA_DIR or ./ankle-data"
+        )
+
+
+def _db(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from server import db
+    from server.config import Settings
+
+    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    if args.db_command == "sql":
+        print(db.migration_sql(settings.database_url, args.start), end="")
+        return 0
+    if args.db_command == "grants":
+        try:
+            print(db.grants_sql(settings.database_url, args.role), end="")
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return device_cli.USAGE_ERROR
+        return 0
+
+    async def run() -> db.Revisions:
+        engine = db.create_engine(settings)
+        try:
+            if args.db_command == "upgrade":
+                await db.migrate(engine)
+            return await db.revisions(engine)
+        finally:
+            await engine.dispose()
+
+    found = asyncio.run(run())
+    state = "up to date" if found.current == found.head else "behind: run `ankle db upgrade`"
+    print(f"revision {found.current or 'none (empty database)'}; head {found.head}; {state}")
+    return 0
+
+
 def _admin(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -118,7 +186,7 @@ def _admin(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] in (["run"], ["console"], ["server"], ["station"], ["admin"]):
+    if argv[:1] in (["run"], ["console"], ["server"], ["station"], ["admin"], ["db"]):
         try:
             args = parser.parse_args(argv)
         except device_cli.UsageError as exc:
@@ -126,6 +194,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return device_cli.USAGE_ERROR
         if args.command == "admin":
             return _admin(args)
+        if args.command == "db":
+            return _db(args)
         if args.command == "console":
             from device.console import run_console
 
@@ -137,16 +207,29 @@ def main(argv: Sequence[str] | None = None) -> int:
                 args.data_dir, args.host, args.port, args.seconds, page_port=args.page_port
             )
         if args.command == "server":
-            from server.cli import serve
+            from server.cli import serve, settings_into_environment
             from server.config import Settings
             from webui.app import create_app
 
+            if args.workers < 1:
+                print("error: --workers must be 1 or more", file=sys.stderr)
+                return device_cli.USAGE_ERROR
             overrides = {
                 k: v
                 for k, v in (("data_dir", args.data_dir), ("host", args.host), ("port", args.port))
                 if v is not None
             }
-            serve(Settings(**overrides), create_app)
+            settings = Settings(**overrides)
+            if args.workers > 1 and not settings.relay_url:
+                print(
+                    "error: --workers above 1 needs the live relay (ANKLE_RELAY_URL=redis://...):"
+                    " without it a station and its viewers on different processes would not"
+                    " see each other",
+                    file=sys.stderr,
+                )
+                return device_cli.USAGE_ERROR
+            settings_into_environment(settings, overrides)
+            serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
             return 0
         from station.cli import run as run_station
         from webui.patient import serve_patient_page

@@ -13,11 +13,11 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DBAPIError
 
 from server import errors, live, metrics
 from server.config import Settings
-from server.db import create_engine, create_sessionmaker, migrate
+from server.db import create_engine, create_sessionmaker, prepare
 from server.guard import RequestGuard
 from server.headers import SecurityHeaders
 from server.hub import VIEW_HZ, Hub
@@ -49,7 +49,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     relay = open_relay(settings.relay_url, settings.relay_lease_s, VIEW_HZ)
     hub = Hub(recheck_s=settings.live_recheck_s, relay=relay)
     try:
-        await migrate(engine)
+        await prepare(engine, settings.migrate_on_start)
         app.state.engine = engine
         app.state.sessionmaker = hub.sessionmaker = create_sessionmaker(engine)
         app.state.hub = hub
@@ -94,7 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(RequestValidationError, errors.validation_error)
     app.add_exception_handler(OverflowError, errors.overflow_error)
     app.add_exception_handler(OSError, errors.os_error)
-    app.add_exception_handler(OperationalError, errors.database_error)
+    app.add_exception_handler(DBAPIError, errors.database_error)
     # Bearer tokens, not cookies: no credentials mode, so a listed origin can call the API
     # but a browser never attaches anything on its own.
     app.add_middleware(

@@ -13,7 +13,7 @@ import subprocess
 import time
 import urllib.error
 import urllib.request
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -26,7 +26,7 @@ from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from server import accounts, audit
 from server.app import create_app
 from server.config import Settings
-from server.db import create_engine, create_sessionmaker, migrate
+from server.db import create_engine, create_sessionmaker, prepare
 from server.logs import uvicorn_log_config
 from server.models import Patient, Prescription, Role, Station, User
 from server.routes import API_PREFIX
@@ -65,33 +65,54 @@ def wait_healthy(url: str, proc: subprocess.Popen[bytes], timeout: float = 60.0)
 
 
 def serve(
-    settings: Settings | None = None, factory: Callable[[Settings], FastAPI] = create_app
+    settings: Settings | None = None,
+    factory: Callable[[Settings], FastAPI] = create_app,
+    *,
+    workers: int = 1,
+    worker_factory: str = "server.app:create_app",
 ) -> None:
-    """Run the server in the foreground until Ctrl-C (one process, one worker: the live hub
-    and the viser scenes live in this process's memory). ``ankle server`` passes the
-    dashboard's factory, which wraps this package's."""
+    """Run the server in the foreground until Ctrl-C. ``ankle server`` passes the
+    dashboard's factory, which wraps this package's.
+
+    With ``workers`` > 1, uvicorn starts that many processes on the one listening socket;
+    each builds its app by importing ``worker_factory`` (a factory called with no
+    arguments, which reads its settings from ``ANKLE_*`` variables: ``settings`` must be in
+    the environment already) and runs its own lifespan: its own engine, migration (under the
+    migration lock) and live hub."""
     settings = Settings() if settings is None else settings
-    app = factory(settings)
-    print(f"ankle server on {settings.public_url} (API docs: {API_PREFIX}/docs)", flush=True)
+    print(
+        f"ankle server on {settings.public_url} (API docs: {API_PREFIX}/docs)"
+        + (f", {workers} worker processes" if workers > 1 else ""),
+        flush=True,
+    )
     # No permessage-deflate: compressing every 50 Hz telemetry frame to every viewer (and
     # inflating each station's 100 Hz) cost the live relay about a tenth of its CPU time
     # (``ankle bench server``), for half the bytes of a ~650 B message.
-    config = uvicorn.Config(
-        app,
-        host=settings.host,
-        port=settings.port,
-        log_level="info",
-        log_config=uvicorn_log_config(settings.log_format),
-        ws_per_message_deflate=False,
-    )
-    uvicorn.Server(config).run()
+    options: dict[str, Any] = {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": "info",
+        "log_config": uvicorn_log_config(settings.log_format),
+        "ws_per_message_deflate": False,
+    }
+    if workers > 1:
+        uvicorn.run(worker_factory, factory=True, workers=workers, **options)
+    else:
+        uvicorn.Server(uvicorn.Config(factory(settings), **options)).run()
+
+
+def settings_into_environment(settings: Settings, names: Iterable[str]) -> None:
+    """Put the named settings into ``ANKLE_*`` variables, where worker processes (which
+    build their own Settings) find them."""
+    for name in names:
+        os.environ[f"ANKLE_{name.upper()}"] = str(getattr(settings, name))
 
 
 @asynccontextmanager
 async def _database(settings: Settings) -> AsyncIterator[async_sessionmaker[AsyncSession]]:
     engine = create_engine(settings)
     try:
-        await migrate(engine)
+        await prepare(engine, settings.migrate_on_start)
         yield create_sessionmaker(engine)
     finally:
         await engine.dispose()

@@ -40,8 +40,15 @@ class Settings(BaseSettings):
     database_url: str = Field(
         default="",
         description="SQLAlchemy async URL. Empty or unset: "
-        "sqlite+aiosqlite:///{data_dir}/ankle.db. PostgreSQL would be "
-        "postgresql+asyncpg://user@host/db.",
+        "sqlite+aiosqlite:///{data_dir}/ankle.db. PostgreSQL: "
+        "postgresql+asyncpg://user:password@host/db (the `postgres` install extra).",
+    )
+    migrate_on_start: bool = Field(
+        default=True,
+        description="Bring the database's schema up to date when the server starts (under a "
+        "lock, so several processes may start at once). False where a DBA runs `ankle db "
+        "upgrade` and the server's role may not change the schema: the server then refuses "
+        "to start on a schema that is not current.",
     )
     host: str = Field(default="127.0.0.1", description="Interface to listen on.")
     log_format: LogFormat = Field(

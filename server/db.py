@@ -1,14 +1,23 @@
-"""The database: an async engine for the configured URL and Alembic migrations on start."""
+"""The database: an async engine for the configured URL, and Alembic migrations, run once
+however many processes start at the same time."""
 
 from __future__ import annotations
 
+import asyncio
+import fcntl
+import io
 import os
+import re
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Connection, event, make_url
+from alembic.migration import MigrationContext
+from alembic.script import ScriptDirectory
+from sqlalchemy import Connection, event, make_url, text
 from sqlalchemy.ext.asyncio import (
     AsyncEngine,
     AsyncSession,
@@ -50,13 +59,17 @@ def private_data_dir(path: Path) -> None:
         os.chmod(path, PRIVATE_DIR)  # mkdir's mode is masked by the umask
 
 
+LOCK_SUFFIX = ".migrate-lock"
+"""Beside an SQLite file, the file whose lock one migrating process holds."""
+
+
 def private_sqlite_file(path: Path) -> None:
     """The database file, created empty with mode 0600 before SQLite opens it. SQLite gives
     its -wal and -shm files the mode of the database, so they are private too; a database
-    made before this rule is brought to it, with its companions."""
+    made before this rule is brought to it, with its companions (and the migration lock)."""
     fd = os.open(path, os.O_RDWR | os.O_CREAT, PRIVATE_FILE)
     os.close(fd)
-    for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
+    for p in (path, *(path.with_name(path.name + s) for s in ("-wal", "-shm", LOCK_SUFFIX))):
         if p.exists():
             os.chmod(p, PRIVATE_FILE)
 
@@ -76,7 +89,9 @@ def create_engine(settings: Settings) -> AsyncEngine:
     db_file = sqlite_file(settings.database_url)
     if db_file is not None:
         private_sqlite_file(db_file)
-    engine = create_async_engine(settings.database_url)
+    # Pre-ping: a pooled connection the database dropped (it restarted) is replaced before a
+    # request uses it, instead of failing that request.
+    engine = create_async_engine(settings.database_url, pool_pre_ping=True)
     if engine.dialect.name == "sqlite":
         event.listen(engine.sync_engine, "connect", _sqlite_pragmas)
     return engine
@@ -100,7 +115,122 @@ def _upgrade(connection: Connection, revision: str) -> None:
     command.upgrade(config, revision)
 
 
+MIGRATION_LOCK = 0x616E6B6C65  # "ankle": the advisory lock key of migrations on PostgreSQL
+
+
+@asynccontextmanager
+async def _sqlite_lock(engine: AsyncEngine) -> AsyncIterator[None]:
+    """An exclusive lock on a file beside an SQLite database (``LOCK_SUFFIX``), held while
+    one process migrates; an in-memory database is one process's alone."""
+    database = engine.url.database
+    if engine.dialect.name != "sqlite" or database in (None, "", ":memory:"):
+        yield
+        return
+    fd = os.open(f"{database}{LOCK_SUFFIX}", os.O_RDWR | os.O_CREAT, PRIVATE_FILE)
+    try:
+        await asyncio.to_thread(fcntl.flock, fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
 async def migrate(engine: AsyncEngine, revision: str = "head") -> None:
-    """Bring the schema to ``revision`` (all migrations by default), in one transaction."""
-    async with engine.begin() as connection:
+    """Bring the schema to ``revision`` (all migrations by default), in one transaction.
+
+    Processes starting together on one database take turns (an advisory lock on
+    PostgreSQL, a file lock beside an SQLite file): the first migrates, the others then
+    find the schema at ``revision`` and do nothing."""
+    async with _sqlite_lock(engine), engine.begin() as connection:
+        if engine.dialect.name == "postgresql":
+            # Released at commit, when the schema and alembic_version are both visible.
+            await connection.execute(
+                text("SELECT pg_advisory_xact_lock(:key)"), {"key": MIGRATION_LOCK}
+            )
         await connection.run_sync(_upgrade, revision)
+
+
+class SchemaNotCurrent(Exception):
+    """The database's schema is not the one this server needs, and it may not migrate."""
+
+
+async def require_current(engine: AsyncEngine) -> None:
+    """Raise SchemaNotCurrent unless the database is at this server's newest revision."""
+    found = await revisions(engine)
+    if found.current != found.head:
+        raise SchemaNotCurrent(
+            f"the database's schema is at revision {found.current or 'none (empty)'} and this "
+            f"server needs {found.head}: run `ankle db upgrade` (or set "
+            "ANKLE_MIGRATE_ON_START=true)"
+        )
+
+
+async def prepare(engine: AsyncEngine, migrate_on_start: bool) -> None:
+    """What a process does with the database before it serves: migrate, or check that
+    someone did."""
+    if migrate_on_start:
+        await migrate(engine)
+    else:
+        await require_current(engine)
+
+
+class Revisions(NamedTuple):
+    current: str | None
+    """The database's revision; None for a database never migrated."""
+    head: str
+    """The newest revision this version of the server knows."""
+
+
+def head_revision() -> str:
+    head = ScriptDirectory.from_config(alembic_config()).get_current_head()
+    assert head is not None
+    return head
+
+
+async def revisions(engine: AsyncEngine) -> Revisions:
+    """Where the database's schema is, and where this server would bring it."""
+
+    def current(connection: Connection) -> str | None:
+        return MigrationContext.configure(connection).get_current_revision()
+
+    async with engine.connect() as connection:
+        return Revisions(await connection.run_sync(current), head_revision())
+
+
+def migration_sql(database_url: str, start: str | None = None, revision: str = "head") -> str:
+    """The SQL that brings a database of ``database_url``'s kind from ``start`` (empty by
+    default) to ``revision``, for a DBA to read or run (Alembic's offline mode; nothing
+    connects)."""
+    out = io.StringIO()
+    config = Config(output_buffer=out)
+    config.set_main_option("script_location", str(MIGRATIONS))
+    config.attributes["offline_url"] = database_url
+    command.upgrade(config, f"{start}:{revision}" if start else revision, sql=True)
+    return out.getvalue()
+
+
+_ROLE = re.compile(r"^[A-Za-z_][A-Za-z0-9_$]{0,62}$")
+
+
+def grants_sql(database_url: str, role: str) -> str:
+    """The SQL a DBA runs (as the owner of the tables, after ``ankle db upgrade``) so that
+    the server's role ``role`` may read and write what it serves, but never change or
+    remove an audit row (the trigger refuses that too; the missing privilege refuses it
+    even should the trigger be dropped). Raises ValueError for a role that is not a plain
+    identifier."""
+    if not _ROLE.match(role):
+        raise ValueError(f"--role {role!r} is not a plain SQL identifier (letters, digits, _)")
+    database = make_url(database_url).database or "ankle"
+    r = f'"{role}"'
+    return "\n".join(
+        (
+            f"-- The server's role {role}: data, not schema (run `ankle db upgrade` as the owner",
+            "-- and start the server with ANKLE_MIGRATE_ON_START=false).",
+            f'GRANT CONNECT ON DATABASE "{database}" TO {r};',
+            f"GRANT USAGE ON SCHEMA public TO {r};",
+            f"GRANT SELECT, INSERT, UPDATE, DELETE ON ALL TABLES IN SCHEMA public TO {r};",
+            f"GRANT USAGE, SELECT ON ALL SEQUENCES IN SCHEMA public TO {r};",
+            "-- The audit log is append-only: insert and read, nothing else.",
+            f"REVOKE UPDATE, DELETE, TRUNCATE ON audit_log FROM {r};",
+            "",
+        )
+    )

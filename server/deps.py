@@ -17,16 +17,22 @@ from collections.abc import AsyncIterator
 from datetime import datetime, timedelta
 from typing import Annotated, Literal, NamedTuple, Protocol, TypeVar
 
+from annotated_types import Ge, Le
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
-from server.models import AuthToken, Patient, Station, User, utcnow
+from server.models import ID_MAX, AuthToken, Patient, Station, User, utcnow
 from server.security import same_secret, token_hash
 
 # Writing last_seen_at on every request of a polling station would be a write per poll.
 LAST_SEEN_RESOLUTION = timedelta(seconds=30)
+
+Id = Annotated[int, Ge(1), Le(ID_MAX)]
+"""The type of every id a request names (path or query): anything outside 1..2**63-1
+names no record and is a 422 naming the parameter, before the database is asked (where the
+driver would overflow). ``tests/server/test_ids.py`` checks every route uses it."""
 
 _user_bearer = HTTPBearer(
     auto_error=False,

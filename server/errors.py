@@ -1,5 +1,6 @@
 """Answers for requests the routes cannot serve: invalid input, numbers past the store's
-range, and a full disk. Each is a 4xx or 507 with a sentence, never a 500.
+range, a full disk and a database that is away. Each is a 4xx, 503 or 507 with a sentence,
+never a 500.
 
 The validation answer keeps FastAPI's shape (``detail``: a list of ``type``, ``loc``,
 ``msg``, ``input``) but quotes at most ``EXCERPT`` characters of the input: FastAPI's own
@@ -13,13 +14,14 @@ import errno
 import json
 import logging
 import math
+import socket
 import sqlite3
 from typing import Any
 
 from fastapi import Request, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DBAPIError
 
 log = logging.getLogger("ankle.server")
 
@@ -31,6 +33,16 @@ DISK_FULL = (
     "the server's disk is full: nothing of this request was stored; "
     "try again once an administrator has freed space"
 )
+DATABASE_AWAY = (
+    "the database is unavailable (restarting, unreachable or busy): nothing of this request "
+    "was done; try again in a few seconds"
+)
+RETRY_AFTER_S = 5
+"""What a 503 for a database that is away tells a client to wait, seconds."""
+_SQLITE_AWAY = {sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED, sqlite3.SQLITE_CANTOPEN}
+# SQLSTATE classes of a database that is not there: 08 connection exception, 57P operator
+# intervention (shutting down, crashed, still starting up).
+_SQLSTATE_AWAY = ("08", "57P")
 
 
 class _Full(Exception):
@@ -147,23 +159,59 @@ def _disk_full() -> JSONResponse:
     return JSONResponse({"detail": DISK_FULL}, status_code=status.HTTP_507_INSUFFICIENT_STORAGE)
 
 
+def database_unavailable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the database cannot be reached now (as opposed to refusing
+    this statement): refused or dropped connections, a server shutting down or starting
+    up, an SQLite file locked past its busy timeout or that cannot be opened. The one rule
+    both the 503 handlers and ``/health`` ask."""
+    if isinstance(exc, DBAPIError) and exc.connection_invalidated:
+        return True
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, ConnectionError | TimeoutError | socket.gaierror):
+            return True
+        if str(getattr(e, "sqlstate", None) or "").startswith(_SQLSTATE_AWAY):
+            return True
+        if getattr(e, "sqlite_errorcode", None) in _SQLITE_AWAY:
+            return True
+        e = e.orig if isinstance(e, DBAPIError) else (e.__cause__ or e.__context__)
+    return False
+
+
+def _database_away(request: Request, exc: BaseException) -> JSONResponse:
+    log.warning("database unavailable while serving %s: %s", request.url.path, exc)
+    return JSONResponse(
+        {"detail": DATABASE_AWAY},
+        status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+        headers={"Retry-After": str(RETRY_AFTER_S)},
+    )
+
+
 async def os_error(request: Request, exc: Exception) -> JSONResponse:
     """A write that found no space (or quota) left is the server's state, not a bug: 507.
-    Any other OSError is a fault and goes on to the 500 handler."""
+    A connection to the database refused or lost: 503. Any other OSError is a fault and
+    goes on to the 500 handler."""
     assert isinstance(exc, OSError)
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         log.error("disk full while serving %s: %s", request.url.path, exc)
         return _disk_full()
+    if database_unavailable(exc):
+        return _database_away(request, exc)
     raise exc
 
 
 async def database_error(request: Request, exc: Exception) -> JSONResponse:
-    """SQLite says SQLITE_FULL when the disk is full; the transaction is rolled back."""
-    assert isinstance(exc, OperationalError)
+    """SQLite says SQLITE_FULL when the disk is full (507); a database that is away is a
+    503 with ``Retry-After``. The transaction is rolled back either way."""
+    assert isinstance(exc, DBAPIError)
     causes = [exc.orig, getattr(exc.orig, "__cause__", None)]  # the async driver wraps it
     if any(
         getattr(c, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL for c in causes
     ) or "database or disk is full" in str(exc):
         log.error("database full while serving %s", request.url.path)
         return _disk_full()
+    if database_unavailable(exc):
+        return _database_away(request, exc)
     raise exc

@@ -25,7 +25,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
 from server import metrics
-from server.deps import LoginStanding, authenticate_station
+from server.deps import Id, LoginStanding, authenticate_station
 from server.hub import (
     CONTROL_QUEUE_MAX,
     LOGIN_CLOSE,
@@ -224,7 +224,7 @@ async def _heartbeats(ws: WebSocket) -> None:
 
 # -- /ws/live/{station_id} -----------------------------------------------------------------
 @router.websocket("/ws/live/{station_id}")
-async def live_socket(ws: WebSocket, station_id: int) -> None:
+async def live_socket(ws: WebSocket, station_id: Id) -> None:
     hub = _hub(ws)
     token, subprotocol = _bearer(ws)
     standing: LoginStanding | None = None

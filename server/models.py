@@ -44,6 +44,13 @@ NAMING = {
 }
 
 
+ID = BigInteger().with_variant(Integer(), "sqlite")
+"""Every id and every column naming one: 64-bit on PostgreSQL (migration 0003), and
+SQLite's INTEGER, whose primary key is already a 64-bit rowid that autoincrements."""
+ID_MAX = 2**63 - 1
+"""The largest id the store holds; the API refuses any outside 1..ID_MAX (``routes.common``)."""
+
+
 def utcnow() -> datetime:
     return datetime.now(UTC)
 
@@ -83,7 +90,7 @@ class User(Base):
     __tablename__ = "users"
     __table_args__ = (CheckConstraint("role IN ('therapist', 'admin')", name="role"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
     email: Mapped[str] = mapped_column(String(254), unique=True)
     name: Mapped[str] = mapped_column(String(120))
     role: Mapped[str] = mapped_column(String(16))
@@ -103,9 +110,9 @@ class AuthToken(Base):
 
     __tablename__ = "auth_tokens"
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
-    user_id: Mapped[int] = mapped_column(ForeignKey("users.id"), index=True)
+    user_id: Mapped[int] = mapped_column(ID, ForeignKey("users.id"), index=True)
     expires_at: Mapped[datetime]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
@@ -118,8 +125,8 @@ class Patient(Base):
         CheckConstraint("affected_side IN ('left', 'right', 'both')", name="affected_side"),
     )
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    therapist_id: Mapped[int] = mapped_column(ForeignKey("users.id"), index=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
+    therapist_id: Mapped[int] = mapped_column(ID, ForeignKey("users.id"), index=True)
     display_name: Mapped[str] = mapped_column(String(120))
     reference: Mapped[str | None] = mapped_column(String(64))
     birth_year: Mapped[int | None] = mapped_column(Integer)
@@ -137,8 +144,8 @@ class Station(Base):
 
     __tablename__ = "stations"
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    patient_id: Mapped[int] = mapped_column(ForeignKey("patients.id"), index=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
+    patient_id: Mapped[int] = mapped_column(ID, ForeignKey("patients.id"), index=True)
     name: Mapped[str] = mapped_column(String(120))
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
@@ -154,9 +161,9 @@ class Prescription(Base):
         CheckConstraint("status IN ('active', 'cancelled', 'completed')", name="status"),
     )
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    patient_id: Mapped[int] = mapped_column(ForeignKey("patients.id"), index=True)
-    created_by: Mapped[int] = mapped_column(ForeignKey("users.id"))
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
+    patient_id: Mapped[int] = mapped_column(ID, ForeignKey("patients.id"), index=True)
+    created_by: Mapped[int] = mapped_column(ID, ForeignKey("users.id"))
     body: Mapped[dict[str, Any]]
     status: Mapped[str] = mapped_column(String(16), default="active")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
@@ -169,11 +176,11 @@ class Session(Base):
 
     __tablename__ = "sessions"
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
     session_uuid: Mapped[str] = mapped_column(String(36), unique=True)
-    station_id: Mapped[int] = mapped_column(ForeignKey("stations.id"), index=True)
-    patient_id: Mapped[int] = mapped_column(ForeignKey("patients.id"), index=True)
-    prescription_id: Mapped[int | None] = mapped_column(ForeignKey("prescriptions.id"))
+    station_id: Mapped[int] = mapped_column(ID, ForeignKey("stations.id"), index=True)
+    patient_id: Mapped[int] = mapped_column(ID, ForeignKey("patients.id"), index=True)
+    prescription_id: Mapped[int | None] = mapped_column(ID, ForeignKey("prescriptions.id"))
     started_at: Mapped[datetime]
     ended_at: Mapped[datetime | None]
     end_reason: Mapped[str | None] = mapped_column(String(64))
@@ -191,24 +198,24 @@ class Upload(Base):
     __tablename__ = "uploads"
 
     session_uuid: Mapped[str] = mapped_column(String(36), primary_key=True)
-    station_id: Mapped[int] = mapped_column(ForeignKey("stations.id"), index=True)
+    station_id: Mapped[int] = mapped_column(ID, ForeignKey("stations.id"), index=True)
     received_bytes: Mapped[int] = mapped_column(BigInteger, default=0)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
 
 
 class AuditEntry(Base):
-    """Who changed what, when, from which value to which. Append-only (a trigger refuses
-    UPDATE and DELETE on SQLite)."""
+    """Who changed what, when, from which value to which. Append-only: triggers refuse UPDATE
+    and DELETE (and TRUNCATE on PostgreSQL), whatever the application asks."""
 
     __tablename__ = "audit_log"
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(ID, primary_key=True)
     at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     actor: Mapped[str] = mapped_column(String(64))
     action: Mapped[str] = mapped_column(String(64), index=True)
     entity: Mapped[str] = mapped_column(String(32))
     entity_id: Mapped[str] = mapped_column(String(64))
-    patient_id: Mapped[int | None] = mapped_column(ForeignKey("patients.id"), index=True)
+    patient_id: Mapped[int | None] = mapped_column(ID, ForeignKey("patients.id"), index=True)
     old: Mapped[dict[str, Any] | None]
     new: Mapped[dict[str, Any] | None]

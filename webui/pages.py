@@ -9,6 +9,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import FileResponse, RedirectResponse
 
+from server.deps import Id
 from webui.assets import STATIC, page
 
 router = APIRouter(include_in_schema=False)
@@ -41,22 +42,22 @@ async def patients() -> FileResponse:
 
 
 @router.get("/app/patients/{patient_id}")
-async def patient(patient_id: int) -> FileResponse:
+async def patient(patient_id: Id) -> FileResponse:
     return page("patient.html")
 
 
 @router.get("/app/patients/{patient_id}/prescribe")
-async def prescribe(patient_id: int) -> FileResponse:
+async def prescribe(patient_id: Id) -> FileResponse:
     return page("prescribe.html")
 
 
 @router.get("/app/live/{station_id}")
-async def live(station_id: int) -> FileResponse:
+async def live(station_id: Id) -> FileResponse:
     return page("live.html")
 
 
 @router.get("/app/sessions/{session_id}")
-async def session(session_id: int) -> FileResponse:
+async def session(session_id: Id) -> FileResponse:
     return page("session.html")
 
 

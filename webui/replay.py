@@ -45,7 +45,7 @@ from fastapi.responses import FileResponse, PlainTextResponse, RedirectResponse,
 from numpy.typing import NDArray
 from viser.infra import StateSerializer
 
-from server.deps import Db, TherapistOrAdmin
+from server.deps import Db, Id, TherapistOrAdmin
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.sessions import _session_for, recording_path, session_time
 from sessions.recording import Recording, read
@@ -179,7 +179,7 @@ router = APIRouter(tags=["sessions"], responses=UNAUTHORIZED, lifespan=_lifespan
 
 async def _replay_file(request: Request, db: Db, user: TherapistOrAdmin, session_id: int) -> Path:
     row = await _session_for(db, user, session_id)
-    source = recording_path(row)
+    source = recording_path(request, row)
     sha256 = row.sha256
     if sha256 is None:
         sha256 = await asyncio.to_thread(_sha256, source)
@@ -204,9 +204,7 @@ def _sha256(path: Path) -> str:
     },
     summary="The session's 3D replay as one HTML page",
 )
-async def replay_page(
-    session_id: int, request: Request, db: Db, user: TherapistOrAdmin
-) -> Response:
+async def replay_page(session_id: Id, request: Request, db: Db, user: TherapistOrAdmin) -> Response:
     path = await _replay_file(request, db, user, session_id)
     html = await asyncio.to_thread(lambda: standalone_html(path.read_bytes()))
     return Response(
@@ -233,7 +231,7 @@ async def replay_page(
     summary="The session's 3D replay as a viser recording",
 )
 async def replay_recording(
-    session_id: int, request: Request, db: Db, user: TherapistOrAdmin
+    session_id: Id, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
     path = await _replay_file(request, db, user, session_id)
     return FileResponse(

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
-from server.deps import Db, TherapistOrAdmin, UserCredentials, record_for
+from server.deps import Db, Id, TherapistOrAdmin, UserCredentials, record_for
 from server.models import Station, User
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.tickets import ViewTickets
@@ -48,7 +48,7 @@ async def _watchable(db: Db, user: User, station_id: int) -> Station:
     summary="The live 3D view of a station: what it draws",
 )
 async def station_scene(
-    station_id: int, request: Request, db: Db, user: TherapistOrAdmin
+    station_id: Id, request: Request, db: Db, user: TherapistOrAdmin
 ) -> ScenePublic:
     """Starts the station's 3D view if it is not running and says what it draws now. It
     follows the station's telemetry at 30 Hz and stops once nobody has watched it (live
@@ -74,7 +74,7 @@ async def station_scene(
     summary="A ticket to open the live 3D view of a station",
 )
 async def station_scene_ticket(
-    station_id: int,
+    station_id: Id,
     request: Request,
     db: Db,
     user: TherapistOrAdmin,

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from sqlalchemy import select
 
-from server.deps import Db, TherapistOrAdmin
+from server.deps import Db, Id, TherapistOrAdmin
 from server.models import AuditEntry, Patient
 from server.routes.common import UNAUTHORIZED
 from server.schemas import AuditPublic
@@ -24,12 +24,12 @@ router = APIRouter(prefix="/audit", tags=["audit"])
 async def list_audit(
     user: TherapistOrAdmin,
     db: Db,
-    patient_id: Annotated[int | None, Query(description="Only this patient's rows.")] = None,
+    patient_id: Annotated[Id | None, Query(description="Only this patient's rows.")] = None,
     action: Annotated[
         str | None, Query(max_length=64, description="Only this action, e.g. patient.update.")
     ] = None,
     station_id: Annotated[
-        int | None,
+        Id | None,
         Query(description="Only rows about this station: its live commands, provisioning."),
     ] = None,
     request_id: Annotated[

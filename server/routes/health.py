@@ -10,6 +10,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from device import installed_version
 from server.deps import Db
+from server.errors import RETRY_AFTER_S
 from server.schemas import HealthPublic
 
 router = APIRouter(tags=["health"])
@@ -27,12 +28,14 @@ async def health(db: Db, request: Request, response: Response) -> HealthPublic:
     try:
         await db.execute(text("SELECT 1"))
         database = True
-    except SQLAlchemyError:
+    except (SQLAlchemyError, OSError):  # OSError: the driver could not even connect
         database = False
     free = shutil.disk_usage(settings.data_dir).free
     disk = free >= settings.disk_free_min_bytes
     if not (database and disk):
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
+    if not database:
+        response.headers["Retry-After"] = str(RETRY_AFTER_S)
     return HealthPublic(
         status="ok" if database and disk else "degraded",
         version=server_version(),

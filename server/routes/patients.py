@@ -16,7 +16,7 @@ from fastapi import APIRouter, Query, Request, status
 from sqlalchemy import select
 
 from server import audit
-from server.deps import Db, Therapist, TherapistOrAdmin, patient_for
+from server.deps import Db, Id, Therapist, TherapistOrAdmin, patient_for
 from server.models import Patient, Prescription, Station, utcnow
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.routes.prescriptions import cancel
@@ -89,7 +89,7 @@ async def create_patient(body: PatientCreate, user: Therapist, db: Db) -> Patien
     summary="One patient",
     responses={**UNAUTHORIZED, **NOT_FOUND},
 )
-async def get_patient(patient_id: int, user: TherapistOrAdmin, db: Db) -> PatientPublic:
+async def get_patient(patient_id: Id, user: TherapistOrAdmin, db: Db) -> PatientPublic:
     """The patient's therapist, or any admin (read-only). Someone else's patient is a 404."""
     return PatientPublic.model_validate(await patient_for(db, user, patient_id))
 
@@ -101,7 +101,7 @@ async def get_patient(patient_id: int, user: TherapistOrAdmin, db: Db) -> Patien
     responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND, **CONFLICT},
 )
 async def update_patient(
-    patient_id: int, body: PatientUpdate, user: Therapist, db: Db
+    patient_id: Id, body: PatientUpdate, user: Therapist, db: Db
 ) -> PatientPublic:
     """The patient's own therapist only; 409 if the patient is archived. Fields left out
     keep their value. Audited as patient.update with the old and new value of each changed
@@ -133,7 +133,7 @@ async def update_patient(
     responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND},
 )
 async def archive_patient(
-    patient_id: int, user: Therapist, db: Db, request: Request
+    patient_id: Id, user: Therapist, db: Db, request: Request
 ) -> PatientArchived:
     """The patient's own therapist only. The record becomes read-only and leaves the
     default patient list (``GET /patients?archived=true`` lists it); their active
@@ -201,7 +201,7 @@ async def archive_patient(
     summary="Bring an archived patient back",
     responses={**UNAUTHORIZED, **FORBIDDEN, **NOT_FOUND},
 )
-async def unarchive_patient(patient_id: int, user: Therapist, db: Db) -> PatientPublic:
+async def unarchive_patient(patient_id: Id, user: Therapist, db: Db) -> PatientPublic:
     """The patient's own therapist only. The record can be changed again and is back in
     the default list; withdrawn prescriptions and revoked stations stay so (prescribe and
     provision anew). Unarchiving a current patient changes nothing. Audited as

@@ -16,6 +16,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server import audit
 from server.deps import (
     Db,
+    Id,
     Therapist,
     TherapistOrAdmin,
     may_read,
@@ -76,7 +77,7 @@ async def notify_stations(request: Request, db: AsyncSession, patient_id: int) -
     responses={**UNAUTHORIZED, **NOT_FOUND},
 )
 async def list_prescriptions(
-    patient_id: int,
+    patient_id: Id,
     user: TherapistOrAdmin,
     db: Db,
     status_filter: Annotated[
@@ -104,7 +105,7 @@ async def list_prescriptions(
     responses={**_ERRORS, **CONFLICT},
 )
 async def create_prescription(
-    patient_id: int, body: PrescriptionCreate, user: Therapist, db: Db, request: Request
+    patient_id: Id, body: PrescriptionCreate, user: Therapist, db: Db, request: Request
 ) -> PrescriptionPublic:
     """The patient's own therapist only. Values outside anatomical ranges or the device's
     limits are a 422 naming the field and the bound. Audited as prescription.create."""
@@ -135,7 +136,7 @@ async def create_prescription(
     responses={**UNAUTHORIZED, **NOT_FOUND},
 )
 async def get_prescription(
-    prescription_id: int, user: TherapistOrAdmin, db: Db
+    prescription_id: Id, user: TherapistOrAdmin, db: Db
 ) -> PrescriptionPublic:
     """The patient's therapist, or an admin (read-only)."""
     return PrescriptionPublic.from_row(await prescription_for(db, user, prescription_id))
@@ -156,7 +157,7 @@ def _require_active(prescription: Prescription) -> None:
     responses={**_ERRORS, **CONFLICT},
 )
 async def update_prescription(
-    prescription_id: int, body: PrescriptionUpdate, user: Therapist, db: Db, request: Request
+    prescription_id: Id, body: PrescriptionUpdate, user: Therapist, db: Db, request: Request
 ) -> PrescriptionPublic:
     """The patient's own therapist only; the body is replaced whole and the version goes up
     by one. 409 if the prescription is no longer active. Audited as prescription.update with
@@ -192,7 +193,7 @@ async def update_prescription(
     responses={**_ERRORS, **CONFLICT},
 )
 async def cancel_prescription(
-    prescription_id: int, user: Therapist, db: Db, request: Request
+    prescription_id: Id, user: Therapist, db: Db, request: Request
 ) -> PrescriptionPublic:
     """The patient's own therapist only; the station stops offering it. 409 if it is not
     active. Audited as prescription.cancel."""

@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from device.protocol.messages import DeviceMode
-from server.deps import Db, TherapistOrAdmin, record_for
+from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
@@ -84,9 +84,9 @@ async def _session_for(db: Db, user: TherapistOrAdmin, session_id: int) -> Sessi
 async def list_sessions(
     db: Db,
     user: TherapistOrAdmin,
-    patient_id: int | None = None,
-    station_id: int | None = None,
-    prescription_id: int | None = None,
+    patient_id: Id | None = None,
+    station_id: Id | None = None,
+    prescription_id: Id | None = None,
     since: Annotated[datetime | None, Query(description="Started at or after (ISO 8601).")] = None,
     until: Annotated[datetime | None, Query(description="Started before (ISO 8601).")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
@@ -116,7 +116,7 @@ async def list_sessions(
     responses=NOT_FOUND,
     summary="One session with its summary",
 )
-async def get_session(session_id: int, db: Db, user: TherapistOrAdmin) -> SessionPublic:
+async def get_session(session_id: Id, db: Db, user: TherapistOrAdmin) -> SessionPublic:
     return session_public(await _session_for(db, user, session_id))
 
 
@@ -134,12 +134,10 @@ async def get_session(session_id: int, db: Db, user: TherapistOrAdmin) -> Sessio
     summary="Download a session",
 )
 async def download(
-    session_id: int, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
+    session_id: Id, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
     row = await _session_for(db, user, session_id)
-    if row.file_path is None:
-        raise HTTPException(404, "session file not found")
-    source = Path(row.file_path)
+    source = recording_path(request, row)
     name = f"session-{row.id}-{row.started_at:%Y%m%d-%H%M%S}"
     if fmt == "rec":
         path, digest, media = source, row.sha256 or "", "application/octet-stream"
@@ -168,11 +166,18 @@ def _export(source: Path, fmt: str, path: Path) -> str:
     return write_export(read(source), fmt, path)
 
 
-def recording_path(row: Session) -> Path:
-    """The stored recording of a session; 404 if the server holds no file for it."""
-    if row.file_path is None or not Path(row.file_path).is_file():
-        raise HTTPException(404, "session file not found")
-    return Path(row.file_path)
+def recording_path(request: Request, row: Session) -> Path:
+    """The stored recording of a session; 404 if the server holds no file for it.
+
+    ``file_path`` is relative to the data directory (older rows hold an absolute path,
+    which the join leaves as it is), so every server process, whatever its working
+    directory or the mount point of the shared data directory, finds the file another
+    process filed."""
+    if row.file_path is not None:
+        path = Path(request.app.state.settings.data_dir) / row.file_path
+        if path.is_file():
+            return path
+    raise HTTPException(404, "session file not found")
 
 
 # ---- the whole session for charts -------------------------------------------------------
@@ -373,7 +378,8 @@ def session_series(session_id: int, rec: Recording, points: int) -> SessionSerie
     summary="The whole session for charts, decimated keeping every peak",
 )
 async def get_series(
-    session_id: int,
+    session_id: Id,
+    request: Request,
     db: Db,
     user: TherapistOrAdmin,
     points: Annotated[
@@ -387,7 +393,7 @@ async def get_series(
     ] = SERIES_POINTS,
 ) -> SessionSeries:
     row = await _session_for(db, user, session_id)
-    source = recording_path(row)
+    source = recording_path(request, row)
 
     def build() -> SessionSeries:
         return session_series(session_id, read(source), points)

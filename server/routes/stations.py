@@ -9,7 +9,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
-from server.deps import Db, TherapistOrAdmin, may_manage_stations, not_found, require_current
+from server.deps import Db, Id, TherapistOrAdmin, may_manage_stations, not_found, require_current
 from server.models import Patient, Station, User
 from server.routes.common import CONFLICT, NOT_FOUND, UNAUTHORIZED
 from server.schemas import StationCreate, StationProvisioned, StationPublic
@@ -58,7 +58,7 @@ def revoke(db: AsyncSession, actor: str, station: Station, because: str = "") ->
     responses={**UNAUTHORIZED, **NOT_FOUND, **CONFLICT},
 )
 async def provision_station(
-    patient_id: int, body: StationCreate, user: TherapistOrAdmin, db: Db, request: Request
+    patient_id: Id, body: StationCreate, user: TherapistOrAdmin, db: Db, request: Request
 ) -> StationProvisioned:
     """The patient's therapist or an admin. The answer carries the station's token; it is
     shown this once and only its hash is stored. 409 for an archived patient. Audited as
@@ -93,7 +93,7 @@ async def provision_station(
     responses=UNAUTHORIZED,
 )
 async def list_stations(
-    user: TherapistOrAdmin, db: Db, request: Request, patient_id: int | None = None
+    user: TherapistOrAdmin, db: Db, request: Request, patient_id: Id | None = None
 ) -> list[StationPublic]:
     """A therapist sees their patients' stations, an admin all; with ``online`` (connected
     now) and ``last_seen_at``. Optionally one patient's."""
@@ -116,7 +116,7 @@ async def list_stations(
     responses={**UNAUTHORIZED, **NOT_FOUND},
 )
 async def revoke_station(
-    station_id: int, user: TherapistOrAdmin, db: Db, request: Request
+    station_id: Id, user: TherapistOrAdmin, db: Db, request: Request
 ) -> StationPublic:
     """The patient's therapist or an admin. The station's token is refused from now on
     (a lost or returned device); revoking twice changes nothing. Audited as station.revoke."""

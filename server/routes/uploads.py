@@ -11,9 +11,13 @@ again.
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import hashlib
 import os
 import uuid
+import zlib
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
@@ -76,9 +80,33 @@ def _dirs(request: Request) -> tuple[Path, Path]:
     return uploads, sessions
 
 
-def _lock(request: Request, key: str) -> asyncio.Lock:
+LOCK_STRIPES = 64
+"""Lock files shared by all uploads (an upload takes the one its id hashes to), so that no
+lock file is left behind per upload."""
+LOCK_POLL_S = 0.01
+
+
+@asynccontextmanager
+async def _lock(request: Request, key: str) -> AsyncIterator[None]:
+    """One upload's appends and completion, one at a time: among this process's requests
+    (an asyncio lock) and among every server process sharing the data directory (an
+    exclusive flock on a stripe file in uploads/). The flock is polled, never waited for
+    in a thread: the holder needs the thread pool to write its bytes."""
     locks: dict[str, asyncio.Lock] = request.app.state.__dict__.setdefault("upload_locks", {})
-    return locks.setdefault(key, asyncio.Lock())
+    async with locks.setdefault(key, asyncio.Lock()):
+        uploads, _ = _dirs(request)
+        stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
+        fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    await asyncio.sleep(LOCK_POLL_S)
+            yield
+        finally:
+            os.close(fd)  # releases the flock
 
 
 def _append(path: Path, offset: int, data: bytes) -> None:
@@ -264,7 +292,7 @@ async def upload_complete(
             size_bytes=body.size,
             sha256=digest,
             summary=summary.model_dump(mode="json"),
-            file_path=str(final),
+            file_path=str(final.relative_to(request.app.state.settings.data_dir)),
             upload_complete=True,
         )
         # Moved only now that every check has passed, and moved back if the row cannot be

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Request, status
 from sqlalchemy import select
 
 from server import accounts, audit
-from server.deps import Admin, Db, conflict, not_found
+from server.deps import Admin, Db, Id, conflict, not_found
 from server.models import User
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.schemas import PasswordReset, UserCreate, UserCreated, UserPublic
@@ -78,7 +78,7 @@ async def list_users(admin: Admin, db: Db) -> list[UserPublic]:
     summary="Reset a user's password",
     responses=_ONE_USER,
 )
-async def reset_password(user_id: int, admin: Admin, db: Db, request: Request) -> PasswordReset:
+async def reset_password(user_id: Id, admin: Admin, db: Db, request: Request) -> PasswordReset:
     """Admins only, for another user (409 for your own: change it instead). The answer
     carries a new one-time password, shown this once; the user must change it at the next
     sign-in. Every login of the user ends now and their live views close (code 4004).
@@ -111,7 +111,7 @@ async def _set_active(
     summary="Deactivate a user",
     responses=_ONE_USER,
 )
-async def deactivate_user(user_id: int, admin: Admin, db: Db, request: Request) -> UserPublic:
+async def deactivate_user(user_id: Id, admin: Admin, db: Db, request: Request) -> UserPublic:
     """Admins only. The user can no longer sign in, their tokens are refused and their live
     views close (code 4006); their patients and records stay. 409 for your own account or
     the last active admin. Deactivating twice changes nothing. Audited as user.deactivate."""
@@ -124,7 +124,7 @@ async def deactivate_user(user_id: int, admin: Admin, db: Db, request: Request) 
     summary="Reactivate a user",
     responses=_ONE_USER,
 )
-async def reactivate_user(user_id: int, admin: Admin, db: Db, request: Request) -> UserPublic:
+async def reactivate_user(user_id: Id, admin: Admin, db: Db, request: Request) -> UserPublic:
     """Admins only. The user can sign in again with their password; logins from before the
     deactivation stay ended. Audited as user.reactivate."""
     return await _set_active(user_id, admin, db, request, active=True)

@@ -1,20 +1,24 @@
 """The real server on a real port, talked to over HTTP.
 
 A seeded database (an admin, two therapists each with a patient, stations and a
-prescription, all made through the API) is built once per test session; each test gets a
-fresh copy of it in its own ``data_dir`` and its own uvicorn server, so tests never see each
-other's changes and no test pays for Argon2 hashing it does not test.
+prescription, all made through the API) is built once per test session and store; each test
+gets a fresh copy of it in its own ``data_dir`` and its own uvicorn server, so tests never see
+each other's changes and no test pays for Argon2 hashing it does not test.
+
+The store is SQLite unless a test (or its module) is marked ``both_stores``: then it runs
+twice, on SQLite and on PostgreSQL (a database cloned from a seeded template per test).
 """
 
 from __future__ import annotations
 
 import asyncio
 import shutil
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import httpx
 import pytest
@@ -27,6 +31,10 @@ from server.app import create_app
 from server.cli import ensure_user_async
 from server.config import Settings
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
+from tests.server.postgres import Cluster
+
+Store = Literal["sqlite", "postgres"]
+STORES: tuple[Store, ...] = ("sqlite", "postgres")
 
 PASSWORD = "correct horse battery"
 STRENGTH: dict[str, Any] = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
@@ -110,8 +118,7 @@ async def login(client: httpx.AsyncClient, email: str, password: str = PASSWORD)
     return token
 
 
-async def _seed(data_dir: Path) -> World:
-    settings = Settings(data_dir=data_dir)
+async def _seed(settings: Settings) -> World:
     await ensure_user_async(settings, "admin@clinic.test", "Ada Admin", "admin", PASSWORD)
     async with running(settings) as live:
         c = live.client
@@ -163,10 +170,70 @@ async def _seed(data_dir: Path) -> World:
     )
 
 
+def _run(coroutine: Coroutine[Any, Any, World]) -> World:
+    """Run ``coroutine`` to its end from sync code, in a thread of its own if this thread's
+    event loop is running (a test asking for a seeded store from inside ``async def``)."""
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return asyncio.run(coroutine)
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coroutine).result()
+
+
+class Seeds:
+    """The seeded world of each store, built on first use: a data directory (SQLite) or a
+    template database (PostgreSQL)."""
+
+    def __init__(self, tmp: pytest.TempPathFactory, request: pytest.FixtureRequest) -> None:
+        self._tmp = tmp
+        self._request = request
+        self._built: dict[Store, tuple[Path | str, World]] = {}
+
+    @property
+    def cluster(self) -> Cluster:
+        cluster: Cluster = self._request.getfixturevalue("pg_cluster")
+        return cluster
+
+    def get(self, store: Store) -> tuple[Path | str, World]:
+        if store not in self._built:
+            data_dir = self._tmp.mktemp(f"seeded-{store}")
+            if store == "sqlite":
+                self._built[store] = (data_dir, _run(_seed(Settings(data_dir=data_dir))))
+            else:
+                name = self.cluster.create_database()
+                settings = Settings(data_dir=data_dir, database_url=self.cluster.url(name))
+                self._built[store] = (name, _run(_seed(settings)))
+        return self._built[store]
+
+
 @pytest.fixture(scope="session")
-def seeded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, World]:
-    data_dir = tmp_path_factory.mktemp("seeded")
-    return data_dir, asyncio.run(_seed(data_dir))
+def seeds(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest) -> Seeds:
+    return Seeds(tmp_path_factory, request)
+
+
+@pytest.fixture
+def store(request: pytest.FixtureRequest) -> Store:
+    """The store a test runs on: SQLite, or each of both for tests marked ``both_stores``."""
+    chosen: Store = getattr(request, "param", "sqlite")
+    return chosen
+
+
+def parametrize_stores(metafunc: pytest.Metafunc) -> None:
+    """``pytest_generate_tests`` for the server tests: a test marked ``both_stores`` that
+    uses a store runs once per store, unless it is also marked ``sqlite_only`` (it reaches
+    into SQLite itself: its file, its PRAGMAs, its trigger syntax)."""
+    marked = metafunc.definition.get_closest_marker
+    if "store" in metafunc.fixturenames and marked("both_stores") and not marked("sqlite_only"):
+        metafunc.parametrize("store", STORES, indirect=True)
+
+
+@pytest.fixture(scope="session")
+def seeded(seeds: Seeds) -> tuple[Path, World]:
+    """The seeded SQLite data directory (to copy) and its world."""
+    template, world = seeds.get("sqlite")
+    assert isinstance(template, Path)
+    return template, world
 
 
 def copy_seeded(template: Path, data_dir: Path) -> Path:
@@ -177,21 +244,56 @@ def copy_seeded(template: Path, data_dir: Path) -> Path:
     return data_dir
 
 
-@pytest_asyncio.fixture
-async def live(seeded: tuple[Path, World], tmp_path: Path) -> AsyncIterator[Live]:
-    """A server on a private copy of the seeded database."""
-    template, _ = seeded
-    async with running(Settings(data_dir=copy_seeded(template, tmp_path))) as server:
-        yield server
+@contextmanager
+def on_store(
+    seeds: Seeds, store: Store, data_dir: Path, template: Path | str | None = None
+) -> Iterator[Settings]:
+    """Settings for a private database on ``store``: a copy of ``template`` (the seeded
+    world of that store), or empty."""
+    if store == "sqlite":
+        if isinstance(template, Path):
+            copy_seeded(template, data_dir)
+        yield Settings(data_dir=data_dir)
+        return
+    cluster = seeds.cluster
+    name = cluster.create_database(template if isinstance(template, str) else None)
+    try:
+        yield Settings(data_dir=data_dir, database_url=cluster.url(name))
+    finally:
+        cluster.drop_database(name)
 
 
 @pytest.fixture
-def world(seeded: tuple[Path, World]) -> World:
-    return seeded[1]
+def seeded_store(seeds: Seeds, store: Store) -> tuple[Path | str, World]:
+    """The seeded world of the test's store (built here, outside any event loop)."""
+    return seeds.get(store)
 
 
 @pytest_asyncio.fixture
-async def empty(tmp_path: Path) -> AsyncIterator[Live]:
-    """A server on a new, empty data directory."""
-    async with running(Settings(data_dir=tmp_path)) as server:
-        yield server
+async def live(
+    seeds: Seeds, store: Store, seeded_store: tuple[Path | str, World], tmp_path: Path
+) -> AsyncIterator[Live]:
+    """A server on a private copy of the seeded database."""
+    with on_store(seeds, store, tmp_path, seeded_store[0]) as settings:
+        async with running(settings) as server:
+            yield server
+
+
+@pytest.fixture
+def world(seeded_store: tuple[Path | str, World]) -> World:
+    return seeded_store[1]
+
+
+@pytest.fixture
+def fresh(seeds: Seeds, store: Store, tmp_path: Path) -> Iterator[Settings]:
+    """Settings for a new, empty database on the test's store."""
+    with on_store(seeds, store, tmp_path / "data") as settings:
+        yield settings
+
+
+@pytest_asyncio.fixture
+async def empty(seeds: Seeds, store: Store, tmp_path: Path) -> AsyncIterator[Live]:
+    """A server on a new, empty data directory (and database)."""
+    with on_store(seeds, store, tmp_path) as settings:
+        async with running(settings) as server:
+            yield server

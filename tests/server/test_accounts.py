@@ -31,6 +31,8 @@ from tests.server.live_server import (
 )
 from tests.server.ws_client import close_of, closed_with, station_ws, viewer_ws, welcomed
 
+pytestmark = pytest.mark.both_stores
+
 CLOSE_WITHIN_S = 1.0
 NEW_PASSWORD = "a new passphrase of mine"
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from sqlalchemy import delete, select, text, update
+from sqlalchemy import Executable, delete, select, text, update
 from sqlalchemy.exc import DBAPIError
 
 from server.models import AuditEntry
 from tests.server.live_server import STRENGTH, Live, World, bearer
+
+pytestmark = pytest.mark.both_stores
 
 
 async def newest(live: Live, world: World, n: int = 1, **filters: Any) -> list[dict[str, Any]]:
@@ -119,16 +121,19 @@ async def test_a_therapist_reads_only_their_patients_rows(live: Live, world: Wor
 
 
 @pytest.mark.asyncio
-async def test_the_database_refuses_to_change_or_delete_audit_rows(live: Live) -> None:
+async def test_the_database_refuses_to_change_or_delete_audit_rows(live: Live, store: str) -> None:
     async with live.sessionmaker() as db:
         first = (await db.execute(select(AuditEntry).order_by(AuditEntry.id))).scalars().first()
         assert first is not None
         first_id, first_action = first.id, first.action
-        for statement in (
+        statements: list[Executable] = [
             update(AuditEntry).where(AuditEntry.id == first_id).values(action="forged"),
             delete(AuditEntry).where(AuditEntry.id == first_id),
             text("DELETE FROM audit_log"),
-        ):
+            # SQLite has no TRUNCATE; its DELETE without WHERE is refused above.
+            *([text("TRUNCATE audit_log")] if store == "postgres" else []),
+        ]
+        for statement in statements:
             with pytest.raises(DBAPIError, match="audit log is append-only"):
                 await db.execute(statement)
             await db.rollback()

@@ -10,6 +10,8 @@ from sqlalchemy import update
 from server.models import AuthToken, Station, User, utcnow
 from tests.server.live_server import PASSWORD, Live, World, bearer, login
 
+pytestmark = pytest.mark.both_stores
+
 
 @pytest.mark.asyncio
 async def test_login_me_logout(live: Live, world: World) -> None:
@@ -107,6 +109,7 @@ async def test_a_revoked_station_is_refused(live: Live, world: World) -> None:
         assert station is not None and station.revoked
 
 
+@pytest.mark.sqlite_only
 @pytest.mark.asyncio
 async def test_tokens_are_stored_only_as_hashes(live: Live, world: World) -> None:
     raw = (live.settings.data_dir / "ankle.db").read_bytes()

@@ -22,15 +22,16 @@ def _diff(connection: Connection, metadata: MetaData) -> list[Any]:
     return list(compare_metadata(context, metadata))
 
 
-async def _migrated(tmp_path: Path) -> AsyncEngine:
-    engine = create_engine(Settings(data_dir=tmp_path / "data"))
+async def _migrated(settings: Settings) -> AsyncEngine:
+    engine = create_engine(settings)
     await migrate(engine)
     return engine
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
-async def test_migrations_build_exactly_the_orm_schema(tmp_path: Path) -> None:
-    engine = await _migrated(tmp_path)
+async def test_migrations_build_exactly_the_orm_schema(fresh: Settings) -> None:
+    engine = await _migrated(fresh)
     try:
         async with engine.connect() as connection:
             assert await connection.run_sync(_diff, Base.metadata) == []
@@ -44,9 +45,10 @@ async def test_migrations_build_exactly_the_orm_schema(tmp_path: Path) -> None:
         await engine.dispose()
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
-async def test_migrating_twice_is_harmless_and_reaches_head(tmp_path: Path) -> None:
-    engine = await _migrated(tmp_path)
+async def test_migrating_twice_is_harmless_and_reaches_head(fresh: Settings) -> None:
+    engine = await _migrated(fresh)
     try:
         await migrate(engine)
         head = ScriptDirectory.from_config(alembic_config()).get_current_head()
@@ -59,7 +61,7 @@ async def test_migrating_twice_is_harmless_and_reaches_head(tmp_path: Path) -> N
 
 @pytest.mark.asyncio
 async def test_sqlite_runs_with_wal_foreign_keys_and_full_sync(tmp_path: Path) -> None:
-    engine = await _migrated(tmp_path)
+    engine = await _migrated(Settings(data_dir=tmp_path / "data"))
     try:
         async with engine.connect() as connection:
 

@@ -6,7 +6,10 @@ import pytest
 
 from tests.server.live_server import Live, World, bearer
 
+pytestmark = pytest.mark.both_stores
 
+
+@pytest.mark.sqlite_only
 @pytest.mark.asyncio
 async def test_health_on_an_empty_data_dir(empty: Live) -> None:
     r = await empty.client.get("/health")

@@ -25,6 +25,8 @@ from sessions.prescription import AXIS_INDEX
 from tests.server.live_server import Live, World, bearer
 from tests.server.ws_client import station_ws, telemetry, viewer_ws, welcomed
 
+pytestmark = pytest.mark.both_stores
+
 WAIT_S = 15.0
 """Deadline for anything the server does on its own (a shared 2-core machine)."""
 ACK_TEXT = "acknowledged by the device"
@@ -338,6 +340,7 @@ async def test_commands_the_server_refuses_are_recorded_as_refused_and_never_sen
     ]
 
 
+@pytest.mark.sqlite_only
 @pytest.mark.asyncio
 async def test_a_command_that_cannot_be_audited_is_not_sent_but_a_hold_always_is(
     live: Live, world: World

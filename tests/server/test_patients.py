@@ -9,6 +9,8 @@ import pytest
 
 from tests.server.live_server import Live, World, bearer
 
+pytestmark = pytest.mark.both_stores
+
 
 @pytest.mark.asyncio
 async def test_create_then_patch_only_the_given_fields(live: Live, world: World) -> None:

@@ -10,6 +10,8 @@ import pytest
 from sessions.prescription import STIFFNESS_MAX, ExerciseKind, PrescriptionBody
 from tests.server.live_server import STRENGTH, Live, World, bearer
 
+pytestmark = pytest.mark.both_stores
+
 
 def with_pitch(**changes: Any) -> dict[str, Any]:
     """The strength defaults with the pitch axis changed."""

@@ -22,6 +22,8 @@ from station.uploader import CHUNK
 from tests.server.live_server import Live, World, bearer
 from tests.server.test_series import STARTED_AT, N, recording_bytes, samples
 
+pytestmark = pytest.mark.both_stores
+
 
 def record(kind: int, payload: bytes) -> bytes:
     """One record as ``sessions.recording`` documents it: type, length, payload, CRC-32."""
@@ -175,6 +177,7 @@ async def put_from(live: Live, world: World, sid: str, data: bytes, start: int) 
     return 204
 
 
+@pytest.mark.sqlite_only
 @pytest.mark.asyncio
 async def test_a_full_database_is_a_507_that_changes_nothing(live: Live, world: World) -> None:
     """SQLite's own SQLITE_FULL, made real by capping the database at its present size."""

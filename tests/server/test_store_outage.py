@@ -1,0 +1,112 @@
+"""A database that goes away under a running server: every route answers 503 with a
+sentence and ``Retry-After`` (never a 500), ``/health`` says so, and the first request once
+it is back works (pooled connections are pinged before use)."""
+
+from __future__ import annotations
+
+import asyncio
+import sqlite3
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import pytest
+from websockets.exceptions import InvalidStatus
+
+from server.errors import DATABASE_AWAY
+from tests.server.live_server import Live, Seeds, World, bearer, on_store, running
+from tests.server.postgres import Cluster
+from tests.server.ws_client import station_ws, viewer_ws
+
+
+async def _answers_while_away(live: Live, world: World) -> list[httpx.Response]:
+    c, t1 = live.client, bearer(world.t1)
+    return [
+        await c.get("/patients", headers=t1),
+        await c.get(f"/patients/{world.p1}", headers=t1),
+        await c.post("/patients", json={"display_name": "Nobody"}, headers=t1),
+        await c.post("/auth/login", json={"email": "t1@clinic.test", "password": "x" * 12}),
+        await c.get("/station/prescriptions", headers=bearer(world.s1)),
+    ]
+
+
+async def _handshakes_while_away(live: Live, world: World) -> list[int]:
+    """The HTTP status of each live link's handshake (a station's, a therapist's view)."""
+    statuses = []
+    for link in (station_ws(live, world.s1), viewer_ws(live, world.t1, world.s1_id)):
+        with pytest.raises(InvalidStatus) as refused:
+            async with link:
+                pass  # pragma: no cover
+        statuses.append(refused.value.response.status_code)
+    return statuses
+
+
+def _assert_away(answers: list[httpx.Response]) -> None:
+    for r in answers:
+        assert r.status_code == 503, (r.request.url, r.text)
+        assert r.json() == {"detail": DATABASE_AWAY}
+        assert int(r.headers["Retry-After"]) > 0
+
+
+async def _health_says_away(live: Live) -> None:
+    r = await live.client.get("/health")
+    assert r.status_code == 503
+    assert r.json()["database"] is False and r.json()["status"] == "degraded"
+    assert "Retry-After" in r.headers
+
+
+async def _works_again(live: Live, world: World) -> None:
+    """The very first request after the database is back is answered normally."""
+    r = await live.client.get("/patients", headers=bearer(world.t1))
+    assert r.status_code == 200, r.text
+    assert {p["id"] for p in r.json()} == {world.p1}
+    r = await live.client.get("/health")
+    assert r.status_code == 200 and r.json()["database"] is True
+
+
+async def _run_off_loop(f: Callable[[], None]) -> None:
+    await asyncio.to_thread(f)
+
+
+@pytest.mark.asyncio
+async def test_postgresql_stopped_and_started_under_a_running_server(
+    seeds: Seeds, tmp_path: Path
+) -> None:
+    template, world = seeds.get("postgres")
+    cluster: Cluster = seeds.cluster
+    with on_store(seeds, "postgres", tmp_path, template) as settings:
+        async with running(settings) as live:
+            await _works_again(live, world)  # the pool now holds live connections
+            await _run_off_loop(cluster.stop)
+            try:
+                _assert_away(await _answers_while_away(live, world))
+                await _health_says_away(live)
+                assert await _handshakes_while_away(live, world) == [503, 503]
+            finally:
+                await _run_off_loop(cluster.start)
+            await _works_again(live, world)
+            # A restart the server never saw (its pooled connections all dropped).
+            await _run_off_loop(cluster.restart)
+            await _works_again(live, world)
+
+
+@pytest.mark.asyncio
+async def test_sqlite_locked_past_its_busy_timeout(live: Live, world: World) -> None:
+    """Another process holding SQLite's write lock (a backup, a stuck writer) is a 503 for
+    the writes that wait on it past the busy timeout, and reads go on."""
+    db_file = live.settings.data_dir / "ankle.db"
+    holder = sqlite3.connect(db_file, isolation_level=None)
+    try:
+        holder.execute("BEGIN EXCLUSIVE")
+        started = time.monotonic()
+        r = await live.client.post(
+            "/patients", json={"display_name": "Waits"}, headers=bearer(world.t1), timeout=60
+        )
+        assert time.monotonic() - started >= 4.0  # it did wait for the lock first
+        _assert_away([r])
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    r = await live.client.post("/patients", json={"display_name": "Now"}, headers=bearer(world.t1))
+    assert r.status_code == 201, r.text
