@@ -37,6 +37,12 @@ SUBPROTOCOL = "ankle.v1"
 BEARER_PREFIX = "bearer."
 HEARTBEAT_S = 1.0
 HEARTBEAT_TIMEOUT_S = 5.0
+BATCH_HZ = 25.0
+"""Telemetry messages a second by default (``ankle station --batch-hz``): 4 samples of
+the device's 100 Hz in each."""
+BATCH_HZ_MAX = 50.0
+"""Most telemetry messages a second (``--batch-hz``): each message costs the server and
+every viewer about as much as a whole batch, so fewer, fuller ones are cheaper."""
 MAX_MESSAGE_BYTES = 64 * 1024
 """Largest message either side accepts; a longer one closes the link with 1009."""
 

@@ -23,9 +23,9 @@ from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
 from sessions import wire
 from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
-from sessions.wire import PrescriptionItem
+from sessions.wire import BATCH_HZ, PrescriptionItem
 from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
-from station.server_link import BATCH_HZ, ServerLink
+from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun
 from station.uploader import Uploader

@@ -18,8 +18,8 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sessions.wire import BATCH_HZ, BATCH_HZ_MAX
 from station.reasons import HOLD_LIMIT_S
-from station.server_link import BATCH_HZ, BATCH_HZ_MAX
 
 if TYPE_CHECKING:  # loaded by run(): `ankle --help` needs no device link or web client
     from station.app import Station

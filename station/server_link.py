@@ -25,17 +25,13 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus, WebSocketException
 
 from sessions import wire
+from sessions.wire import BATCH_HZ
 from station.backoff import Backoff
 
 log = logging.getLogger("ankle.station.server")
 
 TELEMETRY_QUEUE = 32
 """Batches kept while the server is slow or away (about 1.3 s at 25 a second)."""
-BATCH_HZ = 25.0
-"""Telemetry messages a second by default (``ankle station --batch-hz``)."""
-BATCH_HZ_MAX = 50.0
-"""Most telemetry messages a second (``--batch-hz``): each message costs the server and
-every viewer about as much as a whole batch, so fewer, fuller ones are cheaper."""
 RECONNECT_FIRST_S = 1.0
 """The first wait after the link drops is drawn from 0..1 s, so stations that all lost a
 restarted server come back spread over a second, not in the same instant."""
