@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import pytest
 from sqlalchemy import delete, select, text, update
 from sqlalchemy.exc import DBAPIError
 
+from server import audit
+from server.audit import AuditWriter
 from server.models import AuditEntry
 from tests.server.live_server import STRENGTH, Live, World, bearer
 
@@ -137,3 +140,41 @@ async def test_the_database_refuses_to_change_or_delete_audit_rows(live: Live) -
         # Appending still works.
         db.add(AuditEntry(actor="system", action="test.append", entity="test", entity_id="1"))
         await db.commit()
+
+
+@pytest.mark.asyncio
+async def test_the_live_writer_commits_a_burst_and_a_refused_row_alone(live: Live) -> None:
+    """The live links' writer: a burst of rows lands in few transactions (one INSERT each),
+    every row with its time and JSON values; a row the database refuses (a patient that does
+    not exist) fails for its waiter only."""
+    writer = AuditWriter(live.sessionmaker)
+    actions = [f"test.burst{i}" for i in range(30)]
+    waits = []
+    for i, action in enumerate(actions):
+        values = audit.row("system", action, "station", i, None, {"k": [i, 1.5]}, {"ok": True})
+        if i % 2:
+            writer.write_soon(values)
+        else:
+            waits.append(asyncio.ensure_future(writer.write(**values)))
+    bad = audit.row("system", "test.orphan", "station", 1, 2**31 - 1, None, None)
+    refused = asyncio.ensure_future(writer.write(**bad))
+    await asyncio.gather(*waits)
+    with pytest.raises(DBAPIError):
+        await refused
+    await writer.close(flush_s=10.0)
+    async with live.sessionmaker() as db:
+        rows = (
+            (
+                await db.execute(
+                    select(AuditEntry)
+                    .where(AuditEntry.action.like("test.%"))
+                    .order_by(AuditEntry.id)
+                )
+            )
+            .scalars()
+            .all()
+        )
+    assert sorted(r.action for r in rows) == sorted(actions)  # the refused one not among them
+    assert all(r.at is not None for r in rows)
+    third = next(r for r in rows if r.action == "test.burst3")
+    assert (third.old, third.new, third.entity_id) == ({"k": [3, 1.5]}, {"ok": True}, "3")
