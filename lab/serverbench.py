@@ -698,38 +698,28 @@ def run(
             used.append(name)
             return cluster(setup, data_dir, name, url, db_url, redis_pid)
 
+        def sweep_on(system: Cluster, setup: Setup) -> dict[str, Any]:
+            return sweep_counts_of(
+                system,
+                seats,
+                counts,
+                viewers_per_station,
+                sweep_seconds,
+                commands,
+                say,
+                setup.text(),
+            )
+
         used: list[str] = []
         with on(asked, "server") as system:
             say(f"{asked.text()}: {stations} stations, {seconds:g} s window")
             result = measure(system, seats[:stations], viewers_per_station, seconds, commands)
-            found = (
-                sweep_counts_of(
-                    system,
-                    seats,
-                    counts,
-                    viewers_per_station,
-                    sweep_seconds,
-                    commands,
-                    say,
-                    asked.text(),
-                )
-                if sweep
-                else None
-            )
+            found = sweep_on(system, asked) if sweep else None
         capacity_runs: dict[str, dict[str, Any]] = {}
         for key, setup in plan:
             try:
                 with on(setup, key) as system:
-                    capacity_runs[key] = sweep_counts_of(
-                        system,
-                        seats,
-                        counts,
-                        viewers_per_station,
-                        sweep_seconds,
-                        commands,
-                        say,
-                        setup.text(),
-                    )
+                    capacity_runs[key] = sweep_on(system, setup)
             except Unavailable as exc:
                 capacity_runs[key] = {"max": None, "stopped": str(exc), "steps": []}
     return summary(result, asked, store, found, capacity_runs)

@@ -9,7 +9,6 @@ import pytest
 from sqlalchemy import delete, select, text, update
 from sqlalchemy.exc import DBAPIError
 
-from server import audit
 from server.audit import AuditWriter
 from server.models import AuditEntry
 from tests.server.live_server import STRENGTH, Live, World, bearer
@@ -142,21 +141,32 @@ async def test_the_database_refuses_to_change_or_delete_audit_rows(live: Live) -
         await db.commit()
 
 
+def _row(action: str, entity_id: int, patient_id: int | None, old: Any) -> dict[str, Any]:
+    return {
+        "actor": "system",
+        "action": action,
+        "entity": "station",
+        "entity_id": entity_id,
+        "patient_id": patient_id,
+        "old": old,
+        "new": {"ok": True},
+    }
+
+
 @pytest.mark.asyncio
 async def test_the_live_writer_commits_a_burst_and_a_refused_row_alone(live: Live) -> None:
-    """The live links' writer: a burst of rows lands in few transactions (one INSERT each),
-    every row with its time and JSON values; a row the database refuses (a patient that does
+    """The live links' writer: a burst of rows lands, every row with its time and JSON values; a row the database refuses (a patient that does
     not exist) fails for its waiter only."""
     writer = AuditWriter(live.sessionmaker)
     actions = [f"test.burst{i}" for i in range(30)]
     waits = []
     for i, action in enumerate(actions):
-        values = audit.row("system", action, "station", i, None, {"k": [i, 1.5]}, {"ok": True})
+        values = _row(action, i, None, {"k": [i, 1.5]})
         if i % 2:
             writer.write_soon(values)
         else:
             waits.append(asyncio.ensure_future(writer.write(**values)))
-    bad = audit.row("system", "test.orphan", "station", 1, 2**31 - 1, None, None)
+    bad = _row("test.orphan", 1, 2**31 - 1, None)
     refused = asyncio.ensure_future(writer.write(**bad))
     await asyncio.gather(*waits)
     with pytest.raises(DBAPIError):
