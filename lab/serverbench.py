@@ -30,6 +30,16 @@ whatever else runs there (``machine_cpu_pct``, all cores). ``server_cpu_us_per_m
 the server's CPU time over the station telemetry messages it took in: its cost per message,
 which depends less on the neighbours than latency does (``server_cpu_us_per_sample`` is the
 same per sample; before batches the two were one).
+
+Beyond one process: with ``processes`` N > 1 (the Redis relay; a throwaway ``redis-server``
+from :mod:`lab.services` unless a URL is given) station ``i`` is on process ``i mod N`` and
+its viewers on the next, so every sample a viewer gets crossed processes
+(``cross_process_latency_ms_p99``); the processes share one database. ``capacity`` adds the
+capacity plan's sweeps (:data:`CAPACITY`): one server process pinned to one core with the
+load generator on another, on each relay, and two processes. redis-server's CPU is read
+from ``/proc`` like the servers'. A window that lost a connection, left a command
+unanswered or could not send at rate reports those figures as None, with why
+(:func:`problems`).
 """
 
 from __future__ import annotations

@@ -155,8 +155,9 @@ def _row(action: str, entity_id: int, patient_id: int | None, old: Any) -> dict[
 
 @pytest.mark.asyncio
 async def test_the_live_writer_commits_a_burst_and_a_refused_row_alone(live: Live) -> None:
-    """The live links' writer: a burst of rows lands, every row with its time and JSON values; a row the database refuses (a patient that does
-    not exist) fails for its waiter only."""
+    """The live links' writer: a burst of rows lands, every row with its time and JSON
+    values; a row the database refuses (a patient that does not exist) fails for its waiter
+    only."""
     writer = AuditWriter(live.sessionmaker)
     actions = [f"test.burst{i}" for i in range(30)]
     waits = []
