@@ -7,18 +7,20 @@ stderr and exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.console import Console
 
-from device.cli import Parser, add_plant_options, fault_spec, finite_float, ranged
+from device.cli import Parser, UsageError, add_plant_options, fault_spec, finite_float, ranged
 from device.commands import CommandError
 from device.geometry import AXES
 
@@ -137,7 +139,37 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         "--sweep",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="then 25, 50, 100, 150, 200 stations for 5 s each, until p99 > 50 ms (default on)",
+        help="then 25, 50, 100 ... 500 stations for 5 s each, until p99 > 50 ms (default on)",
+    )
+    p.add_argument(
+        "--capacity",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also sweep one server process pinned to one core (local and Redis relay) and "
+        "two processes, for the capacity plan (default on)",
+    )
+    p.add_argument(
+        "--processes", type=ranged(int, 1, 16), default=1, help="server processes (default 1)"
+    )
+    p.add_argument(
+        "--relay",
+        choices=("local", "redis"),
+        default="local",
+        help="live relay between processes; redis starts a throwaway redis-server unless "
+        "--relay-url is given (default local)",
+    )
+    p.add_argument("--relay-url", default="", help="redis://host:port of a Redis to use")
+    p.add_argument(
+        "--store",
+        choices=("sqlite", "postgres"),
+        default="sqlite",
+        help="sqlite: a new file; postgres: the existing database of --database-url",
+    )
+    p.add_argument(
+        "--database-url",
+        default="",
+        help="with --store postgres: postgresql+asyncpg://user@host/db (default: "
+        "ANKLE_DATABASE_URL)",
     )
     p = bs.add_parser(
         "abuse",
@@ -246,6 +278,17 @@ def _progress(line: str) -> None:
     print(f"\r\x1b[2K{line}", end="", file=sys.stderr, flush=True)
 
 
+@contextlib.contextmanager
+def _service_error() -> Iterator[None]:
+    """A service the bench needs (redis-server) that does not start: one line, exit 2."""
+    from lab.services import ServiceError
+
+    try:
+        yield
+    except ServiceError as exc:
+        raise UsageError(f"ankle bench server: {exc}") from None
+
+
 def _bench(args: argparse.Namespace) -> int:
     if args.bench == "safety":
         from lab import safety
@@ -266,13 +309,30 @@ def _bench(args: argparse.Namespace) -> int:
     if args.bench == "server":
         from lab import serverbench
 
-        sresult = serverbench.run(args.stations, args.viewers_per_station, args.seconds, args.sweep)
+        try:
+            serverbench.check_options(args.processes, args.relay, args.store, args.database_url)
+        except ValueError as exc:
+            raise UsageError(f"ankle bench server: {exc}") from None
+        with Console(stderr=True).status("ankle bench server") as status, _service_error():
+            sresult = serverbench.run(
+                args.stations,
+                args.viewers_per_station,
+                args.seconds,
+                args.sweep,
+                processes=args.processes,
+                relay=args.relay,
+                relay_url=args.relay_url,
+                store=args.store,
+                database_url=args.database_url,
+                capacity=args.capacity,
+                progress=status.update,
+            )
         print(
             json.dumps(serverbench.jsonable(sresult), indent=2)
             if args.json
             else serverbench.table(sresult)
         )
-        return 0
+        return 0 if sresult["valid"] else INVALID
     if args.bench == "abuse":
         from lab import abuse, serverbench
 

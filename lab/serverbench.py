@@ -30,6 +30,16 @@ whatever else runs there (``machine_cpu_pct``, all cores). ``server_cpu_us_per_m
 the server's CPU time over the station telemetry messages it took in: its cost per message,
 which depends less on the neighbours than latency does (``server_cpu_us_per_sample`` is the
 same per sample; before batches the two were one).
+
+Beyond one process: with ``processes`` N > 1 (the Redis relay; a throwaway ``redis-server``
+from :mod:`lab.services` unless a URL is given) station ``i`` is on process ``i mod N`` and
+its viewers on the next, so every sample a viewer gets crossed processes
+(``cross_process_latency_ms_p99``); the processes share one database. ``capacity`` adds the
+capacity plan's sweeps (:data:`CAPACITY`): one server process pinned to one core with the
+load generator on another, on each relay, and two processes. redis-server's CPU is read
+from ``/proc`` like the servers'. A window that lost a connection, left a command
+unanswered or could not send at rate reports those figures as None, with why
+(:func:`problems`).
 """
 
 from __future__ import annotations
@@ -42,13 +52,13 @@ import os
 import queue
 import random
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+import uuid
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import timedelta
 from pathlib import Path
@@ -56,6 +66,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from lab.services import free_port, spawned_redis
 from lab.targets import Target
 from lab.targets import table as bench_table
 
@@ -66,7 +77,7 @@ SAMPLES_PER_BATCH = 4
 BATCH_HZ = TELEMETRY_HZ // SAMPLES_PER_BATCH
 LATENCY_MS = 50.0
 """A live view this late is still live: the target of ``telemetry_latency_ms_p99``."""
-SWEEP: tuple[int, ...] = (25, 50, 100, 150, 200)
+SWEEP: tuple[int, ...] = (25, 50, 100, 150, 200, 250, 300, 350, 400, 500)
 SWEEP_SECONDS = 5.0
 WARMUP_S = 2.0
 """Between the last connection and the window: the server's queues settle."""
@@ -78,11 +89,25 @@ PHASES = 10
 TEMPLATES = 64
 STARTUP_S = 60.0
 WORKER_TIMEOUT_S = 120.0
+RATE_FLOOR = 0.98
+"""Stations that sent less than this share of their telemetry did not load the server as
+asked: their figures are not reported as valid."""
+RELAYS = ("local", "redis")
+STORES = ("sqlite", "postgres")
+COMMAND_KEYS = (
+    "kb_change_to_ack_ms_p50",
+    "kb_change_to_ack_ms_p99",
+    "hold_to_ack_ms_p50",
+    "hold_to_ack_ms_p99",
+)
 
 TARGETS: tuple[Target, ...] = (
     Target("telemetry_latency_ms_p99", "telemetry station to viewer p99 (ms)", LATENCY_MS, "max"),
     Target(
-        "telemetry_hz_per_station", "telemetry sent per station (Hz)", 0.98 * TELEMETRY_HZ, "min"
+        "telemetry_hz_per_station",
+        "telemetry sent per station (Hz)",
+        RATE_FLOOR * TELEMETRY_HZ,
+        "min",
     ),
     # What a live view needs (the issue's floor).
     Target("viewer_hz", "telemetry samples received per viewer (Hz)", 30.0, "min"),
@@ -90,9 +115,25 @@ TARGETS: tuple[Target, ...] = (
     Target("hold_to_ack_ms_p99", "HOLD to the station's answer p99 (ms)", 100.0, "max"),
     Target("disconnects", "connections lost", 0, "eq"),
     Target("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms", 100, "min"),
+    Target(
+        "cross_process_latency_ms_p99",
+        "telemetry p99, viewer on another process (ms)",
+        LATENCY_MS,
+        "max",
+    ),
+    Target(
+        "max_stations_p99_under_50ms_1proc",
+        "most stations, p99 <= 50 ms, 1 process on 1 core",
+        300,
+        "min",
+    ),
+    Target("redis_relay_efficiency", "the same with the Redis relay / local", 0.7, "min"),
 )
 
 ROWS: tuple[tuple[str, str], ...] = (
+    ("processes", "server processes"),
+    ("relay", "relay"),
+    ("store", "store"),
     ("stations", "stations connected"),
     ("viewers", "viewers connected"),
     ("seconds", "measurement window (s)"),
@@ -108,13 +149,43 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("commands", "commands timed"),
     ("commands_failed", "commands refused or unanswered"),
     ("disconnects", "connections lost"),
-    ("server_cpu_pct", "server CPU (% of one core)"),
+    ("server_cpu_pct", "server CPU, all processes (% of one core)"),
     ("server_cpu_us_per_message", "server CPU per station telemetry message (us)"),
     ("server_cpu_us_per_sample", "server CPU per telemetry sample (us)"),
+    ("redis_cpu_us_per_message", "redis-server CPU per station telemetry message (us)"),
     ("loadgen_cpu_pct", "load generator CPU (% of one core)"),
     ("machine_cpu_pct", "whole machine busy, all cores (%)"),
     ("max_stations_p99_under_50ms", "most stations with latency p99 <= 50 ms"),
+    ("cross_process_latency_ms_p99", "telemetry p99, viewer on another process (ms)"),
+    ("max_stations_p99_under_50ms_1proc", "most stations, p99 <= 50 ms, 1 process on 1 core"),
+    (
+        "max_stations_p99_under_50ms_1proc_redis",
+        "most stations, p99 <= 50 ms, 1 process on 1 core, Redis relay",
+    ),
+    ("redis_relay_efficiency", "the same with the Redis relay / local"),
+    ("max_stations_p99_under_50ms_2proc", "most stations, p99 <= 50 ms, 2 processes, Redis"),
 )
+STEP_KEYS = (
+    "stations",
+    "viewers",
+    "telemetry_hz_per_station",
+    "telemetry_skipped",
+    "viewer_hz",
+    "telemetry_latency_ms_p50",
+    "telemetry_latency_ms_p99",
+    "kb_change_to_ack_ms_p99",
+    "hold_to_ack_ms_p99",
+    "commands_failed",
+    "disconnects",
+    "server_cpu_pct",
+    "server_cpu_us_per_message",
+    "redis_cpu_us_per_message",
+    "loadgen_cpu_pct",
+    "machine_cpu_pct",
+    "server_cores",
+    "loadgen_cores",
+)
+"""What a sweep keeps of each step."""
 
 
 # -- provisioning ------------------------------------------------------------------------
@@ -127,15 +198,18 @@ class Seat:
     therapist_token: str
 
 
-async def provision(data_dir: Path, count: int) -> list[Seat]:
+async def provision(data_dir: Path, count: int, database_url: str = "") -> list[Seat]:
     """``count`` therapists, each with a patient, a station and a login token, written
-    straight into a new database (migrated here, as the server would)."""
+    straight into the database (``database_url``, or a new SQLite file in ``data_dir``),
+    migrated here first so that server processes sharing it never race to migrate. Their
+    emails are new each run: a PostgreSQL database may be used again."""
     from server.config import Settings
     from server.db import create_engine, create_sessionmaker, migrate
     from server.models import AuthToken, Patient, Station, User, utcnow
     from server.security import new_token, token_hash
 
-    engine = create_engine(Settings(data_dir=data_dir))
+    engine = create_engine(Settings(data_dir=data_dir, database_url=database_url))
+    run = uuid.uuid4().hex[:8]
     seats: list[Seat] = []
     try:
         await migrate(engine)
@@ -144,7 +218,7 @@ async def provision(data_dir: Path, count: int) -> list[Seat]:
             for i in range(count):
                 # No usable password: a malformed hash never verifies. The token is the way in.
                 therapist = User(
-                    email=f"bench-{i}@bench.test",
+                    email=f"bench-{run}-{i}@bench.test",
                     name=f"Bench therapist {i}",
                     role="therapist",
                     password_hash="!bench",
@@ -173,12 +247,6 @@ async def provision(data_dir: Path, count: int) -> list[Seat]:
 
 
 # -- processes ---------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process, all its threads (Linux ``/proc``)."""
     with open(f"/proc/{pid}/stat") as fh:
@@ -195,6 +263,30 @@ def machine_cpu() -> tuple[float, float]:
     return (sum(ticks) - idle) / hz, sum(ticks) / hz
 
 
+def split_cores() -> tuple[set[int], set[int]] | None:
+    """(the server's core, the load generator's core), or None where this process may not
+    use two cores or cannot set affinity."""
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    cores = sorted(os.sched_getaffinity(0))
+    return ({cores[0]}, {cores[1]}) if len(cores) >= 2 else None
+
+
+@contextlib.contextmanager
+def pinned(cores: set[int] | None) -> Iterator[None]:
+    """Processes started inside run only on ``cores``: a child inherits the affinity of the
+    thread that forks it, so nothing is pinned after it started (no thread escapes)."""
+    if cores is None:
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, cores)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 def _stop(proc: subprocess.Popen[Any], timeout: float = 10.0) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
@@ -206,23 +298,32 @@ def _stop(proc: subprocess.Popen[Any], timeout: float = 10.0) -> None:
 
 
 class ServerProcess:
-    """``python -m ankle server`` on ``data_dir`` and a free port, until :meth:`stop`."""
+    """``python -m ankle server`` on ``data_dir`` and a free port, until :meth:`stop`.
+    ``env`` adds settings (``ANKLE_RELAY_URL``, ``ANKLE_DATABASE_URL``); ``cores`` pins it."""
 
-    def __init__(self, data_dir: Path, argv: Sequence[str] | None = None) -> None:
+    def __init__(
+        self,
+        data_dir: Path,
+        argv: Sequence[str] | None = None,
+        env: dict[str, str] | None = None,
+        name: str = "server",
+        cores: set[int] | None = None,
+    ) -> None:
         from server.cli import wait_healthy
 
         self.port = free_port()
-        self.log = data_dir / "server.log"
-        env = {
+        self.log = data_dir / f"{name}.log"
+        environ = {
             **os.environ,
             "ANKLE_DATA_DIR": str(data_dir),
             "ANKLE_HOST": "127.0.0.1",
             "ANKLE_PORT": str(self.port),
+            **(env or {}),
         }
-        with self.log.open("wb") as out:
+        with self.log.open("wb") as out, pinned(cores):
             self.proc = subprocess.Popen(
                 list(argv or [sys.executable, "-m", "ankle", "server"]),
-                env=env,
+                env=environ,
                 stdout=out,
                 stderr=subprocess.STDOUT,
             )
@@ -244,10 +345,12 @@ class Worker:
     """A load generator process (``python -m lab.serverbench stations|viewers``): it reads its
     configuration, connects everything, says ``ready``, then waits for the window."""
 
-    def __init__(self, role: str, config: dict[str, Any], log_dir: Path) -> None:
+    def __init__(
+        self, role: str, config: dict[str, Any], log_dir: Path, cores: set[int] | None = None
+    ) -> None:
         self.role = role
         self.errors = log_dir / f"{role}.log"
-        with self.errors.open("wb") as errors:
+        with self.errors.open("wb") as errors, pinned(cores):
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "lab.serverbench", role],
                 stdin=subprocess.PIPE,
@@ -278,12 +381,12 @@ class Worker:
         if not line:
             _stop(self.proc)
             tail = self.errors.read_text(errors="replace")[-3000:]
-            raise RuntimeError(f"the {self.role} load generator failed:\n{tail}")
+            raise WorkerFailed(f"the {self.role} load generator failed:\n{tail}")
         return line
 
     def ready(self) -> None:
         if self._line(WORKER_TIMEOUT_S).strip() != "ready":
-            raise RuntimeError(f"the {self.role} load generator said something unexpected")
+            raise WorkerFailed(f"the {self.role} load generator said something unexpected")
 
     def go(self, start: float, end: float) -> None:
         self._write(json.dumps({"start": start, "end": end}))
@@ -300,26 +403,111 @@ class Worker:
                     stream.close()
 
 
+class WorkerFailed(RuntimeError):
+    """A load generator ended early (a connection refused, a server gone): its log's tail."""
+
+
+# -- the system under test ---------------------------------------------------------------
+@dataclass(frozen=True)
+class Setup:
+    """How the server side is laid out for one measurement."""
+
+    processes: int = 1
+    relay: str = "local"
+    """``local`` (in-process; one server process only) or ``redis``."""
+    pin: bool = False
+    """One server process on one core, the load generator on another (``split_cores``)."""
+
+    def text(self) -> str:
+        n = f"{self.processes} process{'es' if self.processes > 1 else ''}"
+        return f"{n}, {self.relay} relay{', pinned' if self.pin else ''}"
+
+
+CAPACITY: dict[str, Setup] = {
+    "1proc": Setup(1, "local", pin=True),
+    "1proc_redis": Setup(1, "redis", pin=True),
+    "2proc": Setup(2, "redis"),
+}
+"""The capacity plan's sweeps, by the suffix of their ``max_stations_p99_under_50ms_*``."""
+
+
+@dataclass
+class Cluster:
+    """Running server processes of one :class:`Setup` on one database (and one Redis)."""
+
+    servers: list[ServerProcess]
+    loadgen_cores: set[int] | None
+    redis_pid: int | None
+
+    def stop(self) -> None:
+        for s in self.servers:
+            s.stop()
+
+
+@contextlib.contextmanager
+def cluster(
+    setup: Setup,
+    data_dir: Path,
+    name: str,
+    relay_url: str = "",
+    database_url: str = "",
+    redis_pid: int | None = None,
+) -> Iterator[Cluster]:
+    """``setup.processes`` servers sharing ``data_dir``'s (or ``database_url``'s) database,
+    and ``relay_url``'s Redis with the Redis relay."""
+    cores = split_cores() if setup.pin else None
+    if setup.pin and cores is None:
+        raise Unavailable("this process may not pin two cores (sched_setaffinity)")
+    env = {"ANKLE_DATABASE_URL": database_url} if database_url else {}
+    if setup.relay == "redis":
+        env["ANKLE_RELAY_URL"] = relay_url
+    servers: list[ServerProcess] = []
+    try:
+        for k in range(setup.processes):
+            servers.append(
+                ServerProcess(
+                    data_dir, env=env, name=f"{name}-{k}", cores=cores[0] if cores else None
+                )
+            )
+        yield Cluster(
+            servers, cores[1] if cores else None, redis_pid if setup.relay == "redis" else None
+        )
+    finally:
+        for s in servers:
+            s.stop()
+
+
+class Unavailable(RuntimeError):
+    """A measurement this machine cannot make (the message says why)."""
+
+
 # -- one measurement ---------------------------------------------------------------------
 def _pct(values: Sequence[float], q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else math.nan
 
 
 def measure(
-    server: ServerProcess,
+    system: Cluster,
     seats: Sequence[Seat],
     viewers_per_station: int,
     seconds: float,
     commands: bool = True,
 ) -> dict[str, Any]:
     """One window of ``seconds`` with these stations and their viewers (who send a K/B
-    change each second if ``commands``)."""
-    ws_url = server.url.replace("http://", "ws://")
-    log_dir = server.log.parent
+    change and a HOLD each second if ``commands``). Station ``i`` is on server process
+    ``i mod N`` and its viewers on the next process (the same one when N is 1)."""
+    servers = system.servers
+    n = len(servers)
+    urls = [s.url.replace("http://", "ws://") for s in servers]
+    log_dir = servers[0].log.parent
     stations = Worker(
         "stations",
-        {"url": ws_url, "items": [[s.station_id, s.station_token] for s in seats]},
+        {
+            "processes": n,
+            "items": [[s.station_id, s.station_token, urls[i % n]] for i, s in enumerate(seats)],
+        },
         log_dir,
+        system.loadgen_cores,
     )
     viewers: Worker | None = None
     try:
@@ -327,24 +515,28 @@ def measure(
         viewers = Worker(
             "viewers",
             {
-                "url": ws_url,
                 "commands": commands,
                 "items": [
-                    [s.station_id, s.therapist_token]
-                    for s in seats
+                    [s.station_id, s.therapist_token, urls[(i + 1) % n]]
+                    for i, s in enumerate(seats)
                     for _ in range(viewers_per_station)
                 ],
             },
             log_dir,
+            system.loadgen_cores,
         )
         viewers.ready()
         start = time.time() + WARMUP_S
         end = start + seconds
         for w in (stations, viewers):
             w.go(start, end)
-        pids = [server.proc.pid, stations.proc.pid, viewers.proc.pid]
+        pids = [s.proc.pid for s in servers] + [stations.proc.pid, viewers.proc.pid]
+        if system.redis_pid is not None:
+            pids.append(system.redis_pid)
         time.sleep(max(0.0, start - time.time()))
         cpu0, machine0 = [cpu_seconds(p) for p in pids], machine_cpu()
+        server_cores = sorted(os.sched_getaffinity(servers[0].proc.pid))
+        loadgen_cores = sorted(os.sched_getaffinity(stations.proc.pid))
         time.sleep(max(0.0, end - time.time()))
         cpu1, machine1 = [cpu_seconds(p) for p in pids], machine_cpu()
         sent, seen = stations.result(WORKER_TIMEOUT_S), viewers.result(WORKER_TIMEOUT_S)
@@ -352,17 +544,23 @@ def measure(
         stations.stop()
         if viewers is not None:
             viewers.stop()
-    cpu = [100.0 * (b - a) / seconds for a, b in zip(cpu0, cpu1, strict=True)]
+    used = [b - a for a, b in zip(cpu0, cpu1, strict=True)]
+    cpu = [100.0 * u / seconds for u in used]
     n_viewers = max(seen["connected"], 1)
     latency: list[float] = seen["latency_ms"]
     acks: list[float] = seen["ack_ms"]["set_impedance"]
     holds: list[float] = seen["ack_ms"]["hold"]
-    server_cpu_us = 1e6 * (cpu1[0] - cpu0[0])
+    batches = max(sent["batches"], 1)
+    per_process: list[int] = sent["batches_by_process"]
+    server_cpu_us = 1e6 * sum(used[:n])
+    redis_us = 1e6 * used[n + 2] if system.redis_pid is not None else math.nan
     return {
+        "processes": n,
         "stations": sent["connected"],
         "viewers": seen["connected"],
         "seconds": seconds,
         "telemetry_hz_per_station": sent["telemetry"] / seconds / max(sent["connected"], 1),
+        "telemetry_skipped": sent["skipped"],
         "viewer_hz": seen["samples"] / seconds / n_viewers,
         "telemetry_latency_ms_p50": _pct(latency, 50),
         "telemetry_latency_ms_p99": _pct(latency, 99),
@@ -374,23 +572,91 @@ def measure(
         "commands": len(acks) + len(holds),
         "commands_failed": seen["commands_failed"],
         "disconnects": sent["disconnects"] + seen["disconnects"],
-        "server_cpu_pct": cpu[0],
-        "server_cpu_us_per_message": server_cpu_us / max(sent["batches"], 1),
+        "server_cpu_pct": sum(cpu[:n]),
+        "server_cpu_pct_per_process": cpu[:n],
+        "server_cpu_us_per_message": server_cpu_us / batches,
         "server_cpu_us_per_sample": server_cpu_us / max(sent["telemetry"], 1),
-        "loadgen_cpu_pct": cpu[1] + cpu[2],
-        "stations_cpu_pct": cpu[1],
-        "viewers_cpu_pct": cpu[2],
+        # Each process's CPU over the messages of the stations it holds: with N > 1 it also
+        # carries the viewers of the previous process's stations.
+        "server_cpu_us_per_message_per_process": [
+            1e6 * used[k] / max(per_process[k % len(per_process)], 1) for k in range(n)
+        ],
+        "redis_cpu_pct": 100.0 * redis_us / 1e6 / seconds,
+        "redis_cpu_us_per_message": redis_us / batches,
+        "loadgen_cpu_pct": cpu[n] + cpu[n + 1],
+        "stations_cpu_pct": cpu[n],
+        "viewers_cpu_pct": cpu[n + 1],
         "machine_cpu_pct": 100.0 * (machine1[0] - machine0[0]) / (machine1[1] - machine0[1]),
+        "load_average": os.getloadavg()[0],
+        "server_cores": server_cores,
+        "loadgen_cores": loadgen_cores,
         "cores": os.cpu_count(),
     }
 
 
-def _held(result: dict[str, Any]) -> bool:
+def problems(result: dict[str, Any]) -> dict[str, str]:
+    """Keys of ``result`` whose numbers cannot be trusted, with why: a lost connection makes
+    every figure suspect, a short send rate the telemetry figures, an unanswered command the
+    command round trips (their percentiles would leave it out)."""
+    bad: dict[str, str] = {}
+    telemetry = ("telemetry_latency_ms_p50", "telemetry_latency_ms_p99", "viewer_hz")
+    rate = result["telemetry_hz_per_station"]
+    if rate < RATE_FLOOR * TELEMETRY_HZ:
+        why = f"stations sent {rate:.0f} Hz, not {TELEMETRY_HZ}: " + (
+            f"the server did not read ({result['telemetry_skipped']} batches skipped)"
+            if result["telemetry_skipped"]
+            else f"the load generator fell behind ({result['loadgen_cpu_pct']:.0f} % CPU)"
+        )
+        bad.update(dict.fromkeys(telemetry, why))
+    if result["commands_failed"]:
+        why = f"{result['commands_failed']} commands unanswered"
+        bad.update(dict.fromkeys(COMMAND_KEYS, why))
+    if result["disconnects"]:
+        why = f"{result['disconnects']} connections lost"
+        bad.update(dict.fromkeys((*telemetry, *COMMAND_KEYS), why))
+    return bad
+
+
+def _held(result: dict[str, Any]) -> str | None:
+    """None if the latency target held at this count, else why not."""
+    bad = problems(result)
+    if bad:
+        return next(iter(bad.values()))
     p99 = result["telemetry_latency_ms_p99"]
-    return (
-        bool(result["stations"] > 0 and not math.isnan(p99) and p99 <= LATENCY_MS)
-        and result["disconnects"] == 0
-    )
+    if result["stations"] == 0 or math.isnan(p99):
+        return "no telemetry"
+    return None if p99 <= LATENCY_MS else f"latency p99 {p99:.0f} ms"
+
+
+def sweep_counts_of(
+    system: Cluster,
+    seats: Sequence[Seat],
+    counts: Sequence[int],
+    viewers_per_station: int,
+    seconds: float,
+    commands: bool,
+    say: Callable[[str], None],
+    what: str,
+) -> dict[str, Any]:
+    """Growing counts of stations on one cluster until the latency target fails: the largest
+    count that held, why the sweep stopped, and each step's figures."""
+    held: int | None = None
+    stopped = "top of the sweep"
+    steps: list[dict[str, Any]] = []
+    for i, n in enumerate(counts):
+        say(f"{what}: {n} stations ({i + 1}/{len(counts)})")
+        try:
+            step = measure(system, seats[:n], viewers_per_station, seconds, commands)
+        except WorkerFailed as exc:
+            stopped = f"at {n} stations the load generator failed: {str(exc)[-300:]}"
+            break
+        steps.append({k: step[k] for k in STEP_KEYS})
+        why = _held(step)
+        if why is not None:
+            stopped = f"at {n} stations: {why}"
+            break
+        held = n
+    return {"max": held, "stopped": stopped, "steps": steps}
 
 
 def run(
@@ -400,51 +666,153 @@ def run(
     sweep: bool = True,
     sweep_counts: Sequence[int] = SWEEP,
     sweep_seconds: float = SWEEP_SECONDS,
-    server_argv: Sequence[str] | None = None,
     commands: bool = True,
+    processes: int = 1,
+    relay: str = "local",
+    relay_url: str = "",
+    store: str = "sqlite",
+    database_url: str = "",
+    capacity: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """The benchmark: one window at ``stations``, then (``sweep``) one per count in
-    ``sweep_counts`` until the latency target fails. ``server_argv`` replaces the server's
-    command line (to try server options; it must honour ``ANKLE_*``)."""
-    counts = sorted(set(sweep_counts)) if sweep else []
-    with tempfile.TemporaryDirectory(prefix="ankle-bench-server-") as tmp:
-        data_dir = Path(tmp)
-        seats = asyncio.run(provision(data_dir, max([stations, *counts])))
-        server = ServerProcess(data_dir, server_argv)
-        try:
-            result = measure(server, seats[:stations], viewers_per_station, seconds, commands)
-            held = [stations] if _held(result) else []
-            steps: list[dict[str, Any]] = []
-            for n in counts:
-                step = measure(server, seats[:n], viewers_per_station, sweep_seconds, commands)
-                steps.append(step)
-                if not _held(step):
-                    break
-                held.append(n)
-        finally:
-            server.stop()
-    result["max_stations_p99_under_50ms"] = max(held) if held else None
-    if sweep:
-        result["sweep"] = [
-            {
-                k: s[k]
-                for k in (
-                    "stations",
-                    "viewers",
-                    "telemetry_hz_per_station",
-                    "viewer_hz",
-                    "telemetry_latency_ms_p50",
-                    "telemetry_latency_ms_p99",
-                    "kb_change_to_ack_ms_p99",
-                    "hold_to_ack_ms_p99",
-                    "disconnects",
-                    "server_cpu_pct",
-                )
-            }
-            for s in steps
+    """The benchmark: one window at ``stations`` on ``processes`` server processes (the
+    ``relay`` between them; ``redis`` starts a throwaway redis-server unless ``relay_url``
+    names one), then (``sweep``) one per count in ``sweep_counts`` until the latency target
+    fails. ``capacity`` adds the sweeps of the capacity plan: one server process pinned to
+    one core with each relay, and two processes. ``store`` ``postgres`` needs the
+    ``database_url`` of an existing PostgreSQL. The servers inherit this process's
+    environment (``ANKLE_*`` to try server options). Raises ValueError for a combination
+    that cannot run, naming the option."""
+    check_options(processes, relay, store, database_url)
+    say = progress or (lambda _: None)
+    counts = sorted(set(sweep_counts))
+    asked = Setup(processes, relay)
+    plan = [(k, s) for k, s in CAPACITY.items() if capacity]
+    wants_redis = relay == "redis" or any(s.relay == "redis" for _, s in plan)
+    with contextlib.ExitStack() as stack:
+        data_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="ankle-bench-")))
+        redis_pid: int | None = None
+        if wants_redis and not relay_url:
+            say("starting redis-server")
+            server_redis = stack.enter_context(spawned_redis(data_dir / "redis"))
+            relay_url, redis_pid = server_redis.url, server_redis.proc.pid
+        say("provisioning stations and therapists")
+        seats = asyncio.run(
+            provision(data_dir, max([stations, *counts]), _store_url(store, database_url))
+        )
+        db_url = _store_url(store, database_url)
+
+        def on(setup: Setup, name: str) -> contextlib.AbstractContextManager[Cluster]:
+            # Each cluster on its own Redis database: no lease of the last one lingers.
+            url = f"{relay_url.rstrip('/')}/{len(used)}" if redis_pid is not None else relay_url
+            used.append(name)
+            return cluster(setup, data_dir, name, url, db_url, redis_pid)
+
+        def sweep_on(system: Cluster, setup: Setup) -> dict[str, Any]:
+            return sweep_counts_of(
+                system,
+                seats,
+                counts,
+                viewers_per_station,
+                sweep_seconds,
+                commands,
+                say,
+                setup.text(),
+            )
+
+        used: list[str] = []
+        with on(asked, "server") as system:
+            say(f"{asked.text()}: {stations} stations, {seconds:g} s window")
+            result = measure(system, seats[:stations], viewers_per_station, seconds, commands)
+            found = sweep_on(system, asked) if sweep else None
+        capacity_runs: dict[str, dict[str, Any]] = {}
+        for key, setup in plan:
+            try:
+                with on(setup, key) as system:
+                    capacity_runs[key] = sweep_on(system, setup)
+            except Unavailable as exc:
+                capacity_runs[key] = {"max": None, "stopped": str(exc), "steps": []}
+    return summary(result, asked, store, found, capacity_runs)
+
+
+def check_options(processes: int, relay: str, store: str, database_url: str) -> None:
+    """Refuse a combination that cannot run, with a sentence naming the option."""
+    database_url = _store_url(store, database_url) if store == "postgres" else database_url
+    if relay not in RELAYS:
+        raise ValueError(f"--relay must be one of {', '.join(RELAYS)}, not {relay!r}")
+    if store not in STORES:
+        raise ValueError(f"--store must be one of {', '.join(STORES)}, not {store!r}")
+    if processes < 1:
+        raise ValueError(f"--processes must be at least 1, not {processes}")
+    if processes > 1 and relay == "local":
+        raise ValueError(
+            "--processes above 1 needs --relay redis: the local relay keeps live links "
+            "in one process"
+        )
+    if store == "postgres" and not database_url.startswith("postgresql"):
+        raise ValueError(
+            "--store postgres needs --database-url (or ANKLE_DATABASE_URL) of an existing "
+            "PostgreSQL: postgresql+asyncpg://user@host/db"
+        )
+    if store == "sqlite" and database_url and not database_url.startswith("sqlite"):
+        raise ValueError(f"--database-url {database_url!r} is not SQLite: add --store postgres")
+
+
+def _store_url(store: str, database_url: str) -> str:
+    """The servers' database URL: empty for SQLite in the run's data directory; for
+    PostgreSQL the one given, else ``ANKLE_DATABASE_URL`` (a site's may name its SQLite
+    file, so only ``postgres`` reads it)."""
+    if store != "postgres":
+        return ""
+    return database_url or os.environ.get("ANKLE_DATABASE_URL", "")
+
+
+def summary(
+    result: dict[str, Any],
+    asked: Setup,
+    store: str,
+    found: dict[str, Any] | None,
+    capacity_runs: dict[str, dict[str, Any]],
+) -> dict[str, Any]:
+    """The measured window, its validity, the sweeps and the capacity figures in one dict;
+    a figure that cannot be trusted is None, with why in ``invalid``."""
+    out = dict(result)
+    out["relay"], out["store"] = asked.relay, store
+    bad = problems(result)
+    for key in bad:
+        out[key] = None
+    out["invalid"] = bad
+    out["valid"] = not bad
+    held = [n for n in (found["max"] if found else None,) if n is not None]
+    if _held(result) is None:
+        held.append(result["stations"])
+    out["max_stations_p99_under_50ms"] = max(held) if held else None
+    if found:
+        out["sweep"] = found["steps"]
+        out["sweep_stopped"] = found["stopped"]
+    # Cross-process: this window when it had several processes, else the two-process sweep's
+    # step nearest below this window's station count.
+    cross = math.nan
+    if asked.processes > 1:
+        cross = _number(out["telemetry_latency_ms_p99"])
+    elif "2proc" in capacity_runs:
+        below = [
+            s
+            for s in capacity_runs["2proc"]["steps"]
+            if s["stations"] <= result["stations"] and not problems(s)
         ]
-    result["targets_met"] = {t.key: t.met(_number(result[t.key])) for t in TARGETS}
-    return result
+        cross = below[-1]["telemetry_latency_ms_p99"] if below else math.nan
+    out["cross_process_latency_ms_p99"] = cross
+    for key in CAPACITY:
+        out[f"max_stations_p99_under_50ms_{key}"] = capacity_runs.get(key, {}).get("max")
+    one, redis = (capacity_runs.get(k, {}).get("max") for k in ("1proc", "1proc_redis"))
+    out["redis_relay_efficiency"] = redis / one if one and redis is not None else math.nan
+    if capacity_runs:
+        out["capacity"] = capacity_runs
+    out["targets_met"] = {
+        t.key: t.met(_number(out.get(t.key))) and t.key not in bad for t in TARGETS
+    }
+    return out
 
 
 def _number(value: Any) -> float:
@@ -468,26 +836,40 @@ def jsonable(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def table(result: dict[str, Any]) -> str:
-    shown = {k: (math.nan if v is None else v) for k, v in result.items()}
-    text = bench_table(shown, ROWS, TARGETS)
-    sweep: list[dict[str, Any]] = result.get("sweep") or []
-    if sweep:
-        lines = [
-            "",
-            "| stations | viewers | sent/station (Hz) | viewer (Hz) | latency p50 (ms) "
-            "| latency p99 (ms) | K/B ack p99 (ms) | HOLD ack p99 (ms) | lost | server CPU (%) |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-        ]
-        for s in sweep:
-            lines.append(
-                f"| {s['stations']} | {s['viewers']} | {s['telemetry_hz_per_station']:.1f} "
-                f"| {s['viewer_hz']:.1f} | {s['telemetry_latency_ms_p50']:.1f} "
-                f"| {s['telemetry_latency_ms_p99']:.1f} | {s['kb_change_to_ack_ms_p99']:.1f} "
-                f"| {s['hold_to_ack_ms_p99']:.1f} | {s['disconnects']} "
-                f"| {s['server_cpu_pct']:.0f} |"
-            )
-        text += "\n".join(lines)
-    return text
+    """The Markdown tables: the window (an untrustworthy figure shows INVALID and why), then
+    each sweep's steps and why it stopped."""
+    shown = {k: (math.nan if result.get(k) is None else result[k]) for k, _ in ROWS}
+    parts = [bench_table(shown, ROWS, TARGETS, result.get("invalid") or None)]
+    sweeps = [("this setup", result.get("sweep"), result.get("sweep_stopped"))]
+    for key, found in (result.get("capacity") or {}).items():
+        sweeps.append((CAPACITY[key].text(), found["steps"], found["stopped"]))
+    for title, steps, stopped in sweeps:
+        if steps is None:
+            continue
+        parts.append(f"\n{title}: stopped {stopped}\n\n" + _steps_table(steps))
+    return "\n".join(parts)
+
+
+def _steps_table(steps: Sequence[dict[str, Any]]) -> str:
+    def f(v: Any, digits: int = 1) -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
+
+    lines = [
+        "| stations | viewers | sent/station (Hz) | viewer (Hz) | latency p50 (ms) "
+        "| latency p99 (ms) | K/B ack p99 (ms) | HOLD ack p99 (ms) | lost | server CPU (%) "
+        "| server us/msg | redis us/msg |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for s in steps:
+        lines.append(
+            f"| {s['stations']} | {s['viewers']} | {f(s['telemetry_hz_per_station'])} "
+            f"| {f(s['viewer_hz'])} | {f(s['telemetry_latency_ms_p50'])} "
+            f"| {f(s['telemetry_latency_ms_p99'])} | {f(s['kb_change_to_ack_ms_p99'])} "
+            f"| {f(s['hold_to_ack_ms_p99'])} | {s['disconnects']} "
+            f"| {f(s['server_cpu_pct'], 0)} | {f(s['server_cpu_us_per_message'], 0)} "
+            f"| {f(s.get('redis_cpu_us_per_message'), 0)} |"
+        )
+    return "\n".join(lines)
 
 
 # -- the load generator processes ---------------------------------------------------------
@@ -564,12 +946,13 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
 
     from sessions import wire
 
-    url = config["url"]
     window = _Window()
     templates = _telemetry_templates()
     hello = wire.StationHello(protocol=wire.PROTOCOL, software="ankle bench").model_dump_json()
     live: set[ClientConnection] = set()
     stats = {"telemetry": 0, "batches": 0, "disconnects": 0, "skipped": 0}
+    by_process = [0] * int(config["processes"])
+    process_of: dict[ClientConnection, int] = {}
     closing = False
 
     async def answer(ws: ClientConnection) -> None:
@@ -585,7 +968,7 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
             stats["disconnects"] += 1
         live.discard(ws)
 
-    async def open_one(station_id: int, token: str) -> ClientConnection:
+    async def open_one(station_id: int, token: str, url: str) -> ClientConnection:
         ws = await connect(
             f"{url}/ws/station",
             additional_headers={"Authorization": f"Bearer {token}"},
@@ -601,6 +984,8 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
 
     conns = await _connect_all(config["items"], open_one)
     live.update(conns)
+    for i, ws in enumerate(conns):
+        process_of[ws] = i % len(by_process)  # as measure() placed them
     readers = [asyncio.create_task(answer(ws)) for ws in conns]
     slots: list[list[ClientConnection]] = [[] for _ in range(PHASES)]
     for i, ws in enumerate(conns):
@@ -637,6 +1022,7 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
                 if counting:
                     stats["telemetry"] += SAMPLES_PER_BATCH
                     stats["batches"] += 1
+                    by_process[process_of[ws]] += 1
             k += 1
             next_t += dt
             delay = next_t - loop.time()
@@ -655,7 +1041,7 @@ async def _stations(config: dict[str, Any]) -> dict[str, Any]:
     await asyncio.gather(*(ws.close() for ws in conns), return_exceptions=True)
     for r in readers:
         r.cancel()
-    return {"connected": len(conns), **stats}
+    return {"connected": len(conns), "batches_by_process": by_process, **stats}
 
 
 async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
@@ -664,7 +1050,6 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
 
     from sessions import wire
 
-    url = config["url"]
     window = _Window()
     latency: list[float] = []
     samples = 0
@@ -699,7 +1084,7 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
             stats["disconnects"] += 1
         live.discard(ws)
 
-    async def open_one(station_id: int, token: str) -> ClientConnection:
+    async def open_one(station_id: int, token: str, url: str) -> ClientConnection:
         ws = await connect(
             f"{url}/ws/live/{station_id}",
             subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]

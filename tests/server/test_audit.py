@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import pytest
 from sqlalchemy import Executable, delete, select, text, update
 from sqlalchemy.exc import DBAPIError
 
+from server.audit import AuditWriter
 from server.models import AuditEntry
 from tests.server.live_server import STRENGTH, Live, World, bearer
 
@@ -142,3 +144,53 @@ async def test_the_database_refuses_to_change_or_delete_audit_rows(live: Live, s
         # Appending still works.
         db.add(AuditEntry(actor="system", action="test.append", entity="test", entity_id="1"))
         await db.commit()
+
+
+def _row(action: str, entity_id: int, patient_id: int | None, old: Any) -> dict[str, Any]:
+    return {
+        "actor": "system",
+        "action": action,
+        "entity": "station",
+        "entity_id": entity_id,
+        "patient_id": patient_id,
+        "old": old,
+        "new": {"ok": True},
+    }
+
+
+@pytest.mark.asyncio
+async def test_the_live_writer_commits_a_burst_and_a_refused_row_alone(live: Live) -> None:
+    """The live links' writer: a burst of rows lands, every row with its time and JSON
+    values; a row the database refuses (a patient that does not exist) fails for its waiter
+    only."""
+    writer = AuditWriter(live.sessionmaker)
+    actions = [f"test.burst{i}" for i in range(30)]
+    waits = []
+    for i, action in enumerate(actions):
+        values = _row(action, i, None, {"k": [i, 1.5]})
+        if i % 2:
+            writer.write_soon(values)
+        else:
+            waits.append(asyncio.ensure_future(writer.write(**values)))
+    bad = _row("test.orphan", 1, 2**31 - 1, None)
+    refused = asyncio.ensure_future(writer.write(**bad))
+    await asyncio.gather(*waits)
+    with pytest.raises(DBAPIError):
+        await refused
+    await writer.close(flush_s=10.0)
+    async with live.sessionmaker() as db:
+        rows = (
+            (
+                await db.execute(
+                    select(AuditEntry)
+                    .where(AuditEntry.action.like("test.%"))
+                    .order_by(AuditEntry.id)
+                )
+            )
+            .scalars()
+            .all()
+        )
+    assert sorted(r.action for r in rows) == sorted(actions)  # the refused one not among them
+    assert all(r.at is not None for r in rows)
+    third = next(r for r in rows if r.action == "test.burst3")
+    assert (third.old, third.new, third.entity_id) == ({"k": [3, 1.5]}, {"ok": True}, "3")
