@@ -350,14 +350,15 @@ class Hub:
             return conn.after(seq)
         return unseen(self.relay.recent(station_id), seq)
 
-    def newest(self, station_id: int) -> tuple[int, wire.TelemetryMsg] | None:
-        """The station's newest sample, with the number of the batch it came in."""
+    def newest(self, station_id: int, seen: int = 0) -> tuple[int, wire.TelemetryMsg] | None:
+        """The station's newest sample, with the number of the batch it came in; None if none
+        came or that batch is ``seen`` (a relayed batch is parsed only when it is new)."""
         conn = self.stations.get(station_id)
         if conn is not None:
-            sample = conn.newest()
+            sample = conn.newest() if conn.seq != seen else None
             return None if sample is None else (conn.seq, sample)
         relayed = self.relay.recent(station_id)
-        if not relayed:
+        if not relayed or relayed[-1][0] == seen:
             return None
         batch = wire.STATION_UP.validate_json(relayed[-1][1])
         return (relayed[-1][0], batch.newest()) if isinstance(batch, wire.TelemetryBatch) else None

@@ -97,8 +97,8 @@ class LiveScenes:
         try:
             while True:
                 await asyncio.sleep(self.period)
-                newest = self.hub.newest(view.station_id)
-                if newest is not None and newest[0] != view.seq:
+                newest = self.hub.newest(view.station_id, seen=view.seq)
+                if newest is not None:
                     view.seq, t = newest
                     view.scene.update(t.pose, t.pose_cmd, t.pressures, t.wrench)
                 if view.clients or self.hub.viewers.get(view.station_id):
