@@ -91,11 +91,11 @@ def test_a_capacity_sweep_pins_one_server_process_to_one_core() -> None:
         pytest.skip("this process may not use two cores: nothing to pin")
     out = bench.run(
         stations=3,
-        seconds=2.0,
+        seconds=1.0,
         sweep=False,
         capacity=True,
         sweep_counts=(3,),
-        sweep_seconds=2.0,
+        sweep_seconds=1.0,
     )
     runs: dict[str, Any] = out["capacity"]
     assert set(runs) == set(bench.CAPACITY)
