@@ -180,6 +180,16 @@ def fault_spec(text: str) -> Any:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def fault_kind(text: str) -> Any:
+    """argparse type of a fault kind's name: a :class:`device.plant.faults.FaultKind`."""
+    from device.plant.faults import parse_kind
+
+    try:
+        return parse_kind(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def run_command(args: argparse.Namespace) -> int:
     """Execute a parsed ``device`` or ``protocol`` command."""
     if args.command == "device":

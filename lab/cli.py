@@ -19,7 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from device.cli import Parser, UsageError, add_plant_options, fault_spec, finite_float, ranged
+from device.cli import (
+    Parser,
+    UsageError,
+    add_plant_options,
+    fault_kind,
+    fault_spec,
+    finite_float,
+    ranged,
+)
 from device.commands import CommandError
 from device.geometry import AXES
 
@@ -122,6 +130,21 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="injected faults, healthy runs, boundary commands and the stiffness-damping edge",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--only",
+        type=fault_kind,
+        action="append",
+        default=[],
+        metavar="KIND",
+        help="run only the fault matrix, for this fault kind (repeatable; e.g. leg_stuck)",
+    )
+    p.add_argument(
+        "--after",
+        type=ranged(float, 0.1, 10.0),
+        default=0.5,
+        metavar="S",
+        help="watch each injected run this many seconds (default 0.5)",
+    )
     p = bs.add_parser(
         "zwidth", help="the stiffness and damping rendered stably per rotational axis (Z-width)"
     )
@@ -292,7 +315,8 @@ def _bench(args: argparse.Namespace) -> int:
     if args.bench == "safety":
         from lab import safety
 
-        sfresult = safety.run(progress=_progress)
+        only = tuple(dict.fromkeys(args.only))
+        sfresult = safety.run(progress=_progress, only=only, after=args.after)
         print(file=sys.stderr)
         print(json.dumps(_jsonable(sfresult), indent=2) if args.json else safety.table(sfresult))
         return 0

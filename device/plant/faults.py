@@ -201,6 +201,14 @@ def _number(text: str, what: str, spec: str) -> float:
         raise ValueError(f"fault {spec!r}: {what} {text!r} is not a number") from None
 
 
+def parse_kind(name: str) -> FaultKind:
+    """A kind from its name, case-insensitive, ``-`` or ``_`` (``leg-stuck``, ``LEG_STUCK``)."""
+    try:
+        return FaultKind[name.strip().upper().replace("-", "_")]
+    except KeyError:
+        raise ValueError(f"unknown kind {name.strip()!r}; kinds: {kind_names()}") from None
+
+
 def parse_fault(spec: str) -> Fault:
     """Parse ``KIND@TIME[+DURATION][:CHANNEL][=VALUE]`` (see the module's docstring)."""
     text = spec.strip()
@@ -210,13 +218,10 @@ def parse_fault(spec: str) -> Fault:
             f"fault {spec!r} needs the form KIND@TIME[+DURATION][:CHANNEL][=VALUE]; "
             f"kinds: {kind_names()}"
         )
-    key = head.strip().upper().replace("-", "_")
     try:
-        kind = FaultKind[key]
-    except KeyError:
-        raise ValueError(
-            f"fault {spec!r}: unknown kind {head.strip()!r}; kinds: {kind_names()}"
-        ) from None
+        kind = parse_kind(head)
+    except ValueError as exc:
+        raise ValueError(f"fault {spec!r}: {exc}") from None
     rest, eq, value_text = rest.partition("=")
     rest, colon, channel_text = rest.partition(":")
     time_text, plus, duration_text = rest.partition("+")
