@@ -305,7 +305,8 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
                 [80 * mm, 25 * mm, 25 * mm, 25 * mm],
             )
         )
-    story.append(_p(f"{len(record.sessions)} sessions in the period.", _BODY))
+    n = len(record.sessions)
+    story.append(_p(f"{n} session{'' if n == 1 else 's'} in the period.", _BODY))
     story.append(Paragraph("Sessions", _H2))
     if record.sessions:
         story.append(
