@@ -37,6 +37,7 @@ from reportlab.platypus import (
 from reportlab.platypus.doctemplate import BaseDocTemplate
 
 from sessions.measures import Measure
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.record import Adherence, PatientRecord, Session, ended_early
 
 TITLE = "Ankle rehabilitation report"
@@ -81,6 +82,14 @@ class Trend:
     @property
     def change(self) -> float:
         return self.last - self.first
+
+
+def exercise_name(kind: str | None) -> str:
+    """The exercise's name in the library (a recording from elsewhere may name another)."""
+    try:
+        return EXERCISE_LIBRARY[ExerciseKind(kind or "")].name
+    except ValueError:
+        return kind or "unknown"
 
 
 def value_text(value: float, unit: str) -> str:
@@ -198,7 +207,7 @@ def _session_rows(record: PatientRecord) -> list[list[Any]]:
         rows.append(
             [
                 f"{s.started_at:%Y-%m-%d %H:%M}",
-                _p(s.exercise or "unknown"),
+                _p(exercise_name(s.exercise)),
                 _p(s.end_reason or "no end record"),
                 reps,
                 _p(_measures_text(record.measures(s)) or "no summary"),
@@ -227,7 +236,7 @@ def notable_events(s: Session) -> list[str]:
 
 def _event_rows(record: PatientRecord) -> list[list[Any]]:
     return [
-        [f"{s.started_at:%Y-%m-%d %H:%M}", _p(s.exercise or "unknown"), _p(text)]
+        [f"{s.started_at:%Y-%m-%d %H:%M}", _p(exercise_name(s.exercise)), _p(text)]
         for s in record.sessions
         for text in notable_events(s)
     ]
@@ -284,7 +293,7 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
                 [
                     [
                         _p(rx.title or rx.exercise),
-                        _p(rx.exercise),
+                        _p(exercise_name(rx.exercise)),
                         rx.status,
                         "" if rx.sessions_per_week is None else str(rx.sessions_per_week),
                         _date(rx.created_at),

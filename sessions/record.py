@@ -7,7 +7,7 @@ made from one :class:`PatientRecord`, so they never disagree about what happened
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 from typing import Any
 
@@ -35,7 +35,6 @@ class Prescription:
     status: str
     created_at: datetime
     sessions_per_week: int | None
-    body: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -22,13 +22,15 @@ from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, patient_for
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
-from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, Responses
+from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions import fhir, record
 
 router = APIRouter(prefix="/patients", tags=["reports"])
 
 DEFAULT_DAYS = 90
 """The period a report covers when not told: this many days up to today, inclusive."""
+FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
+"""The days a period may name: any a record can hold, with room to count a day past it."""
 EXPORT_ACTION = "patient.export"
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
@@ -47,13 +49,6 @@ Until = Annotated[
         description=f"Last day of the period. {_DATE_DOC} Default: today.", examples=["2026-03-31"]
     ),
 ]
-_BAD_PERIOD: Responses = {
-    422: {
-        "model": ErrorPublic,
-        "description": "A date that is not YYYY-MM-DD, or a period that ends before it "
-        "starts; the sentence names the parameter.",
-    }
-}
 
 
 def _refuse(field: str, sentence: str) -> HTTPException:
@@ -66,12 +61,17 @@ def _day(field: str, text: str | None) -> date | None:
     if text is None:
         return None
     try:
-        return date.fromisoformat(text)
+        day = date.fromisoformat(text)
     except ValueError:
+        day = None
+    if day is None or not FIRST_DAY <= day <= LAST_DAY:
         shown = text if len(text) <= 40 else text[:40] + "…"
         raise _refuse(
-            field, f"{field} must be a date written YYYY-MM-DD, such as 2026-01-31; got {shown!r}"
-        ) from None
+            field,
+            f"{field} must be a date written YYYY-MM-DD between {FIRST_DAY} and {LAST_DAY}, "
+            f"such as 2026-01-31; got {shown!r}",
+        )
+    return day
 
 
 def period(since: str | None, until: str | None) -> tuple[date, date]:
@@ -125,7 +125,6 @@ async def patient_record(db: Db, patient: Patient, first: date, last: date) -> r
             status=p.status,
             created_at=p.created_at,
             sessions_per_week=p.body.get("sessions_per_week"),
-            body=p.body,
         )
         for p in prescriptions
     ]
@@ -185,7 +184,11 @@ def _attachment(body: bytes, media_type: str, name: str) -> Response:
     return Response(
         body,
         media_type=media_type,
-        headers={"Content-Disposition": f'attachment; filename="{name}"'},
+        # A patient's record: kept by no cache on the way.
+        headers={
+            "Content-Disposition": f'attachment; filename="{name}"',
+            "Cache-Control": "no-store",
+        },
     )
 
 
@@ -196,7 +199,6 @@ def _attachment(body: bytes, media_type: str, name: str) -> Response:
     responses={
         **UNAUTHORIZED,
         **NOT_FOUND,
-        **_BAD_PERIOD,
         200: {"content": {"application/pdf": {}}, "description": "The report, to sign."},
     },
 )
@@ -221,7 +223,6 @@ async def report_pdf(
     responses={
         **UNAUTHORIZED,
         **NOT_FOUND,
-        **_BAD_PERIOD,
         200: {
             "content": {fhir.MEDIA_TYPE: {}},
             "description": "A collection Bundle: the Patient and an Observation per measure "

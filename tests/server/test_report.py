@@ -104,6 +104,7 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
     )
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/pdf"
+    assert r.headers["cache-control"] == "no-store"
     assert disposition_name(r) == f"report-CL-7-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
     text = pdf_text(r.content)
 
@@ -213,6 +214,7 @@ async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
     [
         ({"since": "2026-13-01"}, "since", "since must be a date written YYYY-MM-DD"),
         ({"until": "yesterday"}, "until", "until must be a date written YYYY-MM-DD"),
+        ({"until": "9999-12-31"}, "until", "between 1900-01-01 and 9998-12-31"),
         ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
     ],
 )
