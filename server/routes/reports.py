@@ -33,13 +33,15 @@ FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
 """The days a period may name: any a record can hold, with room to count a day past it."""
 EXPORT_ACTION = "patient.export"
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+_WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
+"""How a refusal names each parameter: as the patient page labels it, and as the API does."""
 
 _DATE_DOC = "A date, YYYY-MM-DD (UTC), included in the period."
 Since = Annotated[
     str | None,
     Query(
-        description=f"First day of the period. {_DATE_DOC} Default: {DEFAULT_DAYS} days "
-        "before until.",
+        description=f"First day of the period. {_DATE_DOC} Default: the {DEFAULT_DAYS} days "
+        "that end on until.",
         examples=["2026-01-01"],
     ),
 ]
@@ -68,8 +70,8 @@ def _day(field: str, text: str | None) -> date | None:
         shown = text if len(text) <= 40 else text[:40] + "…"
         raise _refuse(
             field,
-            f"{field} must be a date written YYYY-MM-DD between {FIRST_DAY} and {LAST_DAY}, "
-            f"such as 2026-01-31; got {shown!r}",
+            f"{_WORDS[field]} must be a date written YYYY-MM-DD between {FIRST_DAY} and "
+            f"{LAST_DAY}, such as 2026-01-31; got {shown!r}",
         )
     return day
 
@@ -82,8 +84,8 @@ def period(since: str | None, until: str | None) -> tuple[date, date]:
     if first > last:
         raise _refuse(
             "since",
-            f"since ({first}) is after until ({last}): the period must start on or "
-            "before the day it ends",
+            f"{_WORDS['since']}, {first}, is after {_WORDS['until']}, {last}: the period "
+            "must start on or before the day it ends",
         )
     return first, last
 

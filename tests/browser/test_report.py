@@ -107,7 +107,7 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
     section = page.locator(
         "section", has=page.get_by_role("heading", name="Report for the medical record")
     )
-    since, until = section.get_by_label("From"), section.get_by_label("To")
+    since, until = section.get_by_label("First day"), section.get_by_label("Last day")
     today = datetime.now(UTC).date()
     expect(until).to_have_value(str(today))
     expect(since).to_have_value(str(today - timedelta(days=89)))

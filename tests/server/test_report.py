@@ -212,8 +212,12 @@ async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
 @pytest.mark.parametrize(
     ("params", "field", "words"),
     [
-        ({"since": "2026-13-01"}, "since", "since must be a date written YYYY-MM-DD"),
-        ({"until": "yesterday"}, "until", "until must be a date written YYYY-MM-DD"),
+        (
+            {"since": "2026-13-01"},
+            "since",
+            "the first day (since) must be a date written YYYY-MM-DD",
+        ),
+        ({"until": "yesterday"}, "until", "the last day (until) must be a date written YYYY-MM-DD"),
         ({"until": "9999-12-31"}, "until", "between 1900-01-01 and 9998-12-31"),
         ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
     ],
