@@ -174,6 +174,8 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("GET", "/sessions/{session_id}/series"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay.viser"): Call(OWNER_OR_ADMIN),
+    ("GET", "/patients/{patient_id}/report.pdf"): Call(OWNER_OR_ADMIN),
+    ("GET", "/patients/{patient_id}/fhir"): Call(OWNER_OR_ADMIN),
     # An upload in the order a station makes one: bytes, where it stands, complete.
     ("PATCH", "/uploads/{session_id}"): Call(
         answers(owner=401, admin=401, other=401, station=204),

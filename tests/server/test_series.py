@@ -6,6 +6,7 @@ import hashlib
 import math
 import time
 import uuid
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -20,8 +21,10 @@ from sessions.recording import (
     SAMPLE_DTYPE,
     DeviceInfo,
     End,
+    EndReason,
     Header,
     RecordType,
+    SessionEvent,
     encode_json,
     encode_samples,
 )
@@ -64,9 +67,18 @@ def samples() -> NDArray[np.void]:
 
 
 def recording_bytes(
-    sid: str, rows: NDArray[np.void], station_id: int = 1, patient_id: int = 1, rx: int = 1
+    sid: str,
+    rows: NDArray[np.void],
+    station_id: int = 1,
+    patient_id: int = 1,
+    rx: int = 1,
+    *,
+    events: Sequence[SessionEvent] = (),
+    reason: EndReason = "completed",
+    end_text: str = "",
 ) -> bytes:
-    """A whole recording (header, samples, end record) as the station writes it."""
+    """A whole recording (header, samples, events, end record) as the station writes it;
+    its times are those of ``rows["wall"]``."""
     body = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
     header = Header(
         session_id=sid,
@@ -76,24 +88,30 @@ def recording_bytes(
         prescription=body,
         device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=100, home_pose=[0.0] * 6),
         software="test",
-        started_at=STARTED_AT,
+        started_at=float(rows["wall"][0]),
     )
     end = End(
-        ended_at=STARTED_AT + N / HZ, reason="completed", sets_completed=1, repetitions_completed=3
+        ended_at=float(rows["wall"][0]) + N / HZ,  # as the whole 3 min session would
+        reason=reason,
+        text=end_text,
+        sets_completed=1,
+        repetitions_completed=3,
     )
     blocks = [encode_samples(rows[i : i + 1000]) for i in range(0, len(rows), 1000)]
     return (
         MAGIC
         + encode_json(RecordType.HEADER, header)
         + b"".join(blocks)
+        + b"".join(encode_json(RecordType.EVENT, e) for e in events)
         + encode_json(RecordType.END, end)
     )
 
 
-async def upload(live: Live, world: World, rows: NDArray[np.void]) -> int:
-    """File a session the way a station does: append the bytes, then complete."""
+async def upload(live: Live, world: World, rows: NDArray[np.void], **end: Any) -> int:
+    """File a session the way a station does: append the bytes, then complete. ``end``:
+    ``recording_bytes``' events, reason and end_text."""
     sid = str(uuid.uuid4())
-    data = recording_bytes(sid, rows, world.s1_id, world.p1, world.rx1)
+    data = recording_bytes(sid, rows, world.s1_id, world.p1, world.rx1, **end)
     c, station = live.client, bearer(world.s1)
     for offset in range(0, len(data), CHUNK):  # in the station's chunks: one is at most ~1 MiB
         r = await c.patch(

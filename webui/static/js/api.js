@@ -119,16 +119,22 @@ export async function api(path, { method = "GET", body, raw = false } = {}) {
   return r.status === 204 ? null : r.json();
 }
 
-/** Fetch a file with the token and hand it to the browser as a download. */
+/**
+ * Fetch a file with the token and hand it to the browser as a download, named `filename`
+ * or, without one, as the server's Content-Disposition suggests. Returns the name used.
+ */
 export async function download(path, filename) {
   const r = await api(path, { raw: true });
+  const suggested = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
+  const name = filename || (suggested ? suggested[1] : path.split("/").pop());
   const blob = await r.blob();
   const url = URL.createObjectURL(blob);
-  const a = el("a", { href: url, download: filename });
+  const a = el("a", { href: url, download: name });
   document.body.append(a);
   a.click();
   a.remove();
   setTimeout(() => URL.revokeObjectURL(url), 10000);
+  return name;
 }
 
 /** el("p", {class: "x", onclick: f}, "text", child): text children are text nodes. */

@@ -5,6 +5,7 @@ import { endReasonBadge, stationBadge } from "./badges.js";
 import { confirmButton, showSecret } from "./confirm.js";
 import { SIDE_WORDS, fillPatientForm, patientBody, setUpPatientForm } from "./patient-form.js";
 import { renderProgress } from "./progress.js";
+import { setUpReport } from "./report.js";
 
 await requireSignIn();
 renderHeader();
@@ -410,6 +411,7 @@ async function main() {
   $("prescribe-link").href = `/app/patients/${patientId}/prescribe`;
   $("rx-title").tabIndex = -1;
   $("stations-title").tabIndex = -1;
+  setUpReport(patientId);
   const [list, library] = await Promise.all([
     api(`/sessions?patient_id=${patientId}&limit=500`),
     api("/exercises"),

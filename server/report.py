@@ -1,0 +1,352 @@
+"""The patient's report for the medical record, as a PDF a clinician reads and signs.
+
+Made with reportlab's page layout (platypus) and its charts, from one
+:class:`sessions.record.PatientRecord`: the patient, the period, the prescriptions, sessions
+done against prescribed, each session's measures (per direction, named for the patient's
+side), their trend, the notable events (faults, holds, early ends) and a signature block.
+The numbers are those of :mod:`sessions.measures`, as in the FHIR export.
+
+:func:`progress_section` takes the rows it shows, so a richer progress (baseline, minimal
+detectable change) can feed it without touching the rest.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from reportlab.graphics.charts.legends import LineLegend
+from reportlab.graphics.charts.lineplots import LinePlot
+from reportlab.graphics.shapes import Drawing, String
+from reportlab.lib import colors
+from reportlab.lib.pagesizes import A4
+from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
+from reportlab.lib.units import mm
+from reportlab.platypus import (
+    Flowable,
+    KeepTogether,
+    Paragraph,
+    SimpleDocTemplate,
+    Spacer,
+    Table,
+    TableStyle,
+)
+from reportlab.platypus.doctemplate import BaseDocTemplate
+
+from sessions.measures import Measure
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
+from sessions.record import Adherence, PatientRecord, Session, ended_early
+
+TITLE = "Ankle rehabilitation report"
+_SIDE = {"left": "Left", "right": "Right", "both": "Both"}
+_UNIT = {"deg": "°", "N.m": " N·m", "J": " J", "s": " s", "{repetitions}": ""}
+_SERIES_COLOURS = (
+    colors.HexColor("#1f77b4"),
+    colors.HexColor("#d62728"),
+    colors.HexColor("#2ca02c"),
+    colors.HexColor("#9467bd"),
+    colors.HexColor("#ff7f0e"),
+    colors.HexColor("#8c564b"),
+)
+_STYLES = getSampleStyleSheet()
+_BODY = _STYLES["BodyText"]
+_SMALL = ParagraphStyle("small", parent=_BODY, fontSize=8, leading=10)
+_H1, _H2 = _STYLES["Title"], _STYLES["Heading2"]
+_GRID = TableStyle(
+    [
+        ("GRID", (0, 0), (-1, -1), 0.4, colors.grey),
+        ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#e8eef4")),
+        ("FONTNAME", (0, 0), (-1, 0), "Helvetica-Bold"),
+        ("FONTSIZE", (0, 0), (-1, -1), 8),
+        ("VALIGN", (0, 0), (-1, -1), "TOP"),
+    ]
+)
+
+
+@dataclass(frozen=True)
+class Trend:
+    """One measure over the period: its first and last value and the change."""
+
+    code: str
+    label: str
+    unit: str
+    sessions: int
+    first: float
+    last: float
+    points: list[tuple[float, float]]
+    """(days since the period began, value), oldest first."""
+
+    @property
+    def change(self) -> float:
+        return self.last - self.first
+
+
+def exercise_name(kind: str | None) -> str:
+    """The exercise's name in the library (a recording from elsewhere may name another)."""
+    try:
+        return EXERCISE_LIBRARY[ExerciseKind(kind or "")].name
+    except ValueError:
+        return kind or "unknown"
+
+
+def value_text(value: float, unit: str) -> str:
+    return f"{value:.1f}{_UNIT.get(unit, ' ' + unit)}"
+
+
+def _date(t: datetime) -> str:
+    return f"{t:%Y-%m-%d}"
+
+
+def _p(text: str, style: ParagraphStyle = _SMALL) -> Paragraph:
+    return Paragraph(text.replace("&", "&amp;").replace("<", "&lt;"), style)
+
+
+def _table(header: Sequence[str], rows: list[list[Any]], widths: Sequence[float]) -> Table:
+    table = Table([list(header), *rows], colWidths=list(widths), repeatRows=1)
+    table.setStyle(_GRID)
+    return table
+
+
+def trends(record: PatientRecord) -> list[Trend]:
+    """Per measure code and direction (angles, torques and work), its values over the
+    sessions of the period, in order."""
+    series: dict[str, tuple[Measure, list[tuple[float, float]]]] = {}
+    for s in record.sessions:
+        day = (s.started_at - record.since).total_seconds() / 86400
+        for m in record.measures(s):
+            if m.code.unit not in ("deg", "N.m", "J"):
+                continue
+            series.setdefault(m.code.code, (m, []))[1].append((day, m.value))
+    return [
+        Trend(m.code.code, m.label, m.code.unit, len(pts), pts[0][1], pts[-1][1], pts)
+        for m, pts in series.values()
+    ]
+
+
+def progress_section(rows: Sequence[Trend]) -> list[Flowable]:
+    """The progress table and the peak-angle chart, from the rows given."""
+    out: list[Flowable] = [Paragraph("Progress over the period", _H2)]
+    if not rows:
+        return [*out, _p("No measures in this period.", _BODY)]
+    out.append(
+        _table(
+            ["Measure", "Sessions", "First", "Last", "Change"],
+            [
+                [
+                    _p(t.label),
+                    str(t.sessions),
+                    value_text(t.first, t.unit),
+                    value_text(t.last, t.unit),
+                    f"{t.change:+.1f}{_UNIT.get(t.unit, ' ' + t.unit)}",
+                ]
+                for t in rows
+            ],
+            [70 * mm, 20 * mm, 25 * mm, 25 * mm, 25 * mm],
+        )
+    )
+    angles = [t for t in rows if t.code.startswith("peak-angle-")]
+    if angles:
+        out += [Spacer(1, 4 * mm), _chart(angles, "Peak angle per session (degrees)")]
+    return out
+
+
+def _chart(rows: Sequence[Trend], title: str) -> Drawing:
+    drawing = Drawing(170 * mm, 70 * mm)
+    plot = LinePlot()
+    plot.x, plot.y = 15 * mm, 12 * mm
+    plot.width, plot.height = 105 * mm, 48 * mm
+    plot.data = [t.points for t in rows]
+    for i, _ in enumerate(rows):
+        plot.lines[i].strokeColor = _SERIES_COLOURS[i % len(_SERIES_COLOURS)]
+        plot.lines[i].strokeWidth = 1.2
+    plot.xValueAxis.labelTextFormat = "%d"
+    plot.xValueAxis.labels.fontSize = plot.yValueAxis.labels.fontSize = 7
+    plot.yValueAxis.labelTextFormat = "%.0f"
+    drawing.add(plot)
+    legend = LineLegend()
+    legend.x, legend.y = 125 * mm, 58 * mm
+    legend.fontSize = 7
+    legend.colorNamePairs = [
+        (_SERIES_COLOURS[i % len(_SERIES_COLOURS)], t.label[:40]) for i, t in enumerate(rows)
+    ]
+    drawing.add(legend)
+    drawing.add(String(15 * mm, 64 * mm, title, fontSize=9))
+    drawing.add(String(55 * mm, 2 * mm, "days since the period began", fontSize=7))
+    return drawing
+
+
+def _adherence_rows(rows: Sequence[Adherence]) -> list[list[Any]]:
+    return [
+        [
+            _p(a.title),
+            str(a.done),
+            "not set" if a.prescribed is None else str(a.prescribed),
+            str(a.ended_early),
+        ]
+        for a in rows
+    ]
+
+
+def _measures_text(measures: list[Measure]) -> str:
+    return "; ".join(
+        f"{m.label}: {value_text(m.value, m.code.unit)}"
+        for m in measures
+        if m.code.unit != "{repetitions}"
+    )
+
+
+def _session_rows(record: PatientRecord) -> list[list[Any]]:
+    rows = []
+    for s in record.sessions:
+        summary = s.summary or {}
+        done, asked = summary.get("repetitions_completed"), summary.get("repetitions_prescribed")
+        reps = "" if done is None else f"{done} of {asked}" if asked is not None else str(done)
+        rows.append(
+            [
+                f"{s.started_at:%Y-%m-%d %H:%M}",
+                _p(exercise_name(s.exercise)),
+                _p(s.end_reason or "no end record"),
+                reps,
+                _p(_measures_text(record.measures(s)) or "no summary"),
+            ]
+        )
+    return rows
+
+
+def notable_events(s: Session) -> list[str]:
+    """What a clinician should know of a session: faults and safety stops, holds, an end
+    before the prescription's."""
+    summary = s.summary or {}
+    found = [
+        f"{f.get('kind', 'event')} at {float(f.get('at_s', 0.0)):.0f} s "
+        f"({f.get('by', '?')}): {f.get('text', '')}"
+        for f in summary.get("faults", [])
+    ]
+    holds = int(summary.get("events", {}).get("hold", 0))
+    if holds:
+        found.append(f"held {holds} time{'s' if holds != 1 else ''}")
+    if ended_early(s):
+        why = summary.get("end_text") or ""
+        found.append(f"ended early ({s.end_reason}){': ' + why if why else ''}")
+    return found
+
+
+def _event_rows(record: PatientRecord) -> list[list[Any]]:
+    return [
+        [f"{s.started_at:%Y-%m-%d %H:%M}", _p(exercise_name(s.exercise)), _p(text)]
+        for s in record.sessions
+        for text in notable_events(s)
+    ]
+
+
+def _signature() -> Flowable:
+    line = "_" * 38
+    return KeepTogether(
+        [
+            Spacer(1, 10 * mm),
+            Paragraph("Clinician's review", _H2),
+            _p(f"Name: {line}", _BODY),
+            Spacer(1, 6 * mm),
+            _p(f"Signature: {line}      Date: {'_' * 16}", _BODY),
+        ]
+    )
+
+
+def _footer(canvas: Any, doc: BaseDocTemplate) -> None:
+    canvas.saveState()
+    canvas.setFont("Helvetica", 7)
+    canvas.drawString(doc.leftMargin, 10 * mm, doc.title)
+    canvas.drawRightString(A4[0] - doc.rightMargin, 10 * mm, f"page {doc.page}")
+    canvas.restoreState()
+
+
+def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes:
+    """The report as PDF bytes; ``progress`` defaults to :func:`trends` of the record."""
+    p = record.patient
+    first, last = record.days
+    period = f"{first} to {last}"
+    story: list[Flowable] = [
+        Paragraph(TITLE, _H1),
+        _table(
+            ["Patient", "Reference", "Birth year", "Affected side", "Period"],
+            [
+                [
+                    _p(p.display_name),
+                    _p(p.reference or "none"),
+                    "unknown" if p.birth_year is None else str(p.birth_year),
+                    _SIDE.get(p.affected_side or "", "not recorded"),
+                    period,
+                ]
+            ],
+            [45 * mm, 30 * mm, 20 * mm, 25 * mm, 50 * mm],
+        ),
+        _p(f"Generated {record.generated_at:%Y-%m-%d %H:%M} UTC.", _SMALL),
+        Paragraph("Prescriptions", _H2),
+    ]
+    if record.prescriptions:
+        story.append(
+            _table(
+                ["Prescription", "Exercise", "Status", "Per week", "Prescribed on"],
+                [
+                    [
+                        _p(rx.title or rx.exercise),
+                        _p(exercise_name(rx.exercise)),
+                        rx.status,
+                        "" if rx.sessions_per_week is None else str(rx.sessions_per_week),
+                        _date(rx.created_at),
+                    ]
+                    for rx in record.prescriptions
+                ],
+                [55 * mm, 35 * mm, 22 * mm, 20 * mm, 30 * mm],
+            )
+        )
+    else:
+        story.append(_p("No prescriptions in force during this period.", _BODY))
+    story.append(Paragraph("Sessions done against prescribed", _H2))
+    if record.adherence:
+        story.append(
+            _table(
+                ["Prescription", "Done", "Prescribed", "Ended early"],
+                _adherence_rows(record.adherence),
+                [80 * mm, 25 * mm, 25 * mm, 25 * mm],
+            )
+        )
+    n = len(record.sessions)
+    story.append(_p(f"{n} session{'' if n == 1 else 's'} in the period.", _BODY))
+    story.append(Paragraph("Sessions", _H2))
+    if record.sessions:
+        story.append(
+            _table(
+                ["Date", "Exercise", "Ended", "Repetitions", "Measures"],
+                _session_rows(record),
+                [26 * mm, 24 * mm, 20 * mm, 20 * mm, 80 * mm],
+            )
+        )
+    else:
+        story.append(_p("No sessions in this period.", _BODY))
+    story += progress_section(trends(record) if progress is None else progress)
+    story.append(Paragraph("Notable events", _H2))
+    events = _event_rows(record)
+    if events:
+        widths = [30 * mm, 30 * mm, 110 * mm]
+        story.append(_table(["Date", "Exercise", "What happened"], events, widths))
+    else:
+        story.append(_p("No faults, holds or early ends in this period.", _BODY))
+    story.append(_signature())
+
+    out = io.BytesIO()
+    doc = SimpleDocTemplate(
+        out,
+        pagesize=A4,
+        title=f"{TITLE}: {p.display_name}, {period}",
+        author="Ankle telerehabilitation server",
+        leftMargin=18 * mm,
+        rightMargin=18 * mm,
+        topMargin=16 * mm,
+        bottomMargin=18 * mm,
+    )
+    doc.build(story, onFirstPage=_footer, onLaterPages=_footer)
+    return out.getvalue()

@@ -1,0 +1,256 @@
+"""A patient's record over a period, for the medical record: a PDF report a clinician signs
+and a FHIR R4 bundle. Both are made from one ``sessions.record.PatientRecord`` and both are
+audited as data leaving the system (``patient.export``, with the format, period and counts).
+
+Who may: the patient's therapist, or an admin (read-only, as for sessions); anyone else
+gets the 404 of a patient that does not exist. The period is whole days (UTC), both ends
+included; it defaults to the :data:`DEFAULT_DAYS` days up to today.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query, Response
+from sqlalchemy import select
+
+from server import audit
+from server.deps import Db, Id, TherapistOrAdmin, patient_for
+from server.models import Patient, Prescription, Session, utcnow
+from server.report import pdf
+from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from sessions import fhir, record
+
+router = APIRouter(prefix="/patients", tags=["reports"])
+
+DEFAULT_DAYS = 90
+"""The period a report covers when not told: this many days up to today, inclusive."""
+FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
+"""The days a period may name: any a record can hold, with room to count a day past it."""
+EXPORT_ACTION = "patient.export"
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+_WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
+"""How a refusal names each parameter: as the patient page labels it, and as the API does."""
+
+_DATE_DOC = "A date, YYYY-MM-DD (UTC), included in the period."
+Since = Annotated[
+    str | None,
+    Query(
+        description=f"First day of the period. {_DATE_DOC} Default: the {DEFAULT_DAYS} days "
+        "that end on until.",
+        examples=["2026-01-01"],
+    ),
+]
+Until = Annotated[
+    str | None,
+    Query(
+        description=f"Last day of the period. {_DATE_DOC} Default: today.", examples=["2026-03-31"]
+    ),
+]
+
+
+def _refuse(field: str, sentence: str) -> HTTPException:
+    return HTTPException(
+        422, detail=[{"type": "value_error", "loc": ["query", field], "msg": sentence}]
+    )
+
+
+def _day(field: str, text: str | None) -> date | None:
+    if text is None:
+        return None
+    try:
+        day = date.fromisoformat(text)
+    except ValueError:
+        day = None
+    if day is None or not FIRST_DAY <= day <= LAST_DAY:
+        shown = text if len(text) <= 40 else text[:40] + "…"
+        raise _refuse(
+            field,
+            f"{_WORDS[field]} must be a date written YYYY-MM-DD between {FIRST_DAY} and "
+            f"{LAST_DAY}, such as 2026-01-31; got {shown!r}",
+        )
+    return day
+
+
+def period(since: str | None, until: str | None) -> tuple[date, date]:
+    """The first and last day of the period asked for; 422 with a sentence if it is not one."""
+    first, last = _day("since", since), _day("until", until)
+    last = last or utcnow().date()
+    first = first or last - timedelta(days=DEFAULT_DAYS - 1)
+    if first > last:
+        raise _refuse(
+            "since",
+            f"{_WORDS['since']}, {first}, is after {_WORDS['until']}, {last}: the period "
+            "must start on or before the day it ends",
+        )
+    return first, last
+
+
+def _start(day: date) -> datetime:
+    return datetime.combine(day, time(), tzinfo=UTC)
+
+
+async def patient_record(db: Db, patient: Patient, first: date, last: date) -> record.PatientRecord:
+    """The patient's prescriptions in force and sessions started within the days."""
+    since, until = _start(first), _start(last + timedelta(days=1))
+    prescriptions = (
+        await db.scalars(
+            select(Prescription)
+            .where(Prescription.patient_id == patient.id, Prescription.created_at < until)
+            .order_by(Prescription.created_at, Prescription.id)
+        )
+    ).all()
+    # A prescription withdrawn or completed before the period began is not in it.
+    ends = {p.id: (None if p.status == "active" else p.updated_at) for p in prescriptions}
+    prescriptions = [p for p in prescriptions if (ends[p.id] or until) >= since]
+    rows = (
+        await db.scalars(
+            select(Session)
+            .where(
+                Session.patient_id == patient.id,
+                Session.started_at >= since,
+                Session.started_at < until,
+            )
+            .order_by(Session.started_at, Session.id)
+        )
+    ).all()
+    kinds = {p.id: p.body.get("exercise") for p in prescriptions}
+    rxs = [
+        record.Prescription(
+            id=p.id,
+            title=str(p.body.get("title") or p.body.get("exercise") or f"prescription {p.id}"),
+            exercise=str(p.body.get("exercise", "")),
+            status=p.status,
+            created_at=p.created_at,
+            sessions_per_week=p.body.get("sessions_per_week"),
+        )
+        for p in prescriptions
+    ]
+    sessions = [
+        record.Session(
+            id=s.id,
+            uuid=s.session_uuid,
+            started_at=s.started_at,
+            ended_at=s.ended_at,
+            end_reason=s.end_reason,
+            prescription_id=s.prescription_id,
+            exercise=kinds.get(s.prescription_id or 0),
+            summary=s.summary,
+        )
+        for s in rows
+    ]
+    return record.PatientRecord(
+        patient=record.Patient(
+            id=patient.id,
+            display_name=patient.display_name,
+            reference=patient.reference,
+            birth_year=patient.birth_year,
+            affected_side=patient.affected_side,
+        ),
+        since=since,
+        until=until,
+        generated_at=utcnow(),
+        prescriptions=rxs,
+        sessions=sessions,
+        adherence=record.adherence(rxs, ends, sessions, since, until),
+    )
+
+
+def file_name(patient: Patient, first: date, last: date, suffix: str) -> str:
+    """``report-<reference or patient-id>-<first>-<last><suffix>``, safe in any file system."""
+    who = _UNSAFE.sub("-", patient.reference or "").strip("-.") or f"patient-{patient.id}"
+    return f"report-{who}-{first:%Y%m%d}-{last:%Y%m%d}{suffix}"
+
+
+async def _exported(
+    db: Db, user: Any, patient: Patient, fmt: str, first: date, last: date, **counts: int
+) -> None:
+    audit.record(
+        db,
+        audit.user_actor(user),
+        EXPORT_ACTION,
+        "patient",
+        patient.id,
+        patient.id,
+        None,
+        {"format": fmt, "since": str(first), "until": str(last), **counts},
+    )
+    await db.commit()
+
+
+def _attachment(body: bytes, media_type: str, name: str) -> Response:
+    return Response(
+        body,
+        media_type=media_type,
+        # A patient's record: kept by no cache on the way.
+        headers={
+            "Content-Disposition": f'attachment; filename="{name}"',
+            "Cache-Control": "no-store",
+        },
+    )
+
+
+@router.get(
+    "/{patient_id}/report.pdf",
+    response_class=Response,
+    summary="The patient's report over a period (PDF, for the medical record)",
+    responses={
+        **UNAUTHORIZED,
+        **NOT_FOUND,
+        200: {"content": {"application/pdf": {}}, "description": "The report, to sign."},
+    },
+)
+async def report_pdf(
+    patient_id: Id, db: Db, user: TherapistOrAdmin, since: Since = None, until: Until = None
+) -> Response:
+    """Patient, period, prescriptions, sessions done against prescribed, each session's
+    range of motion per direction, torque and work, their trend, notable events (faults,
+    holds, early ends) and a signature block. Audited as ``patient.export`` (format pdf)."""
+    patient = await patient_for(db, user, patient_id)
+    first, last = period(since, until)
+    data = await patient_record(db, patient, first, last)
+    body = await asyncio.to_thread(pdf, data)
+    await _exported(db, user, patient, "pdf", first, last, sessions=len(data.sessions))
+    return _attachment(body, "application/pdf", file_name(patient, first, last, ".pdf"))
+
+
+@router.get(
+    "/{patient_id}/fhir",
+    response_class=Response,
+    summary="The patient's sessions over a period as a FHIR R4 Bundle",
+    responses={
+        **UNAUTHORIZED,
+        **NOT_FOUND,
+        200: {
+            "content": {fhir.MEDIA_TYPE: {}},
+            "description": "A collection Bundle: the Patient and an Observation per measure "
+            "per session (UCUM units, ankle body site with laterality).",
+        },
+    },
+)
+async def report_fhir(
+    patient_id: Id, db: Db, user: TherapistOrAdmin, since: Since = None, until: Until = None
+) -> Response:
+    """Codes: the project's session-measures code system (docs/measures.md), SNOMED CT for
+    the body site, laterality and a passive range-of-motion assessment. Audited as
+    ``patient.export`` (format fhir)."""
+    patient = await patient_for(db, user, patient_id)
+    first, last = period(since, until)
+    data = await patient_record(db, patient, first, last)
+    bundle = fhir.bundle(data)
+    await _exported(
+        db,
+        user,
+        patient,
+        "fhir",
+        first,
+        last,
+        sessions=len(data.sessions),
+        observations=len(bundle["entry"]) - 1,
+    )
+    body = json.dumps(bundle, ensure_ascii=False).encode()
+    return _attachment(body, fhir.MEDIA_TYPE, file_name(patient, first, last, ".fhir.json"))

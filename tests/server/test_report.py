@@ -1,0 +1,282 @@
+"""The patient's report for the medical record: the PDF read back with pypdf, the FHIR
+bundle validated with fhir.resources' R4B models, both audited, guarded and dated."""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from datetime import UTC, date, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fhir.resources.R4B.bundle import Bundle
+from numpy.typing import NDArray
+from pypdf import PdfReader
+
+from sessions.anatomy import LABELS
+from sessions.fhir import LATERALITY_EXTENSION
+from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
+from sessions.recording import SessionEvent
+from sessions.summary import AxisSummary, Summary
+from tests.server.live_server import Live, World, bearer
+from tests.server.test_series import (
+    HZ,
+    PEAK_DEG,
+    PITCH,
+    TORQUE_PEAK_NM,
+    TROUGH_DEG,
+    samples,
+    upload,
+)
+
+pytestmark = pytest.mark.both_stores
+
+ROOT = Path(__file__).resolve().parents[2]
+TODAY = datetime.now(UTC).date()
+
+
+def rows_at(day: date, scale: float = 1.0) -> NDArray[np.void]:
+    """The series test's session, started at noon on ``day``, its angles times ``scale``."""
+    rows = samples()
+    start = datetime(day.year, day.month, day.day, 12, tzinfo=UTC).timestamp()
+    rows["wall"] = start + np.arange(len(rows)) / HZ
+    rows["pose"][:, PITCH] *= scale
+    return rows
+
+
+async def two_sessions(live: Live, world: World) -> tuple[date, date]:
+    """A completed session ten days ago and, three days ago, one the station ended after a
+    fault and a hold, with angles 1.2 times larger. Returns their days."""
+    first, second = TODAY - timedelta(days=10), TODAY - timedelta(days=3)
+    await upload(live, world, rows_at(first))
+    wall = datetime(second.year, second.month, second.day, 12, tzinfo=UTC).timestamp()
+    events = [
+        SessionEvent(wall=wall + 20, kind="hold", by=f"therapist:{world.t1_id}"),
+        SessionEvent(wall=wall + 30, kind="fault", by="device", detail={"text": "supply lost"}),
+    ]
+    await upload(
+        live,
+        world,
+        rows_at(second, 1.2),
+        events=events,
+        reason="interrupted",
+        end_text="held longer than 180 s",
+    )
+    return first, second
+
+
+async def exports(live: Live, world: World) -> list[dict[str, Any]]:
+    r = await live.client.get(
+        "/audit", params={"action": "patient.export"}, headers=bearer(world.admin)
+    )
+    assert r.status_code == 200, r.text
+    rows: list[dict[str, Any]] = r.json()
+    return rows
+
+
+def pdf_text(body: bytes) -> str:
+    text = "\n".join(page.extract_text() for page in PdfReader(io.BytesIO(body)).pages)
+    return re.sub(r"\s+", " ", text)
+
+
+def disposition_name(r: Any) -> str:
+    match = re.fullmatch(r'attachment; filename="([^"]+)"', r.headers["content-disposition"])
+    assert match, r.headers["content-disposition"]
+    return match.group(1)
+
+
+@pytest.mark.asyncio
+async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, world: World) -> None:
+    t1 = bearer(world.t1)
+    r = await live.client.patch(
+        f"/patients/{world.p1}", json={"reference": "CL 7/ä", "birth_year": 1950}, headers=t1
+    )
+    assert r.status_code == 200, r.text
+    first, _ = await two_sessions(live, world)
+    since, until = first - timedelta(days=1), TODAY
+    r = await live.client.get(
+        f"/patients/{world.p1}/report.pdf",
+        params={"since": str(since), "until": str(until)},
+        headers=t1,
+    )
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "application/pdf"
+    assert r.headers["cache-control"] == "no-store"
+    assert disposition_name(r) == f"report-CL-7-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
+    text = pdf_text(r.content)
+
+    for fact in ("Pat One", "CL 7/ä", "1950", "Left", f"{since} to {until}"):
+        assert fact in text, fact
+    assert "Strength (resistive)" in text and "2 sessions in the period" in text
+    # Per direction, named for a left foot's pitch (the same words on either foot).
+    assert f"{LABELS['plantarflexion']}: {PEAK_DEG:.1f}°" in text
+    assert f"{LABELS['dorsiflexion']}: {-TROUGH_DEG:.1f}°" in text
+    assert f"Peak torque about the pitch axis: {abs(TORQUE_PEAK_NM):.1f} N·m" in text
+    # Sessions done against prescribed: 2 done; 5 a week over the days it was in force.
+    assert re.search(r"Strength \(resistive\) 2 \d+ 1", text), text
+    # The trend: the peak plantarflexion grew with the second session's larger angles.
+    assert "Progress over the period" in text
+    # Notable events: the second session's hold, fault and early end.
+    assert "fault at 30 s (device): supply lost" in text
+    assert "held 1 time" in text
+    assert "ended early (interrupted): held longer than 180 s" in text
+    assert "Signature" in text
+
+    (row,) = await exports(live, world)
+    assert row["actor"] == f"user:{world.t1_id}" and row["patient_id"] == world.p1
+    assert row["new"] == {"format": "pdf", "since": str(since), "until": str(until), "sessions": 2}
+
+
+@pytest.mark.asyncio
+async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
+    live: Live, world: World
+) -> None:
+    await two_sessions(live, world)
+    t1 = bearer(world.t1)
+    r = await live.client.get(f"/patients/{world.p1}/fhir", headers=t1)
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "application/fhir+json"
+    first_day = TODAY - timedelta(days=89)
+    assert disposition_name(r) == (
+        f"report-patient-{world.p1}-{first_day:%Y%m%d}-{TODAY:%Y%m%d}.fhir.json"
+    )
+    body = r.json()
+    bundle = Bundle.model_validate(body)  # raises on anything R4B does not allow
+    assert bundle.type == "collection"
+
+    patient, *observations = [e["resource"] for e in body["entry"]]
+    assert patient["resourceType"] == "Patient" and patient["name"] == [{"text": "Pat One"}]
+    subject = body["entry"][0]["fullUrl"]
+    assert len(observations) == 2 * 8  # per session: 2 peak angles, ROM, 2 torques, work,
+    # exercise time and repetitions (the strength exercise moves pitch only)
+    units = {o["valueQuantity"]["code"] for o in observations}
+    assert {"deg", "N.m", "J", "s"} <= units
+    for o in observations:
+        assert o["subject"] == {"reference": subject}
+        assert o["valueQuantity"]["system"] == "http://unitsofmeasure.org"
+        assert math.isfinite(o["valueQuantity"]["value"])
+        (coding,) = o["code"]["coding"]
+        assert coding["system"] == SYSTEM and coding["code"] in CODES
+        assert o["valueQuantity"]["code"] == CODES[coding["code"]].unit
+        site = o["bodySite"]
+        assert site["coding"][0]["code"] == "344001"  # SNOMED CT: ankle region structure
+        (laterality,) = site["extension"]
+        assert laterality["url"] == LATERALITY_EXTENSION
+        assert laterality["valueCodeableConcept"]["coding"][0]["code"] == "7771000"  # left
+
+    peaks = sorted(
+        o["valueQuantity"]["value"]
+        for o in observations
+        if o["code"]["coding"][0]["code"] == "peak-angle-plantarflexion"
+    )
+    assert peaks == pytest.approx([PEAK_DEG, PEAK_DEG * 1.2], abs=1e-3)
+
+    (row,) = await exports(live, world)
+    assert row["new"] == {
+        "format": "fhir",
+        "since": str(first_day),
+        "until": str(TODAY),
+        "sessions": 2,
+        "observations": 16,
+    }
+
+
+@pytest.mark.asyncio
+async def test_an_empty_period_gives_a_valid_report_saying_so(live: Live, world: World) -> None:
+    t1 = bearer(world.t1)
+    r = await live.client.get(f"/patients/{world.p1}/report.pdf", headers=t1)
+    assert r.status_code == 200, r.text
+    text = pdf_text(r.content)
+    assert "No sessions in this period." in text and "0 sessions in the period" in text
+    assert "No faults, holds or early ends in this period." in text
+    r = await live.client.get(f"/patients/{world.p1}/fhir", headers=t1)
+    body = r.json()
+    Bundle.model_validate(body)
+    assert [e["resource"]["resourceType"] for e in body["entry"]] == ["Patient"]
+
+
+@pytest.mark.asyncio
+async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
+    live: Live, world: World
+) -> None:
+    for path in ("report.pdf", "fhir"):
+        r = await live.client.get(f"/patients/{world.p1}/{path}", headers=bearer(world.t2))
+        assert r.status_code == 404, path
+        assert r.json() == {"detail": "patient not found"}
+    assert await exports(live, world) == []
+
+
+@pytest.mark.parametrize(
+    ("params", "field", "words"),
+    [
+        (
+            {"since": "2026-13-01"},
+            "since",
+            "the first day (since) must be a date written YYYY-MM-DD",
+        ),
+        ({"until": "yesterday"}, "until", "the last day (until) must be a date written YYYY-MM-DD"),
+        ({"until": "9999-12-31"}, "until", "between 1900-01-01 and 9998-12-31"),
+        ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
+    ],
+)
+@pytest.mark.asyncio
+async def test_a_bad_period_is_a_422_with_a_sentence(
+    live: Live, world: World, params: dict[str, str], field: str, words: str
+) -> None:
+    for path in ("report.pdf", "fhir"):
+        r = await live.client.get(
+            f"/patients/{world.p1}/{path}", params=params, headers=bearer(world.t1)
+        )
+        assert r.status_code == 422, (path, r.text)
+        (error,) = r.json()["detail"]
+        assert error["loc"] == ["query", field]
+        assert words in error["msg"]
+    assert await exports(live, world) == []
+
+
+def test_directions_follow_the_affected_side() -> None:
+    """Roll's directions swap between a left and a right foot; pitch's do not."""
+    axis = AxisSummary(
+        rom_min_deg=-8.0,
+        rom_max_deg=12.0,
+        rom_deg=20.0,
+        peak_torque_nm=5.0,
+        mean_torque_nm=2.0,
+        work_j=1.5,
+        tracking_error_rms_deg=None,
+        time_in_target_pct=None,
+    )
+    summary = Summary(
+        duration_s=60.0,
+        elapsed_s=70.0,
+        samples=7000,
+        sets_completed=1,
+        repetitions_completed=3,
+        repetitions_prescribed=3,
+        end_reason="completed",
+        axes={"roll": axis, "pitch": axis},
+        events={},
+        faults=[],
+    )
+
+    def peaks(side: str | None) -> dict[str, float]:
+        return {m.code.code: m.value for m in measures(summary, side) if m.direction is not None}
+
+    assert peaks("right") == {
+        "peak-angle-inversion": 12.0,
+        "peak-angle-eversion": 8.0,
+        "peak-angle-plantarflexion": 12.0,
+        "peak-angle-dorsiflexion": 8.0,
+    }
+    assert peaks("left")["peak-angle-eversion"] == 12.0
+    assert peaks("both")["peak-angle-left-edge-up"] == 12.0
+
+
+def test_the_code_system_is_documented() -> None:
+    """docs/measures.md carries the whole code system, as generated."""
+    doc = (ROOT / "docs" / "measures.md").read_text()
+    assert SYSTEM in doc
+    assert code_table_markdown() in doc
