@@ -216,9 +216,16 @@ function showTelemetry(m) {
   drawSoon();
 }
 
+// Numbers a person reads: five times a second is enough, and spares a busy computer the
+// layout work of rewriting them on every frame.
+const NUMBERS_EVERY_MS = 200;
+let numbersAt = 0;
+
 function showNewest() {
   const m = state.lastTelemetry;
-  if (!m) return;
+  const now = performance.now();
+  if (!m || now - numbersAt < NUMBERS_EVERY_MS) return;
+  numbersAt = now;
   showMode(m.mode);
   $("st-pose").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.pose[AXIS_INDEX[a]] * RAD2DEG, 1)}°`).join(" · ");
   $("st-torque").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.wrench[AXIS_INDEX[a]], 1)} N·m`).join(" · ");
@@ -228,11 +235,11 @@ function showNewest() {
   for (const a of AXES) {
     const cell = $(`kb-now-${a}`);
     if (!cell) continue;
-    const now = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
+    const inForce = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
     const next = state.pendingKB && pendingText(state.pendingKB, a);
-    if (cell.dataset.shown === now + (next || "")) continue;
-    cell.dataset.shown = now + (next || "");
-    cell.replaceChildren(now, ...(next ? [el("span", { class: "kb-pending" }, next)] : []));
+    if (cell.dataset.shown === inForce + (next || "")) continue;
+    cell.dataset.shown = inForce + (next || "");
+    cell.replaceChildren(inForce, ...(next ? [el("span", { class: "kb-pending" }, next)] : []));
   }
 }
 
@@ -316,6 +323,7 @@ function onResult(r) {
       const since = state.lastTelemetry ? state.lastTelemetry.t : -Infinity;
       state.pendingKB = { values: change.new, when: APPLIES_WHEN[change.applies], since };
     } else if (change) state.pendingKB = null;
+    numbersAt = 0; // show the pending change at the next frame
     drawSoon();
   } else {
     p.ackNode.textContent = `${p.label}: refused, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
