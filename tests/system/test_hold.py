@@ -9,7 +9,6 @@ import json
 import os
 import signal
 import time
-from collections.abc import Callable
 
 import httpx
 import pytest
@@ -30,6 +29,7 @@ from tests.system.harness import (
     short_strength,
     start_exercise,
     status_until,
+    until,
     uploaded,
 )
 
@@ -157,18 +157,6 @@ async def test_a_therapists_hold_is_shown_to_a_later_viewer_and_only_the_therapi
         await ws.close()
 
 
-async def telemetry_until(
-    ws: ClientConnection, done: Callable[[wire.TelemetryMsg], bool], timeout: float
-) -> wire.TelemetryMsg:
-    deadline = time.monotonic() + timeout
-    while True:
-        t: wire.TelemetryMsg = await next_of(
-            ws, wire.TelemetryMsg, max(0.1, deadline - time.monotonic())
-        )
-        if done(t):
-            return t
-
-
 async def result_of(ws: ClientConnection, request_id: str) -> wire.CommandResult:
     while True:
         result: wire.CommandResult = await next_of(ws, wire.CommandResult, 10)
@@ -203,12 +191,12 @@ async def test_a_kb_change_while_held_applies_on_resume_and_both_logs_record_it_
             changes.append(result.change)
         assert [c.old.stiffness for c in changes] == [{"pitch": 40.0}, {"pitch": 60.0}]
         assert [c.new.stiffness for c in changes] == [{"pitch": 60.0}, {"pitch": 80.0}]
-        held = await telemetry_until(ws, lambda t: t.mode == "HOLD", 10)
+        held = await until(ws, wire.TelemetryMsg, lambda t: t.mode == "HOLD", 10)
         assert held.stiffness[pitch] == pytest.approx(40.0), "held: the old K stays in force"
 
         await ws.send(wire.Command(request_id="resume", action="resume").model_dump_json())
         assert (await result_of(ws, "resume")).ok
-        now = await telemetry_until(ws, lambda t: t.stiffness[pitch] > 79.9, 15)
+        now = await until(ws, wire.TelemetryMsg, lambda t: t.stiffness[pitch] > 79.9, 15)
         assert now.mode == "ACTIVE", now
         await ws.send(wire.Command(request_id="stop", action="stop").model_dump_json())
         assert (await result_of(ws, "stop")).ok
