@@ -525,7 +525,6 @@ class Hub:
             station_id=asker.station_id,
             patient_id=asker.patient_id,
             command=cmd,
-            replaced=live_audit.in_force(conn.newest() if conn else None, cmd),
         )
 
         def refuse(code: str, text: str, field: str = "") -> None:

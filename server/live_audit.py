@@ -3,18 +3,19 @@
 The log is append-only, so a command leaves two rows linked by its ``request_id`` rather
 than one row that is later corrected:
 
-- ``<kind>.request`` when it is sent: who asked, which station and patient, what was asked
-  (and for K/B the values in force that it would replace). Resume, Start and K/B, which make
-  the platform move or change what the patient feels, are sent only once this row is
-  committed: a command that cannot be audited is not sent. HOLD and Stop are never delayed
-  or refused for the database: their row is queued before they go out and written beside.
+- ``<kind>.request`` when it is sent: who asked, which station and patient, what was asked.
+  Resume, Start and K/B, which make the platform move or change what the patient feels, are
+  sent only once this row is committed: a command that cannot be audited is not sent. HOLD
+  and Stop are never delayed or refused for the database: their row is queued before they
+  go out and written beside.
 - its outcome: ``<kind>.accepted`` (K/B: ``impedance.change``, the only row that says the
-  values changed), ``<kind>.refused`` with the code, field and reason of whoever refused it
-  (the device's NACK, the station, or the server itself: ``FORBIDDEN``, ``OFFLINE``,
-  ``DUPLICATE``, ``AUDIT``; a command the server refuses is never sent and has no request
-  row), or ``<kind>.unanswered`` (``TIMEOUT``, the station's link lost, the server shut
-  down): what the device did is not known. An answer that arrives after its TIMEOUT still
-  writes its outcome, marked ``late``.
+  values changed; its old and new values are the station's own account of the change, the
+  very values the session's event log records, and say when it applies), ``<kind>.refused``
+  with the code, field and reason of whoever refused it (the device's NACK, the station, or
+  the server itself: ``FORBIDDEN``, ``OFFLINE``, ``DUPLICATE``, ``AUDIT``; a command the
+  server refuses is never sent and has no request row), or ``<kind>.unanswered``
+  (``TIMEOUT``, the station's link lost, the server shut down): what the device did is not
+  known. An answer that arrives after its TIMEOUT still writes its outcome, marked ``late``.
 
 ``kind`` is ``impedance`` (``set_impedance``), ``hold``, ``resume``, ``stop`` or ``start``.
 Rows go through the hub's batched writer; outcomes are queued, never awaited, so a station's
@@ -27,7 +28,6 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sessions import wire
-from sessions.prescription import AXIS_INDEX
 
 Outcome = Literal["accepted", "refused", "unanswered"]
 Phase = Literal["request", "accepted", "refused", "unanswered"]
@@ -61,19 +61,6 @@ def outcome_of(result: wire.CommandResult) -> Outcome:
     return "unanswered" if result.code in UNANSWERED_CODES else "refused"
 
 
-def in_force(newest: wire.TelemetryMsg | None, cmd: wire.Command) -> dict[str, Any] | None:
-    """The K and B a ``set_impedance`` would replace, from the station's newest sample; None
-    for the other commands, {} when no telemetry came yet."""
-    if cmd.action != "set_impedance":
-        return None
-    if newest is None:
-        return {}
-    return {
-        "stiffness": {a: newest.stiffness[AXIS_INDEX[a]] for a in (cmd.stiffness or {})},
-        "damping": {a: newest.damping[AXIS_INDEX[a]] for a in (cmd.damping or {})},
-    }
-
-
 @dataclass(frozen=True)
 class Asked:
     """One command as the audit log tells it: everything its rows need."""
@@ -82,8 +69,6 @@ class Asked:
     station_id: int
     patient_id: int | None
     command: wire.Command
-    replaced: dict[str, Any] | None
-    """K/B in force when asked (set_impedance only)."""
 
     def what(self) -> dict[str, Any]:
         """What was asked, with the request_id that links the rows."""
@@ -107,14 +92,19 @@ class Asked:
         }
 
     def request_row(self) -> dict[str, Any]:
-        return self._row("request", self.replaced, self.what())
+        return self._row("request", None, self.what())
 
     def outcome_row(
         self, outcome: Outcome, result: wire.CommandResult, late: bool = False
     ) -> dict[str, Any]:
-        """The outcome: ``old`` holds the replaced values only when a change was made."""
+        """The outcome. A K/B change the station made is recorded as it says it made it: the
+        old and new values of the session's own event (``wire.ImpedanceChange``), and when
+        it applies; ``old`` is None for anything else."""
         answer: dict[str, Any] = {"code": result.code, "field": result.field, "text": result.text}
         if late:
             answer["late"] = True
-        old = self.replaced if outcome == "accepted" else None
-        return self._row(outcome, old, self.what() | answer)
+        change = result.change if outcome == "accepted" else None
+        if change is None:
+            return self._row(outcome, None, self.what() | answer)
+        made = change.new.model_dump() | {"applies": change.applies}
+        return self._row(outcome, change.old.model_dump(), self.what() | made | answer)

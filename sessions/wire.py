@@ -31,8 +31,9 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, create_model, mo
 from sessions.prescription import DAMPING_MAX, STIFFNESS_MAX, Axis, PrescriptionBody
 from sessions.recording import DeviceInfo, SessionEvent
 
-PROTOCOL = 2
-"""2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message."""
+PROTOCOL = 3
+"""2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message.
+3: a K/B change's result carries the change the station made (:class:`ImpedanceChange`)."""
 SUBPROTOCOL = "ankle.v1"
 BEARER_PREFIX = "bearer."
 HEARTBEAT_S = 1.0
@@ -292,6 +293,56 @@ class Command(BaseModel):
     by: str = Field(default="", description="Set by the server: therapist:<id>.")
 
 
+Applies = Literal["now", "on_resume", "next_repetition"]
+
+
+class Impedance(BaseModel):
+    """K and B on some ankle axes."""
+
+    model_config = _STRICT
+    stiffness: dict[Axis, float] = Field(default_factory=dict, description="K, N·m/rad.")
+    damping: dict[Axis, float] = Field(default_factory=dict, description="B, N·m·s/rad.")
+
+
+class ImpedanceChange(BaseModel):
+    """A live K/B change as the station made it, on the axes it asked for that the exercise
+    uses. ``old`` is what was set before (by the prescription or the last change, whether or
+    not the device has reached it yet), ``new`` what is set now. The session's event log and
+    the server's audit log both record this one object, so they never disagree."""
+
+    model_config = _STRICT
+    old: Impedance
+    new: Impedance
+    applies: Applies = Field(
+        description="now: the device slews to it at once; on_resume: the platform is held and "
+        "the device renders it from Resume; next_repetition: nothing is rendered now (rest)."
+    )
+
+    @classmethod
+    def between(
+        cls,
+        before: tuple[Mapping[str, float], Mapping[str, float]],
+        after: tuple[Mapping[str, float], Mapping[str, float]],
+        asked: Command,
+        applies: Applies,
+    ) -> ImpedanceChange:
+        """The change from ``before`` to ``after`` (each K and B per axis of the exercise),
+        on the axes ``asked`` names."""
+
+        def pick(values: Mapping[str, float], names: Mapping[Axis, float] | None) -> Any:
+            return {a: values[a] for a in (names or {}) if a in values}
+
+        return cls(
+            old=Impedance(
+                stiffness=pick(before[0], asked.stiffness), damping=pick(before[1], asked.damping)
+            ),
+            new=Impedance(
+                stiffness=pick(after[0], asked.stiffness), damping=pick(after[1], asked.damping)
+            ),
+            applies=applies,
+        )
+
+
 class CommandResult(BaseModel):
     """The device's own answer to a command (its ACK or NACK), or why it never got there."""
 
@@ -307,6 +358,9 @@ class CommandResult(BaseModel):
     field: str = ""
     text: str = ""
     rtt_ms: float = Field(default=0.0, description="Station to device and back, ms.")
+    change: ImpedanceChange | None = Field(
+        default=None, description="set_impedance, when made: what changed, and when it applies."
+    )
 
 
 class PrescriptionItem(BaseModel):

@@ -36,6 +36,12 @@ FLUSH_S = 0.2
 """Session samples are written this often and then synced to the disk: at most this much
 (and the disk's own delay) is lost if the station's power is cut; nothing if it is killed."""
 DEVICE_STALE_S = 2.0
+APPLIES_TEXT: dict[wire.Applies, str] = {
+    "now": "acknowledged by the device",
+    "on_resume": "accepted by the device; the platform is held, so it applies on Resume",
+    "next_repetition": "accepted; it applies from the next repetition",
+}
+"""The answer to a K/B change, by when the device renders it."""
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
 
@@ -296,7 +302,13 @@ class Station:
         dev, run = self.dev, self.run_
         t0 = time.perf_counter()
 
-        def result(ok: bool, code: str = "", field: str = "", text: str = "") -> wire.CommandResult:
+        def result(
+            ok: bool,
+            code: str = "",
+            field: str = "",
+            text: str = "",
+            change: wire.ImpedanceChange | None = None,
+        ) -> wire.CommandResult:
             return wire.CommandResult(
                 request_id=cmd.request_id,
                 ok=ok,
@@ -304,6 +316,7 @@ class Station:
                 field=field,
                 text=text,
                 rtt_ms=(time.perf_counter() - t0) * 1e3,
+                change=change,
             )
 
         if cmd.action == "start":
@@ -315,24 +328,18 @@ class Station:
             if cmd.action == "set_impedance":
                 if run is None:
                     return result(False, "REFUSED", "action", "no exercise is running")
-                old = (dict(run.stiffness), dict(run.damping))
-                k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
+                change = await self._set_impedance(dev, run, cmd)
                 self._event(
                     SessionEvent(
                         wall=time.time(),
                         kind="impedance",
                         by=cmd.by or "station",
-                        detail={
-                            "old": {"stiffness": old[0], "damping": old[1]},
-                            "new": {"stiffness": run.stiffness, "damping": run.damping},
-                        },
+                        detail=change.model_dump(mode="json"),
                     )
                 )
-                latest = dev.latest
-                if latest is None or latest.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
-                    return result(True, "DEFERRED", "", "applies from the next repetition")
-                await dev.set_impedance(k, b)
-            elif cmd.action == "hold":
+                code = "" if change.applies == "now" else "DEFERRED"
+                return result(True, code, "", APPLIES_TEXT[change.applies], change)
+            if cmd.action == "hold":
                 if run is not None:
                     run.pause()
                 if run is not None or (dev.latest and dev.latest.mode == DeviceMode.ACTIVE):
@@ -359,6 +366,30 @@ class Station:
             return result(False, exc.nack.code.name, exc.nack.field, exc.nack.text)
         except DeviceError as exc:
             return result(False, "TIMEOUT", "", str(exc))
+
+    async def _set_impedance(
+        self, dev: DeviceClient, run: ExerciseRun, cmd: wire.Command
+    ) -> wire.ImpedanceChange:
+        """Merge a live K/B change into the run and send it to the device when the device
+        renders one; what changed and when it applies. A change the device refuses is taken
+        out of the run again (CommandRefused is raised on)."""
+        before = (dict(run.stiffness), dict(run.damping))
+        k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
+        after = (run.stiffness, run.damping)
+        latest = dev.latest
+        if latest is None or latest.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
+            return wire.ImpedanceChange.between(before, after, cmd, "next_repetition")
+        try:
+            await dev.set_impedance(k, b)
+        except CommandRefused:
+            undo = wire.ImpedanceChange.between(before, after, cmd, "now").old
+            run.apply_impedance(undo.stiffness, undo.damping)
+            raise
+        # Held, the device keeps rendering what it had and slews to the new K and B from
+        # Resume: the mode at its ACK says which.
+        latest = dev.latest
+        held = latest is not None and latest.mode == DeviceMode.HOLD
+        return wire.ImpedanceChange.between(before, after, cmd, "on_resume" if held else "now")
 
     # -- the patient's page ----------------------------------------------------------------
     def note(self, kind: str, detail: dict[str, Any], by: str = "patient") -> bool:

@@ -5,16 +5,19 @@ charts over the whole session and the 3D replay, and every download reads back."
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
+import re
 import time
+from email.message import Message
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
-from playwright.sync_api import BrowserContext, Page, expect
+from playwright.sync_api import BrowserContext, Page, Route, expect
 
 from sessions.recording import decode
 from tests.browser.a11y import assert_controls_labelled
@@ -56,6 +59,32 @@ def run_one_session(system: System) -> dict[str, Any]:
             assert system.station.poll() is None, system.log_tail()
             time.sleep(0.5)
     raise AssertionError(f"no session reached the server\n{system.log_tail()}")
+
+
+def server_names(system: System, sid: int) -> dict[str, str]:
+    """The file name the server suggests for each download, read from its Content-Disposition
+    by the standard library's MIME parser (RFC 2231 included), not by the page's code."""
+    token = httpx.post(
+        f"{system.url}/api/v1/auth/login",
+        json={
+            "email": system.creds["therapist_email"],
+            "password": system.creds["therapist_password"],
+        },
+    ).json()["access_token"]
+    names: dict[str, str] = {}
+    for fmt in FORMATS:
+        r = httpx.get(
+            f"{system.url}/api/v1/sessions/{sid}/download/{fmt}",
+            headers={"Authorization": f"Bearer {token}"},
+            timeout=60.0,
+        )
+        assert r.status_code == 200, r.text
+        header = Message()
+        header["Content-Disposition"] = r.headers["Content-Disposition"]
+        name = header.get_filename()
+        assert name, r.headers["Content-Disposition"]
+        names[fmt] = name
+    return names
 
 
 def rows_in(fmt: str, data: bytes) -> int:
@@ -126,16 +155,19 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     page.screenshot(path=shots / "session-review.png", full_page=True, timeout=90_000)
     assert_controls_labelled(page)
 
-    # Every download button, read back with its own library; each holds every sample.
+    # Every download button, read back with its own library; each holds every sample and
+    # keeps the name the server gives it (with the session's date), not one the page makes.
+    names = server_names(system, sid)
     for fmt in FORMATS:
         button = page.get_by_role("button", name=f"Download {fmt.upper()}", exact=False)
         with page.expect_download() as caught:
             button.click()
         download = caught.value
-        assert download.suggested_filename == f"session-{sid}.{fmt}"
+        assert download.suggested_filename == names[fmt], (fmt, names[fmt])
+        assert re.fullmatch(rf"session-{sid}-\d{{8}}-\d{{6}}\.{fmt}", names[fmt]), names[fmt]
         data = Path(download.path()).read_bytes()
         assert rows_in(fmt, data) == samples, fmt
-    expect(page.locator("#download-status")).to_contain_text(f"session-{sid}.rec")
+    expect(page.locator("#download-status")).to_contain_text(names["rec"])
 
     # The replay as one HTML file plays from disk, without the server.
     with page.expect_download() as caught:
@@ -151,3 +183,52 @@ def test_review_a_session_summary_charts_replay_and_downloads(
         f"\nsession {sid}: {samples} samples; replay built and shown in {loaded_s:.1f} s; "
         f"replay page {saved.stat().st_size / 1e6:.2f} MB"
     )
+
+
+# (Content-Disposition, the name the page saves under); None: the page's own fallback.
+DISPOSITIONS = [
+    ('attachment; filename="session-7-20260301-101500.csv"', "session-7-20260301-101500.csv"),
+    ("attachment; filename=plain.csv", "plain.csv"),
+    (
+        'attachment; filename="fallback.pdf"; '
+        "filename*=UTF-8''Bericht%20J%C3%BCrgen%20%E2%82%AC.pdf",
+        "Bericht Jürgen €.pdf",
+    ),
+    ("attachment; filename*=utf-8''r%C3%A9sum%C3%A9.json", "résumé.json"),
+    ('attachment; filename="week 9; \\left\\.csv"', "week 9; left.csv"),
+    ('attachment; filename="../../etc/passwd"', "passwd"),
+    ("attachment; filename*=UTF-8''%E0%A4%A.csv; filename=\"ok.csv\"", "ok.csv"),
+    ("attachment", None),
+    ("", None),
+]
+
+
+def fulfil(route: Route, headers: dict[str, str], body: str) -> None:
+    route.fulfill(status=200, headers=headers, body=body)
+
+
+def test_a_download_takes_its_name_from_content_disposition(system: System, page: Page) -> None:
+    """The page's download helper in a real browser: each header above is served at the
+    browser's network boundary for a path of the page's own origin, and the file is saved
+    under the name the header gives (the page's fallback only when it gives none)."""
+    page.goto(f"{system.url}/app/login")
+    for n, (header, expected) in enumerate(DISPOSITIONS):
+        path = f"/api/v1/test-download/{n}"
+        body = f"file {n}"
+
+        headers = {"Content-Type": "application/octet-stream"}
+        if header:
+            headers["Content-Disposition"] = header
+        page.route(f"**{path}", functools.partial(fulfil, headers=headers, body=body))
+        with page.expect_download() as caught:
+            saved = page.evaluate(
+                """async ([path, n]) => {
+                    const { download } = await import("/static/js/api.js");
+                    return download(path.replace("/api/v1", ""), `fallback-${n}.bin`);
+                }""",
+                [path, n],
+            )
+        name = expected or f"fallback-{n}.bin"
+        assert caught.value.suggested_filename == name, (header, caught.value.suggested_filename)
+        assert saved == name, (header, saved)
+        assert Path(caught.value.path()).read_text() == body

@@ -32,8 +32,23 @@ WAIT_S = 15.0
 ACK_TEXT = "acknowledged by the device"
 
 
+SET_BEFORE: tuple[dict[str, float], dict[str, float]] = ({"pitch": 60.0}, {"pitch": 2.5})
+"""What the fake station says was set before a K/B change: not what its telemetry says is in
+force (40 and 2, as during a HOLD), so a log that took the value in force would differ."""
+
+
 def ack(cmd: wire.Command) -> wire.CommandResult:
-    return wire.CommandResult(request_id=cmd.request_id, ok=True, text=ACK_TEXT, rtt_ms=4.0)
+    """The device's ACK, and for a K/B change the change as a station reports it."""
+    change = None
+    if cmd.action == "set_impedance":
+        after = tuple(
+            {**was, **dict(asked.items())}
+            for was, asked in zip(SET_BEFORE, (cmd.stiffness or {}, cmd.damping or {}), strict=True)
+        )
+        change = wire.ImpedanceChange.between(SET_BEFORE, (after[0], after[1]), cmd, "on_resume")
+    return wire.CommandResult(
+        request_id=cmd.request_id, ok=True, text=ACK_TEXT, rtt_ms=4.0, change=change
+    )
 
 
 def silent(cmd: wire.Command) -> None:
@@ -177,17 +192,19 @@ async def test_each_command_is_audited_when_sent_and_with_the_devices_answer(
             relayed = await link.next_command()
             assert (relayed.request_id, relayed.by) == (request_id, f"therapist:{world.t1_id}")
 
-    replaced = {"stiffness": {"pitch": 40.0}, "damping": {"pitch": 2.0}}
+    # The change is recorded as the station made it (what was set before, not what the
+    # telemetry showed in force), with when it applies; the request says only what was asked.
+    replaced = {"stiffness": {"pitch": 60.0}, "damping": {"pitch": 2.5}}
     expected = {
-        "kb": ("impedance.request", "impedance.change", replaced),
-        "hold": ("hold.request", "hold.accepted", None),
-        "resume": ("resume.request", "resume.accepted", None),
-        "stop": ("stop.request", "stop.accepted", None),
-        "start": ("start.request", "start.accepted", None),
+        "kb": ("impedance.request", "impedance.change", replaced, {"applies": "on_resume"}),
+        "hold": ("hold.request", "hold.accepted", None, {}),
+        "resume": ("resume.request", "resume.accepted", None, {}),
+        "stop": ("stop.request", "stop.accepted", None, {}),
+        "start": ("start.request", "start.accepted", None, {}),
     }
     for request_id, _, fields in asked:
         request, outcome = await rows_of(live, world, request_id, 2)
-        first, then, old = expected[request_id]
+        first, then, old, when = expected[request_id]
         for row in (request, outcome):
             assert (row["actor"], row["entity"], row["entity_id"], row["patient_id"]) == (
                 actor,
@@ -195,12 +212,13 @@ async def test_each_command_is_audited_when_sent_and_with_the_devices_answer(
                 str(world.s1_id),
                 world.p1,
             ), row
-        assert (request["action"], request["old"]) == (first, old)
+        assert (request["action"], request["old"]) == (first, None)
         assert request["new"] == {"request_id": request_id, **fields}
         assert (outcome["action"], outcome["old"]) == (then, old)
         assert outcome["new"] == {
             "request_id": request_id,
             **fields,
+            **when,
             "code": "",
             "field": "",
             "text": ACK_TEXT,
@@ -260,7 +278,7 @@ async def test_an_unanswered_command_is_recorded_as_such_and_a_late_answer_too(
     ):
         await v.next_of(wire.TelemetryBatch)
         t0 = time.monotonic()
-        await v.send("kb-slow", "set_impedance", stiffness={"pitch": 60.0})
+        await v.send("kb-slow", "set_impedance", stiffness={"pitch": 70.0})
         cmd = await link.next_command()
         result = await v.next_of(wire.CommandResult, "kb-slow")
         assert (result.ok, result.code) == (False, "TIMEOUT")
@@ -278,7 +296,8 @@ async def test_an_unanswered_command_is_recorded_as_such_and_a_late_answer_too(
     *_, change = await rows_of(live, world, "kb-slow", 3)
     assert change["action"] == "impedance.change"
     assert change["new"]["late"] is True
-    assert change["old"] == {"stiffness": {"pitch": 40.0}, "damping": {}}
+    assert change["old"] == {"stiffness": {"pitch": 60.0}, "damping": {}}
+    assert change["new"]["stiffness"] == {"pitch": 70.0} and change["new"]["damping"] == {}
 
 
 @pytest.mark.asyncio

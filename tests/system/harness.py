@@ -18,7 +18,7 @@ import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import pytest
@@ -29,6 +29,8 @@ from device.process import ServiceProcess
 from server.cli import provision_demo, wait_healthy
 from server.config import Settings
 from sessions import wire
+
+M = TypeVar("M")
 
 
 def short_strength(title: str, repetitions: int = 2) -> dict[str, Any]:
@@ -218,16 +220,21 @@ def dump(obj: Any) -> str:
     return json.dumps(obj, indent=1, default=str)[:2000]
 
 
+async def until(
+    ws: ClientConnection, kind: type[M], done: Callable[[M], bool], timeout: float
+) -> M:
+    """The first message of ``kind`` for which ``done`` holds (see :func:`next_of`)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        message: M = await next_of(ws, kind, timeout=max(0.1, deadline - time.monotonic()))
+        if done(message):
+            return message
+
+
 async def status_until(
     ws: ClientConnection, done: Callable[[wire.StatusMsg], bool], timeout: float
 ) -> wire.StatusMsg:
-    deadline = time.monotonic() + timeout
-    while True:
-        status: wire.StatusMsg = await next_of(
-            ws, wire.StatusMsg, timeout=max(0.1, deadline - time.monotonic())
-        )
-        if done(status):
-            return status
+    return await until(ws, wire.StatusMsg, done, timeout)
 
 
 async def start_exercise(
@@ -256,13 +263,7 @@ async def start_exercise(
 
 async def active(ws: ClientConnection, timeout: float) -> wire.TelemetryMsg:
     """The first telemetry of a repetition in progress."""
-    deadline = time.monotonic() + timeout
-    while True:
-        t: wire.TelemetryMsg = await next_of(
-            ws, wire.TelemetryMsg, max(0.1, deadline - time.monotonic())
-        )
-        if t.mode == "ACTIVE":
-            return t
+    return await until(ws, wire.TelemetryMsg, lambda t: t.mode == "ACTIVE", timeout)
 
 
 async def sessions_of(client: httpx.AsyncClient, pid: int) -> list[dict[str, Any]]:

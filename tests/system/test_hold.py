@@ -13,10 +13,11 @@ import time
 import httpx
 import pytest
 from pydantic import BaseModel
-from websockets.asyncio.client import connect
+from websockets.asyncio.client import ClientConnection, connect
 from websockets.typing import Origin
 
 from sessions import wire
+from sessions.prescription import AXIS_INDEX
 from sessions.recording import decode
 from station.reasons import HOLD_LIMIT_S
 from tests.system.harness import (
@@ -28,6 +29,7 @@ from tests.system.harness import (
     short_strength,
     start_exercise,
     status_until,
+    until,
     uploaded,
 )
 
@@ -153,3 +155,63 @@ async def test_a_therapists_hold_is_shown_to_a_later_viewer_and_only_the_therapi
         assert going.phase == "running" and going.session_id == status.session_id, going
     finally:
         await ws.close()
+
+
+async def result_of(ws: ClientConnection, request_id: str) -> wire.CommandResult:
+    while True:
+        result: wire.CommandResult = await next_of(ws, wire.CommandResult, 10)
+        if result.request_id == request_id:
+            return result
+
+
+@pytest.mark.asyncio
+async def test_a_kb_change_while_held_applies_on_resume_and_both_logs_record_it_alike(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    """Held, the device keeps rendering the old K and B: the answer says the change applies
+    on Resume, and it does. Two changes while held (40 -> 60 -> 80, while 40 stays in force)
+    are recorded with the same old and new values in the audit log and the session's own
+    event log."""
+    pitch = AXIS_INDEX["pitch"]
+    body = short_strength("Changed while held", repetitions=8)
+    pid, ws, _ = await start_exercise(system, therapist, body)
+    changes: list[wire.ImpedanceChange] = []
+    try:
+        await active(ws, 30)
+        await ws.send(wire.Command(request_id="hold", action="hold").model_dump_json())
+        assert (await result_of(ws, "hold")).ok
+        await status_until(ws, lambda s: s.device_mode == "HOLD", 10)
+        for n, k in enumerate((60.0, 80.0)):
+            cmd = wire.Command(request_id=f"kb-{n}", action="set_impedance", stiffness={"pitch": k})
+            await ws.send(cmd.model_dump_json())
+            result = await result_of(ws, f"kb-{n}")
+            assert result.ok, result
+            assert result.code == "DEFERRED" and "applies on Resume" in result.text, result
+            assert result.change is not None and result.change.applies == "on_resume", result
+            changes.append(result.change)
+        assert [c.old.stiffness for c in changes] == [{"pitch": 40.0}, {"pitch": 60.0}]
+        assert [c.new.stiffness for c in changes] == [{"pitch": 60.0}, {"pitch": 80.0}]
+        held = await until(ws, wire.TelemetryMsg, lambda t: t.mode == "HOLD", 10)
+        assert held.stiffness[pitch] == pytest.approx(40.0), "held: the old K stays in force"
+
+        await ws.send(wire.Command(request_id="resume", action="resume").model_dump_json())
+        assert (await result_of(ws, "resume")).ok
+        now = await until(ws, wire.TelemetryMsg, lambda t: t.stiffness[pitch] > 79.9, 15)
+        assert now.mode == "ACTIVE", now
+        await ws.send(wire.Command(request_id="stop", action="stop").model_dump_json())
+        assert (await result_of(ws, "stop")).ok
+    finally:
+        await ws.close()
+
+    r = await therapist.get("/api/v1/audit", params={"action": "impedance.change"})
+    assert r.status_code == 200, r.text
+    audited = sorted(r.json(), key=lambda row: row["id"])
+    (session,) = await uploaded(therapist, pid, timeout=60)
+    rec = decode((await therapist.get(session["downloads"]["rec"])).content)
+    recorded = [e.detail for e in rec.events if e.kind == "impedance"]
+    assert len(audited) == len(recorded) == 2, (audited, recorded)
+    for row, event, change in zip(audited, recorded, changes, strict=True):
+        assert row["old"] == event["old"] == change.old.model_dump(), (row, event)
+        made = {key: row["new"][key] for key in ("stiffness", "damping", "applies")}
+        assert made == event["new"] | {"applies": event["applies"]}, (row, event)
+        assert event["new"] == change.new.model_dump() and event["applies"] == "on_resume"

@@ -120,21 +120,53 @@ export async function api(path, { method = "GET", body, raw = false } = {}) {
 }
 
 /**
- * Fetch a file with the token and hand it to the browser as a download, named `filename`
- * or, without one, as the server's Content-Disposition suggests. Returns the name used.
+ * The file name a Content-Disposition header suggests (RFC 6266): filename*=UTF-8''… (RFC 8187,
+ * percent-encoded) wins over a plain filename="…"; null when there is none. Only the last
+ * path segment is kept: a name never chooses a folder.
  */
-export async function download(path, filename) {
+export function filenameFrom(header) {
+  if (!header) return null;
+  const params = {};
+  // disposition-type, then ;-separated parameters: token or quoted-string values.
+  const re = /;\s*([^\s=;]+)\s*=\s*("(?:[^"\\]|\\.)*"|[^;]*)/g;
+  for (let m = re.exec(header); m; m = re.exec(header)) {
+    const name = m[1].toLowerCase();
+    let value = m[2].trim();
+    if (value.startsWith('"')) value = value.slice(1, -1).replace(/\\(.)/g, "$1");
+    if (!(name in params)) params[name] = value;
+  }
+  let name = null;
+  const extended = /^([\w!#$%&+^`{}~-]+)'[^']*'(.*)$/.exec(params["filename*"] || "");
+  if (extended && extended[1].toLowerCase() === "utf-8") {
+    try {
+      name = decodeURIComponent(extended[2]);
+    } catch (e) {
+      name = null; // malformed percent-encoding: fall back to the plain name
+    }
+  }
+  if (!name) name = params.filename || null;
+  if (!name) return null;
+  name = name.split(/[\\/]/).pop().trim();
+  return name && name !== "." && name !== ".." ? name : null;
+}
+
+/**
+ * Fetch a file with the token and hand it to the browser as a download, under the name the
+ * server gives it (Content-Disposition); ``fallback`` only when the server gives none.
+ * Returns the name it was saved under.
+ */
+export async function download(path, fallback) {
   const r = await api(path, { raw: true });
-  const suggested = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
-  const name = filename || (suggested ? suggested[1] : path.split("/").pop());
+  const filename =
+    filenameFrom(r.headers.get("Content-Disposition")) || fallback || path.split("/").pop();
   const blob = await r.blob();
   const url = URL.createObjectURL(blob);
-  const a = el("a", { href: url, download: name });
+  const a = el("a", { href: url, download: filename });
   document.body.append(a);
   a.click();
   a.remove();
   setTimeout(() => URL.revokeObjectURL(url), 10000);
-  return name;
+  return filename;
 }
 
 /** el("p", {class: "x", onclick: f}, "text", child): text children are text nodes. */

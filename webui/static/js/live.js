@@ -1,5 +1,7 @@
-// The live session: the 3D view (viser, in an iframe), status, charts, HOLD, and live
-// stiffness and damping changes answered by the device's own ACK or NACK.
+// The live session: what the patient is doing first (exercise, repetition, angle, torque, K and
+// B in force, HOLD/Resume/Stop), live stiffness and damping changes answered by the device's
+// own ACK or NACK, charts and the 3D view (viser, in an iframe); the engineering detail (links,
+// timing, overruns, leg pressures) under a "Technical" disclosure whose state is remembered.
 import { api, ApiError, clearErrors, el, fmt, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
 import { AXES, AXIS_INDEX } from "./axes.js";
 
@@ -22,6 +24,7 @@ const state = {
   frames: 0,
   rate: 0,
   lastTelemetry: null,
+  pendingKB: null, // a change accepted but not yet rendered: { values, when, since }
   retryMs: 1000,
   closedForGood: false,
 };
@@ -111,11 +114,13 @@ function drawSoon() {
   });
 }
 
-window.addEventListener("resize", () => {
+function resizeCharts() {
   for (const [key, c] of Object.entries(charts)) {
-    c.setSize({ width: Math.max(280, $(`chart-${key}`).clientWidth), height: 220 });
+    const width = $(`chart-${key}`).clientWidth;
+    if (width) c.setSize({ width: Math.max(280, width), height: 220 }); // 0: inside a closed <details>
   }
-});
+}
+window.addEventListener("resize", resizeCharts);
 
 // ---- status --------------------------------------------------------------------------------
 const MODE_CLASS = { ACTIVE: "ok", READY: "ok", HOLD: "warn", HOMING: "warn", FAULT: "bad", ESTOP: "bad" };
@@ -164,13 +169,33 @@ function showWhy() {
   $("st-trip").textContent = s && s.fault ? s.fault : s && s.hold ? `none; held: ${s.hold.text}` : "none";
 }
 
+// What the patient is doing, in a therapist's words, from the station's phase.
+const DOING = {
+  idle: "not exercising",
+  homing: "waiting: the platform is moving to its start position",
+  running: "exercising",
+  rest: "resting between repetitions",
+  paused: "held: the platform stands still",
+  done: "finished the exercise",
+  stopped: "not exercising: the exercise was stopped",
+  fault: "not exercising: the platform stopped on a fault",
+  interrupted: "not exercising: the exercise ended after a long hold",
+};
+
+function doing(s) {
+  if (s.device_link !== "connected") return "unknown: the platform is not connected to the station";
+  return DOING[s.phase] || s.phase;
+}
+
 function showStatus(s) {
   state.status = s;
   $("st-device").textContent = s.device_link === "connected" ? "connected" : "lost";
   showMode(s.device_mode);
   showWhy();
+  $("st-doing").textContent = doing(s);
   $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
   $("st-phase").textContent = s.phase;
+  $("st-device-mode").textContent = s.device_mode || "–";
   $("st-progress").textContent = s.sets ? `set ${s.set} of ${s.sets} · repetition ${s.rep} of ${s.repetitions}` : "–";
   $("st-rest").textContent = s.phase === "rest" ? `${Math.ceil(s.rest_remaining_s)} s` : "–";
   $("st-overruns").textContent = String(s.overruns);
@@ -191,15 +216,43 @@ function showTelemetry(m) {
   drawSoon();
 }
 
+// Numbers a person reads: five times a second is enough, and spares a busy computer the
+// layout work of rewriting them on every frame.
+const NUMBERS_EVERY_MS = 200;
+let numbersAt = 0;
+
 function showNewest() {
   const m = state.lastTelemetry;
-  if (!m) return;
+  const now = performance.now();
+  if (!m || now - numbersAt < NUMBERS_EVERY_MS) return;
+  numbersAt = now;
   showMode(m.mode);
+  $("st-pose").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.pose[AXIS_INDEX[a]] * RAD2DEG, 1)}°`).join(" · ");
+  $("st-torque").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.wrench[AXIS_INDEX[a]], 1)} N·m`).join(" · ");
+  const pending = state.pendingKB;
+  // Rendered once the device runs the exercise again, on a sample newer than the answer.
+  if (pending && m.mode === "ACTIVE" && m.t > pending.since) state.pendingKB = null;
   for (const a of AXES) {
     const cell = $(`kb-now-${a}`);
-    if (cell) cell.textContent = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
+    if (!cell) continue;
+    const inForce = `${fmt.num(m.stiffness[AXIS_INDEX[a]], 1)} · ${fmt.num(m.damping[AXIS_INDEX[a]], 2)}`;
+    const next = state.pendingKB && pendingText(state.pendingKB, a);
+    if (cell.dataset.shown === inForce + (next || "")) continue;
+    cell.dataset.shown = inForce + (next || "");
+    cell.replaceChildren(inForce, ...(next ? [el("span", { class: "kb-pending" }, next)] : []));
   }
 }
+
+// "→ K 80.0 · B 3.00 on Resume" for an axis a pending change touches, else "".
+function pendingText(pending, axis) {
+  const k = pending.values.stiffness[axis];
+  const b = pending.values.damping[axis];
+  if (k === undefined && b === undefined) return "";
+  const parts = [k !== undefined ? `K ${fmt.num(k, 1)}` : "", b !== undefined ? `B ${fmt.num(b, 2)}` : ""];
+  return `→ ${parts.filter(Boolean).join(" · ")} ${pending.when}`;
+}
+
+const APPLIES_WHEN = { on_resume: "on Resume", next_repetition: "from the next repetition" };
 
 setInterval(() => {
   $("st-rate").textContent = state.frames ? `${state.frames} samples/s` : "no samples";
@@ -261,9 +314,17 @@ function onResult(r) {
   const rtt = performance.now() - p.sent;
   $("st-rtt").textContent = `${rtt.toFixed(0)} ms (station to device ${r.rtt_ms.toFixed(0)} ms)`;
   if (r.ok) {
-    const how = r.code === "DEFERRED" ? `accepted: ${r.text}` : r.text || "accepted";
-    p.ackNode.textContent = `${p.label}: ${how} (${rtt.toFixed(0)} ms)`;
+    // The station words the answer by when the device renders a K/B change (now, on Resume
+    // from a HOLD, from the next repetition); "In force" shows what is pending until then.
+    p.ackNode.textContent = `${p.label}: ${r.text || "accepted"} (${rtt.toFixed(0)} ms)`;
     p.ackNode.className = "small ack-ok";
+    const change = r.change;
+    if (change && APPLIES_WHEN[change.applies]) {
+      const since = state.lastTelemetry ? state.lastTelemetry.t : -Infinity;
+      state.pendingKB = { values: change.new, when: APPLIES_WHEN[change.applies], since };
+    } else if (change) state.pendingKB = null;
+    numbersAt = 0; // show the pending change at the next frame
+    drawSoon();
   } else {
     p.ackNode.textContent = `${p.label}: refused, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
     p.ackNode.className = "small ack-bad";
@@ -454,24 +515,43 @@ $("scene-on").addEventListener("change", (ev) => {
   openScene();
 });
 
+// Off, the 3D card shrinks to its heading and switch, and the clinical cards take the width.
+function showSceneWanted(on) {
+  $("live-layout").classList.toggle("scene-off", !on);
+  $("scene").hidden = !on;
+  resizeCharts();
+}
+
 async function openScene() {
   const frame = $("scene");
-  if (!sceneWanted()) {
+  const on = sceneWanted();
+  showSceneWanted(on);
+  if (!on) {
     // about:blank stops the viewer and its connection; the server's view idles out by itself.
     if (frame.getAttribute("src") !== "about:blank") frame.src = "about:blank";
-    frame.hidden = true;
-    $("scene-note").textContent = "3D view turned off.";
+    $("st-scene").textContent = "turned off on this computer";
     return;
   }
-  frame.hidden = false;
   try {
     const t = await api(`/stations/${stationId}/scene/ticket`, { method: "POST" });
     frame.src = t.path;
     $("scene-note").textContent = "";
+    $("st-scene").textContent = `viser, through this server at ${t.path.replace(/[^/]+\/$/, "…/")}`;
   } catch (e) {
     $("scene-note").textContent = `The 3D view is not available: ${e.message}`;
+    $("st-scene").textContent = `not available: ${e.message}`;
   }
 }
+
+showSceneWanted(sceneWanted()); // before the ticket comes: no empty panel meanwhile
+
+// ---- the Technical disclosure: closed unless this computer's therapist opened it -------------
+const TECH_KEY = "ankle.live.technical";
+$("technical").open = localStorage.getItem(TECH_KEY) === "open";
+$("technical").addEventListener("toggle", (ev) => {
+  localStorage.setItem(TECH_KEY, ev.target.open ? "open" : "closed");
+  if (ev.target.open) resizeCharts(); // the pressure chart had no width while closed
+});
 
 // ---- start ---------------------------------------------------------------------------------
 async function main() {

@@ -255,11 +255,11 @@ async function loadReplay() {
   }
 }
 
-async function saveFile(button, path, filename, label, status) {
+async function saveFile(button, path, fallback, label, status) {
   button.disabled = true;
   status.textContent = `Preparing ${label}…`;
   try {
-    await download(path, filename);
+    const filename = await download(path, fallback);
     status.textContent = `${label} saved as ${filename}.`;
   } catch (e) {
     status.textContent = `${label} could not be downloaded: ${e.message}`;
