@@ -24,7 +24,7 @@ from pydantic import (
 
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
 from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
-from sessions.prescription import PrescriptionBody
+from sessions.prescription import PrescriptionBody, PrescriptionInput
 
 Email = Annotated[
     str,
@@ -213,12 +213,12 @@ class PatientArchived(PatientPublic):
 # --- prescriptions ----------------------------------------------------------------------
 
 
-class PrescriptionCreate(PrescriptionBody):
+class PrescriptionCreate(PrescriptionInput):
     """A new prescription: an exercise from GET /exercises with its settings and timeline.
     Checked against anatomical ranges and the device's limits; a 422 names field and bound."""
 
 
-class PrescriptionUpdate(PrescriptionBody):
+class PrescriptionUpdate(PrescriptionInput):
     """The whole new body of an active prescription; the version goes up by one."""
 
 
