@@ -135,7 +135,9 @@ def _body_model(request: Request) -> type[BaseModel] | None:
     if len(params) != 1:
         return None
     annotation = params[0].field_info.annotation
-    return annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+    return (
+        annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+    )
 
 
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:

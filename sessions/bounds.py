@@ -148,6 +148,7 @@ def prescription_limits(side: str | None) -> PrescriptionLimits:
         side=side,
         axes={axis: axis_limits(axis, side, DEVICE_LIMITS) for axis in ROTATION_AXES},
         fields={
-            name: field_bounds(name, info) for name, info in _number_fields(PrescriptionBody).items()
+            name: field_bounds(name, info)
+            for name, info in _number_fields(PrescriptionBody).items()
         },
     )

@@ -118,7 +118,7 @@ class AxisPrescription(BaseModel):
     axis: Axis = Field(
         title="Axis",
         description="Ankle axis: roll (inversion/eversion), pitch "
-        "(plantar/dorsiflexion) or yaw (ab-/adduction)."
+        "(plantar/dorsiflexion) or yaw (ab-/adduction).",
     )
     stiffness: float = Field(
         strict=True,
@@ -203,8 +203,7 @@ class AxisPrescription(BaseModel):
         ge=-90.0,
         le=90.0,
         title="Highest angle",
-        description="Highest angle allowed in this exercise, degrees; default the allowed "
-        "range.",
+        description="Highest angle allowed in this exercise, degrees; default the allowed range.",
         json_schema_extra=_DEG,
     )
 
@@ -298,7 +297,10 @@ class PrescriptionBody(BaseModel):
         default="", max_length=120, title="Title", description="Shown to the patient."
     )
     instructions: str = Field(
-        default="", max_length=2000, title="Instructions", description="Plain words for the patient."
+        default="",
+        max_length=2000,
+        title="Instructions",
+        description="Plain words for the patient.",
     )
     axes: list[AxisPrescription] = Field(min_length=1, max_length=3, title="Axes")
     sets: int = Field(strict=True, default=1, ge=1, le=20, title="Sets")

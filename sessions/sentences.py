@@ -70,7 +70,7 @@ _OP_WORDS: dict[Op, str] = {
 
 
 def bound_sentence(label: str, op: Op, bound: float, unit: str, why: str = "") -> str:
-    """"Stiffness K on pitch must be at most 500 N·m/rad (8.73 N·m/°)." with ``why`` after a
+    """ "Stiffness K on pitch must be at most 500 N·m/rad (8.73 N·m/°)." with ``why`` after a
     colon when given."""
     tail = f": {why}" if why else ""
     return f"{label} must be {_OP_WORDS[op]} {quantity(bound, unit)}{tail}."
@@ -157,8 +157,9 @@ def sentence(
     cause = ctx.get("error")
     if isinstance(cause, FieldError):
         return loc + cause.loc, str(cause)
-    inner = loc[1:] if loc and loc[0] in ("body", "query", "path", "header") else loc
-    place = _place(model if not loc or loc[0] == "body" else None, inner, body)
+    request_part = loc[0] if loc and loc[0] in ("body", "query", "path", "header") else None
+    inner = loc[1:] if request_part else loc
+    place = _place(model if request_part in (None, "body") else None, inner, body)
     label = place.label or "The request"
     op = _BOUND_TYPES.get(kind)
     bound = _ctx_number(ctx, op) if op is not None else None
