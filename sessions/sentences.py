@@ -188,8 +188,8 @@ _BOUND_TYPES: dict[str, Op] = {
 _SIMPLE: dict[str, str] = {
     "missing": "{label} is required.",
     "string_too_long": "{label} must be at most {max_length} characters long.",
-    "too_short": "{label} needs at least {min_length}.",
-    "too_long": "{label} takes at most {max_length}.",
+    "too_short": "{label}: at least {min_length} required.",
+    "too_long": "{label}: at most {max_length} allowed.",
     "float_type": "{label} must be a number.",
     "float_parsing": "{label} must be a number.",
     "int_type": "{label} must be a whole number.",

@@ -342,7 +342,7 @@ function boundTopFields() {
     const p = prop(schemas, BODY, k);
     applyBounds($(k), p);
     const range = $(`${k}-range`);
-    if (range) range.textContent = rangeText(p);
+    if (range) range.textContent = limits.fields[k] ? rangeHint(limits.fields[k]) : rangeText(p);
   }
 }
 
@@ -374,10 +374,6 @@ async function main() {
 
   $("exercise").replaceChildren(...exercises.map((x) => el("option", { value: x.kind }, x.name)));
   boundTopFields();
-  for (const k of TOP_NUMBERS) {
-    const range = $(`${k}-range`);
-    if (limits.fields[k] && range) range.textContent = rangeHint(limits.fields[k]);
-  }
   if (current) {
     fill(current.body);
     $("submit").textContent = `Save as version ${current.version + 1}`;
