@@ -3,9 +3,11 @@ range, a full disk and a database that is away. Each is a 4xx, 503 or 507 with a
 never a 500.
 
 The validation answer keeps FastAPI's shape (``detail``: a list of ``type``, ``loc``,
-``msg``, ``input``) but quotes at most ``EXCERPT`` characters of the input: FastAPI's own
-handler echoes the whole of it, so one large invalid body would be serialised again, on
-the event loop, to be sent back.
+``msg``, ``input``) for programs, but ``msg`` is a sentence a clinician understands, naming
+the field as the form labels it (:mod:`sessions.sentences`), and ``loc`` goes down to the
+field a model-wide check is about. It quotes at most ``EXCERPT`` characters of the input:
+FastAPI's own handler echoes the whole of it, so one large invalid body would be serialised
+again, on the event loop, to be sent back.
 """
 
 from __future__ import annotations
@@ -21,7 +23,10 @@ from typing import Any
 from fastapi import Request, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from sqlalchemy.exc import DBAPIError
+
+from sessions.sentences import sentence
 
 log = logging.getLogger("ankle.server")
 
@@ -112,12 +117,9 @@ def excerpt(value: Any) -> Any:
     return json.loads(text)
 
 
-def _error(e: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {
-        "type": e.get("type"),
-        "loc": list(e.get("loc", ())),
-        "msg": e.get("msg"),
-    }
+def _error(e: Any, model: type[BaseModel] | None, body: Any) -> dict[str, Any]:
+    loc, msg = sentence(e, model, body)
+    out: dict[str, Any] = {"type": e.get("type"), "loc": list(loc), "msg": msg}
     if "input" in e:
         out["input"] = excerpt(e["input"])
     ctx = e.get("ctx")
@@ -126,11 +128,25 @@ def _error(e: Any) -> dict[str, Any]:
     return out
 
 
+def _body_model(request: Request) -> type[BaseModel] | None:
+    """The model the route reads its body into, whose field titles label the errors."""
+    dependant = getattr(request.scope.get("route"), "dependant", None)
+    params = getattr(dependant, "body_params", None) or []
+    if len(params) != 1:
+        return None
+    annotation = params[0].field_info.annotation
+    return (
+        annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+    )
+
+
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:
-    """FastAPI's 422, with a short excerpt of each invalid input instead of all of it."""
+    """FastAPI's 422 in a clinician's words, with a short excerpt of each invalid input
+    instead of all of it."""
     assert isinstance(exc, RequestValidationError)
     errors = list(exc.errors())
-    detail = [_error(e) for e in errors[:ERRORS_MAX]]
+    model = _body_model(request)
+    detail = [_error(e, model, exc.body) for e in errors[:ERRORS_MAX]]
     if len(errors) > ERRORS_MAX:
         detail.append(
             {

@@ -24,7 +24,8 @@ from pydantic import (
 
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
 from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
-from sessions.prescription import PrescriptionBody
+from sessions.prescription import PrescriptionBody, PrescriptionInput
+from sessions.sentences import FieldError, field_label
 
 Email = Annotated[
     str,
@@ -46,7 +47,7 @@ Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max
 
 def _not_in_future(year: int | None) -> int | None:
     if year is not None and year > datetime.now(UTC).year:
-        raise ValueError(f"birth_year {year} is in the future")
+        raise ValueError(f"Birth year {year} is in the future.")
     return year
 
 
@@ -176,7 +177,8 @@ class PatientUpdate(BaseModel):
     def _no_null_for_required(self) -> PatientUpdate:
         for name in _REQUIRED_ON_UPDATE:
             if name in self.model_fields_set and getattr(self, name) is None:
-                raise ValueError(f"{name} cannot be null")
+                label = field_label(name, type(self).model_fields[name])
+                raise FieldError((name,), f"{label} cannot be empty.")
         return self
 
 
@@ -213,12 +215,12 @@ class PatientArchived(PatientPublic):
 # --- prescriptions ----------------------------------------------------------------------
 
 
-class PrescriptionCreate(PrescriptionBody):
+class PrescriptionCreate(PrescriptionInput):
     """A new prescription: an exercise from GET /exercises with its settings and timeline.
     Checked against anatomical ranges and the device's limits; a 422 names field and bound."""
 
 
-class PrescriptionUpdate(PrescriptionBody):
+class PrescriptionUpdate(PrescriptionInput):
     """The whole new body of an active prescription; the version goes up by one."""
 
 

@@ -21,11 +21,13 @@ from enum import StrEnum
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic.config import JsonDict
 
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
 from device.limits import SafetyLimits, to_float32
+from sessions.sentences import FieldError, bound_sentence, field_label, number
 
 Axis = RotationAxis
 """A prescribed axis: one of the ankle's rotations (``device.axes``, the project's one table)."""
@@ -41,6 +43,7 @@ ANATOMICAL_DEG: dict[str, tuple[float, float]] = {
 
 _DEVICE = SafetyLimits().published()
 """The device's limits as it publishes them in its HELLO (float32)."""
+DEVICE_LIMITS = _DEVICE
 
 
 def device_range_deg(axis: str) -> tuple[float, float]:
@@ -100,6 +103,7 @@ holds or moves the foot and does not give way."""
 Waveform = Literal["hold", "sine", "ramp"]
 
 _NO_NAN = ConfigDict(allow_inf_nan=False, extra="forbid")
+_DEG: JsonDict = {"unit": "°"}
 # A clinician's number must arrive as a JSON number: strict fields refuse true (which lax
 # mode reads as 1) and "40" (which it reads as 40), so a form or script that sends the
 # wrong type is told so instead of prescribing something nobody typed. An integer is still
@@ -112,47 +116,99 @@ class AxisPrescription(BaseModel):
     model_config = _NO_NAN
 
     axis: Axis = Field(
+        title="Axis",
         description="Ankle axis: roll (inversion/eversion), pitch "
-        "(plantar/dorsiflexion) or yaw (ab-/adduction)."
+        "(plantar/dorsiflexion) or yaw (ab-/adduction).",
     )
     stiffness: float = Field(
         strict=True,
         ge=0.0,
         le=STIFFNESS_MAX,
+        title="Stiffness K",
         description="K, N·m/rad: resistance to leaving the target.",
+        json_schema_extra={"unit": "N·m/rad"},
     )
     damping: float = Field(
-        strict=True, ge=0.0, le=DAMPING_MAX, description="B, N·m·s/rad: resistance to moving fast."
+        strict=True,
+        ge=0.0,
+        le=DAMPING_MAX,
+        title="Damping B",
+        description="B, N·m·s/rad: resistance to moving fast.",
+        json_schema_extra={"unit": "N·m·s/rad"},
     )
     waveform: Waveform = Field(
         default="hold",
+        title="Target motion",
         description="hold: stay at center; sine: center + amplitude·sin(2π·frequency·t); "
         "ramp: from center to ramp_end at ramp_rate, then stay.",
     )
     center: float = Field(
-        strict=True, default=0.0, ge=-90.0, le=90.0, description="Degrees from home."
+        strict=True,
+        default=0.0,
+        ge=-90.0,
+        le=90.0,
+        title="Center",
+        description="Degrees from home.",
+        json_schema_extra=_DEG,
     )
     amplitude: float = Field(
-        strict=True, default=0.0, ge=0.0, le=90.0, description="Degrees (sine)."
+        strict=True,
+        default=0.0,
+        ge=0.0,
+        le=90.0,
+        title="Amplitude",
+        description="Degrees (sine).",
+        json_schema_extra=_DEG,
     )
-    frequency: float = Field(strict=True, default=0.0, ge=0.0, le=7.0, description="Hz (sine).")
+    frequency: float = Field(
+        strict=True,
+        default=0.0,
+        ge=0.0,
+        le=7.0,
+        title="Frequency",
+        description="Hz (sine).",
+        json_schema_extra={"unit": "Hz"},
+    )
     ramp_end: float = Field(
-        strict=True, default=0.0, ge=-90.0, le=90.0, description="Degrees (ramp)."
+        strict=True,
+        default=0.0,
+        ge=-90.0,
+        le=90.0,
+        title="Ramp end",
+        description="Degrees (ramp).",
+        json_schema_extra=_DEG,
     )
     ramp_rate: float = Field(
-        strict=True, default=0.0, ge=0.0, le=180.0, description="Degrees per second."
+        strict=True,
+        default=0.0,
+        ge=0.0,
+        le=SPEED_MAX_DEG_S,
+        title="Ramp rate",
+        description="Degrees per second (ramp); the device's fastest target motion at most.",
+        json_schema_extra={"unit": "°/s"},
     )
     rom_low: float | None = Field(
         strict=True,
         default=None,
         ge=-90.0,
         le=90.0,
+        title="Lowest angle",
         description="Lowest angle allowed in this exercise, degrees; default the allowed "
         "range (anatomy and device, the narrower).",
+        json_schema_extra=_DEG,
     )
     rom_high: float | None = Field(
-        strict=True, default=None, ge=-90.0, le=90.0, description="Degrees."
+        strict=True,
+        default=None,
+        ge=-90.0,
+        le=90.0,
+        title="Highest angle",
+        description="Highest angle allowed in this exercise, degrees; default the allowed range.",
+        json_schema_extra=_DEG,
     )
+
+    def _label(self, field: str) -> str:
+        return field_label(field, type(self).model_fields[field], self.axis)
 
     def limits_deg(self) -> tuple[float, float]:
         lo, hi = allowed_range_deg(self.axis)
@@ -176,38 +232,58 @@ class AxisPrescription(BaseModel):
             return self.ramp_rate
         return 0.0
 
+    def _in_range(self, field: str, lo: float, hi: float) -> None:
+        value = getattr(self, field)
+        if value is None:
+            return
+        if value < lo - 1e-9:
+            raise FieldError((field,), bound_sentence(self._label(field), "ge", lo, "°"))
+        if value > hi + 1e-9:
+            raise FieldError((field,), bound_sentence(self._label(field), "le", hi, "°"))
+
     @model_validator(mode="after")
     def _within_bounds(self) -> AxisPrescription:
         lo_ok, hi_ok = allowed_range_deg(self.axis)
-        if self.rom_low is not None and self.rom_low < lo_ok - 1e-9:
-            raise ValueError(
-                f"rom_low {self.rom_low:g} deg is below {lo_ok:.1f} deg, the lowest {self.axis} "
-                "angle allowed (anatomy and device)"
-            )
-        if self.rom_high is not None and self.rom_high > hi_ok + 1e-9:
-            raise ValueError(
-                f"rom_high {self.rom_high:g} deg is above {hi_ok:.1f} deg, the highest "
-                f"{self.axis} angle allowed (anatomy and device)"
-            )
+        self._in_range("rom_low", lo_ok, hi_ok)
+        self._in_range("rom_high", lo_ok, hi_ok)
         lo, hi = self.limits_deg()
         if lo >= hi:
-            raise ValueError(f"rom_low {lo:g} deg must be below rom_high {hi:g} deg")
+            raise FieldError(
+                ("rom_high" if self.rom_low is None else "rom_low",),
+                f"{self._label('rom_low')} ({number(lo)}°) must be below the highest angle "
+                f"({number(hi)}°).",
+            )
+        self._in_range("center", lo, hi)
+        if self.waveform == "ramp":
+            self._in_range("ramp_end", lo, hi)
         t_lo, t_hi = self.target_span_deg()
         if t_lo < lo - 1e-9 or t_hi > hi + 1e-9:
-            raise ValueError(
-                f"the {self.waveform} target spans {t_lo:g}..{t_hi:g} deg, outside the "
-                f"{self.axis} range {lo:.1f}..{hi:.1f} deg"
+            raise FieldError(
+                ("amplitude",),
+                f"The sine on {self.axis} reaches {number(t_lo)} to {number(t_hi)}°, outside "
+                f"the range {number(lo)} to {number(hi)}°: lower the amplitude or move the "
+                "center.",
             )
         speed = self.peak_speed_deg_s()
         if speed > SPEED_MAX_DEG_S:
-            raise ValueError(
-                f"the target moves at up to {speed:.0f} deg/s; the device allows "
-                f"{SPEED_MAX_DEG_S:.0f} deg/s (lower amplitude, frequency or ramp_rate)"
+            raise FieldError(
+                ("frequency" if self.waveform == "sine" else "ramp_rate",),
+                f"The target on {self.axis} moves at up to {number(speed)}°/s, faster than the "
+                f"device allows ({number(SPEED_MAX_DEG_S)}°/s): lower the amplitude or the "
+                "frequency.",
             )
         if self.waveform == "sine" and self.amplitude > 0 and self.frequency <= 0:
-            raise ValueError("a sine with an amplitude needs a frequency above 0 Hz")
+            raise FieldError(
+                ("frequency",),
+                bound_sentence(self._label("frequency"), "gt", 0, "Hz", "a sine needs one"),
+            )
         if self.waveform == "ramp" and self.ramp_end != self.center and self.ramp_rate <= 0:
-            raise ValueError("a ramp needs a ramp_rate above 0 deg/s")
+            raise FieldError(
+                ("ramp_rate",),
+                bound_sentence(
+                    self._label("ramp_rate"), "gt", 0, "°/s", "a ramp to another angle needs one"
+                ),
+            )
         return self
 
 
@@ -216,43 +292,63 @@ class PrescriptionBody(BaseModel):
 
     model_config = _NO_NAN
 
-    exercise: ExerciseKind
-    title: str = Field(default="", max_length=120, description="Shown to the patient.")
-    instructions: str = Field(
-        default="", max_length=2000, description="Plain words for the patient."
+    exercise: ExerciseKind = Field(title="Exercise")
+    title: str = Field(
+        default="", max_length=120, title="Title", description="Shown to the patient."
     )
-    axes: list[AxisPrescription] = Field(min_length=1, max_length=3)
-    sets: int = Field(strict=True, default=1, ge=1, le=20)
-    repetitions: int = Field(strict=True, default=10, ge=1, le=100, description="Per set.")
+    instructions: str = Field(
+        default="",
+        max_length=2000,
+        title="Instructions",
+        description="Plain words for the patient.",
+    )
+    axes: list[AxisPrescription] = Field(min_length=1, max_length=3, title="Axes")
+    sets: int = Field(strict=True, default=1, ge=1, le=20, title="Sets")
+    repetitions: int = Field(
+        strict=True, default=10, ge=1, le=100, title="Repetitions per set", description="Per set."
+    )
     repetition_s: float = Field(
         strict=True,
         default=10.0,
         ge=1.0,
         le=SEGMENT_S_MAX,
+        title="Repetition time",
         description="Duration of one repetition, s.",
+        json_schema_extra={"unit": "s"},
     )
     rest_s: float = Field(
-        strict=True, default=30.0, ge=0.0, le=900.0, description="Rest between sets, s."
+        strict=True,
+        default=30.0,
+        ge=0.0,
+        le=900.0,
+        title="Rest between sets",
+        description="Rest between sets, s.",
+        json_schema_extra={"unit": "s"},
     )
     torque_limit: float = Field(
         strict=True,
         default=TORQUE_LIMIT_MAX,
         gt=0.0,
         le=TORQUE_LIMIT_MAX,
+        title="Torque limit",
         description="N·m: the device stops if the foot's torque exceeds it.",
+        json_schema_extra={"unit": "N·m"},
     )
     force_limit: float = Field(
         strict=True,
         default=FORCE_LIMIT_MAX,
         gt=0.0,
         le=FORCE_LIMIT_MAX,
+        title="Force limit",
         description="N: the device stops if the force on the foot plate exceeds it.",
+        json_schema_extra={"unit": "N"},
     )
     sessions_per_week: int = Field(
         strict=True,
         default=5,
         ge=1,
         le=14,
+        title="Sessions per week",
         description="How often the patient should do this exercise; adherence is measured "
         "against it.",
     )
@@ -260,8 +356,11 @@ class PrescriptionBody(BaseModel):
     @model_validator(mode="after")
     def _axes_once(self) -> PrescriptionBody:
         names = [a.axis for a in self.axes]
-        if len(set(names)) != len(names):
-            raise ValueError(f"each axis may appear once; got {names}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise FieldError(
+                ("axes",), f"Each axis may appear once; {', '.join(twice)} appears more than once."
+            )
         return self
 
     @model_validator(mode="after")
@@ -269,13 +368,19 @@ class PrescriptionBody(BaseModel):
         """Where the platform yields, K and B must lie in the device's stable envelope."""
         if self.exercise not in COMPLIANT_KINDS:
             return self
-        for a in self.axes:
+        for i, a in enumerate(self.axes):
             least = _DEVICE.damping_min_at(AXIS_INDEX[a.axis], a.stiffness)
             if to_float32(a.damping) < least:  # as the device receives it
-                raise ValueError(
-                    f"{a.axis} damping {a.damping:g} N·m·s/rad is below {least:g}, the least "
-                    f"the platform renders steadily at a stiffness of {a.stiffness:g} N·m/rad: "
-                    "raise the damping"
+                raise FieldError(
+                    ("axes", i, "damping"),
+                    bound_sentence(
+                        a._label("damping"),
+                        "ge",
+                        least,
+                        "N·m·s/rad",
+                        "the least the platform renders steadily at a stiffness of "
+                        f"{number(a.stiffness)} N·m/rad",
+                    ),
                 )
         return self
 
@@ -286,6 +391,29 @@ class PrescriptionBody(BaseModel):
     def compliant(self) -> bool:
         """Whether the platform renders K and B (yields to the patient) in this exercise."""
         return EXERCISE_LIBRARY[self.exercise].compliant
+
+
+class PrescriptionInput(PrescriptionBody):
+    """A prescription as a therapist writes it (new, or a new version). Besides the body's
+    checks, an exercise in which the platform does not yield (isometric, passive range of
+    motion) takes no stiffness or damping: a K or B there would be a number on the record
+    that nothing renders, so it is refused rather than silently kept. Stored prescriptions
+    are read back as :class:`PrescriptionBody` and load whatever they hold."""
+
+    @model_validator(mode="after")
+    def _only_used_settings(self) -> PrescriptionInput:
+        if self.exercise in COMPLIANT_KINDS:
+            return self
+        name = EXERCISE_LIBRARY[self.exercise].name
+        for i, a in enumerate(self.axes):
+            for field in ("stiffness", "damping"):
+                if getattr(a, field) != 0:
+                    raise FieldError(
+                        ("axes", i, field),
+                        f"{a._label(field)} is not used in “{name}”: the platform does not "
+                        "give way in this exercise, so leave it at 0.",
+                    )
+        return self
 
 
 class ExerciseTemplate(BaseModel):

@@ -16,6 +16,7 @@ from fastapi import APIRouter, Query, Request, status
 from sqlalchemy import select
 
 from server import audit
+from server.attention import AttentionItem, attention
 from server.deps import Db, Id, Therapist, TherapistOrAdmin, patient_for
 from server.models import Patient, Prescription, Station, utcnow
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
@@ -55,6 +56,20 @@ async def list_patients(
     if user.role != "admin":
         query = query.where(Patient.therapist_id == user.id)
     return [PatientPublic.model_validate(p) for p in (await db.execute(query)).scalars()]
+
+
+@router.get(
+    "/attention",
+    response_model=list[AttentionItem],
+    summary="What needs attention",
+    responses=UNAUTHORIZED,
+)
+async def needs_attention(user: TherapistOrAdmin, db: Db, request: Request) -> list[AttentionItem]:
+    """Across the caller's current patients (an admin: all of them), from the last
+    seven days: faults, exercises held, sessions ended early, prescribed sessions missed so
+    far this week and stations not seen for two days, each with a sentence and the page
+    where it happened."""
+    return await attention(db, user, utcnow(), request.app.state.hub.online_of)
 
 
 @router.post(

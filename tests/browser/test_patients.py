@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import hashlib
+import math
 import re
 import time
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,7 +19,10 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from sessions import wire
+from sessions.recording import End, EndReason, SessionEvent
 from tests.browser.a11y import assert_controls_labelled
+from tests.server.live_server import STRENGTH
+from tests.server.test_attention import recording
 from tests.system.harness import System, live, next_of, short_strength
 
 API = "/api/v1"
@@ -77,8 +83,8 @@ def test_patient_list_and_adding_a_patient(
     form.get_by_label("Display name").fill("   ")
     form.get_by_label("Birth year").fill("3000")
     form.get_by_role("button", name="Add patient").click()
-    expect(error_beside(page, "display_name")).to_contain_text("at least 1 character")
-    expect(error_beside(page, "birth_year")).to_contain_text("in the future")
+    expect(error_beside(page, "display_name")).to_have_text("Display name is required.")
+    expect(error_beside(page, "birth_year")).to_have_text("Birth year 3000 is in the future.")
     expect(field(page, "display_name")).to_have_attribute("aria-invalid", "true")
     expect(field(page, "display_name")).to_be_focused()
     assert get(client, "/patients") == before, "a refused form created a patient"
@@ -153,29 +159,64 @@ def test_prescribe_from_the_library_edit_and_withdraw(
     expect(roll_k).to_have_attribute("max", f"{k_max:g}")
     expect(page.get_by_text("Stiffness K (N·m/rad)").first).to_be_visible()
     expect(page.get_by_text("Damping B (N·m·s/rad)").first).to_be_visible()
+    # K per degree beside the per-radian value; pitch's own range, not -90..90
+    expect(page.locator("#ax-roll-stiffness ~ output")).to_have_text(
+        f"= {balance['defaults']['axes'][0]['stiffness'] * math.pi / 180:.3g} N·m/°"
+    )
+    expect(field(page, f"{pitch}.center")).to_have_attribute("max", re.compile(r"^22\.91"))
+    expect(page.locator("#ax-pitch-center-range")).to_have_text("-20 to 22.9°")
+    expect(page.locator("#ax-pitch-damping-range")).to_contain_text("B ≥ 0.2 at K ≥ 50")
+    # a right foot: roll above 0 is inversion, named from the API's direction table
+    roll_box = page.locator('fieldset[data-axis="roll"]')
+    expect(roll_box.locator("legend")).to_have_text("Roll (inversion / eversion)")
+    expect(roll_box).to_contain_text("Angles above 0: Inversion (sole turned inwards).")
     expect(field(page, "sets")).to_have_value(str(balance["defaults"]["sets"]))
     torque_max = schemas["PrescriptionCreate"]["properties"]["torque_limit"]["maximum"]
     expect(field(page, "torque_limit")).to_have_attribute("max", f"{torque_max:g}")
     # Three axes at most, each once: only yaw is left to add.
-    expect(page.locator("#add-axis option")).to_have_text(["Yaw (ab- / adduction)"])
+    expect(page.locator("#add-axis option")).to_have_text(["Yaw (adduction / abduction)"])
     page.screenshot(path=shots / "prescribe.png", full_page=True)
     assert_controls_labelled(page)
 
-    # Too stiff, and a sine that leaves the allowed pitch range: the API refuses both, and
-    # each message appears beside the input it is about (the second comes from a validator
-    # of the whole axis, placed by what it says).
+    # Too stiff: refused before submitting, with the sentence the API publishes (and would
+    # answer); then a sine that leaves the allowed pitch range, which only the API can judge:
+    # its sentence appears beside the amplitude, the field it names.
+    limits = get(client, "/exercises/limits", side="right")
+    posts: list[str] = []
+    page.on("request", lambda r: posts.append(r.url) if r.method == "POST" else None)
     roll_k.fill(f"{k_max + 100:g}")
+    page.get_by_role("button", name="Prescribe").click()
+    expect(error_beside(page, "axes.0.stiffness")).to_have_text(
+        limits["axes"]["roll"]["fields"]["stiffness"]["above"]
+    )
+    expect(error_beside(page, "axes.0.stiffness")).to_contain_text(
+        f"Stiffness K on roll must be at most {k_max:g} N·m/rad"
+    )
+    expect(roll_k).to_be_focused()
+    assert posts == [], "a value past a published bound was sent"
+    roll_k.fill("25")
     page.locator(f'[data-field="{pitch}.waveform"]').select_option("sine")
     field(page, f"{pitch}.amplitude").fill("40")
     field(page, f"{pitch}.frequency").fill("0.1")
     page.get_by_role("button", name="Prescribe").click()
-    expect(error_beside(page, "axes.0.stiffness")).to_contain_text(
-        f"less than or equal to {k_max:g}"
+    expect(error_beside(page, f"{pitch}.amplitude")).to_have_text(
+        "The sine on pitch reaches -40 to 40°, outside the range -20 to 22.9°: lower the "
+        "amplitude or move the center."
     )
-    expect(error_beside(page, f"{pitch}.amplitude")).to_contain_text("outside the pitch range")
-    expect(roll_k).to_be_focused()
+    expect(error_beside(page, "axes.0.stiffness")).to_be_empty()
     assert get(client, f"/patients/{patient}/prescriptions") == []
     page.screenshot(path=shots / "prescribe-error.png", full_page=True)
+
+    # Isometric does not render K and B: the form does not ask for them
+    page.get_by_label("Exercise from the library").select_option("isometric")
+    expect(page.locator("#compliance-note")).to_be_visible()
+    expect(field(page, "axes.0.stiffness")).to_be_hidden()
+    expect(field(page, "axes.0.damping")).to_be_hidden()
+    page.screenshot(path=shots / "prescribe-isometric.png", full_page=True)
+    page.get_by_label("Exercise from the library").select_option("balance")
+    expect(field(page, "axes.0.stiffness")).to_be_visible()
+    page.locator(f'[data-field="{pitch}.waveform"]').select_option("sine")
+    field(page, f"{pitch}.frequency").fill("0.1")
 
     roll_k.fill("25")
     field(page, f"{pitch}.amplitude").fill("10")
@@ -311,3 +352,63 @@ def test_demo_patient_station_online_and_progress_charts(
     )
     page.screenshot(path=shots / "patient.png", full_page=True)
     assert_controls_labelled(page)
+
+
+def _upload(system: System, token: str, data: bytes, sid: str) -> int:
+    """File a recording as a station does, with the station's own token."""
+    station = {"Authorization": f"Bearer {token}"}
+    r = httpx.patch(
+        f"{system.url}{API}/uploads/{sid}",
+        content=data,
+        headers={**station, "Upload-Offset": "0"},
+        timeout=30.0,
+    )
+    assert r.status_code == 204, r.text
+    body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    r = httpx.post(
+        f"{system.url}{API}/uploads/{sid}/complete", json=body, headers=station, timeout=30.0
+    )
+    assert r.status_code == 201, r.text
+    session_id: int = r.json()["id"]
+    return session_id
+
+
+def test_needs_attention_links_to_where_it_happened(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    r = client.post(f"{API}/patients", json={"display_name": "A. T.", "affected_side": "left"})
+    assert r.status_code == 201, r.text
+    patient = r.json()["id"]
+    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home, hall"})
+    assert r.status_code == 201, r.text
+    station, token = r.json()["id"], r.json()["token"]
+    r = client.post(f"{API}/patients/{patient}/prescriptions", json=STRENGTH)
+    assert r.status_code == 201, r.text
+    rx = r.json()["id"]
+    started = time.time() - 7200
+    ids = {}
+    cases: list[tuple[str, EndReason, list[tuple[str, str]]]] = [
+        ("fault", "fault", [("fault", "device")]),
+        ("held", "stopped", [("hold", "patient")]),
+    ]
+    for name, reason, events in cases:
+        sid = str(uuid.uuid4())
+        end = End(ended_at=started + 2, reason=reason, sets_completed=0, repetitions_completed=2)
+        evs = [
+            SessionEvent(wall=started + 1, kind=k, by=by, detail={"text": "valve 3 stuck"})
+            for k, by in events
+        ]
+        data = recording(sid, station, patient, rx, started, end, evs)
+        ids[name] = _upload(system, token, data, sid)
+        started += 600
+
+    sign_in(page, system)
+    items = page.locator(f'#attention li[data-patient-id="{patient}"]')
+    expect(items.filter(has_text="Fault")).to_have_count(1)
+    expect(items.filter(has_text="Fault")).to_contain_text("valve 3 stuck")
+    expect(items.filter(has_text="Held")).to_contain_text("The exercise was held once.")
+    expect(items.filter(has_text="Ended early")).to_contain_text("2 of 30 repetitions")
+    assert_controls_labelled(page)
+    page.screenshot(path=shots / "patients-attention.png", full_page=True)
+    items.filter(has_text="Fault").get_by_role("link", name="Review the session").click()
+    expect(page).to_have_url(f"{system.url}/app/sessions/{ids['fault']}")

@@ -144,12 +144,14 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("POST", "/users/{user_id}/deactivate"): Call(ADMIN_ONLY, at=SPARE_USER),
     ("POST", "/users/{user_id}/reactivate"): Call(ADMIN_ONLY, at=SPARE_USER),
     ("GET", "/patients"): Call(ANY_USER),
+    ("GET", "/patients/attention"): Call(ANY_USER),
     ("POST", "/patients"): Call(
         answers(owner=201, admin=403, other=201), body={"display_name": "X"}
     ),
     ("GET", "/patients/{patient_id}"): Call(OWNER_OR_ADMIN),
     ("PATCH", "/patients/{patient_id}"): Call(OWNER_WRITES, body={"notes": "better"}),
     ("GET", "/exercises"): Call(ANY_USER),
+    ("GET", "/exercises/limits"): Call(ANY_USER),
     ("GET", "/patients/{patient_id}/prescriptions"): Call(OWNER_OR_ADMIN),
     ("POST", "/patients/{patient_id}/prescriptions"): Call(
         answers(owner=201, admin=403, other=404), body=STRENGTH

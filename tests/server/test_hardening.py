@@ -140,6 +140,12 @@ async def test_integers_are_numbers_and_the_bounds_and_messages_are_kept(
     assert r.json()["body"]["axes"][0]["stiffness"] == 40.0
     r = await live.client.post(url, json=_axis(stiffness=900.0), headers=t1)
     (error,) = r.json()["detail"]
-    assert (r.status_code, error["msg"]) == (422, "Input should be less than or equal to 500")
+    assert (r.status_code, error["msg"]) == (
+        422,
+        "Stiffness K on pitch must be at most 500 N·m/rad (8.73 N·m/°).",
+    )
+    assert (error["type"], error["ctx"]) == ("less_than_equal", {"le": 500.0})
     r = await live.client.post(url, json=_axis(damping=0.0, stiffness=400.0), headers=t1)
-    assert r.status_code == 422 and "raise the damping" in r.json()["detail"][0]["msg"]
+    (error,) = r.json()["detail"]
+    assert r.status_code == 422 and error["loc"] == ["body", "axes", 0, "damping"]
+    assert error["msg"].startswith("Damping B on pitch must be at least 0.2 N·m·s/rad")

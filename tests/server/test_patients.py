@@ -44,13 +44,21 @@ async def test_create_then_patch_only_the_given_fields(live: Live, world: World)
     assert again.json() == updated
 
 
-INVALID: list[tuple[dict[str, Any], list[str]]] = [
-    ({"display_name": None}, ["body"]),
-    ({"display_name": ""}, ["body", "display_name"]),
-    ({"birth_year": datetime.now(UTC).year + 1}, ["body", "birth_year"]),
-    ({"birth_year": 1800}, ["body", "birth_year"]),
-    ({"affected_side": "middle"}, ["body", "affected_side"]),
-    ({"therapist_id": 2}, ["body", "therapist_id"]),
+INVALID: list[tuple[dict[str, Any], list[str], str]] = [
+    ({"display_name": None}, ["body", "display_name"], "Display name cannot be empty."),
+    ({"display_name": ""}, ["body", "display_name"], "Display name is required."),
+    (
+        {"birth_year": datetime.now(UTC).year + 1},
+        ["body", "birth_year"],
+        f"Birth year {datetime.now(UTC).year + 1} is in the future.",
+    ),
+    ({"birth_year": 1800}, ["body", "birth_year"], "Birth year must be at least 1900."),
+    (
+        {"affected_side": "middle"},
+        ["body", "affected_side"],
+        "Affected side must be one of left, right or both.",
+    ),
+    ({"therapist_id": 2}, ["body", "therapist_id"], "“therapist_id” is not a field here."),
 ]
 
 
@@ -58,8 +66,8 @@ INVALID: list[tuple[dict[str, Any], list[str]]] = [
 async def test_invalid_updates_are_refused(live: Live, world: World) -> None:
     t1 = bearer(world.t1)
     before = (await live.client.get(f"/patients/{world.p1}", headers=t1)).json()
-    for body, loc in INVALID:
+    for body, loc, msg in INVALID:
         r = await live.client.patch(f"/patients/{world.p1}", json=body, headers=t1)
         assert r.status_code == 422, body
-        assert r.json()["detail"][0]["loc"] == loc, body
+        assert (r.json()["detail"][0]["loc"], r.json()["detail"][0]["msg"]) == (loc, msg), body
     assert (await live.client.get(f"/patients/{world.p1}", headers=t1)).json() == before

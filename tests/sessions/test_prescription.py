@@ -26,12 +26,21 @@ def axis(**kw: object) -> dict[str, object]:
         ({"stiffness": -1.0}, "greater than or equal to 0"),
         ({"stiffness": 501.0}, "less than or equal to 500"),
         ({"damping": 51.0}, "less than or equal to 50"),
-        ({"rom_high": 40.0}, "rom_high 40 deg is above 22.9 deg"),
-        ({"rom_low": -30.0}, "rom_low -30 deg is below -20.0 deg"),
-        ({"waveform": "sine", "amplitude": 30.0, "frequency": 0.1}, "outside the pitch range"),
-        ({"waveform": "sine", "amplitude": 20.0, "frequency": 2.0}, "the device allows"),
-        ({"waveform": "sine", "amplitude": 5.0}, "needs a frequency"),
-        ({"rom_low": 5.0, "rom_high": 5.0}, "must be below"),
+        ({"rom_high": 40.0}, "Highest angle on pitch must be at most 22.9°."),
+        ({"rom_low": -30.0}, "Lowest angle on pitch must be at least -20°."),
+        (
+            {"waveform": "sine", "amplitude": 30.0, "frequency": 0.1},
+            "The sine on pitch reaches -30 to 30°, outside the range -20 to 22.9°",
+        ),
+        (
+            {"waveform": "sine", "amplitude": 20.0, "frequency": 2.0},
+            "faster than the device allows",
+        ),
+        (
+            {"waveform": "sine", "amplitude": 5.0},
+            "Frequency on pitch must be above 0 Hz: a sine needs one.",
+        ),
+        ({"rom_low": 5.0, "rom_high": 5.0}, "Lowest angle on pitch (5°) must be below"),
         ({"axis": "knee"}, "roll"),
     ],
 )
@@ -50,7 +59,7 @@ def test_the_allowed_range_is_the_narrower_of_anatomy_and_device() -> None:
 
 
 def test_an_axis_may_appear_once_and_totals_include_rest() -> None:
-    with pytest.raises(ValidationError, match="each axis may appear once"):
+    with pytest.raises(ValidationError, match="Each axis may appear once; pitch appears"):
         PrescriptionBody.model_validate({"exercise": "strength", "axes": [axis(), axis()]})
     body = PrescriptionBody.model_validate(
         {

@@ -25,3 +25,17 @@ export function stationBadge(station) {
         "Offline",
       );
 }
+
+const ATTENTION = {
+  fault: ["bad", "Fault"],
+  held: ["warn", "Held"],
+  ended_early: ["warn", "Ended early"],
+  missed: ["warn", "Sessions missed"],
+  offline: ["offline", "Station offline"],
+};
+
+/** What kind of thing needs attention (GET /patients/attention's kind), as a badge. */
+export function attentionBadge(kind) {
+  const [cls, word] = ATTENTION[kind] || ["offline", kind];
+  return el("span", { class: `badge ${cls}` }, word);
+}

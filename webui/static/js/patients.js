@@ -2,7 +2,7 @@
 // exercised; and a form to add one.
 
 import { api, currentUser, el, fmt, onSubmit, renderHeader, requireSignIn } from "./api.js";
-import { endReasonBadge, stationBadge } from "./badges.js";
+import { attentionBadge, endReasonBadge, stationBadge } from "./badges.js";
 import { SIDE_WORDS, patientBody, setUpPatientForm } from "./patient-form.js";
 
 await requireSignIn();
@@ -43,6 +43,32 @@ async function lastSessions(patients) {
   return new Map(patients.map((p, i) => [p.id, lists[i][0] ?? null]));
 }
 
+/** What needs attention across the therapist's patients, each item linking to its page. */
+async function loadAttention() {
+  const box = document.getElementById("attention");
+  const status = document.getElementById("attention-status");
+  const items = await api("/patients/attention");
+  box.replaceChildren(
+    ...items.map((item) =>
+      el(
+        "li",
+        { dataset: { kind: item.kind, patientId: item.patient_id } },
+        attentionBadge(item.kind),
+        " ",
+        el("strong", {}, item.patient_name),
+        item.at ? el("span", { class: "muted small" }, ` ${fmt.date(item.at)}`) : null,
+        " ",
+        el("span", {}, item.text),
+        " ",
+        el("a", { href: item.link }, item.session_id ? "Review the session" : `Open ${item.patient_name}'s page`),
+      ),
+    ),
+  );
+  status.textContent = items.length
+    ? `${items.length} item${items.length === 1 ? "" : "s"} from the last seven days.`
+    : "Nothing needs your attention: no faults, holds, early ends, missed sessions or quiet stations in the last seven days.";
+}
+
 async function loadList() {
   const [patients, stations] = await Promise.all([
     api(`/patients?archived=${archived}`),
@@ -79,6 +105,7 @@ async function loadList() {
 function showWhichList() {
   const link = document.getElementById("other-list");
   if (!archived) return;
+  document.getElementById("attention-section").hidden = true;
   document.title = "Archived patients · Ankle telerehabilitation";
   document.querySelector("h1").textContent = "Archived patients";
   document.getElementById("list-title").textContent = "Your archived patients";
@@ -113,7 +140,7 @@ onSubmit(form, async () => {
 async function main() {
   showWhichList();
   try {
-    await Promise.all([loadList(), setUpForm()]);
+    await Promise.all([loadList(), setUpForm(), archived ? null : loadAttention()]);
   } catch (e) {
     loadError.textContent = `The patient list could not be loaded: ${e.message}`;
     loadError.hidden = false;

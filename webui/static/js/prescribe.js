@@ -1,8 +1,11 @@
 // Prescribe an exercise from the library, or edit an active prescription (?edit=ID).
-// Every bound on the form comes from the API's published schema, and every refusal shown is
-// the API's own message beside the field it names.
+// Every bound on the form comes from the API (its schema and GET /exercises/limits: each
+// axis's range, the device's stable K–B envelope, directions for the patient's side), and
+// every refusal shown is the API's own sentence beside the field it names: a value past a
+// published bound is refused here, before submitting, with the sentence the API publishes
+// for it; everything else the API answers.
 
-import { ApiError, api, clearErrors, currentUser, el, fmt, pathId, renderHeader, requireSignIn, showErrors } from "./api.js";
+import { ApiError, RAD2DEG, api, clearErrors, currentUser, el, fmt, pathId, renderHeader, requireSignIn, showErrors } from "./api.js";
 import { applyBounds, loadSchemas, prop, rangeText } from "./schema.js";
 
 await requireSignIn();
@@ -18,31 +21,29 @@ const BODY = "PrescriptionCreate";
 const AXIS = "AxisPrescription";
 const TOP_NUMBERS = ["sets", "repetitions", "repetition_s", "rest_s", "torque_limit", "force_limit", "sessions_per_week"];
 
-const AXIS_WORDS = {
-  roll: "Roll (inversion / eversion)",
-  pitch: "Pitch (plantar / dorsiflexion)",
-  yaw: "Yaw (ab- / adduction)",
-};
+const AXIS_WORDS = { roll: "Roll", pitch: "Pitch", yaw: "Yaw" };
 const WAVEFORM_WORDS = {
   hold: "Hold still",
   sine: "Sine, back and forth",
   ramp: "Ramp to an angle",
 };
-/** Per-axis inputs: label, unit, spinner step, and the waveforms that use it (all if absent). */
+/** Per-axis inputs: spinner step, the waveforms that use it (all if absent), whether the
+ * platform must yield for it to mean anything. Labels and units come from the API. */
 const AXIS_FIELDS = [
-  { key: "stiffness", label: "Stiffness K", unit: "N·m/rad", step: 1 },
-  { key: "damping", label: "Damping B", unit: "N·m·s/rad", step: 0.1 },
+  { key: "stiffness", step: 1, compliant: true },
+  { key: "damping", step: 0.1, compliant: true },
   { key: "waveform" },
-  { key: "center", label: "Center", unit: "degrees", step: 0.5 },
-  { key: "amplitude", label: "Amplitude", unit: "degrees", step: 0.5, waves: ["sine"] },
-  { key: "frequency", label: "Frequency", unit: "Hz", step: 0.01, waves: ["sine"] },
-  { key: "ramp_end", label: "Ramp end", unit: "degrees", step: 0.5, waves: ["ramp"] },
-  { key: "ramp_rate", label: "Ramp rate", unit: "degrees/s", step: 0.5, waves: ["ramp"] },
-  { key: "rom_low", label: "Lowest angle", unit: "degrees", step: 0.5, optional: true },
-  { key: "rom_high", label: "Highest angle", unit: "degrees", step: 0.5, optional: true },
+  { key: "center", step: 0.5, angle: true },
+  { key: "amplitude", step: 0.5, waves: ["sine"] },
+  { key: "frequency", step: 0.01, waves: ["sine"] },
+  { key: "ramp_end", step: 0.5, waves: ["ramp"], angle: true },
+  { key: "ramp_rate", step: 0.5, waves: ["ramp"] },
+  { key: "rom_low", step: 0.5, optional: true, angle: true },
+  { key: "rom_high", step: 0.5, optional: true, angle: true },
 ];
 
 let schemas;
+let limits; // GET /exercises/limits for this patient's side
 let library = new Map();
 let current = null; // the prescription being edited
 
@@ -65,6 +66,34 @@ function axisNames() {
   return [...axesBox.querySelectorAll("fieldset[data-axis]")].map((f) => f.dataset.axis);
 }
 
+/** A number as the API's sentences write it: 500, 22.9, 0.698. */
+function num(v) {
+  if (Number.isInteger(v)) return String(v);
+  return Math.abs(v) >= 10 ? String(Math.round(v * 10) / 10) : String(Number(v.toPrecision(3)));
+}
+
+/** "0 to 500 N·m/rad (0 to 8.73 N·m/°)": a bound's range in its unit, and per degree. */
+function rangeHint(b) {
+  const sep = b.unit.startsWith("°") || !b.unit ? "" : " ";
+  const text = b.min_exclusive
+    ? `above ${num(b.min)}, up to ${num(b.max)}${sep}${b.unit}`
+    : `${num(b.min)} to ${num(b.max)}${sep}${b.unit}`;
+  if (!b.unit.endsWith("/rad")) return text;
+  const perDeg = b.unit.replace(/\/rad$/, "/°");
+  return `${text} (${num(b.min / RAD2DEG)} to ${num(b.max / RAD2DEG)} ${perDeg})`;
+}
+
+/** Where the platform yields, the least damping in each band of K (the device's envelope). */
+function envelopeHint(axis) {
+  const bands = limits.axes[axis].envelope;
+  const parts = bands.map((band, i) => {
+    const next = bands[i + 1];
+    const k = next ? `K ${num(band.stiffness_from)}–${num(next.stiffness_from)}` : `K ≥ ${num(band.stiffness_from)}`;
+    return `B ≥ ${num(band.damping_min)} at ${k}`;
+  });
+  return `Steady only with ${parts.join(", ")}.`;
+}
+
 function axisField(axis, spec, value) {
   const id = `ax-${axis}-${spec.key}`;
   const p = prop(schemas, AXIS, spec.key);
@@ -76,18 +105,33 @@ function axisField(axis, spec, value) {
     );
     select.value = value ?? p.default;
     select.addEventListener("change", () => showWaveFields(select.closest("fieldset")));
-    return el("div", { class: "field rx-wave" }, el("label", { for: id }, "Target motion"), select);
+    return el("div", { class: "field rx-wave" }, el("label", { for: id }, p.title), select);
   }
+  const b = limits.axes[axis].fields[spec.key];
   const input = el("input", { id, name: spec.key, type: "number", step: spec.step, "aria-describedby": `${id}-range` });
-  applyBounds(input, p);
+  if (b.min !== null) input.min = String(b.min);
+  if (b.max !== null) input.max = String(b.max);
   setValue(input, value ?? (spec.optional ? null : p.default));
-  if (spec.optional) input.placeholder = "allowed";
-  const help = spec.optional ? `${rangeText(p)}; blank: the allowed range` : rangeText(p);
+  if (spec.optional) input.placeholder = "whole range";
+  let help = rangeHint(b);
+  if (spec.optional) help += "; blank: the whole range";
+  if (spec.key === "damping") help += `. ${envelopeHint(axis)}`;
+  const perDegree = spec.compliant ? el("output", { for: id, class: "rx-per-degree" }) : null;
+  if (perDegree) {
+    const unit = b.unit.replace(/\/rad$/, "/°");
+    const show = () => {
+      const v = Number(input.value);
+      perDegree.textContent = input.value !== "" && Number.isFinite(v) ? `= ${num(v / RAD2DEG)} ${unit}` : "";
+    };
+    input.addEventListener("input", show);
+    show();
+  }
+  const dataset = { ...(spec.waves ? { waves: spec.waves.join(" ") } : {}), ...(spec.compliant ? { compliant: "" } : {}) };
   return el(
     "div",
-    { class: "field", dataset: spec.waves ? { waves: spec.waves.join(" ") } : {} },
-    el("label", { for: id }, `${spec.label} `, el("span", { class: "unit" }, `(${spec.unit})`)),
-    input,
+    { class: "field", dataset },
+    el("label", { for: id }, `${p.title} `, el("span", { class: "unit" }, `(${b.unit})`)),
+    el("div", { class: "rx-input" }, input, perDegree),
     el("span", { id: `${id}-range`, class: "muted small rx-range" }, help),
     el("span", { class: "field-error", role: "alert", dataset: { axisKey: spec.key } }),
   );
@@ -100,7 +144,26 @@ function showWaveFields(fieldset) {
   }
 }
 
+/** Whether the chosen exercise renders K and B: the library says. */
+function compliant() {
+  return library.get($("exercise").value)?.compliant ?? true;
+}
+
+/** K and B only where the platform yields; elsewhere they are not asked for (and sent as 0,
+ * the one value the API takes there). */
+function showCompliance() {
+  const yields = compliant();
+  for (const f of axesBox.querySelectorAll("[data-compliant]")) f.hidden = !yields;
+  $("compliance-note").hidden = yields;
+}
+
+function axisTitle(axis) {
+  const d = limits.axes[axis].directions;
+  return `${AXIS_WORDS[axis] || axis} (${d.positive.replaceAll("_", " ")} / ${d.negative.replaceAll("_", " ")})`;
+}
+
 function axisBlock(a) {
+  const d = limits.axes[a.axis].directions;
   const remove = el(
     "button",
     { type: "button", class: "secondary rx-remove", "aria-label": `Remove the ${a.axis} axis` },
@@ -109,7 +172,8 @@ function axisBlock(a) {
   const fieldset = el(
     "fieldset",
     { class: "rx-axis", dataset: { axis: a.axis }, tabindex: "-1" },
-    el("legend", {}, AXIS_WORDS[a.axis] || a.axis),
+    el("legend", {}, axisTitle(a.axis)),
+    el("p", { class: "muted small rx-directions" }, `Angles above 0: ${d.positive_label}. Below 0: ${d.negative_label}.`),
     el("span", { class: "field-error rx-axis-error", role: "alert" }),
     el("div", { class: "rx-fields" }, AXIS_FIELDS.map((spec) => axisField(a.axis, spec, a[spec.key]))),
     remove,
@@ -135,7 +199,7 @@ function renumberAxes() {
   const { minItems, maxItems } = schemas[BODY].properties.axes;
   for (const b of axesBox.querySelectorAll(".rx-remove")) b.disabled = blocks.length <= minItems;
   const unused = prop(schemas, AXIS, "axis").enum.filter((a) => !axisNames().includes(a));
-  $("add-axis").replaceChildren(...unused.map((a) => el("option", { value: a }, AXIS_WORDS[a] || a)));
+  $("add-axis").replaceChildren(...unused.map((a) => el("option", { value: a }, axisTitle(a))));
   const full = blocks.length >= maxItems || !unused.length;
   $("add-axis").disabled = full;
   $("add-axis-button").disabled = full;
@@ -144,6 +208,7 @@ function renumberAxes() {
 function setAxes(axes) {
   axesBox.replaceChildren(...axes.map(axisBlock));
   renumberAxes();
+  showCompliance();
 }
 
 function addAxis() {
@@ -159,15 +224,21 @@ function addAxis() {
   const block = axisBlock({ ...like, axis });
   axesBox.append(block);
   renumberAxes();
-  block.querySelector("input").focus();
+  showCompliance();
+  [...block.querySelectorAll("input")].find((i) => !i.closest("[hidden]"))?.focus();
 }
 
 function axisBody(fieldset) {
   const wave = fieldset.querySelector('[name="waveform"]').value;
+  const yields = compliant();
   const out = { axis: fieldset.dataset.axis, waveform: wave };
   for (const spec of AXIS_FIELDS) {
     if (spec.key === "waveform") continue;
     if (spec.waves && !spec.waves.includes(wave)) continue; // a stale value would still count
+    if (spec.compliant && !yields) {
+      out[spec.key] = 0; // not rendered in this exercise: the API takes no other value
+      continue;
+    }
     out[spec.key] = numberValue(fieldset.querySelector(`[name="${spec.key}"]`));
   }
   return out;
@@ -209,34 +280,37 @@ function updateTotal() {
   $("total").textContent = Number.isFinite(total) && total > 0 ? `Exercise time per session: ${fmt.duration(total)}, rests included.` : "";
 }
 
-// --- the API's refusals, beside the field they are about --------------------------------
+// --- refusing before submitting ------------------------------------------------------
 
-/** Which input of an axis a model-level message from AxisPrescription is about. */
-function axisKeyFor(msg, fieldset) {
-  const wave = fieldset?.querySelector('[name="waveform"]').value;
-  const blank = (k) => fieldset?.querySelector(`[name="${k}"]`).value === "";
-  if (/^rom_low .* is below/.test(msg)) return "rom_low";
-  if (/^rom_high .* is above/.test(msg)) return "rom_high";
-  if (/^rom_low .* must be below rom_high/.test(msg)) return blank("rom_low") ? "rom_high" : "rom_low";
-  if (/needs a frequency/.test(msg)) return "frequency";
-  if (/needs a ramp_rate/.test(msg)) return "ramp_rate";
-  if (/target spans/.test(msg)) return { sine: "amplitude", ramp: "ramp_end" }[wave] || "center";
-  if (/moves at up to/.test(msg)) return { sine: "frequency", ramp: "ramp_rate" }[wave] || null;
-  return null;
+/** The published bounds of a number input: its axis's, or the timeline's and safety's. */
+function boundsFor(input) {
+  const axis = input.closest("fieldset[data-axis]")?.dataset.axis;
+  return axis ? limits.axes[axis].fields[input.name] : limits.fields[input.name];
 }
 
-function placed(error) {
-  if (!(error instanceof ApiError) || !Array.isArray(error.detail)) return error;
-  const detail = error.detail.map((d) => {
-    const loc = d.loc || [];
-    if (loc.length === 3 && loc[0] === "body" && loc[1] === "axes" && Number.isInteger(loc[2])) {
-      const fieldset = axesBox.querySelector(`[data-field="axes.${loc[2]}"]`);
-      const key = axisKeyFor(d.msg.replace(/^Value error, /, ""), fieldset);
-      if (key) return { ...d, loc: [...loc, key] };
+/** Values past a published bound, refused as the API would: with its own sentences. */
+function localRefusals() {
+  const detail = [];
+  for (const input of form.querySelectorAll("input[type=number][data-field]")) {
+    if (input.closest("[hidden]") || input.value === "") continue;
+    const b = boundsFor(input);
+    const v = Number(input.value);
+    if (!b || !Number.isFinite(v)) continue;
+    let msg = null;
+    if (b.min !== null && (b.min_exclusive ? v <= b.min : v < b.min)) msg = b.below;
+    else if (b.max !== null && v > b.max) msg = b.above;
+    if (msg) {
+      const loc = input.dataset.field.split(".").map((p) => (/^\d+$/.test(p) ? Number(p) : p));
+      detail.push({ type: "out_of_range", loc: ["body", ...loc], msg });
     }
-    return d;
-  });
-  return new ApiError(error.status, detail);
+  }
+  return detail;
+}
+
+function sideNote(side) {
+  if (side === "left" || side === "right") return `Directions are named for the patient's ${side} foot.`;
+  if (side === "both") return "Both sides are affected: roll and yaw are named as the platform moves.";
+  return "The patient's affected side is not recorded: roll and yaw are named as the platform moves. Record it on the patient's page to name inversion and eversion.";
 }
 
 // --- loading and saving -----------------------------------------------------------------
@@ -246,13 +320,19 @@ async function submit(ev) {
   const button = $("submit");
   button.disabled = true;
   clearErrors(form);
+  const refused = localRefusals();
+  if (refused.length) {
+    showErrors(form, new ApiError(422, refused));
+    button.disabled = false;
+    return;
+  }
   try {
     const saved = editId
       ? await api(`/prescriptions/${editId}`, { method: "PATCH", body: formBody() })
       : await api(`/patients/${patientId}/prescriptions`, { method: "POST", body: formBody() });
     location.href = `/app/patients/${patientId}?saved=${saved.id}`;
   } catch (e) {
-    showErrors(form, placed(e));
+    showErrors(form, e);
     button.disabled = false;
   }
 }
@@ -262,7 +342,7 @@ function boundTopFields() {
     const p = prop(schemas, BODY, k);
     applyBounds($(k), p);
     const range = $(`${k}-range`);
-    if (range) range.textContent = rangeText(p);
+    if (range) range.textContent = limits.fields[k] ? rangeHint(limits.fields[k]) : rangeText(p);
   }
 }
 
@@ -275,6 +355,8 @@ async function main() {
     editId ? api(`/prescriptions/${editId}`) : null,
   ]);
   schemas = s;
+  limits = await api(`/exercises/limits${patient.affected_side ? `?side=${patient.affected_side}` : ""}`);
+  $("side-note").textContent = sideNote(patient.affected_side);
   library = new Map(exercises.map((x) => [x.kind, x]));
   if (rx && rx.patient_id !== patientId) throw new Error("this prescription belongs to another patient");
   current = rx;

@@ -1,0 +1,223 @@
+"""What needs a therapist's attention: the one place that decides it, for the patients list.
+
+From the last :data:`LOOKBACK_DAYS` days of the therapist's current patients: sessions with a
+fault, sessions held, sessions ended early (stopped, interrupted, or completed with fewer
+repetitions than prescribed), active prescriptions with sessions missed so far this week,
+and home stations not seen for :data:`OFFLINE_DAYS` days. Each item says what happened in a
+sentence and links to where it happened: the session's review page, or the patient's page
+(their prescriptions and stations).
+
+Five queries whatever the number of patients and sessions (the patients' names, sessions
+with their stored summaries, this week's session counts per prescription, active
+prescriptions, stations), plus one look-up of which stations are connected now.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Awaitable, Callable, Iterable
+from datetime import datetime, timedelta
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+from sqlalchemy import func, select
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from server.models import Patient, Prescription, Session, Station, User
+
+LOOKBACK_DAYS = 7
+"""Sessions from this many days back are looked at."""
+OFFLINE_DAYS = 2
+"""A station not seen for this many days (and not connected now) needs a look."""
+FAULT_KINDS = ("fault", "estop", "watchdog", "supply_low")
+"""Safety events that count as a fault (a range limit reached is the device doing its job)."""
+
+Kind = Literal["fault", "held", "ended_early", "missed", "offline"]
+
+
+class AttentionItem(BaseModel):
+    """One thing to look at."""
+
+    kind: Kind = Field(
+        description="fault, held (the exercise was put on hold), ended_early, missed "
+        "(prescribed sessions not done so far this week) or offline (a station not seen)."
+    )
+    patient_id: int
+    patient_name: str
+    at: datetime | None = Field(description="When it happened (a session's start), UTC.")
+    text: str = Field(description="What happened, in a sentence.")
+    link: str = Field(description="The dashboard page where it happened.")
+    session_id: int | None = None
+    station_id: int | None = None
+    prescription_id: int | None = None
+
+
+def week_start(now: datetime) -> datetime:
+    """Monday 00:00 of ``now``'s week, in ``now``'s time zone."""
+    day = now.replace(hour=0, minute=0, second=0, microsecond=0)
+    return day - timedelta(days=day.weekday())
+
+
+def missed_this_week(
+    per_week: int, done: int, now: datetime, prescribed_at: datetime
+) -> tuple[int, int]:
+    """(sessions missed so far, sessions due so far) this week for one prescription.
+
+    Counts this week's sessions (``done``) against the prescription's sessions per week,
+    spread evenly over the week: by Thursday noon half of a week's sessions are due. A
+    prescription written during the week is due only from then on. Never more missed than
+    due, never below zero.
+    """
+    start = max(week_start(now), prescribed_at)
+    share = max(0.0, (now - start) / timedelta(days=7))
+    due = math.floor(per_week * share)
+    return max(0, due - done), due
+
+
+def _patients(user: User) -> Any:
+    query = select(Patient.id).where(Patient.archived_at.is_(None))
+    return query if user.role == "admin" else query.where(Patient.therapist_id == user.id)
+
+
+def _session_items(rows: Iterable[Any], names: dict[int, str]) -> Iterable[AttentionItem]:
+    for sid, pid, station_id, started, end_reason, summary in rows:
+        s: dict[str, Any] = summary or {}
+        base = {
+            "patient_id": pid,
+            "patient_name": names[pid],
+            "at": started,
+            "link": f"/app/sessions/{sid}",
+            "session_id": sid,
+            "station_id": station_id,
+        }
+        faults = [f for f in s.get("faults", []) if f.get("kind") in FAULT_KINDS]
+        if faults or end_reason == "fault":
+            text = faults[0].get("text") if faults else s.get("end_text")
+            more = f" ({len(faults)} in all)" if len(faults) > 1 else ""
+            yield AttentionItem(
+                kind="fault", text=f"Fault: {text or 'see the session'}{more}.", **base
+            )
+        holds = int((s.get("events") or {}).get("hold", 0))
+        if holds:
+            times = "once" if holds == 1 else f"{holds} times"
+            yield AttentionItem(kind="held", text=f"The exercise was held {times}.", **base)
+        done, prescribed = s.get("repetitions_completed"), s.get("repetitions_prescribed")
+        short = isinstance(done, int) and isinstance(prescribed, int) and done < prescribed
+        if end_reason in ("stopped", "interrupted") or (end_reason == "completed" and short):
+            reps = f": {done} of {prescribed} repetitions" if short else ""
+            why = s.get("end_text") or end_reason
+            yield AttentionItem(kind="ended_early", text=f"Ended early ({why}){reps}.", **base)
+
+
+OnlineOf = Callable[[list[int]], Awaitable[set[int]]]
+"""Which of these stations are connected now (the live hub's ``online_of``)."""
+
+
+async def attention(
+    db: AsyncSession, user: User, now: datetime, online_of: OnlineOf
+) -> list[AttentionItem]:
+    """What needs ``user``'s attention now: sessions newest first, then missed sessions,
+    then stations. A station connected now is never offline, however long ago it was last
+    seen."""
+    mine = _patients(user)
+    query = select(Patient.id, Patient.display_name).where(Patient.id.in_(mine))
+    names: dict[int, str] = dict((await db.execute(query)).all())
+    since = now - timedelta(days=LOOKBACK_DAYS)
+    rows = await db.execute(
+        select(
+            Session.id,
+            Session.patient_id,
+            Session.station_id,
+            Session.started_at,
+            Session.end_reason,
+            Session.summary,
+        )
+        .where(Session.patient_id.in_(mine), Session.started_at >= since)
+        .order_by(Session.started_at.desc())
+    )
+    items = list(_session_items(rows, names))
+    items.extend(await _missed(db, mine, names, now))
+    items.extend(await _offline(db, mine, names, now, online_of))
+    return items
+
+
+async def _missed(
+    db: AsyncSession, mine: Any, names: dict[int, str], now: datetime
+) -> list[AttentionItem]:
+    monday = week_start(now)
+    counted = await db.execute(
+        select(Session.prescription_id, func.count())
+        .where(Session.patient_id.in_(mine), Session.started_at >= monday)
+        .group_by(Session.prescription_id)
+    )
+    counts: dict[int | None, int] = dict(counted.all())
+    out: list[AttentionItem] = []
+    active = await db.execute(
+        select(Prescription.id, Prescription.patient_id, Prescription.body, Prescription.created_at)
+        .where(Prescription.patient_id.in_(mine), Prescription.status == "active")
+        .order_by(Prescription.id)
+    )
+    for rx_id, pid, body, created in active:
+        per_week = body.get("sessions_per_week")
+        if type(per_week) is not int:
+            continue
+        done = counts.get(rx_id, 0)
+        missed, due = missed_this_week(per_week, done, now, created)
+        if missed:
+            title = body.get("title") or str(body.get("exercise", "")).replace("_", " ")
+            out.append(
+                AttentionItem(
+                    kind="missed",
+                    patient_id=pid,
+                    patient_name=names[pid],
+                    at=None,
+                    text=f"“{title}”: {done} of {due} sessions due so far this week were done "
+                    f"({per_week} a week prescribed).",
+                    link=f"/app/patients/{pid}",
+                    prescription_id=rx_id,
+                )
+            )
+    return out
+
+
+async def _offline(
+    db: AsyncSession, mine: Any, names: dict[int, str], now: datetime, online_of: OnlineOf
+) -> list[AttentionItem]:
+    cutoff = now - timedelta(days=OFFLINE_DAYS)
+    stations = (
+        await db.execute(
+            select(
+                Station.id,
+                Station.patient_id,
+                Station.name,
+                Station.last_seen_at,
+                Station.created_at,
+            )
+            .where(Station.patient_id.in_(mine), Station.revoked.is_(False))
+            .order_by(Station.id)
+        )
+    ).all()
+    quiet = [row[0] for row in stations if (row[3] or row[4]) < cutoff]
+    online = await online_of(quiet) if quiet else set()
+    out: list[AttentionItem] = []
+    for st_id, pid, name, seen, created in stations:
+        if st_id in online or (seen or created) >= cutoff:
+            continue
+        days = (now - (seen or created)).days
+        text = (
+            f"Station “{name}” has not been seen for {days} days."
+            if seen
+            else f"Station “{name}” has never connected ({days} days since it was provisioned)."
+        )
+        out.append(
+            AttentionItem(
+                kind="offline",
+                patient_id=pid,
+                patient_name=names[pid],
+                at=seen,
+                text=text,
+                link=f"/app/patients/{pid}",
+                station_id=st_id,
+            )
+        )
+    return out

@@ -1,0 +1,214 @@
+"""What needs attention: found from real uploads, scoped to the therapist's own patients, each
+item linking to where it happened, in a number of queries that does not grow with sessions."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+import uuid
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import numpy as np
+import pytest
+from sqlalchemy import event, update
+
+from server.attention import OFFLINE_DAYS, missed_this_week, week_start
+from server.models import Session, Station
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
+from sessions.recording import (
+    MAGIC,
+    SAMPLE_DTYPE,
+    DeviceInfo,
+    End,
+    EndReason,
+    Header,
+    RecordType,
+    SessionEvent,
+    encode_json,
+    encode_samples,
+)
+from tests.server.live_server import Live, World, bearer
+
+pytestmark = pytest.mark.both_stores
+
+STRENGTH = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+
+
+def recording(
+    sid: str,
+    station: int,
+    patient: int,
+    rx: int,
+    started: float,
+    end: End,
+    events: list[SessionEvent],
+) -> bytes:
+    """A short recording as a station writes it: header, samples, events, end."""
+    rows = np.zeros(20, SAMPLE_DTYPE)
+    rows["t"] = np.arange(20) / 10
+    rows["wall"] = started + np.arange(20) / 10
+    header = Header(
+        session_id=sid,
+        station_id=station,
+        patient_id=patient,
+        prescription_id=rx,
+        prescription=STRENGTH,
+        device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=10, home_pose=[0.0] * 6),
+        software="test",
+        started_at=started,
+    )
+    return (
+        MAGIC
+        + encode_json(RecordType.HEADER, header)
+        + encode_samples(rows)
+        + b"".join(encode_json(RecordType.EVENT, e) for e in events)
+        + encode_json(RecordType.END, end)
+    )
+
+
+async def upload(live: Live, token: str, data: bytes, sid: str) -> int:
+    station = bearer(token)
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
+    )
+    assert r.status_code == 204, r.text
+    body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=station)
+    assert r.status_code == 201, r.text
+    session_id: int = r.json()["id"]
+    return session_id
+
+
+async def session(
+    live: Live,
+    world: World,
+    mine: bool,
+    reason: EndReason,
+    reps: int,
+    events: list[tuple[str, str]],
+    text: str = "",
+) -> int:
+    sid = str(uuid.uuid4())
+    started = time.time() - 3600
+    end = End(
+        ended_at=started + 2, reason=reason, sets_completed=1, repetitions_completed=reps, text=text
+    )
+    evs = [SessionEvent(wall=started + 1, kind=k, by=by, detail={"text": k}) for k, by in events]
+    station, patient, rx, token = (
+        (world.s1_id, world.p1, world.rx1, world.s1)
+        if mine
+        else (world.s2_id, world.p2, world.rx2, world.s2)
+    )
+    return await upload(live, token, recording(sid, station, patient, rx, started, end, evs), sid)
+
+
+@pytest.mark.asyncio
+async def test_faults_holds_and_early_ends_of_own_patients_link_to_their_sessions(
+    live: Live, world: World
+) -> None:
+    full = STRENGTH["sets"] * STRENGTH["repetitions"]
+    faulted = await session(
+        live, world, True, "fault", 2, [("fault", "device")], "supply pressure low"
+    )
+    held = await session(live, world, True, "stopped", 3, [("hold", "therapist:1")])
+    fine = await session(live, world, True, "completed", full, [])
+    others = await session(live, world, False, "fault", 1, [("fault", "device")])
+
+    r = await live.client.get("/patients/attention", headers=bearer(world.t1))
+    assert r.status_code == 200, r.text
+    items = r.json()
+    by_session: dict[int, set[str]] = {}
+    for item in items:
+        if item["session_id"] is not None:
+            by_session.setdefault(item["session_id"], set()).add(item["kind"])
+            assert item["link"] == f"/app/sessions/{item['session_id']}"
+            assert item["patient_id"] == world.p1 and item["patient_name"]
+    assert by_session[faulted] == {"fault"}
+    assert by_session[held] == {"held", "ended_early"}
+    assert fine not in by_session and others not in by_session
+    early = next(i for i in items if i["session_id"] == held and i["kind"] == "ended_early")
+    assert f"3 of {full} repetitions" in early["text"]
+    fault = next(i for i in items if i["session_id"] == faulted)
+    assert "supply pressure low" in fault["text"] or "fault" in fault["text"]
+
+    theirs = (await live.client.get("/patients/attention", headers=bearer(world.t2))).json()
+    assert {i["session_id"] for i in theirs if i["session_id"]} == {others}
+    admin = (await live.client.get("/patients/attention", headers=bearer(world.admin))).json()
+    assert {faulted, held, others} <= {i["session_id"] for i in admin}
+
+
+@pytest.mark.asyncio
+async def test_a_station_quiet_for_days_links_to_the_patient(live: Live, world: World) -> None:
+    ago = datetime.now(UTC) - timedelta(days=OFFLINE_DAYS + 1)
+    async with live.app.state.sessionmaker() as db:
+        await db.execute(update(Station).where(Station.id == world.s1_id).values(last_seen_at=ago))
+        await db.execute(
+            update(Station).where(Station.id == world.s1_spare_id).values(created_at=ago)
+        )
+        await db.commit()
+    items = (await live.client.get("/patients/attention", headers=bearer(world.t1))).json()
+    offline = {i["station_id"]: i for i in items if i["kind"] == "offline"}
+    assert set(offline) == {world.s1_id, world.s1_spare_id}
+    assert offline[world.s1_id]["link"] == f"/app/patients/{world.p1}"
+    assert f"not been seen for {OFFLINE_DAYS + 1} days" in offline[world.s1_id]["text"]
+    assert "never connected" in offline[world.s1_spare_id]["text"]
+
+
+@pytest.mark.asyncio
+async def test_the_queries_do_not_grow_with_the_sessions(live: Live, world: World) -> None:
+    async def seed(n: int) -> None:
+        now = datetime.now(UTC)
+        summary = {"events": {"hold": 1}, "faults": [], "repetitions_completed": 1}
+        async with live.app.state.sessionmaker() as db:
+            db.add_all(
+                Session(
+                    session_uuid=str(uuid.uuid4()),
+                    station_id=world.s1_id,
+                    patient_id=world.p1,
+                    prescription_id=world.rx1,
+                    started_at=now - timedelta(minutes=i + 1),
+                    ended_at=now - timedelta(minutes=i),
+                    end_reason="stopped",
+                    summary={**summary, "repetitions_prescribed": 30},
+                    upload_complete=True,
+                )
+                for i in range(n)
+            )
+            await db.commit()
+
+    async def statements() -> tuple[int, list[Any]]:
+        seen: list[str] = []
+
+        def count(*args: Any) -> None:
+            seen.append(str(args[2]))
+
+        engine = live.app.state.engine.sync_engine
+        event.listen(engine, "before_cursor_execute", count)
+        try:
+            r = await live.client.get("/patients/attention", headers=bearer(world.t1))
+        finally:
+            event.remove(engine, "before_cursor_execute", count)
+        assert r.status_code == 200
+        return len(seen), r.json()
+
+    await seed(5)
+    few, items = await statements()
+    assert sum(i["kind"] == "held" for i in items) == 5
+    await seed(300)
+    many, items = await statements()
+    assert sum(i["kind"] == "held" for i in items) == 305
+    assert many == few
+
+
+def test_missed_this_week_counts_the_weeks_sessions_against_its_prescription() -> None:
+    monday = datetime(2026, 11, 23, tzinfo=UTC)
+    assert week_start(datetime(2026, 11, 26, 15, 0, tzinfo=UTC)) == monday
+    thursday_noon = monday + timedelta(days=3, hours=12)
+    long_ago = monday - timedelta(days=30)
+    assert missed_this_week(4, 0, thursday_noon, long_ago) == (2, 2)  # half the week: 2 due
+    assert missed_this_week(4, 1, thursday_noon, long_ago) == (1, 2)
+    assert missed_this_week(4, 5, thursday_noon, long_ago) == (0, 2)  # never below zero
+    # prescribed on Wednesday: only the time since counts
+    assert missed_this_week(7, 0, thursday_noon, monday + timedelta(days=2)) == (1, 1)
+    assert missed_this_week(5, 0, monday + timedelta(hours=1), long_ago) == (0, 0)
