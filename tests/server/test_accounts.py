@@ -6,7 +6,6 @@ the live links it ends close within a second with the code that says why."""
 from __future__ import annotations
 
 import asyncio
-import time
 from pathlib import Path
 from typing import Any
 
@@ -51,13 +50,13 @@ async def status_of(live: Live, token: str, path: str = "/patients") -> int:
 
 
 async def open_then_closed(ws: Any, change: Any) -> tuple[int, str]:
-    """The link is open and streaming; after ``change`` it closes within a second."""
+    """The link is open and streaming; once ``change`` is answered, it closes within a second.
+
+    Measured from the answer, not from the request: the request hashes a password (argon2,
+    deliberately slow, slower still on a loaded machine), which is not what is tested here."""
     assert await close_of(ws, 0.3) is None, "the link closed before anything changed"
-    began = time.monotonic()
     await change()
-    code, reason = await closed_with(ws, timeout=CLOSE_WITHIN_S)
-    assert time.monotonic() - began <= CLOSE_WITHIN_S + 0.5  # the request itself included
-    return code, reason
+    return await closed_with(ws, timeout=CLOSE_WITHIN_S)
 
 
 def change(current: str, new: str = NEW_PASSWORD) -> dict[str, str]:
