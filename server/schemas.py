@@ -56,6 +56,18 @@ BirthYear = Annotated[
     AfterValidator(_not_in_future),
 ]
 
+WEIGHT_KG_MIN, WEIGHT_KG_MAX = 10.0, 400.0
+WeightKg = Annotated[
+    float | None,
+    Field(
+        ge=WEIGHT_KG_MIN,
+        le=WEIGHT_KG_MAX,
+        allow_inf_nan=False,
+        description=f"Body weight, kg ({WEIGHT_KG_MIN:g}..{WEIGHT_KG_MAX:g}), optional: torque "
+        "is also shown per kilogram of body weight where it is known.",
+    ),
+]
+
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 _FROM_ORM = ConfigDict(from_attributes=True)
 
@@ -155,6 +167,7 @@ class PatientCreate(BaseModel):
     )
     birth_year: BirthYear = None
     affected_side: Side | None = Field(default=None, description="The ankle being treated.")
+    weight_kg: WeightKg = None
     notes: str = Field(default="", max_length=5000, description="Free text for the therapist.")
 
 
@@ -170,6 +183,7 @@ class PatientUpdate(BaseModel):
     reference: str | None = Field(default=None, max_length=64)
     birth_year: BirthYear = None
     affected_side: Side | None = None
+    weight_kg: WeightKg = None
     notes: str | None = Field(default=None, max_length=5000)
 
     @model_validator(mode="after")
@@ -189,6 +203,7 @@ class PatientPublic(BaseModel):
     reference: str | None
     birth_year: int | None
     affected_side: Side | None
+    weight_kg: float | None = Field(description="Body weight, kg; null when not recorded.")
     notes: str
     created_at: datetime
     updated_at: datetime

@@ -43,6 +43,7 @@ function renderDetails(p) {
     ...fact("Reference", p.reference || "–"),
     ...fact("Birth year", p.birth_year ?? "–"),
     ...fact("Affected side", SIDE_WORDS[p.affected_side] || "Not recorded"),
+    ...fact("Body weight", p.weight_kg != null ? `${fmt.num(p.weight_kg, 1)} kg` : "Not recorded"),
     ...fact("Added", fmt.day(p.created_at)),
     ...fact("Notes", p.notes ? el("span", { class: "pt-notes" }, p.notes) : "–"),
   );
