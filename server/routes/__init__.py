@@ -13,6 +13,7 @@ from server.routes import (
     home_station,
     patients,
     prescriptions,
+    progress,
     sessions,
     stations,
     uploads,
@@ -31,6 +32,7 @@ ROUTERS: list[APIRouter] = [
     stations.router,
     home_station.router,
     sessions.router,
+    progress.router,
     uploads.router,
     audit.router,
 ]
