@@ -18,12 +18,14 @@ from pydantic import (
     Field,
     StringConstraints,
     ValidationInfo,
+    computed_field,
     field_validator,
     model_validator,
 )
 
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
 from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
+from sessions.anatomy import direction_table
 from sessions.prescription import PrescriptionBody
 
 Email = Annotated[
@@ -211,6 +213,14 @@ class PatientPublic(BaseModel):
         description="When the therapist archived the patient (read-only, left out of the "
         "default list), UTC; null for a current patient."
     )
+
+    @computed_field(  # type: ignore[prop-decorator]
+        description="Each axis's direction names and labels for the affected side "
+        "(sessions.anatomy.direction_table): what a page calls sign 1 ('positive') and -1."
+    )
+    @property
+    def directions(self) -> dict[str, dict[str, str]]:
+        return direction_table(self.affected_side)
 
 
 class PatientArchived(PatientPublic):

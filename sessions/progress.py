@@ -483,3 +483,47 @@ def _exercise(
         )
     ]
     return ExerciseProgress(exercise=kind, sessions=len(sessions), measures=measures)
+
+
+# ---- for the patient's own page -------------------------------------------------------------
+
+
+class Glance(BaseModel):
+    """The patient's own progress in plain numbers: for the page on the home station."""
+
+    model_config = _STRICT
+
+    sessions_this_week: int = Field(description="Sessions completed since ``week_start``.")
+    first_week_deg: dict[str, float] = Field(
+        description='Furthest angle per direction ("axis:sign") in the first 7 days of '
+        "sessions, degrees."
+    )
+    this_week_deg: dict[str, float] = Field(
+        description="The same since ``week_start``; a direction not exercised is absent."
+    )
+
+
+def _furthest(sessions: Sequence[SessionFacts]) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for s in sessions:
+        m = s.summary.metrics if s.summary is not None else None
+        for axis, a in (m.axes if m is not None else {}).items():
+            for sign, d in ((1, a.positive), (-1, a.negative)):
+                if d.peak_angle_deg is not None and d.peak_angle_deg > 0:
+                    key = _key(axis, sign)
+                    out[key] = max(out.get(key, 0.0), d.peak_angle_deg)
+    return out
+
+
+def glance(sessions: Sequence[SessionFacts], week_start: datetime) -> Glance:
+    """Sessions completed since ``week_start`` (the station's own Monday, say), and the
+    furthest angle per direction this week against the first week of sessions: what a
+    patient's page says in words ("you moved 4° further than in your first week")."""
+    ordered = sorted(sessions, key=lambda s: s.started_at)
+    first = [s for s in ordered if s.started_at < ordered[0].started_at + WEEK] if ordered else []
+    this = [s for s in ordered if s.started_at >= week_start]
+    return Glance(
+        sessions_this_week=sum(1 for s in this if s.end_reason == "completed"),
+        first_week_deg=_furthest(first),
+        this_week_deg=_furthest(this),
+    )

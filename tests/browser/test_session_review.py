@@ -8,6 +8,8 @@ import csv
 import io
 import json
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,22 @@ from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System
 
 FORMATS = ("csv", "parquet", "mcap", "json", "rec")
+
+
+@contextmanager
+def therapist(system: System) -> Iterator[httpx.Client]:
+    """An API client signed in as the demo therapist."""
+    with httpx.Client(base_url=f"{system.url}/api/v1", timeout=30.0) as client:
+        r = client.post(
+            "/auth/login",
+            json={
+                "email": system.creds["therapist_email"],
+                "password": system.creds["therapist_password"],
+            },
+        )
+        r.raise_for_status()
+        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+        yield client
 
 
 def run_one_session(system: System) -> dict[str, Any]:
@@ -37,16 +55,7 @@ def run_one_session(system: System) -> dict[str, Any]:
         "--autostart",
         env={"ANKLE_STATION_TOKEN": system.creds["station_token"]},
     )
-    with httpx.Client(base_url=f"{system.url}/api/v1", timeout=30.0) as client:
-        r = client.post(
-            "/auth/login",
-            json={
-                "email": system.creds["therapist_email"],
-                "password": system.creds["therapist_password"],
-            },
-        )
-        r.raise_for_status()
-        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+    with therapist(system) as client:
         deadline = time.monotonic() + 240  # a loaded machine runs the simulation slowly
         while time.monotonic() < deadline:
             sessions = client.get("/sessions").json()
@@ -56,6 +65,13 @@ def run_one_session(system: System) -> dict[str, Any]:
             assert system.station.poll() is None, system.log_tail()
             time.sleep(0.5)
     raise AssertionError(f"no session reached the server\n{system.log_tail()}")
+
+
+def set_weight(system: System, weight_kg: float) -> None:
+    """Record the demo patient's body weight, as the patient form does."""
+    with therapist(system) as client:
+        r = client.patch(f"/patients/{system.creds['patient_id']}", json={"weight_kg": weight_kg})
+        assert r.status_code == 200, r.text
 
 
 def rows_in(fmt: str, data: bytes) -> int:
@@ -78,6 +94,8 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     session = run_one_session(system)
     sid, samples = session["id"], session["summary"]["samples"]
     assert samples > 1000  # the demo: 3 repetitions of 6 s at 100 Hz, and homing
+    weight_kg = 80.0
+    set_weight(system, weight_kg)
 
     # Sign in through the login page, which returns to the session.
     page.goto(f"{system.url}/app/sessions/{sid}")
@@ -99,6 +117,28 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     rom = session["summary"]["axes"]["pitch"]["rom_deg"]
     expect(pitch.locator("td").first).to_have_text(f"{rom:.1f}")
     expect(page.locator("#events")).to_contain_text("Repetitions done")
+    expect(page.locator("#axes thead")).not_to_contain_text("Time in target")
+
+    # The metrics that fit a strength exercise: per direction, named for the patient's side,
+    # with torque per kilogram of body weight; per repetition; no tracking of a target that
+    # followed the patient.
+    metrics = session["summary"]["metrics"]
+    assert metrics["kind"] == "strength" and metrics["tracking"] == {}
+    expect(page.locator("#mx-kind")).to_contain_text("Strength")
+    for label, sign in (
+        ("Plantarflexion (toes down)", "positive"),
+        ("Dorsiflexion (toes up)", "negative"),
+    ):
+        row = page.locator("#mx-directions tbody tr", has_text=label)
+        expect(row).to_have_count(1)
+        peak = metrics["axes"]["pitch"][sign]["peak_torque_nm"]
+        cells = row.locator("td")
+        expect(cells.nth(1)).to_have_text(f"{peak:.1f}")
+        expect(cells.nth(2)).to_have_text(f"{peak / weight_kg:.2f}")
+    reps = page.locator("#mx-repetitions tbody tr")
+    expect(reps).to_have_count(2 * len(metrics["repetitions"]))
+    assert len(metrics["repetitions"]) == 3
+    expect(page.locator("#mx-tracking")).to_have_count(0)
 
     # Charts over the whole session: four uPlot canvases with a size, and lines on them.
     for chart in ("angle", "torque", "pressure", "impedance"):
@@ -107,6 +147,13 @@ def test_review_a_session_summary_charts_replay_and_downloads(
         box = canvas.bounding_box()
         assert box is not None and box["width"] > 300 and box["height"] > 100, (chart, box)
     expect(page.locator("#series-note")).to_contain_text(f"{samples} samples")
+    # The damping line is drawn apart from the stiffness line, not under it.
+    k_y, b_y = page.locator("#chart-impedance").evaluate(
+        """e => { const u = e.uplot; const n = u.series.length - 1;
+        const last = (i) => u.data[i].findLast((v) => v != null);
+        return [u.valToPos(last(1), "K"), u.valToPos(last(1 + n / 2), "B")]; }"""
+    )
+    assert abs(k_y - b_y) > 30, (k_y, b_y)
     legend = page.locator("#chart-angle .u-legend")
     expect(legend).to_contain_text("pitch target")
 

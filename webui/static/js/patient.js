@@ -362,8 +362,22 @@ function renderSessions() {
   $("history-status").textContent = sessions.length
     ? `${sessions.length} session${sessions.length === 1 ? "" : "s"}, newest first.`
     : "No sessions recorded yet.";
-  renderProgress($("progress"), sessions, prescriptions);
+  showProgress();
 }
+
+function showProgress() {
+  return renderProgress($("progress"), patientId, {
+    form: $("progress-filter"),
+    name: exerciseName,
+    errorBox: $("progress-error"),
+    note: $("progress-mdc"),
+  });
+}
+
+$("progress-filter").addEventListener("submit", (event) => {
+  event.preventDefault();
+  showProgress();
+});
 
 function sessionsKey(list) {
   return list.map((s) => `${s.id}:${s.end_reason}:${s.summary ? 1 : 0}`).join(",");
@@ -417,6 +431,7 @@ async function main() {
     isTherapist ? setUpPatientForm($("edit-patient")) : null,
   ]);
   exercises = new Map(library.map((x) => [x.kind, x]));
+  $("progress-kind").append(...library.map((x) => el("option", { value: x.kind }, x.name)));
   sessions = list;
   await refresh();
   renderSessions();
