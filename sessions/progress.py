@@ -174,33 +174,34 @@ class Baseline(BaseModel):
     )
 
 
-class AdherenceWeek(BaseModel):
+class AdherenceCounts(BaseModel):
+    """Sessions of one prescription: in a week, or summed over the weeks that are over."""
+
     model_config = _STRICT
 
-    week: int = Field(description="1-based week of the prescription.")
-    start: datetime
-    end: datetime
-    prescribed: int = Field(description="Sessions asked for in this week.")
+    prescribed: int = Field(description="Sessions asked for.")
     completed: int = Field(description="Completed sessions counted, at most prescribed.")
     extra: int = Field(description="Completed sessions beyond what was prescribed.")
     ended_early: int = Field(description="Sessions that were stopped, faulted or interrupted.")
-    missed: int = Field(description="Prescribed sessions not done in a week that is over.")
-    in_progress: bool = Field(description="The week has not ended yet.")
+    missed: int = Field(description="Prescribed sessions not done, in a week that is over.")
 
 
-class PrescriptionAdherence(BaseModel):
-    model_config = _STRICT
+class AdherenceWeek(AdherenceCounts):
+    week: int = Field(description="1-based week of the prescription.")
+    start: datetime
+    end: datetime
+    in_progress: bool = Field(description="The week has not ended yet (it misses nothing yet).")
+
+
+class PrescriptionAdherence(AdherenceCounts):
+    """The counts are sums over the weeks that are over; the week in progress is in
+    ``weeks`` only."""
 
     prescription_id: int
     exercise: ExerciseKind
     title: str
     sessions_per_week: int
     weeks: list[AdherenceWeek] = Field(description="Prescribed weeks in range, oldest first.")
-    prescribed: int = Field(description="Sum over the weeks that are over.")
-    completed: int = Field(description="Sum over the weeks that are over (≤ prescribed).")
-    extra: int
-    ended_early: int
-    missed: int
     percent: float | None = Field(
         description="completed / prescribed over the weeks that are over, ≤ 100; null if none."
     )
