@@ -26,7 +26,7 @@ from sessions.recording import (
 )
 from station.uploader import CHUNK
 from tests.server.live_server import Live, World, bearer
-from tests.sessions.test_metrics import lopsided, samples
+from tests.sessions.test_exercise_metrics import lopsided, samples
 
 pytestmark = pytest.mark.both_stores
 
