@@ -5,6 +5,7 @@ charts over the whole session and the 3D replay, and every download reads back."
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import time
@@ -15,11 +16,15 @@ from typing import Any
 
 import httpx
 import pyarrow.parquet as pq
+import pytest
 from mcap.reader import make_reader
 from playwright.sync_api import BrowserContext, Page, expect
 
+from sessions.anatomy import label
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import decode
 from tests.browser.a11y import assert_controls_labelled
+from tests.server.test_progress_route import assessment_rows, recording_data
 from tests.system.harness import System
 
 FORMATS = ("csv", "parquet", "mcap", "json", "rec")
@@ -125,13 +130,10 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     metrics = session["summary"]["metrics"]
     assert metrics["kind"] == "strength" and metrics["tracking"] == {}
     expect(page.locator("#mx-kind")).to_contain_text("Strength")
-    for label, sign in (
-        ("Plantarflexion (toes down)", "positive"),
-        ("Dorsiflexion (toes up)", "negative"),
-    ):
-        row = page.locator("#mx-directions tbody tr", has_text=label)
+    for sign, key in ((1, "positive"), (-1, "negative")):
+        row = page.locator("#mx-directions tbody tr", has_text=label("pitch", sign, None))
         expect(row).to_have_count(1)
-        peak = metrics["axes"]["pitch"][sign]["peak_torque_nm"]
+        peak = metrics["axes"]["pitch"][key]["peak_torque_nm"]
         cells = row.locator("td")
         expect(cells.nth(1)).to_have_text(f"{peak:.1f}")
         expect(cells.nth(2)).to_have_text(f"{peak / weight_kg:.2f}")
@@ -198,3 +200,76 @@ def test_review_a_session_summary_charts_replay_and_downloads(
         f"\nsession {sid}: {samples} samples; replay built and shown in {loaded_s:.1f} s; "
         f"replay page {saved.stat().st_size / 1e6:.2f} MB"
     )
+
+
+def test_rom_assessments_trials_and_progress_with_mdc(
+    system: System, page: Page, shots: Path
+) -> None:
+    """Three ROM assessments of two trials each, uploaded as a station does: the review page
+    lists the trials per direction; the patient's progress draws them against the baseline,
+    with the MDC95 they give and the last change flagged as beyond it."""
+    creds = system.creds
+    now = time.time()
+    history = [
+        (now - 20 * 86_400, [(20.0, 10.0), (22.0, 12.0)]),
+        (now - 13 * 86_400, [(21.0, 11.0), (23.0, 13.0)]),
+        (now - 6 * 86_400, [(25.0, 10.0), (27.0, 12.0)]),
+    ]
+    station = {"Authorization": f"Bearer {creds['station_token']}"}
+    with therapist(system) as client:
+        body = EXERCISE_LIBRARY[ExerciseKind.ROM_ASSESSMENT].defaults.model_dump(mode="json")
+        r = client.post(f"/patients/{creds['patient_id']}/prescriptions", json=body)
+        assert r.status_code == 201, r.text
+        rx = r.json()["id"]
+        ids = []
+        for at, trials in history:
+            sid, data = recording_data(
+                system.station_id,
+                int(creds["patient_id"]),
+                rx,
+                ExerciseKind.ROM_ASSESSMENT,
+                assessment_rows(trials),
+                at,
+            )
+            r = client.patch(
+                f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
+            )
+            assert r.status_code == 204, r.text
+            done = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+            r = client.post(f"/uploads/{sid}/complete", json=done, headers=station)
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["id"])
+        side = client.get(f"/patients/{creds['patient_id']}").json()["affected_side"]
+
+    page.goto(f"{system.url}/app/sessions/{ids[-1]}")
+    page.get_by_label("Email").fill(creds["therapist_email"])
+    page.get_by_label("Password").fill(creds["therapist_password"])
+    page.get_by_role("button", name="Sign in").click()
+    expect(page.locator("#mx-kind")).to_contain_text("Range of motion assessment")
+    rows = page.locator("#mx-trials tbody tr")
+    expect(rows).to_have_count(2)
+    head = page.locator("#mx-trials thead")
+    expect(head).to_contain_text("Plantarflexion (toes down)")
+    # Roll is named for the patient's side, through the one table of directions.
+    expect(head).to_contain_text(label("roll", 1, side))
+    expect(head).to_contain_text(label("roll", -1, side))
+    expect(rows.nth(0)).to_contain_text("25.0")
+    expect(rows.nth(1)).to_contain_text("27.0")
+    expect(page.locator("#mx-tracking")).to_have_count(0)
+    page.screenshot(path=shots / "session-review-rom.png", full_page=False)
+
+    page.goto(f"{system.url}/app/patients/{creds['patient_id']}")
+    chart = page.locator("#chart-rom_assessment")
+    expect(chart).to_contain_text("a real change (beyond MDC95 3.9°)")
+    expect(page.locator("#progress-mdc")).to_contain_text("3.9° (6 trials in 3 assessments)")
+    drawn = page.locator("#chart-rom_assessment-canvas").evaluate(
+        """(c, name) => Chart.getChart(c).data.datasets
+        .filter(d => d.label === name).map(d => [d.data, d.pointRadius])[0]""",
+        label("pitch", 1, side),
+    )
+    values, radii = drawn
+    assert values == pytest.approx([21.0, 22.0, 26.0], abs=1e-4)  # the device's float32
+    assert radii[2] > radii[1] == radii[0]  # only the change beyond the MDC95 is marked
+    page.locator("#chart-rom_assessment summary").click()
+    expect(page.locator("#chart-rom_assessment table")).to_contain_text("+5.0° real change")
+    chart.screenshot(path=shots / "progress-rom.png")

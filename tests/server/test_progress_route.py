@@ -38,21 +38,21 @@ def assessment_rows(trials: list[tuple[float, float]]) -> NDArray[np.void]:
     return samples([{"pitch": lopsided(up, down)} for up, down in trials], 2.0)
 
 
-async def upload(
-    live: Live,
-    world: World,
-    rows: NDArray[np.void],
+def recording_data(
+    station_id: int,
+    patient_id: int,
     rx: int,
     kind: ExerciseKind,
+    rows: NDArray[np.void],
     started_at: float,
     reason: str = "completed",
-) -> int:
-    """File a session as a station does: append its bytes, then complete."""
+) -> tuple[str, bytes]:
+    """A whole recording of ``kind`` as a station writes it, and its session id."""
     sid = str(uuid.uuid4())
     head = Header(
         session_id=sid,
-        station_id=world.s1_id,
-        patient_id=world.p1,
+        station_id=station_id,
+        patient_id=patient_id,
         prescription_id=rx,
         prescription=EXERCISE_LIBRARY[kind].defaults.model_dump(mode="json"),
         device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=100, home_pose=[0.0] * 6),
@@ -71,6 +71,20 @@ async def upload(
         + encode_samples(rows)
         + encode_json(RecordType.END, end)
     )
+    return sid, data
+
+
+async def upload(
+    live: Live,
+    world: World,
+    rows: NDArray[np.void],
+    rx: int,
+    kind: ExerciseKind,
+    started_at: float,
+    reason: str = "completed",
+) -> int:
+    """File a session as a station does: append its bytes, then complete."""
+    sid, data = recording_data(world.s1_id, world.p1, rx, kind, rows, started_at, reason)
     station = bearer(world.s1)
     for offset in range(0, len(data), CHUNK):
         r = await live.client.patch(
