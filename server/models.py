@@ -17,6 +17,7 @@ from sqlalchemy import (
     CheckConstraint,
     DateTime,
     Dialect,
+    Float,
     ForeignKey,
     Integer,
     MetaData,
@@ -131,6 +132,8 @@ class Patient(Base):
     reference: Mapped[str | None] = mapped_column(String(64))
     birth_year: Mapped[int | None] = mapped_column(Integer)
     affected_side: Mapped[str | None] = mapped_column(String(8))
+    weight_kg: Mapped[float | None] = mapped_column(Float)
+    """Body weight, kg (migration 0004): torque is also shown per kilogram where known."""
     notes: Mapped[str] = mapped_column(Text, default="")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)

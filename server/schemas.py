@@ -18,12 +18,14 @@ from pydantic import (
     Field,
     StringConstraints,
     ValidationInfo,
+    computed_field,
     field_validator,
     model_validator,
 )
 
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
 from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
+from sessions.anatomy import direction_table
 from sessions.prescription import PrescriptionBody, PrescriptionInput
 from sessions.sentences import FieldError, field_label
 
@@ -55,6 +57,20 @@ BirthYear = Annotated[
     int | None,
     Field(ge=1900, description="Year of birth (age matters for normal ranges), 1900..now."),
     AfterValidator(_not_in_future),
+]
+
+WEIGHT_KG_MIN, WEIGHT_KG_MAX = 10.0, 400.0
+WeightKg = Annotated[
+    float | None,
+    Field(
+        ge=WEIGHT_KG_MIN,
+        le=WEIGHT_KG_MAX,
+        allow_inf_nan=False,
+        title="Body weight",
+        json_schema_extra={"unit": "kg"},
+        description=f"Body weight, kg ({WEIGHT_KG_MIN:g}..{WEIGHT_KG_MAX:g}), optional: torque "
+        "is also shown per kilogram of body weight where it is known.",
+    ),
 ]
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -156,6 +172,7 @@ class PatientCreate(BaseModel):
     )
     birth_year: BirthYear = None
     affected_side: Side | None = Field(default=None, description="The ankle being treated.")
+    weight_kg: WeightKg = None
     notes: str = Field(default="", max_length=5000, description="Free text for the therapist.")
 
 
@@ -171,6 +188,7 @@ class PatientUpdate(BaseModel):
     reference: str | None = Field(default=None, max_length=64)
     birth_year: BirthYear = None
     affected_side: Side | None = None
+    weight_kg: WeightKg = None
     notes: str | None = Field(default=None, max_length=5000)
 
     @model_validator(mode="after")
@@ -191,6 +209,7 @@ class PatientPublic(BaseModel):
     reference: str | None
     birth_year: int | None
     affected_side: Side | None
+    weight_kg: float | None = Field(description="Body weight, kg; null when not recorded.")
     notes: str
     created_at: datetime
     updated_at: datetime
@@ -198,6 +217,14 @@ class PatientPublic(BaseModel):
         description="When the therapist archived the patient (read-only, left out of the "
         "default list), UTC; null for a current patient."
     )
+
+    @computed_field(  # type: ignore[prop-decorator]
+        description="Each axis's direction names and labels for the affected side "
+        "(sessions.anatomy.direction_table): what a page calls sign 1 ('positive') and -1."
+    )
+    @property
+    def directions(self) -> dict[str, dict[str, str]]:
+        return direction_table(self.affected_side)
 
 
 class PatientArchived(PatientPublic):

@@ -7,8 +7,9 @@ clinic's, not the device's: degrees, newton metres, joules, seconds, percent.
 How the numbers are made:
 
 - Each sample stands for the time until the next one on the device clock ``t``. An interval
-  longer than :data:`GAP_FACTOR` times the median one is a gap in the telemetry (a lost link,
-  a restarted device), not exercise: it counts as one median interval.
+  longer than ``sessions.metrics.GAP_FACTOR`` times the median one is a gap in the
+  telemetry (a lost link, a restarted device), not exercise: it counts as one median
+  interval.
 - Range of motion is the lowest and highest measured angle; torques are the patient's, on
   the foot plate (``wrench[3:6]``: generalised forces conjugate to roll, pitch and yaw, so
   torque times angular velocity is power).
@@ -19,7 +20,11 @@ How the numbers are made:
   ``t``); ``work_j`` adds up the intervals where it is positive: the concentric work the
   patient did, not reduced by the platform pushing the foot back.
 - Tracking error is measured minus commanded angle; time in target is the share of ACTIVE
-  time within :data:`TARGET_TOLERANCE_DEG` of the command.
+  time within :data:`TARGET_TOLERANCE_DEG` of the command. Both only on axes whose target is
+  a commanded trajectory (``sessions.metrics.tracked_axes``): where the command follows the
+  patient through the impedance, they are null.
+- ``metrics`` holds what fits the exercise: per direction, per repetition, holds, sway
+  (:mod:`sessions.metrics`).
 - The game on the patient's page sends its running totals as ``game_score`` events, one per
   gate, each tagged with the game it belongs to (a page reloaded mid-session starts a new
   game): the last event of each game is its result, and the games are added up.
@@ -39,13 +44,19 @@ from pydantic import BaseModel, ConfigDict, Field
 from pydantic_core import to_json
 
 from device.protocol.messages import DeviceMode
+from sessions.metrics import (
+    TARGET_TOLERANCE_DEG,
+    ExerciseMetrics,
+    concentric_steps,
+    exercise_metrics,
+    finite_zeroed,
+    sample_weights,
+    tracked_axes,
+    weighted_mean,
+)
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import EndReason, Recording
 
-TARGET_TOLERANCE_DEG = 2.0
-"""Degrees: a sample is on target when measured and commanded angle differ by less."""
-GAP_FACTOR = 5.0
-"""A sample interval longer than this many median intervals is a gap in the telemetry."""
 SAFETY_EVENT_KINDS = ("fault", "limit", "estop", "watchdog", "supply_low", "interrupted")
 """Event kinds listed one by one in :attr:`Summary.faults`."""
 GAME_EVENT = "game_score"
@@ -69,7 +80,8 @@ class AxisSummary(BaseModel):
         description="Positive work done by the patient on the platform, J (concentric work)."
     )
     tracking_error_rms_deg: float | None = Field(
-        description="RMS of measured minus commanded angle, degrees."
+        description="RMS of measured minus commanded angle, degrees; null unless the target "
+        "is a commanded trajectory (sessions.metrics.TRAJECTORY_KINDS)."
     )
     time_in_target_pct: float | None = Field(
         description=f"Share of exercise time within {TARGET_TOLERANCE_DEG:g} degrees of the "
@@ -129,13 +141,18 @@ class Summary(BaseModel):
     game: GameSummary | None = Field(
         default=None, description="The patient's game; null if none was played."
     )
+    metrics: ExerciseMetrics | None = Field(
+        default=None,
+        description="The metrics that fit the exercise (sessions.metrics); null in a summary "
+        "stored before they existed (the server recomputes it from the recording).",
+    )
 
 
 def summarize(rec: Recording) -> Summary:
     """The summary of a recording; a recording in progress or cut off summarizes what it has."""
     s = rec.samples
     t = s["t"].astype(np.float64)
-    weights, contiguous = _sample_weights(t)
+    weights, contiguous = sample_weights(t)
     active = s["mode"] == int(DeviceMode.ACTIVE)
 
     counts: dict[str, int] = {}
@@ -147,6 +164,8 @@ def summarize(rec: Recording) -> Summary:
         sets_done, reps_done = counts.get("set_done", 0), counts.get("rep_done", 0)
 
     wall = s["wall"][np.isfinite(s["wall"])]
+    axes = prescribed_axes(rec.header.prescription)
+    tracked = tracked_axes(rec.header.prescription, axes)
     return Summary(
         duration_s=float(weights[active].sum()),
         elapsed_s=float(wall.max() - wall.min()) if len(wall) else 0.0,
@@ -157,8 +176,8 @@ def summarize(rec: Recording) -> Summary:
         end_reason=rec.end.reason if rec.end is not None else None,
         end_text=rec.end.text if rec.end is not None else "",
         axes={
-            axis: _axis_summary(rec, AXIS_INDEX[axis], active, weights, contiguous)
-            for axis in prescribed_axes(rec.header.prescription)
+            axis: _axis_summary(rec, AXIS_INDEX[axis], active, weights, contiguous, axis in tracked)
+            for axis in axes
         },
         events=dict(sorted(counts.items())),
         faults=[
@@ -172,6 +191,7 @@ def summarize(rec: Recording) -> Summary:
             if e.kind in SAFETY_EVENT_KINDS
         ],
         game=_game_summary(rec),
+        metrics=exercise_metrics(rec, axes),
     )
 
 
@@ -195,72 +215,40 @@ def _prescribed_repetitions(prescription: dict[str, Any]) -> int | None:
     return None
 
 
-def _sample_weights(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Seconds each sample stands for, and which intervals k→k+1 are unbroken telemetry."""
-    n = len(t)
-    if n == 0:
-        return np.zeros(0), np.zeros(0, dtype=bool)
-    dt = np.diff(t)
-    forward = np.isfinite(dt) & (dt > 0)
-    typical = float(np.median(dt[forward])) if forward.any() else 0.0
-    contiguous = forward & (dt <= GAP_FACTOR * typical)
-    # One sample, or a clock that never moved, gives zero weights: no exercise time, and
-    # the averages count each sample the same (see _weighted_mean).
-    return np.append(np.where(contiguous, dt, typical), typical), contiguous
-
-
-def _weighted_mean(values: NDArray[np.float64], w: NDArray[np.float64]) -> float | None:
-    total = float(w.sum())
-    if len(values) == 0:
-        return None
-    if total <= 0:
-        return float(values.mean())
-    return float((values * w).sum() / total)
-
-
 def _axis_summary(
     rec: Recording,
     i: int,
     active: NDArray[np.bool_],
     weights: NDArray[np.float64],
     contiguous: NDArray[np.bool_],
+    tracked: bool,
 ) -> AxisSummary:
     s = rec.samples
-    q = s["pose"][:, i].astype(np.float64)
-    q_cmd = s["pose_cmd"][:, i].astype(np.float64)
-    tau = s["wrench"][:, i].astype(np.float64)
-
-    ok_q = active & np.isfinite(q)
-    ok_tau = active & np.isfinite(tau)
-    ok_err = ok_q & np.isfinite(q_cmd)
-    # Unmeasured values are masked out below; zeroing them first keeps inf - inf and inf * 0
-    # from making NaN (and warnings) in the arithmetic on whole columns.
-    q, q_cmd, tau = (np.where(np.isfinite(x), x, 0.0) for x in (q, q_cmd, tau))
+    q, q_ok = finite_zeroed(s["pose"][:, i])
+    q_cmd, q_cmd_ok = finite_zeroed(s["pose_cmd"][:, i])
+    tau, tau_ok = finite_zeroed(s["wrench"][:, i])
+    ok_q = active & q_ok
+    ok_tau = active & tau_ok
+    ok_err = ok_q & q_cmd_ok if tracked else np.zeros_like(active)
     err = np.degrees(q - q_cmd)
 
     q_deg = np.degrees(q[ok_q])
     lo = float(q_deg.min()) if len(q_deg) else None
     hi = float(q_deg.max()) if len(q_deg) else None
     abs_tau = np.abs(tau[ok_tau])
-
-    # Work over interval k→k+1 only when both ends are ACTIVE, finite and the telemetry is
-    # unbroken between them: a gap's change of angle says nothing about the torque in it.
-    both = ok_q & ok_tau
-    step = both[:-1] & both[1:] & contiguous
-    dw = 0.5 * (tau[:-1] + tau[1:]) * np.diff(q)
-    work = float(np.maximum(dw[step], 0.0).sum()) if len(dw) else 0.0
+    work, _ = concentric_steps(q, tau, ok_q & ok_tau, contiguous)
 
     w_err = weights[ok_err]
     e = err[ok_err]
-    mean_sq = _weighted_mean(e * e, w_err)
-    in_target = _weighted_mean((np.abs(e) < TARGET_TOLERANCE_DEG).astype(np.float64), w_err)
+    mean_sq = weighted_mean(e * e, w_err)
+    in_target = weighted_mean((np.abs(e) < TARGET_TOLERANCE_DEG).astype(np.float64), w_err)
     return AxisSummary(
         rom_min_deg=lo,
         rom_max_deg=hi,
         rom_deg=hi - lo if hi is not None and lo is not None else None,
         peak_torque_nm=float(abs_tau.max()) if len(abs_tau) else None,
-        mean_torque_nm=_weighted_mean(abs_tau, weights[ok_tau]),
-        work_j=work if active.any() else None,
+        mean_torque_nm=weighted_mean(abs_tau, weights[ok_tau]),
+        work_j=float(work.sum()) if active.any() else None,
         tracking_error_rms_deg=math.sqrt(mean_sq) if mean_sq is not None else None,
         time_in_target_pct=100.0 * in_target if in_target is not None else None,
     )

@@ -14,6 +14,7 @@ from server.routes import (
     patients,
     prescriptions,
     reports,
+    progress,
     sessions,
     stations,
     uploads,
@@ -33,6 +34,7 @@ ROUTERS: list[APIRouter] = [
     home_station.router,
     sessions.router,
     reports.router,
+    progress.router,
     uploads.router,
     audit.router,
 ]

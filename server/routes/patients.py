@@ -26,7 +26,14 @@ from server.schemas import PatientArchived, PatientCreate, PatientPublic, Patien
 
 router = APIRouter(prefix="/patients", tags=["patients"])
 
-_CLINICAL_FIELDS = ("display_name", "reference", "birth_year", "affected_side", "notes")
+_CLINICAL_FIELDS = (
+    "display_name",
+    "reference",
+    "birth_year",
+    "affected_side",
+    "weight_kg",
+    "notes",
+)
 
 
 def clinical_fields(patient: Patient) -> dict[str, Any]:

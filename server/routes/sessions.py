@@ -32,7 +32,7 @@ from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import Recording, read
-from sessions.summary import prescribed_axes
+from sessions.summary import Summary, prescribed_axes, summarize
 
 router = APIRouter(tags=["sessions"], responses=UNAUTHORIZED)
 
@@ -53,8 +53,8 @@ class SessionPublic(BaseModel):
     size_bytes: int = Field(description="Size of the uploaded recording, bytes.")
     sha256: str | None = Field(description="SHA-256 of the uploaded recording.")
     summary: dict[str, Any] | None = Field(
-        description="ROM, torque, work, repetitions, tracking error and time in target "
-        "(see sessions.summary.Summary)."
+        description="ROM, torque, work, repetitions, tracking error and time in target, and "
+        "the metrics that fit the exercise (see sessions.summary.Summary)."
     )
     downloads: dict[str, str] = Field(description="Download URL per format.")
 
@@ -110,14 +110,37 @@ async def list_sessions(
     return [session_public(r) for r in rows]
 
 
+async def with_metrics(request: Request, db: Db, rows: list[Session]) -> list[Session]:
+    """``rows``, each summary holding the metrics that fit its exercise (sessions.metrics).
+
+    A summary stored before the metrics existed is computed again from the session's
+    recording and stored, once; a session whose file is gone keeps the summary it has."""
+    stale = [r for r in rows if r.summary is not None and r.summary.get("metrics") is None]
+    for row in stale:
+        try:
+            source = recording_path(request, row)
+        except HTTPException:
+            continue
+        summary = await asyncio.to_thread(_summarize_file, source)
+        row.summary = summary.model_dump(mode="json")
+    if stale:
+        await db.commit()
+    return rows
+
+
 @router.get(
     "/sessions/{session_id}",
     response_model=SessionPublic,
     responses=NOT_FOUND,
     summary="One session with its summary",
 )
-async def get_session(session_id: Id, db: Db, user: TherapistOrAdmin) -> SessionPublic:
-    return session_public(await _session_for(db, user, session_id))
+async def get_session(
+    session_id: Id, request: Request, db: Db, user: TherapistOrAdmin
+) -> SessionPublic:
+    """The summary holds the metrics that fit the exercise; for a session stored before
+    they existed, they are computed from its recording on first request."""
+    (row,) = await with_metrics(request, db, [await _session_for(db, user, session_id)])
+    return session_public(row)
 
 
 @router.get(
@@ -160,6 +183,10 @@ async def download(
         filename=filename,
         headers={"X-Content-SHA256": digest, "ETag": f'"{digest}"'},
     )
+
+
+def _summarize_file(source: Path) -> Summary:
+    return summarize(read(source))
 
 
 def _export(source: Path, fmt: str, path: Path) -> str:

@@ -93,6 +93,7 @@ def test_patient_list_and_adding_a_patient(
     form.get_by_label("Reference").fill("RK-2031")
     form.get_by_label("Birth year").fill("1961")
     form.get_by_label("Affected side").select_option("left")
+    form.get_by_label("Body weight").fill("68.5")
     form.get_by_label("Notes").fill("Lateral sprain, grade II.")
     form.get_by_role("button", name="Add patient").click()
     expect(page.get_by_role("status").filter(has_text="Added “R. K.”")).to_be_visible()
@@ -103,6 +104,7 @@ def test_patient_list_and_adding_a_patient(
     new = after[-1]
     assert (new["display_name"], new["reference"], new["birth_year"]) == ("R. K.", "RK-2031", 1961)
     assert (new["affected_side"], new["notes"]) == ("left", "Lateral sprain, grade II.")
+    assert new["weight_kg"] == 68.5
     row = page.locator(f'tr[data-patient-id="{new["id"]}"]')
     expect(row).to_contain_text("RK-2031")
     expect(row).to_contain_text("Left")
@@ -114,6 +116,7 @@ def test_patient_list_and_adding_a_patient(
     expect(page).to_have_url(f"{system.url}/app/patients/{new['id']}")
     expect(page.get_by_role("heading", level=1)).to_have_text("R. K.")
     expect(page.locator("#details")).to_contain_text("Lateral sprain, grade II.")
+    expect(page.locator("#details")).to_contain_text("68.5 kg")
     expect(page.locator("#rx-active")).to_contain_text("No active prescription")
     expect(page.locator("#history-status")).to_have_text("No sessions recorded yet.")
 
@@ -288,10 +291,10 @@ def test_demo_patient_station_online_and_progress_charts(
     page.goto(f"{system.url}/app/patients/{patient}")
     stations = page.locator("#stations")
     expect(stations.locator(f'li[data-station-id="{station}"]')).to_contain_text("Offline")
-    expect(page.locator("#chart-rom [data-empty]")).to_contain_text("No recorded session yet")
+    expect(page.locator("#chart-progress [data-empty]")).to_contain_text("No recorded session")
     # Adherence needs no session: it says what was prescribed and that none was done.
     (demo_rx,) = get(client, f"/patients/{patient}/prescriptions")
-    expect(page.locator("#chart-adherence canvas")).to_have_attribute(
+    expect(page.locator(f"#chart-adherence-{demo_rx['id']}-canvas")).to_have_attribute(
         "aria-label",
         re.compile(
             f"This week 0 of {demo_rx['body']['sessions_per_week']} prescribed sessions completed"
@@ -321,8 +324,9 @@ def test_demo_patient_station_online_and_progress_charts(
         assert time.monotonic() < deadline, "the session never reached the server"
         time.sleep(0.5)
     (session,) = sessions
-    rom = session["summary"]["axes"]["pitch"]["rom_deg"]
-    peak = session["summary"]["axes"]["pitch"]["peak_torque_nm"]
+    pitch = session["summary"]["metrics"]["axes"]["pitch"]
+    # A strength session: the target followed the patient, so no time in target.
+    assert session["summary"]["axes"]["pitch"]["time_in_target_pct"] is None
 
     page.reload()
     row = page.locator(f'tr[data-session-id="{session["id"]}"]')
@@ -331,25 +335,54 @@ def test_demo_patient_station_online_and_progress_charts(
     expect(row).to_contain_text("Completed")
     expect(row.get_by_role("link")).to_have_attribute("href", f"/app/sessions/{session['id']}")
 
-    # The charts are Chart.js's, drawn from the API's summary.
-    for chart_id, value, label in (
-        ("chart-rom", rom, "Pitch (°)"),
-        ("chart-torque", peak, "Pitch (N·m)"),
-    ):
-        canvas = page.locator(f"#{chart_id}-canvas")
-        expect(canvas).to_be_visible()
-        drawn = canvas.evaluate("c => Chart.getChart(c).data.datasets.map(d => [d.label, d.data])")
-        assert drawn == [[label, [pytest.approx(value)]]]
-        page.locator(f"#{chart_id} summary").click()
-        expect(page.locator(f"#{chart_id} table tbody")).to_contain_text(f"{value:.1f}")
-    adherence = page.locator("#chart-adherence-canvas")
+    # Strength has its own chart, a line per direction named by the API's direction table,
+    # drawn from the progress API; its y axis titled short enough not to be clipped.
+    canvas = page.locator("#chart-strength-canvas")
+    expect(canvas).to_be_visible()
+    drawn = canvas.evaluate("c => Chart.getChart(c).data.datasets.map(d => [d.label, d.data])")
+    assert drawn == [
+        ["Plantarflexion (toes down)", [pytest.approx(pitch["positive"]["peak_torque_nm"])]],
+        ["Dorsiflexion (toes up)", [pytest.approx(pitch["negative"]["peak_torque_nm"])]],
+    ]
+    y_title = canvas.evaluate("c => Chart.getChart(c).options.scales.y.title.text")
+    assert y_title == "N·m"
+    page.locator("#chart-strength summary").click()
+    expect(page.locator("#chart-strength table tbody")).to_contain_text(
+        f"{pitch['positive']['peak_torque_nm']:.1f}"
+    )
+    expect(page.locator("#progress-mdc")).to_contain_text("no ROM assessment yet")
+
+    # Adherence per prescription: the new one has its session, the demo's none; neither
+    # adds the other's sessions or prescribed counts.
+    adherence = page.locator(f"#chart-adherence-{rx}-canvas")
     weekly = adherence.evaluate("c => Chart.getChart(c).data.datasets.map(d => d.data.at(-1))")
-    active = get(client, f"/patients/{patient}/prescriptions", status="active")
-    asked = sum(p["body"]["sessions_per_week"] for p in active)
-    assert weekly == [1, 0, asked]  # completed, ended early, prescribed this week
+    asked = get(client, f"/prescriptions/{rx}")["body"]["sessions_per_week"]
+    assert weekly == [1, 0, 0, 0, asked]  # completed, extra, ended early, missed, prescribed
     expect(adherence).to_have_attribute(
         "aria-label", re.compile(f"This week 1 of {asked} prescribed sessions completed")
     )
+    expect(page.locator(f"#chart-adherence-{demo_rx['id']}-canvas")).to_have_attribute(
+        "aria-label",
+        re.compile(
+            f"This week 0 of {demo_rx['body']['sessions_per_week']} prescribed sessions completed"
+        ),
+    )
+
+    # One exercise type and a date range: the form asks the API again; a range that ends
+    # before it starts is refused with the API's sentence, and the charts stay.
+    page.get_by_label("Exercise type").select_option("rom_assessment")
+    page.get_by_role("button", name="Show").click()
+    expect(page.locator("#chart-progress [data-empty]")).to_contain_text("No recorded session")
+    page.get_by_label("From").fill("2030-01-02")
+    page.get_by_label("Until").fill("2030-01-01")
+    page.get_by_role("button", name="Show").click()
+    expect(page.locator("#progress-error")).to_contain_text("since (2030-01-02) must be before")
+    page.get_by_label("From").fill("")
+    page.get_by_label("Until").fill("")
+    page.get_by_label("Exercise type").select_option("")
+    page.get_by_role("button", name="Show").click()
+    expect(page.locator("#progress-error")).to_be_hidden()
+    expect(page.locator("#chart-strength-canvas")).to_be_visible()
     page.screenshot(path=shots / "patient.png", full_page=True)
     assert_controls_labelled(page)
 

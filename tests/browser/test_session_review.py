@@ -6,24 +6,47 @@ from __future__ import annotations
 
 import csv
 import functools
+import hashlib
 import io
 import json
 import re
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from email.message import Message
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pyarrow.parquet as pq
+import pytest
 from mcap.reader import make_reader
 from playwright.sync_api import BrowserContext, Page, Route, expect
 
+from sessions.anatomy import label
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import decode
 from tests.browser.a11y import assert_controls_labelled
+from tests.server.test_progress_route import assessment_rows, recording_data
 from tests.system.harness import System
 
 FORMATS = ("csv", "parquet", "mcap", "json", "rec")
+
+
+@contextmanager
+def therapist(system: System) -> Iterator[httpx.Client]:
+    """An API client signed in as the demo therapist."""
+    with httpx.Client(base_url=f"{system.url}/api/v1", timeout=30.0) as client:
+        r = client.post(
+            "/auth/login",
+            json={
+                "email": system.creds["therapist_email"],
+                "password": system.creds["therapist_password"],
+            },
+        )
+        r.raise_for_status()
+        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+        yield client
 
 
 def run_one_session(system: System) -> dict[str, Any]:
@@ -40,16 +63,7 @@ def run_one_session(system: System) -> dict[str, Any]:
         "--autostart",
         env={"ANKLE_STATION_TOKEN": system.creds["station_token"]},
     )
-    with httpx.Client(base_url=f"{system.url}/api/v1", timeout=30.0) as client:
-        r = client.post(
-            "/auth/login",
-            json={
-                "email": system.creds["therapist_email"],
-                "password": system.creds["therapist_password"],
-            },
-        )
-        r.raise_for_status()
-        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+    with therapist(system) as client:
         deadline = time.monotonic() + 240  # a loaded machine runs the simulation slowly
         while time.monotonic() < deadline:
             sessions = client.get("/sessions").json()
@@ -87,6 +101,13 @@ def server_names(system: System, sid: int) -> dict[str, str]:
     return names
 
 
+def set_weight(system: System, weight_kg: float) -> None:
+    """Record the demo patient's body weight, as the patient form does."""
+    with therapist(system) as client:
+        r = client.patch(f"/patients/{system.creds['patient_id']}", json={"weight_kg": weight_kg})
+        assert r.status_code == 200, r.text
+
+
 def rows_in(fmt: str, data: bytes) -> int:
     """Samples in a download, read with the library a user would open it with."""
     if fmt == "csv":
@@ -107,6 +128,8 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     session = run_one_session(system)
     sid, samples = session["id"], session["summary"]["samples"]
     assert samples > 1000  # the demo: 3 repetitions of 6 s at 100 Hz, and homing
+    weight_kg = 80.0
+    set_weight(system, weight_kg)
 
     # Sign in through the login page, which returns to the session.
     page.goto(f"{system.url}/app/sessions/{sid}")
@@ -128,6 +151,25 @@ def test_review_a_session_summary_charts_replay_and_downloads(
     rom = session["summary"]["axes"]["pitch"]["rom_deg"]
     expect(pitch.locator("td").first).to_have_text(f"{rom:.1f}")
     expect(page.locator("#events")).to_contain_text("Repetitions done")
+    expect(page.locator("#axes thead")).not_to_contain_text("Time in target")
+
+    # The metrics that fit a strength exercise: per direction, named for the patient's side,
+    # with torque per kilogram of body weight; per repetition; no tracking of a target that
+    # followed the patient.
+    metrics = session["summary"]["metrics"]
+    assert metrics["kind"] == "strength" and metrics["tracking"] == {}
+    expect(page.locator("#mx-kind")).to_contain_text("Strength")
+    for sign, key in ((1, "positive"), (-1, "negative")):
+        row = page.locator("#mx-directions tbody tr", has_text=label("pitch", sign, None))
+        expect(row).to_have_count(1)
+        peak = metrics["axes"]["pitch"][key]["peak_torque_nm"]
+        cells = row.locator("td")
+        expect(cells.nth(1)).to_have_text(f"{peak:.1f}")
+        expect(cells.nth(2)).to_have_text(f"{peak / weight_kg:.2f}")
+    reps = page.locator("#mx-repetitions tbody tr")
+    expect(reps).to_have_count(2 * len(metrics["repetitions"]))
+    assert len(metrics["repetitions"]) == 3
+    expect(page.locator("#mx-tracking")).to_have_count(0)
 
     # Charts over the whole session: four uPlot canvases with a size, and lines on them.
     for chart in ("angle", "torque", "pressure", "impedance"):
@@ -136,6 +178,13 @@ def test_review_a_session_summary_charts_replay_and_downloads(
         box = canvas.bounding_box()
         assert box is not None and box["width"] > 300 and box["height"] > 100, (chart, box)
     expect(page.locator("#series-note")).to_contain_text(f"{samples} samples")
+    # The damping line is drawn apart from the stiffness line, not under it.
+    k_y, b_y = page.locator("#chart-impedance").evaluate(
+        """e => { const u = e.uplot; const n = u.series.length - 1;
+        const last = (i) => u.data[i].findLast((v) => v != null);
+        return [u.valToPos(last(1), "K"), u.valToPos(last(1 + n / 2), "B")]; }"""
+    )
+    assert abs(k_y - b_y) > 30, (k_y, b_y)
     legend = page.locator("#chart-angle .u-legend")
     expect(legend).to_contain_text("pitch target")
 
@@ -232,3 +281,76 @@ def test_a_download_takes_its_name_from_content_disposition(system: System, page
         assert caught.value.suggested_filename == name, (header, caught.value.suggested_filename)
         assert saved == name, (header, saved)
         assert Path(caught.value.path()).read_text() == body
+
+
+def test_rom_assessments_trials_and_progress_with_mdc(
+    system: System, page: Page, shots: Path
+) -> None:
+    """Three ROM assessments of two trials each, uploaded as a station does: the review page
+    lists the trials per direction; the patient's progress draws them against the baseline,
+    with the MDC95 they give and the last change flagged as beyond it."""
+    creds = system.creds
+    now = time.time()
+    history = [
+        (now - 20 * 86_400, [(20.0, 10.0), (22.0, 12.0)]),
+        (now - 13 * 86_400, [(21.0, 11.0), (23.0, 13.0)]),
+        (now - 6 * 86_400, [(25.0, 10.0), (27.0, 12.0)]),
+    ]
+    station = {"Authorization": f"Bearer {creds['station_token']}"}
+    with therapist(system) as client:
+        body = EXERCISE_LIBRARY[ExerciseKind.ROM_ASSESSMENT].defaults.model_dump(mode="json")
+        r = client.post(f"/patients/{creds['patient_id']}/prescriptions", json=body)
+        assert r.status_code == 201, r.text
+        rx = r.json()["id"]
+        ids = []
+        for at, trials in history:
+            sid, data = recording_data(
+                system.station_id,
+                int(creds["patient_id"]),
+                rx,
+                ExerciseKind.ROM_ASSESSMENT,
+                assessment_rows(trials),
+                at,
+            )
+            r = client.patch(
+                f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
+            )
+            assert r.status_code == 204, r.text
+            done = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+            r = client.post(f"/uploads/{sid}/complete", json=done, headers=station)
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["id"])
+        side = client.get(f"/patients/{creds['patient_id']}").json()["affected_side"]
+
+    page.goto(f"{system.url}/app/sessions/{ids[-1]}")
+    page.get_by_label("Email").fill(creds["therapist_email"])
+    page.get_by_label("Password").fill(creds["therapist_password"])
+    page.get_by_role("button", name="Sign in").click()
+    expect(page.locator("#mx-kind")).to_contain_text("Range of motion assessment")
+    rows = page.locator("#mx-trials tbody tr")
+    expect(rows).to_have_count(2)
+    head = page.locator("#mx-trials thead")
+    expect(head).to_contain_text("Plantarflexion (toes down)")
+    # Roll is named for the patient's side, through the one table of directions.
+    expect(head).to_contain_text(label("roll", 1, side))
+    expect(head).to_contain_text(label("roll", -1, side))
+    expect(rows.nth(0)).to_contain_text("25.0")
+    expect(rows.nth(1)).to_contain_text("27.0")
+    expect(page.locator("#mx-tracking")).to_have_count(0)
+    page.screenshot(path=shots / "session-review-rom.png", full_page=False)
+
+    page.goto(f"{system.url}/app/patients/{creds['patient_id']}")
+    chart = page.locator("#chart-rom_assessment")
+    expect(chart).to_contain_text("a real change (beyond MDC95 3.9°)")
+    expect(page.locator("#progress-mdc")).to_contain_text("3.9° (6 trials in 3 assessments)")
+    drawn = page.locator("#chart-rom_assessment-canvas").evaluate(
+        """(c, name) => Chart.getChart(c).data.datasets
+        .filter(d => d.label === name).map(d => [d.data, d.pointRadius])[0]""",
+        label("pitch", 1, side),
+    )
+    values, radii = drawn
+    assert values == pytest.approx([21.0, 22.0, 26.0], abs=1e-4)  # the device's float32
+    assert radii[2] > radii[1] == radii[0]  # only the change beyond the MDC95 is marked
+    page.locator("#chart-rom_assessment summary").click()
+    expect(page.locator("#chart-rom_assessment table")).to_contain_text("+5.0° real change")
+    chart.screenshot(path=shots / "progress-rom.png")

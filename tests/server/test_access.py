@@ -150,6 +150,7 @@ ACCESS: dict[tuple[str, str], Call] = {
     ),
     ("GET", "/patients/{patient_id}"): Call(OWNER_OR_ADMIN),
     ("PATCH", "/patients/{patient_id}"): Call(OWNER_WRITES, body={"notes": "better"}),
+    ("GET", "/patients/{patient_id}/progress"): Call(OWNER_OR_ADMIN),
     ("GET", "/exercises"): Call(ANY_USER),
     ("GET", "/exercises/limits"): Call(ANY_USER),
     ("GET", "/patients/{patient_id}/prescriptions"): Call(OWNER_OR_ADMIN),

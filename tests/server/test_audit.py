@@ -45,6 +45,7 @@ async def test_every_mutation_leaves_a_row_with_old_and_new(live: Live, world: W
             "reference": None,
             "birth_year": 1960,
             "affected_side": None,
+            "weight_kg": None,
             "notes": "",
         },
     )

@@ -22,21 +22,26 @@ async def test_create_then_patch_only_the_given_fields(live: Live, world: World)
             "reference": "CL-7",
             "birth_year": 1950,
             "affected_side": "both",
+            "weight_kg": 72.5,
             "notes": "post-fracture",
         },
         headers=t1,
     )
     assert r.status_code == 201
     created = r.json()
+    assert created["weight_kg"] == 72.5
     assert (created["display_name"], created["therapist_id"]) == ("J. D.", world.t1_id)
     r = await live.client.patch(
-        f"/patients/{created['id']}", json={"reference": None, "notes": "walking"}, headers=t1
+        f"/patients/{created['id']}",
+        json={"reference": None, "notes": "walking", "weight_kg": 70},
+        headers=t1,
     )
     updated = r.json()
     assert updated == {
         **created,
         "reference": None,
         "notes": "walking",
+        "weight_kg": 70.0,
         "updated_at": updated["updated_at"],
     }
     assert updated["updated_at"] > created["updated_at"]
@@ -59,6 +64,9 @@ INVALID: list[tuple[dict[str, Any], list[str], str]] = [
         "Affected side must be one of left, right or both.",
     ),
     ({"therapist_id": 2}, ["body", "therapist_id"], "“therapist_id” is not a field here."),
+    ({"weight_kg": 5}, ["body", "weight_kg"], "Body weight must be at least 10 kg."),
+    ({"weight_kg": 1000}, ["body", "weight_kg"], "Body weight must be at most 400 kg."),
+    ({"weight_kg": "heavy"}, ["body", "weight_kg"], "Body weight must be a number."),
 ]
 
 

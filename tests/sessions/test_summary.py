@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from device.protocol.messages import DeviceMode
+from sessions.metrics import TARGET_TOLERANCE_DEG
 from sessions.prescription import AXIS_INDEX, PrescriptionBody
 from sessions.recording import (
     SAMPLE_DTYPE,
@@ -31,7 +32,7 @@ from sessions.recording import (
     SessionEvent,
     read,
 )
-from sessions.summary import TARGET_TOLERANCE_DEG, AxisSummary, summarize
+from sessions.summary import AxisSummary, summarize
 
 HZ = 100.0
 DT = 1.0 / HZ

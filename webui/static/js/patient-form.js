@@ -9,7 +9,7 @@ export const SIDE_WORDS = { left: "Left", right: "Right", both: "Both" };
 /** Bounds and choices from the API's schema on the form's fields. */
 export async function setUpPatientForm(form) {
   const schemas = await loadSchemas();
-  for (const name of ["display_name", "reference", "birth_year", "notes"]) {
+  for (const name of ["display_name", "reference", "birth_year", "weight_kg", "notes"]) {
     applyBounds(form.elements[name], prop(schemas, "PatientCreate", name));
   }
   // The API refuses a birth year in the future; "now" is the one bound it cannot publish.
@@ -25,12 +25,14 @@ export function patientBody(form) {
   const f = form.elements;
   const text = (v) => (v.trim() === "" ? null : v.trim());
   const year = f.birth_year.value.trim();
+  const weight = f.weight_kg.value.trim();
   return {
     display_name: f.display_name.value,
     reference: text(f.reference.value),
     // A number input holding text reads as "": send what was typed so the API says why.
     birth_year: year === "" ? (f.birth_year.validity.badInput ? "not a number" : null) : Number(year),
     affected_side: f.affected_side.value || null,
+    weight_kg: weight === "" ? (f.weight_kg.validity.badInput ? "not a number" : null) : Number(weight),
     notes: f.notes.value,
   };
 }
@@ -42,5 +44,6 @@ export function fillPatientForm(form, p) {
   f.reference.value = p.reference ?? "";
   f.birth_year.value = p.birth_year ?? "";
   f.affected_side.value = p.affected_side ?? "";
+  f.weight_kg.value = p.weight_kg ?? "";
   f.notes.value = p.notes ?? "";
 }

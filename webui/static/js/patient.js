@@ -44,6 +44,7 @@ function renderDetails(p) {
     ...fact("Reference", p.reference || "–"),
     ...fact("Birth year", p.birth_year ?? "–"),
     ...fact("Affected side", SIDE_WORDS[p.affected_side] || "Not recorded"),
+    ...fact("Body weight", p.weight_kg != null ? `${fmt.num(p.weight_kg, 1)} kg` : "Not recorded"),
     ...fact("Added", fmt.day(p.created_at)),
     ...fact("Notes", p.notes ? el("span", { class: "pt-notes" }, p.notes) : "–"),
   );
@@ -362,8 +363,22 @@ function renderSessions() {
   $("history-status").textContent = sessions.length
     ? `${sessions.length} session${sessions.length === 1 ? "" : "s"}, newest first.`
     : "No sessions recorded yet.";
-  renderProgress($("progress"), sessions, prescriptions);
+  showProgress();
 }
+
+function showProgress() {
+  return renderProgress($("progress"), patientId, {
+    form: $("progress-filter"),
+    name: exerciseName,
+    errorBox: $("progress-error"),
+    note: $("progress-mdc"),
+  });
+}
+
+$("progress-filter").addEventListener("submit", (event) => {
+  event.preventDefault();
+  showProgress();
+});
 
 function sessionsKey(list) {
   return list.map((s) => `${s.id}:${s.end_reason}:${s.summary ? 1 : 0}`).join(",");
@@ -418,6 +433,7 @@ async function main() {
     isTherapist ? setUpPatientForm($("edit-patient")) : null,
   ]);
   exercises = new Map(library.map((x) => [x.kind, x]));
+  $("progress-kind").append(...library.map((x) => el("option", { value: x.kind }, x.name)));
   sessions = list;
   await refresh();
   renderSessions();

@@ -2,6 +2,7 @@
 // (viser's recording in viser's own viewer) and the downloads.
 import { api, download, el, fmt, pathId, renderHeader, requireSignIn } from "./api.js";
 import { endReasonBadge } from "./badges.js";
+import { renderMetrics } from "./exercise-metrics.js";
 
 await requireSignIn();
 renderHeader();
@@ -91,14 +92,14 @@ function renderSummary(session, patient) {
         el("td", { class: "num" }, fmt.num(a.peak_torque_nm, 1)),
         el("td", { class: "num" }, fmt.num(a.mean_torque_nm, 1)),
         el("td", { class: "num" }, fmt.num(a.work_j, 1)),
-        el("td", { class: "num" }, fmt.num(a.tracking_error_rms_deg, 2)),
-        el("td", { class: "num" }, fmt.num(a.time_in_target_pct, 0)),
       ),
     ),
   );
   if (!axes.length) {
-    $("axes").tBodies[0].replaceChildren(el("tr", {}, el("td", { colspan: 8, class: "muted" }, "No exercise recorded.")));
+    $("axes").tBodies[0].replaceChildren(el("tr", {}, el("td", { colspan: 6, class: "muted" }, "No exercise recorded.")));
   }
+
+  renderMetrics($("metrics"), sum, patient);
 
   const faults = sum.faults || [];
   $("faults").replaceChildren(
@@ -156,8 +157,12 @@ function chart(id, series, data, modes, { axes = [{}], scales = {} } = {}) {
     target,
   );
   charts.push([u, target]);
+  target.uplot = u; // for tests and the console: the chart behind this element
   return u;
 }
+
+/** A uPlot scale range from zero (or below, for negative values) to `factor` × the top. */
+const headroom = (factor) => (_, lo, hi) => [Math.min(0, lo ?? 0), Math.max(hi ?? 0, 1e-3) * factor];
 
 const line = (label, stroke, extra = {}) => ({
   label,
@@ -202,12 +207,14 @@ function renderCharts(s) {
     "chart-impedance",
     [
       ...axes.map((a) => line(`${a} stiffness`, COLOURS[a], { scale: "K" })),
-      ...axes.map((a) => line(`${a} damping`, COLOURS[a], { scale: "B", width: 1, dash: [6, 4] })),
+      ...axes.map((a) => line(`${a} damping`, COLOURS[a], { scale: "B", width: 2, dash: [6, 4] })),
     ],
     [t, ...axes.map((a) => s.stiffness_nm_per_rad[a]), ...axes.map((a) => s.damping_nms_per_rad[a])],
     s.modes,
     {
-      scales: { K: { auto: true }, B: { auto: true } },
+      // Each scale from zero, with different headroom: a steady K sits near the top and a
+      // steady B near the middle, so the damping line is never drawn under the stiffness line.
+      scales: { K: { range: headroom(1.15) }, B: { range: headroom(2.2) } },
       axes: [
         { scale: "K", label: "N·m/rad" },
         { scale: "B", label: "N·m·s/rad", side: 1, grid: { show: false } },

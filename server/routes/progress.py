@@ -1,0 +1,168 @@
+"""A patient's progress: per exercise type, per direction, against the baseline and the
+minimal detectable change, and adherence per prescription (``sessions.progress``).
+
+:func:`load_progress` gathers the patient's prescriptions and sessions and calls
+``sessions.progress.progress``; the route and the report for the medical record both use it.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query, Request
+from pydantic import Field
+from sqlalchemy import select
+
+from server.deps import Db, Id, TherapistOrAdmin, patient_for
+from server.models import Patient, Prescription, Session, utcnow
+from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.sessions import with_metrics
+from sessions.anatomy import direction_table
+from sessions.prescription import ExerciseKind
+from sessions.progress import PrescriptionFacts, Progress, SessionFacts, progress
+from sessions.summary import Summary
+
+router = APIRouter(prefix="/patients", tags=["patients"])
+
+
+class ProgressPublic(Progress):
+    """``sessions.progress.Progress`` with what a page needs to show it for this patient."""
+
+    patient_id: int
+    affected_side: str | None
+    weight_kg: float | None = Field(description="For torque per kilogram; null if unknown.")
+    directions: dict[str, dict[str, str]] = Field(
+        description="Each axis's direction names and labels for the patient's side "
+        "(sessions.anatomy.direction_table): sign 1 is 'positive', -1 'negative'."
+    )
+
+
+def parse_when(name: str, text: str | None, *, end_of_day: bool = False) -> datetime | None:
+    """A query's date (YYYY-MM-DD, midnight UTC; with ``end_of_day`` the next midnight, so
+    the day is included) or ISO 8601 time (UTC if it names no offset); a 422 that names
+    the parameter for anything else."""
+    if text is None or text == "":
+        return None
+    try:
+        day = date.fromisoformat(text)
+    except ValueError:
+        pass
+    else:
+        start = datetime.combine(day, time(), UTC)
+        return start + timedelta(days=1) if end_of_day else start
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise HTTPException(
+            422,
+            f"{name} '{text[:40]}' is not a date: give a day as YYYY-MM-DD "
+            "or a time as ISO 8601 (2026-03-02T09:00:00Z)",
+        ) from None
+    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
+
+
+def parse_kind(text: str | None) -> ExerciseKind | None:
+    if text is None or text == "":
+        return None
+    try:
+        return ExerciseKind(text)
+    except ValueError:
+        kinds = ", ".join(k.value for k in ExerciseKind)
+        raise HTTPException(
+            422, f"kind '{text[:40]}' is not an exercise type: one of {kinds}"
+        ) from None
+
+
+def prescription_facts(row: Prescription) -> PrescriptionFacts:
+    body: dict[str, Any] = row.body
+    return PrescriptionFacts(
+        id=row.id,
+        exercise=ExerciseKind(body["exercise"]),
+        title=str(body.get("title") or ""),
+        sessions_per_week=int(body.get("sessions_per_week") or 1),
+        created_at=row.created_at,
+        # A withdrawn or finished prescription asked for sessions up to its change of status.
+        ended_at=None if row.status == "active" else row.updated_at,
+    )
+
+
+def session_facts(row: Session) -> SessionFacts:
+    return SessionFacts(
+        id=row.id,
+        prescription_id=row.prescription_id,
+        started_at=row.started_at,
+        end_reason=row.end_reason,
+        summary=Summary.model_validate(row.summary) if row.summary is not None else None,
+    )
+
+
+async def load_progress(
+    request: Request,
+    db: Db,
+    patient: Patient,
+    *,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    kind: ExerciseKind | None = None,
+) -> ProgressPublic:
+    """The patient's progress in [since, until); the patient must already be one the caller
+    may read (``server.deps.patient_for``). Sessions stored before the metrics existed get
+    them from their recording first (``server.routes.sessions.with_metrics``)."""
+    prescriptions = (
+        await db.scalars(select(Prescription).where(Prescription.patient_id == patient.id))
+    ).all()
+    query = select(Session).where(Session.patient_id == patient.id)
+    if until is not None:
+        query = query.where(Session.started_at < until)
+    rows = await with_metrics(request, db, list(await db.scalars(query)))
+    result = progress(
+        [prescription_facts(p) for p in prescriptions],
+        [session_facts(s) for s in rows],
+        now=utcnow(),
+        since=since,
+        until=until,
+        kind=kind,
+    )
+    return ProgressPublic(
+        **result.model_dump(),
+        patient_id=patient.id,
+        affected_side=patient.affected_side,
+        weight_kg=patient.weight_kg,
+        directions=direction_table(patient.affected_side),
+    )
+
+
+@router.get(
+    "/{patient_id}/progress",
+    response_model=ProgressPublic,
+    summary="A patient's progress and adherence",
+    responses={**UNAUTHORIZED, **NOT_FOUND, 422: {"description": "A date or kind not understood."}},
+)
+async def get_progress(
+    patient_id: Id,
+    request: Request,
+    db: Db,
+    user: TherapistOrAdmin,
+    since: Annotated[
+        str | None, Query(description="From this day (YYYY-MM-DD) or time (ISO 8601).")
+    ] = None,
+    until: Annotated[
+        str | None,
+        Query(description="Up to and including this day (YYYY-MM-DD), or before this time."),
+    ] = None,
+    kind: Annotated[
+        str | None, Query(description="One exercise type (strength, rom_assessment, …).")
+    ] = None,
+) -> ProgressPublic:
+    """Per exercise type, a series per direction; the baseline (the first ROM assessment);
+    MDC95 from the device's own repeated trials, with a change flagged real only beyond it;
+    adherence per prescription per prescribed week, never above what was prescribed. See
+    ``sessions.progress`` for how each number is made."""
+    start = parse_when("since", since)
+    end = parse_when("until", until, end_of_day=True)
+    exercise = parse_kind(kind)
+    if start is not None and end is not None and start >= end:
+        raise HTTPException(422, f"since ({since}) must be before until ({until})")
+    patient = await patient_for(db, user, patient_id)
+    return await load_progress(request, db, patient, since=start, until=end, kind=exercise)
