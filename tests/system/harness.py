@@ -246,6 +246,7 @@ async def live(system: System, token: str) -> ClientConnection:
         f"ws://127.0.0.1:{system.port}/ws/live/{system.station_id}",
         subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
         max_size=wire.MAX_MESSAGE_BYTES,
+        open_timeout=30,  # the library's 10 s is an idle machine's
     )
 
 
@@ -311,7 +312,7 @@ async def start_exercise(
     )
     result = await next_of(ws, wire.CommandResult, 10)
     assert result.request_id == "start" and result.ok, result
-    status = await status_until(ws, lambda s: s.session_id is not None, 5)
+    status = await status_until(ws, lambda s: s.session_id is not None, 15)
     return pid, ws, status
 
 
