@@ -22,9 +22,10 @@ from playwright.sync_api import (
     sync_playwright,
 )
 
+from tests.server.redis_server import redis_server, relay_url
 from tests.system.harness import stack, system
 
-__all__ = ["browser", "context", "page", "shots", "stack", "system"]
+__all__ = ["browser", "context", "page", "redis_server", "relay_url", "shots", "stack", "system"]
 
 ROOT = Path(__file__).resolve().parents[2]
 WAIT_MS = 15_000

@@ -14,12 +14,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 import httpx
+import pytest
 from PIL import Image
 from playwright.sync_api import Page, expect
 
 from server.cli import demo_prescription
 from tests.browser.a11y import assert_controls_labelled
-from tests.system.harness import System
+from tests.system.harness import STACKS, System
 
 
 def sign_in(page: Page, system: System, path: str) -> None:
@@ -83,6 +84,9 @@ def long_prescription(system: System, token: str) -> int:
     return int(r.json()["id"])
 
 
+# On both stacks: with two server processes the page and its 3D view are on the process the
+# station is not connected to.
+@pytest.mark.parametrize("stack", STACKS, indirect=True, ids=STACKS)
 def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, shots: Path) -> None:
     token = therapist_token(system)
     rx = long_prescription(system, token)
