@@ -26,8 +26,11 @@ setup: $(STAMP) $(NODE_STAMP)
 run: setup
 	$(BIN)/ankle run
 
+# Test files are shared out over TEST_WORKERS processes (pytest-xdist), a whole file to one
+# worker so that a module's server, browser or built wheel is made once. 2 fits CI's 2 cores.
+TEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 lint: setup
 	$(BIN)/ruff check .

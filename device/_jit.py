@@ -14,6 +14,7 @@ plain Python (for debugging and coverage).
 import hashlib
 import os
 import shutil
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
@@ -33,13 +34,28 @@ def _cache_dir() -> str:
     return str(base / "ankle-telerehab" / f"numba-{_source_hash()}")
 
 
+STALE_S = 7 * 24 * 3600.0
+"""A cache of other sources unused this long is dropped. Others are kept: two checkouts of
+different sources on one machine (two branches, or several people's) each keep their own,
+rather than each start deleting the other's and compiling again."""
+
+
+def _last_used(cache: Path) -> float:
+    try:
+        return max((p.stat().st_mtime for p in cache.iterdir()), default=cache.stat().st_mtime)
+    except OSError:  # removed meanwhile
+        return 0.0
+
+
 def _prune(current: str) -> None:
-    """Drop the caches of earlier sources (each is tens of MB)."""
+    """Drop the caches of earlier sources (each is tens of MB) once they are stale."""
     here = Path(current)
     if here.exists():
         return
+    now = time.time()
     for old in here.parent.glob("numba-*"):
-        shutil.rmtree(old, ignore_errors=True)
+        if now - _last_used(old) > STALE_S:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 if "NUMBA_CACHE_DIR" not in os.environ:

@@ -13,13 +13,26 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, BrowserContext, ConsoleMessage, Page, sync_playwright
+from playwright.sync_api import (
+    Browser,
+    BrowserContext,
+    ConsoleMessage,
+    Page,
+    expect,
+    sync_playwright,
+)
 
-from tests.system.harness import system
+from tests.server.redis_server import redis_server, relay_url
+from tests.system.harness import stack, system
 
-__all__ = ["browser", "context", "page", "shots", "system"]
+__all__ = ["browser", "context", "page", "redis_server", "relay_url", "shots", "stack", "system"]
 
 ROOT = Path(__file__).resolve().parents[2]
+WAIT_MS = 15_000
+"""How long a page action or an ``expect`` waits for its condition. Playwright's ``expect``
+gives up after 5 s by default: too short for a page on a loaded 2-core machine, where a
+condition that holds a second later is no failure."""
+expect.set_options(timeout=WAIT_MS)
 SCREENSHOTS = ROOT / "test-output" / "screenshots"
 CHROMIUM_FLAGS = [
     "--no-sandbox",  # CI runs as root
@@ -79,7 +92,7 @@ def page(context: BrowserContext) -> Iterator[Page]:
 
     pg.on("pageerror", lambda exc: errors.append(f"page error: {exc}"))
     pg.on("console", on_console)
-    pg.set_default_timeout(15_000)
+    pg.set_default_timeout(WAIT_MS)
     yield pg
     assert not errors, "\n".join(errors)
 

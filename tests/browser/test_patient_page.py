@@ -185,7 +185,7 @@ def test_the_patient_exercises_plays_pauses_and_stops(
 
     # The therapist's server goes away: the patient is told, in words, that nothing is lost.
     page.set_viewport_size({"width": 1400, "height": 1000})
-    system.stop(system.server)
+    system.stop_servers()
     expect(connection).to_have_text(
         "Working offline — your session is saved and will be sent later", timeout=30_000
     )

@@ -57,7 +57,7 @@ def run_one_session(system: System) -> dict[str, Any]:
         "--device",
         system.device.link,
         "--server",
-        system.url,
+        system.station_url,
         "--spool",
         str(system.spool),
         "--autostart",

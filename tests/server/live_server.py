@@ -37,6 +37,7 @@ Store = Literal["sqlite", "postgres"]
 STORES: tuple[Store, ...] = ("sqlite", "postgres")
 
 PASSWORD = "correct horse battery"
+CLIENT_TIMEOUT_S = 60.0
 STRENGTH: dict[str, Any] = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
 
 
@@ -70,7 +71,10 @@ async def running(
         await asyncio.sleep(0.005)
     port = server.servers[0].sockets[0].getsockname()[1]
     try:
-        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}/api/v1") as client:
+        # httpx's default 5 s read timeout is an idle machine's: a loaded one answers later.
+        async with httpx.AsyncClient(
+            base_url=f"http://127.0.0.1:{port}/api/v1", timeout=CLIENT_TIMEOUT_S
+        ) as client:
             yield Live(app, client, settings)
     finally:
         server.should_exit = True

@@ -40,7 +40,17 @@ from websockets.exceptions import InvalidStatus
 from server.config import Settings
 from server.routes import API_PREFIX
 from sessions.recording import SAMPLE_DTYPE
-from tests.server.live_server import PASSWORD, STRENGTH, Live, World, bearer, copy_seeded, running
+from tests.server.live_server import (
+    PASSWORD,
+    STRENGTH,
+    Live,
+    Seeds,
+    Store,
+    World,
+    bearer,
+    on_store,
+    running,
+)
 from tests.server.test_series import recording_bytes, upload
 from tests.server.ws_client import station_ws, viewer_ws, ws_url
 from webui.app import create_app  # what `ankle server` runs: the API with the dashboard
@@ -314,12 +324,13 @@ def test_websocket_and_unlisted_routes_are_listed(tmp_path: Path) -> None:
 
 
 @pytest_asyncio.fixture
-async def served(seeded: tuple[Path, World], tmp_path: Path) -> AsyncIterator[Live]:
+async def served(
+    seeds: Seeds, store: Store, seeded_store: tuple[Path | str, World], tmp_path: Path
+) -> AsyncIterator[Live]:
     """``ankle server``'s app (API and dashboard) on a private copy of the seeded database."""
-    template, _ = seeded
-    settings = Settings(data_dir=copy_seeded(template, tmp_path))
-    async with running(settings, create_app) as server:
-        yield server
+    with on_store(seeds, store, tmp_path, seeded_store[0]) as settings:
+        async with running(settings, create_app) as server:
+            yield server
 
 
 def short_recording() -> np.ndarray[Any, Any]:
@@ -356,6 +367,7 @@ async def call(
     )
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_every_route_answers_every_identity_as_the_table_says(
     served: Live, records: Records
@@ -432,6 +444,7 @@ async def test_routes_outside_openapi_show_nothing_without_a_token(
 
 
 # -- what the lists hold ------------------------------------------------------------------------
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_lists_show_only_the_callers_patients(live: Live, world: World) -> None:
     async def ids(path: str, who: str) -> set[int]:
@@ -449,6 +462,7 @@ async def test_lists_show_only_the_callers_patients(live: Live, world: World) ->
     assert await ids(f"/stations?patient_id={world.p2}", "t1") == set()
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_a_station_sees_only_its_own_patient(live: Live, world: World) -> None:
     me = (await live.client.get("/station/me", headers=bearer(world.s1))).json()
@@ -463,6 +477,7 @@ async def test_a_station_sees_only_its_own_patient(live: Live, world: World) -> 
     assert rx[0]["body"]["exercise"] == "strength"
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_station_last_seen_and_online(live: Live, world: World) -> None:
     before = (await live.client.get("/stations", headers=bearer(world.t1))).json()

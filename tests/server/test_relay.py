@@ -17,6 +17,7 @@ import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import AsyncExitStack, asynccontextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +31,13 @@ from sessions.recording import SessionEvent
 from tests.server.live_server import (
     STRENGTH,
     Live,
+    Seeds,
+    Store,
     World,
     bearer,
     copy_seeded,
     login,
+    on_store,
     running,
 )
 from tests.server.redis_server import free_port, spawned_redis
@@ -56,18 +60,44 @@ def settings(data_dir: Path, relay_url: str) -> Settings:
     return Settings(data_dir=data_dir, relay_url=relay_url, relay_lease_s=LEASE_S)
 
 
+@dataclass(frozen=True)
+class Shared:
+    """What two server processes share in a test: a copy of the seeded world on the test's
+    store, and the relay."""
+
+    seeds: Seeds
+    store: Store
+    seeded: tuple[Path | str, World]
+    tmp_path: Path
+    relay_url: str
+
+    @property
+    def world(self) -> World:
+        return self.seeded[1]
+
+
+@pytest.fixture
+def shared(
+    seeds: Seeds,
+    store: Store,
+    seeded_store: tuple[Path | str, World],
+    tmp_path: Path,
+    relay_url: str,
+) -> Shared:
+    return Shared(seeds, store, seeded_store, tmp_path, relay_url)
+
+
 @asynccontextmanager
-async def two_servers(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
-) -> AsyncIterator[tuple[Live, Live]]:
-    data_dir = copy_seeded(seeded[0], tmp_path / "data")
-    async with (
-        running(settings(data_dir, relay_url)) as a,
-        running(settings(data_dir, relay_url)) as b,
-    ):
-        assert a.app.state.hub is not b.app.state.hub
-        assert a.app.state.hub.relay is not b.app.state.hub.relay
-        yield a, b
+async def two_servers(shared: Shared) -> AsyncIterator[tuple[Live, Live]]:
+    """Two servers on one copy of the seeded world (a SQLite file or a PostgreSQL database)
+    and one Redis."""
+    data_dir = shared.tmp_path / "data"
+    with on_store(shared.seeds, shared.store, data_dir, shared.seeded[0]) as base:
+        relayed = base.model_copy(update={"relay_url": shared.relay_url, "relay_lease_s": LEASE_S})
+        async with running(relayed) as a, running(relayed) as b:
+            assert a.app.state.hub is not b.app.state.hub
+            assert a.app.state.hub.relay is not b.app.state.hub.relay
+            yield a, b
 
 
 async def next_where(
@@ -132,13 +162,14 @@ def command(request_id: str) -> str:
     ).model_dump_json()
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
-    world = seeded[1]
+    world = shared.world
     async with (
-        two_servers(seeded, tmp_path, relay_url) as (a, b),
+        two_servers(shared) as (a, b),
         station_ws(a, world.s1) as station,
     ):
         await welcomed(station)
@@ -190,12 +221,13 @@ async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
             await until_online(live, world.t1, world.s1_id, False)
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_a_prescription_edited_on_one_process_reaches_the_station_on_another(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
-    world = seeded[1]
-    async with two_servers(seeded, tmp_path, relay_url) as (a, b), station_ws(b, world.s1) as ws:
+    world = shared.world
+    async with two_servers(shared) as (a, b), station_ws(b, world.s1) as ws:
         await welcomed(ws)
         first = await next_where(ws, is_(wire.Prescriptions), wire.STATION_DOWN)
         assert [p.id for p in first.items] == [world.rx1]
@@ -208,13 +240,14 @@ async def test_a_prescription_edited_on_one_process_reaches_the_station_on_anoth
         assert pushed.items[0].body.repetitions == STRENGTH["repetitions"] + 1
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_a_station_revoked_on_one_process_is_closed_on_another_and_refused(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
-    world = seeded[1]
+    world = shared.world
     async with (
-        two_servers(seeded, tmp_path, relay_url) as (a, b),
+        two_servers(shared) as (a, b),
         station_ws(b, world.s1) as ws,
         viewer_ws(a, world.t1, world.s1_id) as view,
     ):
@@ -232,12 +265,13 @@ async def test_a_station_revoked_on_one_process_is_closed_on_another_and_refused
         assert (refused.ok, refused.code) == (False, "OFFLINE")
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_a_logout_on_one_process_closes_the_view_on_another(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
-    world = seeded[1]
-    async with two_servers(seeded, tmp_path, relay_url) as (a, b):
+    world = shared.world
+    async with two_servers(shared) as (a, b):
         token = await login(a.client, "t1@clinic.test")
         async with (
             viewer_ws(b, token, world.s1_id) as ended,
@@ -255,13 +289,14 @@ async def test_a_logout_on_one_process_closes_the_view_on_another(
             await next_where(kept, is_(wire.Welcome))
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_the_station_connecting_to_another_process_replaces_its_old_link(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
-    world = seeded[1]
+    world = shared.world
     async with (
-        two_servers(seeded, tmp_path, relay_url) as (a, b),
+        two_servers(shared) as (a, b),
         viewer_ws(a, world.t1, world.s1_id) as view,
     ):
         await next_where(view, is_(wire.Welcome))
@@ -389,15 +424,16 @@ async def test_a_process_that_stops_tells_the_others_its_stations_went_offline(
         await until_online(a, world.t1, world.s1_id, False)
 
 
+@pytest.mark.both_stores
 @pytest.mark.asyncio
 async def test_an_unanswered_command_ends_once_on_the_station_s_process(
-    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+    shared: Shared,
 ) -> None:
     """The station's process keeps the timer (TIMEOUT) and hears the link end (OFFLINE); the
     viewer on the other process is told, and each command has one outcome row."""
-    world = seeded[1]
+    world = shared.world
     async with (
-        two_servers(seeded, tmp_path, relay_url) as (a, b),
+        two_servers(shared) as (a, b),
         viewer_ws(b, world.t1, world.s1_id) as view,
     ):
         await next_where(view, is_(wire.Welcome))

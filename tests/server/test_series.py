@@ -31,6 +31,8 @@ from sessions.recording import (
 from station.uploader import CHUNK
 from tests.server.live_server import Live, World, bearer
 
+pytestmark = pytest.mark.both_stores
+
 HZ = 100.0
 N = 18_000  # 3 min at 100 Hz
 PITCH = AXIS_INDEX["pitch"]

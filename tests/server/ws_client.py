@@ -30,7 +30,7 @@ async def station_ws(
         additional_headers={"Authorization": f"Bearer {token}", **(headers or {})},
         max_size=None,  # the test reads what the server sends, whatever its size
         ping_interval=None,
-        open_timeout=5,
+        open_timeout=30,  # a loaded machine's server answers late, not never
     ) as ws:
         yield ws
 
@@ -44,7 +44,7 @@ async def viewer_ws(
         subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
         additional_headers=headers,
         ping_interval=None,
-        open_timeout=5,
+        open_timeout=30,  # a loaded machine's server answers late, not never
     ) as ws:
         yield ws
 

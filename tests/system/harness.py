@@ -2,6 +2,14 @@
 
 Nothing is in-process but the test's own clients (httpx for REST, websockets for the live
 view), so what is tested is what ``make run`` starts.
+
+It runs on one of two stacks (``STACKS``; tests/system's conftest runs each system test on
+both):
+
+- ``sqlite-local``: one server process on a SQLite file, with the in-process relay;
+- ``pg-redis-2proc``: two server processes sharing a PostgreSQL database, a Redis relay and
+  the data directory. The station connects to the first; the therapist's API and live view
+  use the second, so everything the therapist sees of the station crossed processes.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import httpx
 import pytest
@@ -29,6 +37,7 @@ from device.process import ServiceProcess
 from server.cli import provision_demo, wait_healthy
 from server.config import Settings
 from sessions import wire
+from tests.server.postgres import Cluster
 
 M = TypeVar("M")
 
@@ -62,20 +71,40 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+Stack = Literal["sqlite-local", "pg-redis-2proc"]
+STACKS: tuple[Stack, ...] = ("sqlite-local", "pg-redis-2proc")
+RELAY_LEASE_S = 3.0
+"""A station's presence lease on the Redis relay: short, so a killed server's stations go
+offline within a test's patience, long enough for a loaded machine to refresh it."""
+
+
 @dataclass
 class System:
+    """The running system. ``port`` is the server the therapist uses (API, dashboard, live
+    view); ``station_port`` the one the station connects to: the same on one process."""
+
     data_dir: Path
     port: int
     creds: dict[str, Any]
     device: ServiceProcess
-    server: subprocess.Popen[bytes] | None = None
+    station_port: int = 0
+    server_env: dict[str, str] = field(default_factory=dict)
+    """The store and relay every server process shares (empty: SQLite in data_dir, local)."""
+    servers: list[subprocess.Popen[bytes]] = field(default_factory=list)
     station: subprocess.Popen[bytes] | None = None
     logs: list[Path] = field(default_factory=list)
     page_port: int = 0
 
+    def __post_init__(self) -> None:
+        self.station_port = self.station_port or self.port
+
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def station_url(self) -> str:
+        return f"http://127.0.0.1:{self.station_port}"
 
     @property
     def station_id(self) -> int:
@@ -92,16 +121,20 @@ class System:
                 stderr=subprocess.STDOUT,
             )
 
-    def start_server(self) -> None:
-        self.server = self._spawn(
-            "server",
-            "server",
-            env={
-                "ANKLE_DATA_DIR": str(self.data_dir / "server"),
-                "ANKLE_PORT": str(self.port),
-            },
-        )
-        wait_healthy(self.url, self.server, timeout=30.0)
+    def start_servers(self) -> None:
+        """Start the server processes (all at once) and wait until each answers."""
+        ports = list(dict.fromkeys((self.station_port, self.port)))
+        env = {"ANKLE_DATA_DIR": str(self.data_dir / "server"), **self.server_env}
+        self.servers = [
+            self._spawn("server", "server", env={**env, "ANKLE_PORT": str(port)}) for port in ports
+        ]
+        for port, proc in zip(ports, self.servers, strict=True):
+            wait_healthy(f"http://127.0.0.1:{port}", proc, timeout=90.0)
+
+    def stop_servers(self, sig: int = signal.SIGTERM) -> None:
+        """Stop every server process with ``sig`` (SIGKILL: as a crash or a power cut)."""
+        for proc in self.servers:
+            self.stop(proc, sig)
 
     def start_station(self, *args: str) -> None:
         """Start the station; ``args`` are more of its options (``--hold-limit 3``)."""
@@ -113,7 +146,7 @@ class System:
             "--device",
             self.device.link,
             "--server",
-            self.url,
+            self.station_url,
             "--spool",
             str(self.spool),
             "--page-port",
@@ -145,22 +178,50 @@ class System:
 
 
 @pytest.fixture
-def system(tmp_path: Path) -> Iterator[System]:
+def stack(request: pytest.FixtureRequest) -> Stack:
+    """The stack a system test runs on: ``sqlite-local`` unless parametrized (see STACKS)."""
+    chosen: Stack = getattr(request, "param", "sqlite-local")
+    return chosen
+
+
+def _server_env(stack: Stack, request: pytest.FixtureRequest) -> dict[str, str]:
+    """What every server process of ``stack`` is given: a new PostgreSQL database and an
+    emptied Redis database of this test's own, or nothing (SQLite, in-process relay)."""
+    if stack == "sqlite-local":
+        return {}
+    cluster: Cluster = request.getfixturevalue("pg_cluster")
+    name = cluster.create_database()
+    request.addfinalizer(lambda: cluster.drop_database(name))
+    return {
+        "ANKLE_DATABASE_URL": cluster.url(name),
+        "ANKLE_RELAY_URL": request.getfixturevalue("relay_url"),
+        "ANKLE_RELAY_LEASE_S": f"{RELAY_LEASE_S:g}",
+    }
+
+
+@pytest.fixture
+def system(tmp_path: Path, stack: Stack, request: pytest.FixtureRequest) -> Iterator[System]:
     port = free_port()
+    station_port = free_port() if stack == "pg-redis-2proc" else port
+    server_env = _server_env(stack, request)
+    settings = Settings(
+        data_dir=tmp_path / "server",
+        port=port,
+        database_url=server_env.get("ANKLE_DATABASE_URL", ""),
+    )
     # In a thread: Playwright's sync API keeps an event loop running in this one.
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
-        creds = pool.submit(
-            provision_demo, Settings(data_dir=tmp_path / "server", port=port)
-        ).result()
-    device = ServiceProcess("--link", "pty", "--patient-torque", "3")
-    sysm = System(tmp_path, port, creds, device)
+        creds = pool.submit(provision_demo, settings).result()
+    # A generous start: the first start compiles, slowly on a loaded machine.
+    device = ServiceProcess("--link", "pty", "--patient-torque", "3", start_timeout=600.0)
+    sysm = System(tmp_path, port, creds, device, station_port, server_env)
     try:
-        sysm.start_server()
+        sysm.start_servers()
         yield sysm
     finally:
         sysm.stop(sysm.station)
         device.stop()
-        sysm.stop(sysm.server)
+        sysm.stop_servers()
 
 
 @pytest_asyncio.fixture
@@ -187,6 +248,7 @@ async def live(system: System, token: str) -> ClientConnection:
         f"ws://127.0.0.1:{system.port}/ws/live/{system.station_id}",
         subprotocols=[wire.SUBPROTOCOL, f"{wire.BEARER_PREFIX}{token}"],  # type: ignore[list-item]
         max_size=wire.MAX_MESSAGE_BYTES,
+        open_timeout=30,  # the library's 10 s is an idle machine's
     )
 
 
@@ -257,7 +319,7 @@ async def start_exercise(
     )
     result = await next_of(ws, wire.CommandResult, 10)
     assert result.request_id == "start" and result.ok, result
-    status = await status_until(ws, lambda s: s.session_id is not None, 5)
+    status = await status_until(ws, lambda s: s.session_id is not None, 15)
     return pid, ws, status
 
 
