@@ -36,9 +36,11 @@ from reportlab.platypus import (
 )
 from reportlab.platypus.doctemplate import BaseDocTemplate
 
+from sessions.anatomy import label
 from sessions.measures import Measure
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
-from sessions.record import Adherence, PatientRecord, Session, ended_early
+from sessions.progress import PrescriptionAdherence, Progress
+from sessions.record import PatientRecord, Session, ended_early
 
 TITLE = "Ankle rehabilitation report"
 _SIDE = {"left": "Left", "right": "Right", "both": "Both"}
@@ -178,16 +180,65 @@ def _chart(rows: Sequence[Trend], title: str) -> Drawing:
     return drawing
 
 
-def _adherence_rows(rows: Sequence[Adherence]) -> list[list[Any]]:
+def _adherence_rows(rows: Sequence[PrescriptionAdherence]) -> list[list[Any]]:
+    """Per prescription, over its prescribed weeks that are over in the period (the week in
+    progress misses nothing yet): never more completed than prescribed."""
     return [
         [
-            _p(a.title),
-            str(a.done),
-            "not set" if a.prescribed is None else str(a.prescribed),
+            _p(a.title or exercise_name(a.exercise)),
+            f"{a.sessions_per_week}",
+            str(a.prescribed),
+            str(a.completed),
+            str(a.extra),
             str(a.ended_early),
+            str(a.missed),
+            "" if a.percent is None else f"{a.percent:.0f} %",
         ]
         for a in rows
     ]
+
+
+def baseline_section(progress: Progress, side: str | None) -> list[Flowable]:
+    """Active range per direction in the ROM assessments against the first one, each change
+    judged against the MDC95 of the device's own repeated trials."""
+    out: list[Flowable] = [Paragraph("Range of motion against the baseline", _H2)]
+    if progress.baseline is None:
+        return [*out, _p("No ROM assessment yet: there is no baseline.", _BODY)]
+    out.append(_p(f"Baseline: the first ROM assessment, {_date(progress.baseline.at)}.", _BODY))
+    mdc = {(m.axis, m.sign): m for m in progress.mdc}
+    rows: list[list[Any]] = []
+    for ex in progress.exercises:
+        if ex.exercise != ExerciseKind.ROM_ASSESSMENT:
+            continue
+        for m in ex.measures:
+            if m.baseline is None or not m.points or m.sign == 0:
+                continue
+            last = m.points[-1]
+            limit = mdc.get((m.axis, m.sign))
+            judged = (
+                "not enough repeated trials yet"
+                if last.real_change is None
+                else ("beyond MDC95: a real change" if last.real_change else "within MDC95")
+            )
+            rows.append(
+                [
+                    _p(label(m.axis, m.sign, side)),  # type: ignore[arg-type]
+                    value_text(m.baseline, "deg"),
+                    f"{value_text(last.value, 'deg')} ({_date(last.at)})",
+                    "" if last.change is None else f"{last.change:+.1f}°",
+                    _p(limit.text if limit is not None else ""),
+                    _p(judged),
+                ]
+            )
+    if rows:
+        out.append(
+            _table(
+                ["Direction", "Baseline", "Latest", "Change", "MDC95", "Judged"],
+                rows,
+                [38 * mm, 18 * mm, 32 * mm, 16 * mm, 40 * mm, 28 * mm],
+            )
+        )
+    return out
 
 
 def _measures_text(measures: list[Measure]) -> str:
@@ -306,12 +357,28 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
     else:
         story.append(_p("No prescriptions in force during this period.", _BODY))
     story.append(Paragraph("Sessions done against prescribed", _H2))
-    if record.adherence:
+    if record.progress.adherence:
         story.append(
             _table(
-                ["Prescription", "Done", "Prescribed", "Ended early"],
-                _adherence_rows(record.adherence),
-                [80 * mm, 25 * mm, 25 * mm, 25 * mm],
+                [
+                    "Prescription",
+                    "Per week",
+                    "Prescribed",
+                    "Completed",
+                    "Extra",
+                    "Ended early",
+                    "Missed",
+                    "Done",
+                ],
+                _adherence_rows(record.progress.adherence),
+                [50 * mm, 16 * mm, 19 * mm, 19 * mm, 13 * mm, 19 * mm, 15 * mm, 15 * mm],
+            )
+        )
+        story.append(
+            _p(
+                "Counted per prescribed week (from the day it was prescribed), over the weeks "
+                "that are over; sessions beyond those prescribed are extra.",
+                _BODY,
             )
         )
     n = len(record.sessions)
@@ -328,6 +395,7 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
     else:
         story.append(_p("No sessions in this period.", _BODY))
     story += progress_section(trends(record) if progress is None else progress)
+    story += baseline_section(record.progress, record.patient.affected_side)
     story.append(Paragraph("Notable events", _H2))
     events = _event_rows(record)
     if events:

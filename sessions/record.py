@@ -12,6 +12,7 @@ from datetime import date, datetime, timedelta
 from typing import Any
 
 from sessions.measures import Measure, measures
+from sessions.progress import Progress
 
 EARLY_END_REASONS = ("stopped", "fault", "interrupted")
 """How a session ended before its prescription did (``completed`` is the only other)."""
@@ -51,18 +52,6 @@ class Session:
 
 
 @dataclass(frozen=True)
-class Adherence:
-    """Sessions done against sessions prescribed, for one prescription over the period."""
-
-    prescription_id: int
-    title: str
-    done: int
-    prescribed: int | None
-    """None when the prescription does not say how often."""
-    ended_early: int
-
-
-@dataclass(frozen=True)
 class PatientRecord:
     """One patient over one period: what both exports are made from."""
 
@@ -75,7 +64,9 @@ class PatientRecord:
     prescriptions: list[Prescription]
     sessions: list[Session]
     """Oldest first."""
-    adherence: list[Adherence]
+    progress: Progress
+    """Adherence per prescribed week, the baseline and the MDC95 (:mod:`sessions.progress`,
+    the same computation the patient's page shows)."""
 
     @property
     def days(self) -> tuple[date, date]:
@@ -92,37 +83,3 @@ class PatientRecord:
 
 def ended_early(session: Session) -> bool:
     return session.end_reason in EARLY_END_REASONS
-
-
-def adherence(
-    prescriptions: list[Prescription],
-    ends: dict[int, datetime | None],
-    sessions: list[Session],
-    since: datetime,
-    until: datetime,
-) -> list[Adherence]:
-    """Per prescription: sessions done in the period against those its weekly frequency
-    asked for while it was in force within the period (from its creation to ``ends[id]``,
-    None while active).
-
-    A plain count; the progress module's weekly adherence can take its place without
-    changing the report, which shows whatever :class:`Adherence` rows it is given."""
-    rows: list[Adherence] = []
-    for p in prescriptions:
-        done = [s for s in sessions if s.prescription_id == p.id]
-        start = max(since, p.created_at)
-        end = min(until, ends.get(p.id) or until)
-        days = max(0.0, (end - start).total_seconds() / 86400)
-        prescribed = (
-            round(p.sessions_per_week * days / 7) if p.sessions_per_week is not None else None
-        )
-        rows.append(
-            Adherence(
-                prescription_id=p.id,
-                title=p.title,
-                done=len(done),
-                prescribed=prescribed,
-                ended_early=sum(ended_early(s) for s in done),
-            )
-        )
-    return rows

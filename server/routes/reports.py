@@ -15,7 +15,7 @@ import re
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from sqlalchemy import select
 
 from server import audit
@@ -23,6 +23,7 @@ from server.deps import Db, Id, TherapistOrAdmin, patient_for
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.progress import load_progress
 from sessions import fhir, record
 
 router = APIRouter(prefix="/patients", tags=["reports"])
@@ -94,9 +95,13 @@ def _start(day: date) -> datetime:
     return datetime.combine(day, time(), tzinfo=UTC)
 
 
-async def patient_record(db: Db, patient: Patient, first: date, last: date) -> record.PatientRecord:
-    """The patient's prescriptions in force and sessions started within the days."""
+async def patient_record(
+    request: Request, db: Db, patient: Patient, first: date, last: date
+) -> record.PatientRecord:
+    """The patient's prescriptions in force and sessions started within the days, and their
+    progress over those days (the same as the patient's page shows)."""
     since, until = _start(first), _start(last + timedelta(days=1))
+    progress = await load_progress(request, db, patient, since=since, until=until)
     prescriptions = (
         await db.scalars(
             select(Prescription)
@@ -156,7 +161,7 @@ async def patient_record(db: Db, patient: Patient, first: date, last: date) -> r
         generated_at=utcnow(),
         prescriptions=rxs,
         sessions=sessions,
-        adherence=record.adherence(rxs, ends, sessions, since, until),
+        progress=progress,
     )
 
 
@@ -205,14 +210,19 @@ def _attachment(body: bytes, media_type: str, name: str) -> Response:
     },
 )
 async def report_pdf(
-    patient_id: Id, db: Db, user: TherapistOrAdmin, since: Since = None, until: Until = None
+    patient_id: Id,
+    request: Request,
+    db: Db,
+    user: TherapistOrAdmin,
+    since: Since = None,
+    until: Until = None,
 ) -> Response:
     """Patient, period, prescriptions, sessions done against prescribed, each session's
     range of motion per direction, torque and work, their trend, notable events (faults,
     holds, early ends) and a signature block. Audited as ``patient.export`` (format pdf)."""
     patient = await patient_for(db, user, patient_id)
     first, last = period(since, until)
-    data = await patient_record(db, patient, first, last)
+    data = await patient_record(request, db, patient, first, last)
     body = await asyncio.to_thread(pdf, data)
     await _exported(db, user, patient, "pdf", first, last, sessions=len(data.sessions))
     return _attachment(body, "application/pdf", file_name(patient, first, last, ".pdf"))
@@ -233,14 +243,19 @@ async def report_pdf(
     },
 )
 async def report_fhir(
-    patient_id: Id, db: Db, user: TherapistOrAdmin, since: Since = None, until: Until = None
+    patient_id: Id,
+    request: Request,
+    db: Db,
+    user: TherapistOrAdmin,
+    since: Since = None,
+    until: Until = None,
 ) -> Response:
     """Codes: the project's session-measures code system (docs/measures.md), SNOMED CT for
     the body site, laterality and a passive range-of-motion assessment. Audited as
     ``patient.export`` (format fhir)."""
     patient = await patient_for(db, user, patient_id)
     first, last = period(since, until)
-    data = await patient_record(db, patient, first, last)
+    data = await patient_record(request, db, patient, first, last)
     bundle = fhir.bundle(data)
     await _exported(
         db,

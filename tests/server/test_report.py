@@ -15,7 +15,9 @@ import pytest
 from fhir.resources.R4B.bundle import Bundle
 from numpy.typing import NDArray
 from pypdf import PdfReader
+from sqlalchemy import update
 
+from server.models import Prescription
 from sessions.anatomy import LABELS
 from sessions.fhir import LATERALITY_EXTENSION
 from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
@@ -95,6 +97,14 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
         f"/patients/{world.p1}", json={"reference": "CL 7/ä", "birth_year": 1950}, headers=t1
     )
     assert r.status_code == 200, r.text
+    # Prescribed two weeks ago: week 1 holds the completed session, week 2 the one ended early.
+    async with live.app.state.sessionmaker() as db:
+        await db.execute(
+            update(Prescription)
+            .where(Prescription.patient_id == world.p1)
+            .values(created_at=datetime.now(UTC) - timedelta(days=14))
+        )
+        await db.commit()
     first, _ = await two_sessions(live, world)
     since, until = first - timedelta(days=1), TODAY
     r = await live.client.get(
@@ -115,8 +125,9 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
     assert f"{LABELS['plantarflexion']}: {PEAK_DEG:.1f}°" in text
     assert f"{LABELS['dorsiflexion']}: {-TROUGH_DEG:.1f}°" in text
     assert f"Peak torque about the pitch axis: {abs(TORQUE_PEAK_NM):.1f} N·m" in text
-    # Sessions done against prescribed: 2 done; 5 a week over the days it was in force.
-    assert re.search(r"Strength \(resistive\) 2 \d+ 1", text), text
+    # Per prescribed week that is over (5 a week, two weeks): 1 completed, none extra, 1 ended
+    # early, 8 missed, 10 % done: the same computation as the patient's page.
+    assert "Strength (resistive) 5 10 1 0 1 8 10 %" in text, text
     # The trend: the peak plantarflexion grew with the second session's larger angles.
     assert "Progress over the period" in text
     # Notable events: the second session's hold, fault and early end.
