@@ -51,7 +51,8 @@ class StationConfig:
     station set to start at a fixed time)."""
     baud: int = 921600
     repeat_after_s: float | None = None
-    """With ``autostart``: start it again this long after each session ends (the demo)."""
+    """With ``autostart``: start it again this long after each session that finished whole
+    (the demo). A stop, from anyone, ends the repeats until the next start."""
     hold_limit_s: float = HOLD_LIMIT_S
     """An exercise held (paused, HOLD, or held by the device) this long is ended: the
     platform goes home and the session closes ``interrupted`` with the reason."""
@@ -79,6 +80,10 @@ class Station:
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
+        self._repeat_task: asyncio.Task[None] | None = None
+        self.starts_again_at: float | None = None
+        """When the demo starts its exercise again by itself (wall clock), or None."""
+        self._repeating = config.autostart and config.repeat_after_s is not None
         self._last_phase: wire.Phase = "idle"
         self._segment_base = max(1, int(time.time()) & 0xFFFF)
 
@@ -103,6 +108,7 @@ class Station:
             await self._shutdown()
 
     async def _shutdown(self) -> None:
+        self._repeats(False)
         if self.run_ is not None:
             self.run_.stop()
         if self.dev is not None:
@@ -274,11 +280,31 @@ class Station:
         if end is not None:
             self.uploader.skip(None)
             self.uploader.wake()
+        after = self.config.repeat_after_s
+        if self._repeating and run.phase == "done" and after is not None:
+            # Known before the status that says "done" goes out: the page says both at once.
+            self.starts_again_at = time.time() + after
+            self._repeat_task = asyncio.create_task(self._repeat(after), name="demo-repeat")
         self._status_dirty.set()
-        if self.config.autostart and self.config.repeat_after_s is not None:
-            await asyncio.sleep(self.config.repeat_after_s)
-            self._started = False
-            self._autostart()
+
+    async def _repeat(self, after_s: float) -> None:
+        try:
+            await asyncio.sleep(after_s)
+        finally:
+            self.starts_again_at = None
+        self._started = False
+        self._autostart()
+
+    def _repeats(self, on: bool) -> None:
+        """A start lets the demo repeat again, a stop ends its repeats; either way a repeat
+        waiting to start is off: the platform never moves by itself after the patient
+        pressed STOP, nor starts a second exercise over one started by hand."""
+        self._repeating = on and self.config.autostart and self.config.repeat_after_s is not None
+        if self._repeat_task is not None:
+            self._repeat_task.cancel()
+            self._repeat_task = None
+            self.starts_again_at = None
+            self._status_dirty.set()
 
     # -- server messages -----------------------------------------------------------------
     async def _on_server(self, message: Any) -> None:
@@ -308,7 +334,11 @@ class Station:
 
         if cmd.action == "start":
             why = self.start(cmd.prescription_id or 0)
+            if not why:
+                self._repeats(True)
             return result(not why, "REFUSED" if why else "", "prescription_id", why)
+        if cmd.action == "stop":
+            self._repeats(False)  # whatever else happens: nothing starts by itself now
         if dev is None:
             return result(False, "OFFLINE", "", "the platform is not connected")
         try:

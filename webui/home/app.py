@@ -86,6 +86,9 @@ class PatientStation(Protocol):
 
     def progress(self) -> tuple[int, int]: ...
 
+    @property
+    def starts_again_at(self) -> float | None: ...
+
 
 # -- what the page shows -----------------------------------------------------------------------
 def today(items: list[wire.PrescriptionItem]) -> Today:
@@ -129,6 +132,7 @@ def page_status(station: PatientStation) -> PageStatus:
         reps_done=reps_done,
         rest_remaining_s=s.rest_remaining_s,
         message=s.message,
+        starts_again_at=station.starts_again_at,
         hold=s.hold,
     )
 

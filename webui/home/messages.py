@@ -61,6 +61,11 @@ class PageStatus(BaseModel):
     reps_done: int
     rest_remaining_s: float
     message: str
+    starts_again_at: float | None = Field(
+        default=None,
+        description="The demo starts its exercise again by itself at this time (UNIX "
+        "seconds); None when nothing will start without the patient.",
+    )
     hold: wire.HoldInfo | None = Field(
         description="Why the platform holds: the patient's own pause, or something else that "
         "only the therapist (or the station's limit) ends."

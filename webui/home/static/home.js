@@ -251,6 +251,12 @@ function todoWords() {
         "The exercise ended because the platform was stopped for too long. You can start again when you are ready, or call your therapist.",
       ];
     case "done":
+      if (status.starts_again_at) {
+        return [
+          "ok",
+          `Well done! Today's exercise is finished. This demonstration starts again by itself ${endsIn(status.starts_again_at)}; press STOP to keep the platform still.`,
+        ];
+      }
       return ["ok", "Well done! Today's exercise is finished."];
     case "stopped":
       return ["warn", "The exercise was stopped. You can start again when you are ready."];
