@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any
 
 from device.client import CommandRefused, DeviceClient, DeviceError
-from device.protocol import messages as msg
-from device.protocol.messages import DeviceMode, EventKind
+from device.protocol.messages import DeviceMode
 from sessions import wire
-from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
+from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
+from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import BATCH_HZ, PrescriptionItem
 from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
@@ -181,7 +181,9 @@ class Station:
                 if wall - last_flush >= FLUSH_S:
                     self.writer.flush_soon()
                     last_flush = wall
-            self.link.send_sample(_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0)
+            self.link.send_sample(
+                telemetry_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0
+            )
 
     async def _events(self, dev: DeviceClient) -> None:
         async for e in dev.events():
@@ -191,21 +193,7 @@ class Station:
             self.reasons.device_event(e, time.time() - lag)
             if self.run_ is not None:
                 self.run_.device_event(e)
-            self._event(
-                SessionEvent(
-                    wall=time.time(),
-                    t=e.time,
-                    kind=_EVENT_KINDS.get(e.kind, e.kind.name.lower()),
-                    by="device",
-                    detail={
-                        "from": e.mode_from.name,
-                        "to": e.mode_to.name,
-                        "code": e.code,
-                        "value": e.value,
-                        "text": e.text,
-                    },
-                )
-            )
+            self._event(device_event(e, time.time()))
             self._status_dirty.set()
 
     def _event(self, event: SessionEvent) -> None:
@@ -238,7 +226,7 @@ class Station:
             patient_id=item.patient_id,
             prescription_id=item.id,
             prescription=item.body.model_dump(mode="json"),
-            device=_device_info(hello),
+            device=device_info(hello),
             software=SOFTWARE,
             started_at=time.time(),
         )
@@ -433,7 +421,7 @@ class Station:
         return wire.StationHello(
             protocol=wire.PROTOCOL,
             software=SOFTWARE,
-            device=_device_info(hello) if hello else None,
+            device=device_info(hello) if hello else None,
         )
 
     def _hold(self) -> wire.HoldInfo | None:
@@ -538,46 +526,3 @@ def _fsync_dup(fd: int) -> None:
 def _sync_done(future: asyncio.Future[None]) -> None:
     if not future.cancelled() and future.exception() is not None:
         log.error("cannot sync the session file: %s", future.exception())
-
-
-_EVENT_KINDS = {
-    EventKind.MODE_CHANGE: "mode",
-    EventKind.WATCHDOG: "watchdog",
-    EventKind.LIMIT: "limit",
-    EventKind.FAULT: "fault",
-    EventKind.SEGMENT_DONE: "segment_done",
-    EventKind.HOMED: "homed",
-    EventKind.ESTOP: "estop",
-}
-
-
-def _device_info(hello: msg.DeviceHello) -> DeviceInfo:
-    return DeviceInfo(
-        firmware=hello.firmware,
-        hardware=hello.hardware,
-        telemetry_hz=hello.telemetry_hz,
-        home_pose=list(hello.home_pose),
-    )
-
-
-def _sample(t: msg.Telemetry, s: int, r: int) -> dict[str, Any]:
-    """One sample's fields as :class:`~sessions.wire.TelemetryMsg` names them (its batch
-    gives the ``sent``); validated when its batch is made."""
-    return {
-        "t": t.time,
-        "mode": t.mode.name,
-        "trip": int(t.trip),
-        "segment_id": t.segment_id,
-        "set": s,
-        "rep": r,
-        "pose": list(t.pose),
-        "pose_cmd": list(t.pose_cmd),
-        "legs": list(t.legs),
-        "pressures": list(t.pressures),
-        "wrench": list(t.wrench),
-        "stiffness": list(t.stiffness),
-        "damping": list(t.damping),
-        "lag_ms": t.pacing_lag_ms,
-        "overruns": t.overruns,
-        "frames_dropped": t.frames_dropped,
-    }
