@@ -39,7 +39,7 @@ def test_events_are_named_as_sessions_name_them() -> None:
 
 
 def test_the_device_a_session_ran_on() -> None:
-    hello = m.DeviceHello(firmware="fw 1", hardware="sim", telemetry_hz=100.0)
+    hello = m.DeviceHello(firmware="fw 1", hardware="sim", telemetry_hz=100)
     info = device_info(hello)
-    assert (info.firmware, info.hardware, info.telemetry_hz) == ("fw 1", "sim", 100.0)
+    assert (info.firmware, info.hardware, info.telemetry_hz) == ("fw 1", "sim", 100)
     assert len(info.home_pose) == 6
