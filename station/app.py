@@ -21,9 +21,11 @@ from typing import Any
 from device.client import CommandRefused, DeviceClient, DeviceError
 from device.protocol.messages import DeviceMode
 from sessions import wire
+from sessions.home_progress import HomeProgress
 from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
 from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import BATCH_HZ, PrescriptionItem
+from station.progress import ProgressWatch
 from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
 from station.spool import Spool
@@ -69,6 +71,8 @@ class Station:
             config.server, config.token, self._hello, self._on_server, config.batch_hz
         )
         self.uploader = Uploader(config.server, config.token, self.spool)
+        self.progress_watch = ProgressWatch(self.uploader.client, self.link.connected)
+        self.uploader.on_uploaded = self.progress_watch.wake
         self.prescriptions: list[PrescriptionItem] = [
             PrescriptionItem.model_validate(p) for p in self.spool.load_prescriptions()
         ]
@@ -95,6 +99,7 @@ class Station:
         tasks = [
             asyncio.create_task(self.link.run(), name="server-link"),
             asyncio.create_task(self.uploader.run(), name="uploader"),
+            asyncio.create_task(self.progress_watch.run(), name="progress"),
             asyncio.create_task(self._device_loop(), name="device"),
             asyncio.create_task(self._status_loop(), name="status"),
             asyncio.create_task(self._hold_watch(), name="hold-watch"),
@@ -409,6 +414,11 @@ class Station:
         """Sets and repetitions finished in the running exercise; (0, 0) when none runs."""
         run = self.run_
         return (run.sets_done, run.reps_done) if run is not None else (0, 0)
+
+    @property
+    def home_progress(self) -> HomeProgress | None:
+        """The patient's own progress as the server last told it, or None."""
+        return self.progress_watch.latest
 
     @property
     def online(self) -> bool:

@@ -173,6 +173,11 @@ def test_the_patient_exercises_plays_pauses_and_stops(
 
     # The therapist sees the stop and the game in the uploaded session.
     session = uploaded_session(client, system.creds["patient_id"])
+    # The session counts in the patient's own progress as soon as the server has it.
+    expect(page.locator("#mine")).to_contain_text(
+        "1 exercise session in the last 7 days. A good start!", timeout=MINUTE_MS
+    )
+    page.screenshot(path=shots / "patient-progress.png")
     summary = session["summary"]
     assert session["end_reason"] == "stopped", session
     assert summary["events"]["game_score"] == gates
@@ -248,6 +253,8 @@ def test_start_the_game_and_stop_are_in_view_on_every_screen(
     page.goto(system.page_url)
     start = page.get_by_role("button", name="Start Ankle strength")
     expect(start).to_be_enabled(timeout=MINUTE_MS)
+    mine = page.locator("#mine")  # the patient's own progress, asked of the server
+    expect(mine).to_contain_text("Your first exercise starts your progress here.", timeout=30_000)
     for screen, (width, height) in SCREENS.items():
         page.set_viewport_size({"width": width, "height": height})
         page.screenshot(path=shots / f"patient-{screen}-ready.png")

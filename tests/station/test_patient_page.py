@@ -201,7 +201,7 @@ async def test_the_page_and_its_files_are_served_to_this_computer_only(home: Hom
         ups = schemas["page_to_station"]["discriminator"]["mapping"]
         assert set(ups) == {"start", "pause", "resume", "stop", "game_score"}
         downs = schemas["station_to_page"]["discriminator"]["mapping"]
-        assert set(downs) == {"today", "status", "foot", "result", "error"}
+        assert set(downs) == {"today", "status", "foot", "progress", "result", "error"}
 
 
 @pytest.mark.asyncio

@@ -27,6 +27,7 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, ValidationError
 
 from sessions import wire
+from sessions.home_progress import HomeProgress
 from sessions.prescription import EXERCISE_LIBRARY
 from sessions.summary import GAME_EVENT
 from webui.assets import CSP
@@ -45,8 +46,10 @@ from webui.home.messages import (
     Start,
     Stop,
     Today,
+    YourProgress,
     page_schemas,
 )
+from webui.home.progress import progress_lines
 
 STATIC = Path(__file__).resolve().parent / "static"
 FILES = {
@@ -88,6 +91,9 @@ class PatientStation(Protocol):
 
     @property
     def starts_again_at(self) -> float | None: ...
+
+    @property
+    def home_progress(self) -> HomeProgress | None: ...
 
 
 # -- what the page shows -----------------------------------------------------------------------
@@ -275,6 +281,7 @@ class PageLink:
 
     async def _push(self) -> None:
         last_items: list[wire.PrescriptionItem] | None = None
+        last_progress: HomeProgress | None = None
         last_status: dict[str, Any] | None = None
         status_at = 0.0
         period = 1.0 / FOOT_HZ
@@ -285,6 +292,10 @@ class PageLink:
             if items is not last_items:  # the station replaces the list when it changes
                 await self.send(today(items))
                 last_items = items
+            mine = self.station.home_progress
+            if mine is not last_progress and mine is not None:  # a new one replaces the last
+                await self.send(YourProgress(lines=progress_lines(mine)))
+            last_progress = mine
             status = page_status(self.station)
             state = status.model_dump()
             now = time.monotonic()

@@ -82,6 +82,15 @@ class Foot(BaseModel):
     roll: float
 
 
+class YourProgress(BaseModel):
+    """The patient's own progress in a few plain sentences (from the therapist's server; not
+    sent while the station has never reached it)."""
+
+    model_config = _STRICT
+    type: Literal["progress"] = "progress"
+    lines: list[str]
+
+
 class ActionResult(BaseModel):
     model_config = _STRICT
     type: Literal["result"] = "result"
@@ -149,7 +158,8 @@ class GameScore(BaseModel):
 PageAction = Annotated[Start | Pause | Resume | Stop | GameScore, Field(discriminator="type")]
 PAGE_ACTION: TypeAdapter[Start | Pause | Resume | Stop | GameScore] = TypeAdapter(PageAction)
 PageMessage = Annotated[
-    Today | PageStatus | Foot | ActionResult | PageError, Field(discriminator="type")
+    Today | PageStatus | Foot | YourProgress | ActionResult | PageError,
+    Field(discriminator="type"),
 ]
 
 
