@@ -14,7 +14,6 @@ import logging
 import os
 import time
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,9 +23,10 @@ from sessions import wire
 from sessions.home_progress import HomeProgress
 from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
 from sessions.translate import device_event, device_info, telemetry_sample
-from sessions.wire import BATCH_HZ, PrescriptionItem
+from sessions.wire import PrescriptionItem
+from station.config import StationConfig
 from station.progress import ProgressWatch
-from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
+from station.reasons import Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun
@@ -40,26 +40,6 @@ FLUSH_S = 0.2
 DEVICE_STALE_S = 2.0
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
-
-
-@dataclass
-class StationConfig:
-    device: str
-    server: str
-    token: str
-    spool: Path
-    autostart: bool = False
-    """Start the first active prescription once connected (the demo; and a patient's
-    station set to start at a fixed time)."""
-    baud: int = 921600
-    repeat_after_s: float | None = None
-    """With ``autostart``: start it again this long after each session that finished whole
-    (the demo). A stop, from anyone, ends the repeats until the next start."""
-    hold_limit_s: float = HOLD_LIMIT_S
-    """An exercise held (paused, HOLD, or held by the device) this long is ended: the
-    platform goes home and the session closes ``interrupted`` with the reason."""
-    batch_hz: float = BATCH_HZ
-    """Telemetry messages a second to the server, each with the samples since the last."""
 
 
 class Station:

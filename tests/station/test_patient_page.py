@@ -36,7 +36,8 @@ from sessions import wire
 from sessions.prescription import PrescriptionBody
 from sessions.recording import read
 from sessions.summary import summarize
-from station.app import Station, StationConfig
+from station.app import Station
+from station.config import StationConfig
 from webui.home.app import MAX_MESSAGE_BYTES, serve_patient_page
 from webui.home.game import game_field
 
