@@ -102,7 +102,7 @@ function receive(message) {
 }
 
 const DONE_WORDS = {
-  start: "Starting. Keep your foot on the plate.",
+  start: "Starting.", // what to do is said once, in "what to do now"
   pause: "Paused. The platform holds still.",
   resume: "Carrying on.",
   stop: "Stopped. The platform holds still, then goes back slowly to its resting position.",
