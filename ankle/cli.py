@@ -232,7 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
             return 0
         from station.cli import run as run_station
-        from webui.patient import serve_patient_page
+        from webui.home.app import serve_patient_page
 
         return run_station(args, page=serve_patient_page)
     return device_cli.dispatch(parser, argv, _run)

@@ -32,6 +32,10 @@ from station.cli import port_taken
 
 PATIENT_PAGE_PORT = 8765
 """Where the station serves the patient's page, on localhost."""
+DEMO_REPEAT_S = 180
+"""The demo runs its exercise again this long after each one that finished: often enough to
+watch, seldom enough that the history holds a day's sessions rather than a hundred an hour.
+STOP on the patient's page ends the repeats until Start is pressed."""
 
 
 class StartError(Exception):
@@ -208,7 +212,13 @@ def run_system(
             return _Module(
                 "station",
                 *("--device", device.proc.service.link, "--server", url),
-                *("--spool", str(data_dir / "station"), "--autostart", "--repeat-after", "15"),
+                *(
+                    "--spool",
+                    str(data_dir / "station"),
+                    "--autostart",
+                    "--repeat-after",
+                    str(DEMO_REPEAT_S),
+                ),
                 *("--page-port", str(page_port)),
                 env={"ANKLE_STATION_TOKEN": creds["station_token"]},
             )
@@ -312,8 +322,10 @@ def _banner(out: TextIO, url: str, creds: dict[str, Any], page_port: int) -> Non
         f"  WebSocket message schemas  {url}/api/v1/schemas/ws",
         f"  Demo patient               {creds.get('patient_name', '')} "
         f"(id {creds.get('patient_id')}), station {station_id}",
-        "  The station runs the demo prescription now and again 15 s after each session;",
-        "  watch it live, then review it under the patient's sessions. Ctrl-C stops everything.",
+        "  The station runs the demo prescription now and again "
+        f"{DEMO_REPEAT_S // 60} minutes after each one it finishes (STOP on the patient's page",
+        "  ends that until Start is pressed); watch it live, then review it under the",
+        "  patient's sessions. Ctrl-C stops everything.",
         "",
     ]
     print("\n".join(lines), file=out, flush=True)

@@ -14,17 +14,19 @@ import logging
 import os
 import time
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from device.client import CommandRefused, DeviceClient, DeviceError
-from device.protocol import messages as msg
-from device.protocol.messages import DeviceMode, EventKind
+from device.protocol.messages import DeviceMode
 from sessions import wire
-from sessions.recording import DeviceInfo, Header, RecordingWriter, SessionEvent, sample_row
-from sessions.wire import BATCH_HZ, PrescriptionItem
-from station.reasons import HOLD_LIMIT_S, Reasons, ends_at, patient_resume_refusal
+from sessions.home_progress import HomeProgress
+from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
+from sessions.translate import device_event, device_info, telemetry_sample
+from sessions.wire import PrescriptionItem
+from station.config import StationConfig
+from station.progress import ProgressWatch
+from station.reasons import Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun
@@ -46,25 +48,6 @@ HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
 
 
-@dataclass
-class StationConfig:
-    device: str
-    server: str
-    token: str
-    spool: Path
-    autostart: bool = False
-    """Start the first active prescription once connected (the demo; and a patient's
-    station set to start at a fixed time)."""
-    baud: int = 921600
-    repeat_after_s: float | None = None
-    """With ``autostart``: start it again this long after each session ends (the demo)."""
-    hold_limit_s: float = HOLD_LIMIT_S
-    """An exercise held (paused, HOLD, or held by the device) this long is ended: the
-    platform goes home and the session closes ``interrupted`` with the reason."""
-    batch_hz: float = BATCH_HZ
-    """Telemetry messages a second to the server, each with the samples since the last."""
-
-
 class Station:
     def __init__(self, config: StationConfig) -> None:
         self.config = config
@@ -74,6 +57,8 @@ class Station:
             config.server, config.token, self._hello, self._on_server, config.batch_hz
         )
         self.uploader = Uploader(config.server, config.token, self.spool)
+        self.progress_watch = ProgressWatch(self.uploader.client, self.link.connected)
+        self.uploader.on_uploaded = self.progress_watch.wake
         self.prescriptions: list[PrescriptionItem] = [
             PrescriptionItem.model_validate(p) for p in self.spool.load_prescriptions()
         ]
@@ -85,6 +70,10 @@ class Station:
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
+        self._repeat_task: asyncio.Task[None] | None = None
+        self.starts_again_at: float | None = None
+        """When the demo starts its exercise again by itself (wall clock), or None."""
+        self._repeating = config.autostart and config.repeat_after_s is not None
         self._last_phase: wire.Phase = "idle"
         self._segment_base = max(1, int(time.time()) & 0xFFFF)
 
@@ -96,6 +85,7 @@ class Station:
         tasks = [
             asyncio.create_task(self.link.run(), name="server-link"),
             asyncio.create_task(self.uploader.run(), name="uploader"),
+            asyncio.create_task(self.progress_watch.run(), name="progress"),
             asyncio.create_task(self._device_loop(), name="device"),
             asyncio.create_task(self._status_loop(), name="status"),
             asyncio.create_task(self._hold_watch(), name="hold-watch"),
@@ -109,6 +99,7 @@ class Station:
             await self._shutdown()
 
     async def _shutdown(self) -> None:
+        self._repeats(False)
         if self.run_ is not None:
             self.run_.stop()
         if self.dev is not None:
@@ -181,7 +172,9 @@ class Station:
                 if wall - last_flush >= FLUSH_S:
                     self.writer.flush_soon()
                     last_flush = wall
-            self.link.send_sample(_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0)
+            self.link.send_sample(
+                telemetry_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0
+            )
 
     async def _events(self, dev: DeviceClient) -> None:
         async for e in dev.events():
@@ -191,21 +184,7 @@ class Station:
             self.reasons.device_event(e, time.time() - lag)
             if self.run_ is not None:
                 self.run_.device_event(e)
-            self._event(
-                SessionEvent(
-                    wall=time.time(),
-                    t=e.time,
-                    kind=_EVENT_KINDS.get(e.kind, e.kind.name.lower()),
-                    by="device",
-                    detail={
-                        "from": e.mode_from.name,
-                        "to": e.mode_to.name,
-                        "code": e.code,
-                        "value": e.value,
-                        "text": e.text,
-                    },
-                )
-            )
+            self._event(device_event(e, time.time()))
             self._status_dirty.set()
 
     def _event(self, event: SessionEvent) -> None:
@@ -238,7 +217,7 @@ class Station:
             patient_id=item.patient_id,
             prescription_id=item.id,
             prescription=item.body.model_dump(mode="json"),
-            device=_device_info(hello),
+            device=device_info(hello),
             software=SOFTWARE,
             started_at=time.time(),
         )
@@ -280,11 +259,31 @@ class Station:
         if end is not None:
             self.uploader.skip(None)
             self.uploader.wake()
+        after = self.config.repeat_after_s
+        if self._repeating and run.phase == "done" and after is not None:
+            # Known before the status that says "done" goes out: the page says both at once.
+            self.starts_again_at = time.time() + after
+            self._repeat_task = asyncio.create_task(self._repeat(after), name="demo-repeat")
         self._status_dirty.set()
-        if self.config.autostart and self.config.repeat_after_s is not None:
-            await asyncio.sleep(self.config.repeat_after_s)
-            self._started = False
-            self._autostart()
+
+    async def _repeat(self, after_s: float) -> None:
+        try:
+            await asyncio.sleep(after_s)
+        finally:
+            self.starts_again_at = None
+        self._started = False
+        self._autostart()
+
+    def _repeats(self, on: bool) -> None:
+        """A start lets the demo repeat again, a stop ends its repeats; either way a repeat
+        waiting to start is off: the platform never moves by itself after the patient
+        pressed STOP, nor starts a second exercise over one started by hand."""
+        self._repeating = on and self.config.autostart and self.config.repeat_after_s is not None
+        if self._repeat_task is not None:
+            self._repeat_task.cancel()
+            self._repeat_task = None
+            self.starts_again_at = None
+            self._status_dirty.set()
 
     # -- server messages -----------------------------------------------------------------
     async def _on_server(self, message: Any) -> None:
@@ -321,7 +320,11 @@ class Station:
 
         if cmd.action == "start":
             why = self.start(cmd.prescription_id or 0)
+            if not why:
+                self._repeats(True)
             return result(not why, "REFUSED" if why else "", "prescription_id", why)
+        if cmd.action == "stop":
+            self._repeats(False)  # whatever else happens: nothing starts by itself now
         if dev is None:
             return result(False, "OFFLINE", "", "the platform is not connected")
         try:
@@ -424,6 +427,11 @@ class Station:
         return (run.sets_done, run.reps_done) if run is not None else (0, 0)
 
     @property
+    def home_progress(self) -> HomeProgress | None:
+        """The patient's own progress as the server last told it, or None."""
+        return self.progress_watch.latest
+
+    @property
     def online(self) -> bool:
         """Whether the server is reachable now (sessions upload later when it is not)."""
         return self.link.connected.is_set()
@@ -434,7 +442,7 @@ class Station:
         return wire.StationHello(
             protocol=wire.PROTOCOL,
             software=SOFTWARE,
-            device=_device_info(hello) if hello else None,
+            device=device_info(hello) if hello else None,
         )
 
     def _hold(self) -> wire.HoldInfo | None:
@@ -539,46 +547,3 @@ def _fsync_dup(fd: int) -> None:
 def _sync_done(future: asyncio.Future[None]) -> None:
     if not future.cancelled() and future.exception() is not None:
         log.error("cannot sync the session file: %s", future.exception())
-
-
-_EVENT_KINDS = {
-    EventKind.MODE_CHANGE: "mode",
-    EventKind.WATCHDOG: "watchdog",
-    EventKind.LIMIT: "limit",
-    EventKind.FAULT: "fault",
-    EventKind.SEGMENT_DONE: "segment_done",
-    EventKind.HOMED: "homed",
-    EventKind.ESTOP: "estop",
-}
-
-
-def _device_info(hello: msg.DeviceHello) -> DeviceInfo:
-    return DeviceInfo(
-        firmware=hello.firmware,
-        hardware=hello.hardware,
-        telemetry_hz=hello.telemetry_hz,
-        home_pose=list(hello.home_pose),
-    )
-
-
-def _sample(t: msg.Telemetry, s: int, r: int) -> dict[str, Any]:
-    """One sample's fields as :class:`~sessions.wire.TelemetryMsg` names them (its batch
-    gives the ``sent``); validated when its batch is made."""
-    return {
-        "t": t.time,
-        "mode": t.mode.name,
-        "trip": int(t.trip),
-        "segment_id": t.segment_id,
-        "set": s,
-        "rep": r,
-        "pose": list(t.pose),
-        "pose_cmd": list(t.pose_cmd),
-        "legs": list(t.legs),
-        "pressures": list(t.pressures),
-        "wrench": list(t.wrench),
-        "stiffness": list(t.stiffness),
-        "damping": list(t.damping),
-        "lag_ms": t.pacing_lag_ms,
-        "overruns": t.overruns,
-        "frames_dropped": t.frames_dropped,
-    }

@@ -11,82 +11,128 @@ import argparse
 import asyncio
 import contextlib
 import logging
-import os
 import signal
 import socket
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from pydantic import ValidationError
+
 from sessions.wire import BATCH_HZ, BATCH_HZ_MAX
 from station.reasons import HOLD_LIMIT_S
 
-if TYPE_CHECKING:  # loaded by run(): `ankle --help` needs no device link or web client
+if TYPE_CHECKING:  # loaded by run(): `ankle --help` (and `ankle device`, on the embedded PC,
+    # which builds every command's options) needs no device link, web client or settings
     from station.app import Station
+    from station.config import StationConfig
 
-HOLD_LIMIT_MAX_S = 3600.0
+
+FLAGS: dict[str, str] = {
+    "device": "--device",
+    "server": "--server",
+    "token": "--token",
+    "spool": "--spool",
+    "baud": "--baud",
+    "autostart": "--autostart",
+    "repeat_after_s": "--repeat-after",
+    "hold_limit_s": "--hold-limit",
+    "batch_hz": "--batch-hz",
+    "page_port": "--page-port",
+    "page_host": "--page-host",
+}
+"""Each setting's option (its variable is ANKLE_STATION_ and the setting's name in capitals)."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options; each one left out keeps its ANKLE_STATION_* variable, or the default."""
     p.add_argument(
         "--device",
-        required=True,
-        help="the platform's serial link: a port (/dev/ttyUSB0), a pty name or socket://H:P",
+        dest="device",
+        help="the platform's serial link: a port (/dev/ttyUSB0), a pty name or socket://H:P "
+        "($ANKLE_STATION_DEVICE)",
     )
-    p.add_argument("--server", required=True, help="the server's URL, e.g. http://clinic:8000")
+    p.add_argument(
+        "--server",
+        dest="server",
+        help="the server's URL, e.g. http://clinic:8000 ($ANKLE_STATION_SERVER)",
+    )
     p.add_argument(
         "--token",
-        default=os.environ.get("ANKLE_STATION_TOKEN"),
-        help="this station's token (default: $ANKLE_STATION_TOKEN); given once at provisioning",
+        dest="token",
+        help="this station's token ($ANKLE_STATION_TOKEN); given once at provisioning",
     )
     p.add_argument(
         "--spool",
+        dest="spool",
         type=Path,
-        default=Path("ankle-station"),
         help="directory for sessions waiting to upload (default: ./ankle-station)",
     )
-    p.add_argument("--baud", type=int, default=921600)
+    p.add_argument("--baud", dest="baud", type=int)
     p.add_argument(
         "--autostart",
-        action="store_true",
+        dest="autostart",
+        action="store_const",
+        const=True,
         help="start the first active prescription as soon as the platform is connected",
     )
     p.add_argument(
         "--repeat-after",
+        dest="repeat_after_s",
         type=float,
-        default=None,
         metavar="S",
-        help="with --autostart: start it again S seconds after each session (a demo)",
+        help="with --autostart: start it again S seconds after each session that finished "
+        "(a demo); a stop ends the repeats until the next start",
     )
     p.add_argument(
         "--hold-limit",
+        dest="hold_limit_s",
         type=float,
-        default=HOLD_LIMIT_S,
         metavar="S",
         help=f"end an exercise held (paused, HOLD, or held by the device) for S seconds: the "
         f"platform goes home, the session ends 'interrupted' (default {HOLD_LIMIT_S:g})",
     )
     p.add_argument(
         "--batch-hz",
+        dest="batch_hz",
         type=float,
-        default=BATCH_HZ,
         metavar="HZ",
         help=f"telemetry messages a second to the server, each carrying the samples since the "
         f"last (default {BATCH_HZ:g}: 4 samples of the device's 100 Hz; 1..{BATCH_HZ_MAX:g})",
     )
     p.add_argument(
         "--page-port",
+        dest="page_port",
         type=int,
-        default=8765,
         metavar="PORT",
         help="the patient's page on http://HOST:PORT/ (default 8765; 0: no page)",
     )
     p.add_argument(
         "--page-host",
-        default="127.0.0.1",
+        dest="page_host",
         metavar="HOST",
         help="address the patient's page listens on (default 127.0.0.1: this computer only)",
     )
+
+
+def settings(args: argparse.Namespace) -> StationConfig:
+    """The station's settings: the options given, over the ANKLE_STATION_* variables, over
+    the defaults. Raises :class:`SettingsError` naming the option of a value refused."""
+    from station.config import StationConfig
+
+    given = {name: getattr(args, name) for name in FLAGS if getattr(args, name, None) is not None}
+    try:
+        return StationConfig(**given)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        name = str(first["loc"][0]) if first["loc"] else ""
+        flag = FLAGS.get(name, name)
+        where = flag if name in given else f"{flag} (or ANKLE_STATION_{name.upper()})"
+        raise SettingsError(f"{where} {first['msg']}") from None
+
+
+class SettingsError(ValueError):
+    """A setting refused, in one line naming its option."""
 
 
 def port_taken(host: str, port: int) -> str | None:
@@ -107,53 +153,28 @@ PageServer = Callable[["Station", str, int], Coroutine[Any, Any, None]]
 
 
 def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
-    if not args.token:
-        print("error: ankle station: --token (or ANKLE_STATION_TOKEN) is required")
+    try:
+        config = settings(args)
+    except SettingsError as exc:
+        print(f"error: ankle station: {exc}")
         return 2
-    if not 0 < args.hold_limit <= HOLD_LIMIT_MAX_S:  # also refuses nan
-        print(
-            f"error: ankle station: --hold-limit {args.hold_limit:g} is not a time from "
-            f"more than 0 to {HOLD_LIMIT_MAX_S:g} s"
-        )
-        return 2
-    if not 1 <= args.batch_hz <= BATCH_HZ_MAX:  # also refuses nan
-        print(
-            f"error: ankle station: --batch-hz {args.batch_hz:g} is not a rate from 1 to "
-            f"{BATCH_HZ_MAX:g} messages a second"
-        )
-        return 2
-    if not 0 <= args.page_port <= 65535:
-        print(f"error: ankle station: --page-port {args.page_port} is not a port (0..65535)")
-        return 2
-    if page is not None and args.page_port:
-        taken = port_taken(args.page_host, args.page_port)
+    if page is not None and config.page_port:
+        taken = port_taken(config.page_host, config.page_port)
         if taken is not None:
             print(
                 f"error: ankle station: the patient's page cannot listen on "
-                f"{args.page_host}:{args.page_port} ({taken}); is another station running? "
+                f"{config.page_host}:{config.page_port} ({taken}); is another station running? "
                 "Stop it, or pass --page-port with a free port (0: no page)."
             )
             return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
-    from station.app import Station, StationConfig
+    from station.app import Station
 
-    station = Station(
-        StationConfig(
-            device=args.device,
-            server=args.server,
-            token=args.token,
-            spool=args.spool,
-            autostart=args.autostart,
-            repeat_after_s=args.repeat_after,
-            hold_limit_s=args.hold_limit,
-            batch_hz=args.batch_hz,
-            baud=args.baud,
-        )
-    )
+    station = Station(config)
     served = None
-    if page is not None and args.page_port:
-        served = (page, args.page_host, args.page_port)
+    if page is not None and config.page_port:
+        served = (page, config.page_host, config.page_port)
     return asyncio.run(_main(station, served))
 
 

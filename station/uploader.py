@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import hashlib
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,13 @@ class Uploader:
         self.last_error = ""
         self._wake = asyncio.Event()
         self._skip: set[Path] = set()
+        self.on_uploaded: Callable[[], None] = lambda: None
+        """Called after each session the server has taken whole."""
+
+    @property
+    def client(self) -> httpx.AsyncClient:
+        """The station's HTTP client to the server, with its token."""
+        return self._client
 
     def skip(self, path: Path | None) -> None:
         """Do not upload this file yet (the session being recorded)."""
@@ -120,6 +128,7 @@ class Uploader:
                 continue
             path.unlink()
             self.uploaded.append(path.stem)
+            self.on_uploaded()
             count += 1
         return count
 

@@ -96,8 +96,10 @@ def test_the_modules_come_from_the_wheel(installed: Path) -> None:
         installed / "bin" / "python",
         "-c",
         "import json, ankle, device, server, station, webui, sessions, lab, webui.assets as a;"
+        "import webui.home.app as h;"
         "print(json.dumps({'files': [m.__file__ for m in (ankle, device, server, station, "
-        "webui, sessions, lab)], 'missing': a.missing_vendor()}))",
+        "webui, sessions, lab)], 'missing': a.missing_vendor(),"
+        "'home': [n for n in h.FILES if not (h.STATIC / n).is_file()]}))",
         cwd=installed.parent,
         env=_clean_env(),
     )
@@ -106,6 +108,7 @@ def test_the_modules_come_from_the_wheel(installed: Path) -> None:
         assert Path(file).resolve().is_relative_to(installed.resolve()), file
     if (ROOT / "webui" / "node_modules").is_dir():  # built after make setup: libraries inside
         assert found["missing"] == []
+    assert found["home"] == [], "the patient's page is missing files"
 
 
 def _get(url: str, data: dict[str, str] | None = None) -> tuple[int, bytes, str]:

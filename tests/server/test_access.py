@@ -181,6 +181,7 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("POST", "/stations/{station_id}/scene/ticket"): Call(OWNER_OR_ADMIN),
     ("GET", "/station/me"): Call(STATION_ONLY),
     ("GET", "/station/prescriptions"): Call(STATION_ONLY),
+    ("GET", "/station/progress"): Call(STATION_ONLY),
     ("GET", "/sessions"): Call(ANY_USER),
     ("GET", "/sessions/{session_id}"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),

@@ -36,8 +36,10 @@ from sessions import wire
 from sessions.prescription import PrescriptionBody
 from sessions.recording import read
 from sessions.summary import summarize
-from station.app import Station, StationConfig
-from webui.patient import MAX_MESSAGE_BYTES, game_field, serve_patient_page
+from station.app import Station
+from station.config import StationConfig
+from webui.home.app import MAX_MESSAGE_BYTES, serve_patient_page
+from webui.home.game import game_field
 
 PRESCRIPTION_ID = 41
 BODY = PrescriptionBody.model_validate(
@@ -178,15 +180,19 @@ async def test_the_page_and_its_files_are_served_to_this_computer_only(home: Hom
         assert r.status_code == 200
         assert (await client.head("/")).status_code == 200  # the page's "are you back?"
         assert "script-src 'self'" in r.headers["content-security-policy"]
-        assert '<script type="module" src="/static/js/station.js">' in r.text
-        js = await client.get("/static/js/station.js")
+        assert '<script type="module" src="/static/home.js">' in r.text
+        js = await client.get("/static/home.js")
         assert js.status_code == 200 and "javascript" in js.headers["content-type"]
         assert "new WebSocket" in js.text
-        css = await client.get("/static/css/station.css")
+        game = await client.get("/static/game.js")
+        assert game.status_code == 200 and "javascript" in game.headers["content-type"]
+        css = await client.get("/static/home.css")
         assert css.status_code == 200 and css.headers["content-type"].startswith("text/css")
         # Only the page's own files: not the dashboard's, not a path outside static/.
+        assert (await client.get("/static/api.js")).status_code == 404
         assert (await client.get("/static/js/api.js")).status_code == 404
-        assert (await client.get("/static/js/..%2F..%2Fpatient.py")).status_code == 404
+        assert (await client.get("/static/..%2Fapp.py")).status_code == 404
+        assert (await client.get("/static/home.html")).status_code == 404
         # A name that resolves here but is not this computer's: DNS rebinding.
         r = await client.get("/", headers={"Host": f"evil.example:{home.port}"})
         assert r.status_code == 400
@@ -196,7 +202,7 @@ async def test_the_page_and_its_files_are_served_to_this_computer_only(home: Hom
         ups = schemas["page_to_station"]["discriminator"]["mapping"]
         assert set(ups) == {"start", "pause", "resume", "stop", "game_score"}
         downs = schemas["station_to_page"]["discriminator"]["mapping"]
-        assert set(downs) == {"today", "status", "foot", "result", "error"}
+        assert set(downs) == {"today", "status", "foot", "progress", "result", "error"}
 
 
 @pytest.mark.asyncio

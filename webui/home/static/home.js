@@ -1,19 +1,11 @@
-// The patient's page: what to do now in plain words, pause and STOP, and a game steered by
-// the foot. Everything comes from the home station over one WebSocket (webui/patient.py);
-// the page decides nothing about the platform: it asks, and shows what the station says.
+// The patient's page: what to do now in plain words (one instruction at a time, in #todo),
+// pause and STOP, the patient's own progress, and a game steered by the foot (game.js).
+// Everything comes from the home station over one WebSocket (webui/home/app.py); the page
+// decides nothing about the platform: it asks, and shows what the station says.
+
+import { Game } from "./game.js";
 
 const $ = (id) => document.getElementById(id);
-
-// What to do while a repetition runs, by exercise. The therapist's own instructions are on
-// the exercise card; these are the short reminders for this moment.
-const DOING = {
-  strength: "Push your foot against the plate: toes down, then up. Slowly.",
-  flexibility: "Relax and let the platform move your foot. Help it along if you can.",
-  passive_rom: "Keep your foot relaxed. The platform moves it for you.",
-  isometric: "Push your toes down against the plate and hold. It will not move.",
-  balance: "Keep the plate level with small, steady movements.",
-  rom_assessment: "Move your foot as far as is comfortable: toes down, up, in and out.",
-};
 const SAFETY_STOPPED = ["FAULT", "ESTOP"];
 // Why the platform holds when it is not the patient's own pause (the station sends the
 // reason's code): what happened, in plain words. What to do follows in heldWords.
@@ -95,6 +87,10 @@ function receive(message) {
       break;
     case "foot":
       game.foot(message.pitch, message.roll);
+      showFoot(message.pitch, message.roll);
+      break;
+    case "progress":
+      renderMine(message.lines);
       break;
     case "result":
       answered(message);
@@ -106,7 +102,7 @@ function receive(message) {
 }
 
 const DONE_WORDS = {
-  start: "Starting. Keep your foot on the plate.",
+  start: "Starting.", // what to do is said once, in "what to do now"
   pause: "Paused. The platform holds still.",
   resume: "Carrying on.",
   stop: "Stopped. The platform holds still, then goes back slowly to its resting position.",
@@ -239,7 +235,8 @@ function todoWords() {
     case "homing":
       return ["warn", "Keep your foot on the plate. The platform is getting ready."];
     case "running":
-      return ["info", (ex && DOING[ex.exercise]) || "Follow the platform gently."];
+      // The therapist's words (or the exercise's own), and nowhere else on the page.
+      return ["info", (ex && ex.instructions) || "Follow the platform gently."];
     case "rest":
       // The countdown has its own line: announcing it every second would drown the rest.
       return ["ok", "Rest and relax your foot. The next set starts by itself."];
@@ -254,6 +251,12 @@ function todoWords() {
         "The exercise ended because the platform was stopped for too long. You can start again when you are ready, or call your therapist.",
       ];
     case "done":
+      if (status.starts_again_at) {
+        return [
+          "ok",
+          `Well done! Today's exercise is finished. This demonstration starts again by itself ${endsIn(status.starts_again_at)}; press STOP to keep the platform still.`,
+        ];
+      }
       return ["ok", "Well done! Today's exercise is finished."];
     case "stopped":
       return ["warn", "The exercise was stopped. You can start again when you are ready."];
@@ -283,9 +286,6 @@ function renderExercises() {
     card.dataset.id = String(ex.id);
     const title = document.createElement("h3");
     title.textContent = ex.title;
-    const instructions = document.createElement("p");
-    instructions.className = "instructions";
-    instructions.textContent = ex.instructions;
     const plan = document.createElement("p");
     plan.className = "plan";
     const sets = ex.sets === 1 ? "1 set" : `${ex.sets} sets`;
@@ -302,7 +302,7 @@ function renderExercises() {
         feedback("Sorry: this page is not connected to your station.");
       }
     });
-    card.append(title, instructions, plan, start);
+    card.append(title, plan, start);
     box.append(card);
   }
 }
@@ -366,6 +366,7 @@ function render() {
     status.device === "connected" &&
     !SAFETY_STOPPED.includes(status.device_mode) &&
     !running();
+  document.querySelector("main").toggleAttribute("data-running", running());
   for (const card of document.querySelectorAll(".exercise-card")) {
     const mine = running() && status.prescription_id === Number(card.dataset.id);
     card.toggleAttribute("data-running", mine);
@@ -375,7 +376,20 @@ function render() {
   const details = status && status.message && phase !== "running" ? status.message : "";
   $("details").hidden = !details;
   setText($("message"), details);
-  game.status(status, currentExercise());
+  renderGame();
+}
+
+// -- the patient's own progress -----------------------------------------------------------------
+function renderMine(lines) {
+  const list = $("mine-lines");
+  list.replaceChildren(
+    ...lines.map((line) => {
+      const li = document.createElement("li");
+      li.textContent = line;
+      return li;
+    }),
+  );
+  $("mine").hidden = lines.length === 0;
 }
 
 $("pause").addEventListener("click", () => {
@@ -396,256 +410,63 @@ document.addEventListener("keydown", (event) => {
   }
 });
 
+
 // -- the game ---------------------------------------------------------------------------------
-// A plane flies away from the patient towards gates; ankle pitch moves it up and down, roll
-// left and right. Positions are in the field's units: -1..1 across what the exercise allows.
-const GATE_EVERY_S = 2.5;
-const APPROACH_S = 3.5;
-const OPENING = 0.3; // half the gate's opening
-const DEPTH = 5; // perspective: a gate at the far end is drawn 1/(1+DEPTH) of its size
-
-const game = {
-  field: null,
-  session: null,
-  id: 0,
-  playing: false,
-  clock: 0,
-  nextGate: 0,
-  gates: [],
-  score: 0,
-  count: 0,
-  missed: 0,
-  plane: { x: 0, y: 0 },
-  sides: { x: 1, y: 1 },
-  flash: null,
-  spawned: 0,
-
-  status(st, exercise) {
-    this.field = exercise ? exercise.game : null;
-    $("game-roll-help").hidden = !(this.field && this.field.roll);
-    const session = st ? st.session_id : null;
-    if (session && session !== this.session) {
-      this.reset(session);
-    } else if (!session && this.gates.length) {
-      this.gates = []; // the exercise has ended: so has the game, with its score kept
-    }
-    this.playing =
-      st !== null && st.phase === "running" && st.device_mode === "ACTIVE" && !!this.field;
-    let note = "";
-    if (!this.field) {
-      note = exercise
-        ? "This exercise has no game: the platform holds your foot."
-        : "The game starts with your exercise.";
-    } else if (!this.playing && running()) {
-      note = "The game goes on when the exercise does.";
-    } else if (!this.playing) {
-      note =
-        this.count > 0
-          ? "Game over. Your score is saved with today's exercise."
-          : "The game starts with your exercise.";
-    }
-    setText($("game-note"), note);
-  },
-
-  reset(session) {
-    this.session = session;
-    this.id = 1 + Math.floor(Math.random() * 2_000_000_000);
-    this.clock = 0;
-    this.nextGate = 0.5;
-    this.gates = [];
-    this.spawned = 0;
-    this.score = this.count = this.missed = 0;
-    this.showScore();
-  },
-
-  axis(value, range) {
-    if (!range) {
-      return 0; // the exercise holds this axis still: so does the plane
-    }
-    const mid = (range[0] + range[1]) / 2;
-    const half = (range[1] - range[0]) / 2;
-    return Math.max(-1.15, Math.min(1.15, (value - mid) / half));
-  },
-
-  foot(pitch, roll) {
-    if (this.field) {
-      // Toes down (pitch > 0) flies lower; the screen's y grows downwards.
-      this.plane = { x: this.axis(roll, this.field.roll), y: this.axis(pitch, this.field.pitch) };
-    }
-    const words = [];
-    const toes = pitch > 0 ? "down" : "up";
-    words.push(Math.abs(pitch) < 0.5 ? "level" : `toes ${Math.abs(pitch).toFixed(0)}° ${toes}`);
-    if (this.field && this.field.roll && Math.abs(roll) >= 0.5) {
-      words.push(`tilted ${Math.abs(roll).toFixed(0)}° ${roll > 0 ? "right" : "left"}`);
-    }
-    setText($("foot"), `Your foot: ${words.join(", ")}`);
-  },
-
-  place(axisRange, side, flip) {
-    if (!axisRange) {
-      return 0;
-    }
-    // Alternate sides so that the gates lead the foot through its range, as the exercise does.
-    if (flip) {
-      this.sides[side] = -this.sides[side];
-    }
-    return this.sides[side] * (0.25 + Math.random() * (0.7 - 0.25));
-  },
-
-  step(dt) {
-    if (!this.playing) {
-      return;
-    }
-    this.clock += dt;
-    if (this.clock >= this.nextGate) {
-      // Up and down every gate, left and right every other one: all four corners in turn.
-      this.spawned += 1;
-      this.gates.push({
-        x: this.place(this.field.roll, "x", this.spawned % 2 === 0),
-        y: this.place(this.field.pitch, "y", true),
-        born: this.clock,
-      });
-      this.nextGate = this.clock + GATE_EVERY_S;
-    }
-    for (const gate of [...this.gates]) {
-      if (this.clock - gate.born >= APPROACH_S) {
-        this.judge(gate);
-      }
-    }
-  },
-
-  judge(gate) {
-    this.gates.splice(this.gates.indexOf(gate), 1);
-    const inside =
-      Math.abs(this.plane.x - gate.x) <= OPENING && Math.abs(this.plane.y - gate.y) <= OPENING;
-    this.count += 1;
-    if (inside) {
-      this.score += 1;
-    } else {
-      this.missed += 1;
-    }
-    this.flash = { good: inside, until: performance.now() + 900 };
-    this.showScore();
+const game = new Game($("game-canvas"), (g, judged) => {
+  setText($("score"), String(g.score));
+  setText($("gates"), String(g.count));
+  $("game-canvas").setAttribute(
+    "aria-label",
+    `The game: a plane flies towards gates. Gates passed: ${g.score} of ${g.count}.`,
+  );
+  if (judged) {
     send({
       type: "game_score",
-      session_id: this.session,
-      game: this.id,
-      score: this.score,
-      gates: this.count,
-      missed: this.missed,
+      session_id: g.session,
+      game: g.id,
+      score: g.score,
+      gates: g.count,
+      missed: g.missed,
     });
-  },
-
-  showScore() {
-    setText($("score"), String(this.score));
-    setText($("gates"), String(this.count));
-    $("game-canvas").setAttribute(
-      "aria-label",
-      `The game: a plane flies towards gates. Gates passed: ${this.score} of ${this.count}.`,
-    );
-  },
-};
-
-// -- drawing the game -------------------------------------------------------------------------
-const canvas = $("game-canvas");
-const ctx = canvas.getContext("2d");
-
-function fitCanvas() {
-  const ratio = window.devicePixelRatio || 1;
-  const w = Math.round(canvas.clientWidth * ratio);
-  const h = Math.round(canvas.clientHeight * ratio);
-  if (w > 0 && h > 0 && (canvas.width !== w || canvas.height !== h)) {
-    canvas.width = w;
-    canvas.height = h;
   }
+});
+
+function showFoot(pitch, roll) {
+  const words = [];
+  const toes = pitch > 0 ? "down" : "up";
+  words.push(Math.abs(pitch) < 0.5 ? "level" : `toes ${Math.abs(pitch).toFixed(0)}° ${toes}`);
+  if (game.field && game.field.roll && Math.abs(roll) >= 0.5) {
+    words.push(`tilted ${Math.abs(roll).toFixed(0)}° ${roll > 0 ? "right" : "left"}`);
+  }
+  setText($("foot"), `Your foot: ${words.join(", ")}`);
 }
 
-function draw() {
-  fitCanvas();
-  const ratio = canvas.width / Math.max(1, canvas.clientWidth);
-  const W = canvas.clientWidth;
-  const H = canvas.clientHeight;
-  ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
-  const cx = W / 2;
-  const cy = H / 2;
-  const R = Math.min(W, H) * 0.4;
-
-  const sky = ctx.createLinearGradient(0, 0, 0, cy);
-  sky.addColorStop(0, "#5aa9e6");
-  sky.addColorStop(1, "#cfe9ff");
-  ctx.fillStyle = sky;
-  ctx.fillRect(0, 0, W, cy);
-  ctx.fillStyle = "#5f9e48";
-  ctx.fillRect(0, cy, W, H - cy);
-  // Stripes on the ground rush towards the patient while the plane flies.
-  ctx.strokeStyle = "rgba(255,255,255,0.35)";
-  ctx.lineWidth = 2;
-  for (let i = 0; i < 6; i++) {
-    const z = 1 - (((game.clock / APPROACH_S) * 2 + i / 6) % 1);
-    const y = cy + (H - cy) / (1 + DEPTH * z);
-    ctx.beginPath();
-    ctx.moveTo(0, y);
-    ctx.lineTo(W, y);
-    ctx.stroke();
+function renderGame() {
+  const exercise = currentExercise();
+  const field = exercise ? exercise.game : null;
+  $("game-roll-help").hidden = !(field && field.roll);
+  const playing = status !== null && status.phase === "running" && status.device_mode === "ACTIVE";
+  game.update(field, status ? status.session_id : null, playing, overlayWords(field));
+  let note = "";
+  if (!field) {
+    note = exercise
+      ? "This exercise has no game: the platform holds your foot."
+      : "The game starts with your exercise.";
+  } else if (!game.playing && running()) {
+    note = "The game goes on when the exercise does.";
+  } else if (!game.playing) {
+    note =
+      game.count > 0
+        ? "Game over. Your score is saved with today's exercise."
+        : "The game starts with your exercise.";
   }
-
-  ctx.fillStyle = "#1b1f24";
-  ctx.font = "600 15px system-ui, sans-serif";
-  ctx.textAlign = "left";
-  if (game.field && game.field.pitch) {
-    ctx.fillText("toes up ↑", 10, 22);
-    ctx.fillText("toes down ↓", 10, H - 12);
-  }
-
-  const gates = [...game.gates].sort((a, b) => a.born - b.born);
-  for (let i = gates.length - 1; i >= 0; i--) {
-    const gate = gates[i];
-    const z = Math.max(0, 1 - (game.clock - gate.born) / APPROACH_S);
-    const s = 1 / (1 + DEPTH * z);
-    const gx = cx + gate.x * R * s;
-    const gy = cy + gate.y * R * s;
-    const half = OPENING * R * s;
-    ctx.lineWidth = Math.max(3, 14 * s);
-    ctx.strokeStyle = i === 0 ? "#ff8c00" : "#ffffff";
-    ctx.strokeRect(gx - half, gy - half, 2 * half, 2 * half);
-    ctx.lineWidth = Math.max(1, 3 * s);
-    ctx.strokeStyle = "#1b1f24";
-    ctx.strokeRect(gx - half - 7 * s, gy - half - 7 * s, 2 * half + 14 * s, 2 * half + 14 * s);
-  }
-
-  drawPlane(cx + game.plane.x * R, cy + game.plane.y * R, game.plane.x * 0.35, R);
-
-  const now = performance.now();
-  if (game.flash && now < game.flash.until) {
-    ctx.font = "700 44px system-ui, sans-serif";
-    ctx.textAlign = "center";
-    ctx.lineWidth = 6;
-    ctx.strokeStyle = "#ffffff";
-    const text = game.flash.good ? "Great!" : "Missed";
-    ctx.strokeText(text, cx, 60);
-    ctx.fillStyle = game.flash.good ? "#0b6b2e" : "#b00020";
-    ctx.fillText(text, cx, 60);
-  }
-  if (!game.playing) {
-    const words = overlayWords();
-    ctx.font = "700 26px system-ui, sans-serif";
-    const w = ctx.measureText(words).width + 48;
-    ctx.fillStyle = "rgba(255,255,255,0.88)";
-    ctx.strokeStyle = "#1b1f24";
-    ctx.lineWidth = 2;
-    ctx.beginPath();
-    ctx.roundRect(cx - w / 2, H * 0.2 - 30, w, 56, 10);
-    ctx.fill();
-    ctx.stroke();
-    ctx.fillStyle = "#111";
-    ctx.textAlign = "center";
-    ctx.fillText(words, cx, H * 0.2 + 8);
-  }
+  setText($("game-note"), note);
 }
 
-function overlayWords() {
+// Drawn over the game when it does not play: the same news as #game-note, on the picture.
+function overlayWords(field) {
   const phase = status ? status.phase : "idle";
-  if (!game.field) {
+  if (!field) {
     return "No game in this exercise";
   }
   if (heldByOthers()) {
@@ -663,50 +484,6 @@ function overlayWords() {
   return "The game starts with your exercise";
 }
 
-function drawPlane(x, y, bank, R) {
-  const span = R * 0.5;
-  ctx.save();
-  ctx.translate(x, y);
-  ctx.rotate(bank);
-  ctx.lineJoin = "round";
-  ctx.fillStyle = "#d0001b";
-  ctx.strokeStyle = "#111";
-  ctx.lineWidth = 3;
-  // wings
-  ctx.beginPath();
-  ctx.moveTo(-span, 6);
-  ctx.lineTo(0, -4);
-  ctx.lineTo(span, 6);
-  ctx.lineTo(0, 12);
-  ctx.closePath();
-  ctx.fill();
-  ctx.stroke();
-  // tail fin
-  ctx.beginPath();
-  ctx.moveTo(-6, -2);
-  ctx.lineTo(0, -span * 0.45);
-  ctx.lineTo(6, -2);
-  ctx.closePath();
-  ctx.fill();
-  ctx.stroke();
-  // body, seen from behind
-  ctx.fillStyle = "#ffffff";
-  ctx.beginPath();
-  ctx.arc(0, 4, span * 0.16, 0, Math.PI * 2);
-  ctx.fill();
-  ctx.stroke();
-  ctx.restore();
-}
-
-let last = performance.now();
-function frame(now) {
-  const dt = Math.min(0.1, (now - last) / 1000);
-  last = now;
-  game.step(dt);
-  draw();
-  requestAnimationFrame(frame);
-}
-
 render();
 connect();
-requestAnimationFrame(frame);
+game.run();

@@ -1,15 +1,7 @@
 """The patient's page, served by the home station on this computer (``http://127.0.0.1:8765/``).
 
-One page, one script, one style sheet and one WebSocket, ``/ws``. Down the socket go what the
-page shows: today's exercises (:class:`Today`, on connecting and when the therapist changes
-them), the station's state in the patient's terms (:class:`PageStatus`, on every change and
-at least once a second) and the foot's angles for the game (:class:`Foot`, ~30 Hz). Up come
-the patient's actions (:data:`PageAction`): start, pause, resume, stop and the game's score.
-Each is validated; a malformed one is answered with :class:`PageError` and changes nothing.
-
-The platform moves a person's foot, so only the page itself may drive it: the WebSocket
-refuses (HTTP 403) any ``Origin`` but the page's own, and every request must name this
-computer in ``Host`` (a page on another website cannot use DNS rebinding to look local).
+One page (``static/``: its HTML, script, game and style sheet) and one WebSocket, ``/ws``,
+whose messages are in :mod:`webui.home.messages`; who may connect is :mod:`webui.home.hosts`.
 
 webui is the top layer but the dependency rules keep it from importing ``station``: the page
 needs only :class:`PatientStation`, which ``station.app.Station`` provides, and is served in
@@ -26,18 +18,47 @@ import math
 import socket
 import time
 from collections.abc import Collection, Iterator
-from typing import Annotated, Any, Literal, Protocol
-from urllib.parse import urlsplit
+from pathlib import Path
+from typing import Any, Protocol
 
 import uvicorn
 from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import BaseModel, ValidationError
 
 from sessions import wire
-from sessions.prescription import EXERCISE_LIBRARY, PrescriptionBody
+from sessions.home_progress import HomeProgress
+from sessions.prescription import EXERCISE_LIBRARY
 from sessions.summary import GAME_EVENT
-from webui.assets import STATIC, page
+from webui.assets import CSP
+from webui.home.game import game_field
+from webui.home.hosts import LOOPBACK, WILDCARD, allowed_hosts, host_ok, origin_ok
+from webui.home.messages import (
+    PAGE_ACTION,
+    ActionResult,
+    Exercise,
+    Foot,
+    GameScore,
+    PageError,
+    PageStatus,
+    Pause,
+    Resume,
+    Start,
+    Stop,
+    Today,
+    YourProgress,
+    page_schemas,
+)
+from webui.home.progress import progress_lines
+
+STATIC = Path(__file__).resolve().parent / "static"
+FILES = {
+    "home.html": "text/html",
+    "home.js": "text/javascript",
+    "game.js": "text/javascript",
+    "home.css": "text/css",
+}
+"""The page's own files, by name, and their types: nothing else in the folder is served."""
 
 log = logging.getLogger("ankle.station.page")
 
@@ -47,15 +68,6 @@ FOOT_HZ = 30.0
 STATUS_EVERY_S = 1.0
 MAX_MESSAGE_BYTES = 4096
 """Largest message the page may send; a longer one closes the socket (1009)."""
-LOOPBACK = frozenset({"localhost", "127.0.0.1", "::1"})
-GAME_SPAN_DEG = {"pitch": 10.0, "roll": 8.0}
-"""Half the game's field on each axis, degrees, when the prescription sets no range: a
-comfortable movement, not the ends of the ankle's range."""
-GAME_ROM_SHARE = 0.8
-"""The game keeps to this share of a prescribed range: gates at the very end of it would
-lead the foot into the device's range-of-motion stop."""
-_WILDCARD = frozenset({"", "0.0.0.0", "::"})
-_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class PatientStation(Protocol):
@@ -77,177 +89,14 @@ class PatientStation(Protocol):
 
     def progress(self) -> tuple[int, int]: ...
 
+    @property
+    def starts_again_at(self) -> float | None: ...
 
-# -- down: station to page -------------------------------------------------------------------
-class GameField(BaseModel):
-    """Where the game's gates may be, degrees from home; None for an axis the exercise holds
-    still (the plane does not move on it)."""
-
-    model_config = _STRICT
-    pitch: tuple[float, float] | None = Field(description="Toes up (low) to toes down (high).")
-    roll: tuple[float, float] | None = Field(description="Left edge down to left edge up.")
-
-
-class Exercise(BaseModel):
-    model_config = _STRICT
-    id: int
-    title: str
-    instructions: str
-    exercise: str
-    sets: int
-    repetitions: int
-    repetition_s: float
-    rest_s: float
-    minutes: int = Field(description="About how long it takes, rests included.")
-    game: GameField | None = Field(description="None: no game in this exercise.")
-
-
-class Today(BaseModel):
-    model_config = _STRICT
-    type: Literal["today"] = "today"
-    exercises: list[Exercise]
-
-
-class PageStatus(BaseModel):
-    """The station's state as the page shows it."""
-
-    model_config = _STRICT
-    type: Literal["status"] = "status"
-    online: bool = Field(description="The therapist's server is reachable.")
-    pending_uploads: int = Field(description="Sessions saved here, waiting to be sent.")
-    device: Literal["connected", "lost"]
-    device_mode: str
-    phase: wire.Phase
-    session_id: str | None
-    prescription_id: int | None
-    set: int
-    rep: int
-    sets: int
-    repetitions: int
-    sets_done: int
-    reps_done: int
-    rest_remaining_s: float
-    message: str
-    hold: wire.HoldInfo | None = Field(
-        description="Why the platform holds: the patient's own pause, or something else that "
-        "only the therapist (or the station's limit) ends."
-    )
-
-
-class Foot(BaseModel):
-    """The foot's angles now, degrees from home (pitch > 0: toes down; roll > 0: the foot's
-    left edge up)."""
-
-    model_config = _STRICT
-    type: Literal["foot"] = "foot"
-    pitch: float
-    roll: float
-
-
-class ActionResult(BaseModel):
-    model_config = _STRICT
-    type: Literal["result"] = "result"
-    id: str | None = None
-    action: str
-    ok: bool
-    text: str = Field(default="", description="Why not, in plain words.")
-
-
-class PageError(BaseModel):
-    model_config = _STRICT
-    type: Literal["error"] = "error"
-    text: str
-
-
-# -- up: page to station ---------------------------------------------------------------------
-_Id = Annotated[str | None, Field(default=None, max_length=64)]
-_Count = Annotated[int, Field(ge=0, le=100_000)]
-
-
-class Start(BaseModel):
-    model_config = _STRICT
-    type: Literal["start"]
-    id: _Id = None
-    prescription_id: int
-
-
-class Pause(BaseModel):
-    model_config = _STRICT
-    type: Literal["pause"]
-    id: _Id = None
-
-
-class Resume(BaseModel):
-    model_config = _STRICT
-    type: Literal["resume"]
-    id: _Id = None
-
-
-class Stop(BaseModel):
-    model_config = _STRICT
-    type: Literal["stop"]
-    id: _Id = None
-
-
-class GameScore(BaseModel):
-    """The game's running totals after a gate: recorded in the session it was played in."""
-
-    model_config = _STRICT
-    type: Literal["game_score"]
-    id: _Id = None
-    session_id: str = Field(min_length=1, max_length=64)
-    game: int = Field(ge=1, le=2**31, description="Tells apart two games in one session.")
-    score: _Count = Field(description="Gates flown through.")
-    gates: _Count = Field(description="Gates that came up.")
-    missed: _Count = Field(description="Gates missed.")
-
-    @model_validator(mode="after")
-    def _adds_up(self) -> GameScore:
-        if self.score + self.missed != self.gates:
-            raise ValueError("score + missed must equal gates")
-        return self
-
-
-PageAction = Annotated[Start | Pause | Resume | Stop | GameScore, Field(discriminator="type")]
-PAGE_ACTION: TypeAdapter[Start | Pause | Resume | Stop | GameScore] = TypeAdapter(PageAction)
-PageMessage = Annotated[
-    Today | PageStatus | Foot | ActionResult | PageError, Field(discriminator="type")
-]
-
-
-def page_schemas() -> dict[str, Any]:
-    """The JSON Schema of each direction of ``/ws``, served at ``/schemas``."""
-    return {
-        "page_to_station": PAGE_ACTION.json_schema(),
-        "station_to_page": TypeAdapter(PageMessage).json_schema(),
-    }
+    @property
+    def home_progress(self) -> HomeProgress | None: ...
 
 
 # -- what the page shows -----------------------------------------------------------------------
-def game_field(body: PrescriptionBody) -> GameField | None:
-    """The game's field for an exercise; None where the platform does not yield to the foot
-    (the plane could not be steered) or neither pitch nor roll is exercised."""
-    if not body.compliant():
-        return None
-    spans: dict[str, tuple[float, float]] = {}
-    for a in body.axes:
-        if a.axis not in GAME_SPAN_DEG:
-            continue
-        lo, hi = a.limits_deg()
-        if a.rom_low is None and a.rom_high is None:
-            # Wide enough for where the platform's own target takes the foot (a sine).
-            half = GAME_SPAN_DEG[a.axis]
-            t_lo, t_hi = a.target_span_deg()
-            lo, hi = max(lo, min(a.center - half, t_lo)), min(hi, max(a.center + half, t_hi))
-        else:
-            mid, half = (lo + hi) / 2, (hi - lo) / 2 * GAME_ROM_SHARE
-            lo, hi = mid - half, mid + half
-        spans[a.axis] = (round(lo, 2), round(hi, 2))
-    if not spans:
-        return None
-    return GameField(pitch=spans.get("pitch"), roll=spans.get("roll"))
-
-
 def today(items: list[wire.PrescriptionItem]) -> Today:
     exercises = []
     for item in items:
@@ -289,36 +138,9 @@ def page_status(station: PatientStation) -> PageStatus:
         reps_done=reps_done,
         rest_remaining_s=s.rest_remaining_s,
         message=s.message,
+        starts_again_at=station.starts_again_at,
         hold=s.hold,
     )
-
-
-# -- who may connect ---------------------------------------------------------------------------
-def allowed_hosts(host: str) -> frozenset[str]:
-    """Names the page answers to: this computer's, and the address it listens on if that is
-    a particular one (a station serving its page to a tablet on the home network)."""
-    name = host.strip("[]").lower()
-    return LOOPBACK if name in _WILDCARD else LOOPBACK | {name}
-
-
-def _hostname(netloc: str) -> str | None:
-    try:
-        parts = urlsplit("//" + netloc)
-        _ = parts.port  # a port that is not a number raises
-    except ValueError:
-        return None
-    return parts.hostname
-
-
-def host_ok(host_header: str | None, hosts: Collection[str]) -> bool:
-    return bool(host_header) and _hostname(host_header or "") in hosts
-
-
-def origin_ok(origin: str | None, host_header: str | None, hosts: Collection[str]) -> bool:
-    """The page's own origin only: the scheme and the ``Host`` it was loaded from."""
-    if not origin or not host_ok(host_header, hosts):
-        return False
-    return origin.lower() == f"http://{(host_header or '').lower()}"
 
 
 # -- the app -----------------------------------------------------------------------------------
@@ -335,26 +157,18 @@ def create_patient_app(station: PatientStation, hosts: Collection[str] = LOOPBAC
         if not host_ok(request.headers.get("host"), hosts):
             raise HTTPException(400, "this page is only served to this computer")
 
-    files = {
-        "js/station.js": "text/javascript",
-        "css/station.css": "text/css",
-    }
-
     # HEAD too: the page asks it whether the station is back before reopening its socket.
     @app.api_route(
         "/", methods=["GET", "HEAD"], dependencies=[Depends(local)], include_in_schema=False
     )
     async def index() -> FileResponse:
-        return page("station.html")
+        return _file("home.html")
 
-    @app.get("/static/{kind}/{name}", dependencies=[Depends(local)], include_in_schema=False)
-    async def static(kind: str, name: str) -> FileResponse:
-        path = f"{kind}/{name}"
-        if path not in files:
+    @app.get("/static/{name}", dependencies=[Depends(local)], include_in_schema=False)
+    async def static(name: str) -> FileResponse:
+        if name not in FILES or name.endswith(".html"):
             raise HTTPException(404, "no such file")
-        return FileResponse(
-            STATIC / path, media_type=files[path], headers={"Cache-Control": "no-cache"}
-        )
+        return _file(name)
 
     @app.get("/schemas", dependencies=[Depends(local)], include_in_schema=False)
     async def schemas() -> dict[str, Any]:
@@ -374,6 +188,14 @@ def create_patient_app(station: PatientStation, hosts: Collection[str] = LOOPBAC
         await PageLink(station, websocket).run()
 
     return app
+
+
+def _file(name: str) -> FileResponse:
+    return FileResponse(
+        STATIC / name,
+        media_type=FILES[name],
+        headers={"Cache-Control": "no-cache", "Content-Security-Policy": CSP},
+    )
 
 
 class PageLink:
@@ -459,6 +281,7 @@ class PageLink:
 
     async def _push(self) -> None:
         last_items: list[wire.PrescriptionItem] | None = None
+        last_progress: HomeProgress | None = None
         last_status: dict[str, Any] | None = None
         status_at = 0.0
         period = 1.0 / FOOT_HZ
@@ -469,6 +292,10 @@ class PageLink:
             if items is not last_items:  # the station replaces the list when it changes
                 await self.send(today(items))
                 last_items = items
+            mine = self.station.home_progress
+            if mine is not last_progress and mine is not None:  # a new one replaces the last
+                await self.send(YourProgress(lines=progress_lines(mine)))
+            last_progress = mine
             status = page_status(self.station)
             state = status.model_dump()
             now = time.monotonic()
@@ -533,7 +360,7 @@ async def serve_patient_page(
         timeout_graceful_shutdown=2,
     )
     server = _Server(config)
-    shown = "localhost" if host in _WILDCARD else host.strip("[]")
+    shown = "localhost" if host in WILDCARD else host.strip("[]")
     shown = f"[{shown}]" if ":" in shown else shown
     log.info("the patient's page: http://%s:%d/", shown, bound)
     task = asyncio.ensure_future(server.serve(sockets=[sock]))
