@@ -21,7 +21,6 @@ from sessions.progress import (
     MDC_MIN_TRIALS,
     PrescriptionFacts,
     SessionFacts,
-    glance,
     minimal_detectable_change,
     progress,
 )
@@ -246,21 +245,3 @@ def test_measures_fit_each_exercise() -> None:
     only = progress([], history, now=MONDAY + 4 * DAY, kind=ExerciseKind.BALANCE)
     assert [e.exercise for e in only.exercises] == ["balance"]
     assert p.baseline is None and p.mdc == []
-
-
-def test_a_glance_for_the_patient() -> None:
-    def strength(up: float, down: float) -> ExerciseMetrics:
-        return ExerciseMetrics(kind="strength", axes={"pitch": axis(up, down)}, repetitions=[])
-
-    history = [
-        session(1, 0, MONDAY, m=strength(8, 4)),
-        session(2, 0, MONDAY + 2 * DAY, m=strength(10, 3)),
-        session(3, 0, MONDAY + 21 * DAY, m=strength(14, 6)),
-        session(4, 0, MONDAY + 22 * DAY, reason="stopped", m=strength(12, 7)),
-        session(5, 0, MONDAY + 23 * DAY),
-    ]
-    g = glance(history, week_start=MONDAY + 21 * DAY)
-    assert g.sessions_this_week == 2
-    assert g.first_week_deg == {"pitch:1": 10.0, "pitch:-1": 4.0}
-    assert g.this_week_deg == {"pitch:1": 14.0, "pitch:-1": 7.0}
-    assert glance([], week_start=MONDAY).sessions_this_week == 0
