@@ -296,6 +296,8 @@ class ControllerParams(NamedTuple):
     area_annulus: float
     sup: SupervisionParams
     sensor_zero: NDArray[np.float64]  # (25,) subtracted from each reading
+    valve_gain: NDArray[np.float64]  # (24,) each valve's air per pulse against the model
+    valve_extra: NDArray[np.float64]  # (24,) s each valve's pulse passes beyond its length
 
 
 class ControllerState(NamedTuple):
@@ -402,8 +404,15 @@ def build_params(
         dt_control=CONTROL_PERIOD * dt_tick,
         dead_volume=config.dead_volume,
         area_annulus=area_ann,
-        sup=supervision.build(config.supervision, config.atmosphere, CONTROL_PERIOD * dt_tick),
+        sup=supervision.build(
+            config.supervision,
+            config.atmosphere,
+            CONTROL_PERIOD * dt_tick,
+            config.calibration.valves_identified,
+        ),
         sensor_zero=config.calibration.sensor_zero(),
+        valve_gain=config.calibration.valve_gains(),
+        valve_extra=config.calibration.valve_extras(),
     )
     return params, sched
 
@@ -622,8 +631,9 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     for c, volume in ((lo, volume_lo), (up, volume_up)):
         # The air of the period that just ended, against what its valves were told.
         if supervision.check_air_flow(
-            s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup
-        ):
+            s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup,
+            p.valve_gain, p.valve_extra,
+        ):  # fmt: skip
             ask_service(s, c)
     for c, u, volume in ((lo, u_l, volume_lo), (up, u_u, volume_up)):
         s.u[c] = u

@@ -24,21 +24,27 @@ The result is a :class:`~device.calibration.Calibration`: saved as JSON, loaded 
 :class:`~device.hardware.Hardware` interface only (sensors in, valves out), so it is the
 same routine on the simulation and on an I/O board.
 
-What it does not identify (yet): the valves' own dead times, the platform's mass and centre
-of mass (the outer loop's integral takes up their static part), the sensors' span errors.
+4. **Pulse every valve** (:func:`identify_valves`): how much air each valve passes per
+   pulse, against the air observer's model, so that the observer (device.supervision)
+   judges a held chamber against this build's valves rather than the type's range.
+
+What it does not identify (yet): the platform's mass and centre of mass (the outer loop's
+integral takes up their static part), the sensors' span errors.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from datetime import UTC, datetime
 
 import numpy as np
 from numpy.typing import NDArray
 
-from device import signals
+from device import signals, supervision
 from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig
+from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
 from device.plant.params import TICK_HZ
 
@@ -112,11 +118,129 @@ def identify(
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
     mean = np.mean(np.array(history), axis=0)
+    pressure_zero = mean[:12] - atmosphere
+    if progress:
+        progress("identification: test pulses through every valve")
+    gains, extras = identify_valves(hardware, pressure_zero, atmosphere)
     cal = Calibration(
         leg_zero=tuple(float(v) for v in mean[signals.SENSOR_LEG : signals.SENSOR_LEG + 6]),
-        pressure_zero=tuple(float(v - atmosphere) for v in mean[:12]),
+        pressure_zero=tuple(float(v) for v in pressure_zero),
         ft_zero=tuple(float(v) for v in mean[signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6]),
+        valve_gain=gains,
+        valve_extra=extras,
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
     cal.check()
     return cal
+
+
+# -- each valve's air per pulse (start-up, after the zeros) ------------------------------
+
+PULSE_TICKS = (12, 24)
+"""Test pulse lengths (ticks of 1/7 ms): 1.7 and 3.4 ms, both longer than the slowest
+valve a build may have takes to open fully (1.21 ms of delay and 0.3 ms of travel)."""
+PULSE_CYCLES = 6
+"""Intake-then-exhaust cycles per pulse length and chamber."""
+PULSE_WAIT_READS = 15
+"""Reads (1 ms) after each pulse before its air is read: the valve has closed (at most
+1.5 ms after its coil) and the air in the tube has settled."""
+PULSE_READS = 5
+"""Readings averaged before and after each pulse (the noise of the mean: 0.1 % of a pulse)."""
+HOLD_READS = 300
+"""Reads (1 ms) the rod sides fill before the cap sides are pulsed: they reach the supply."""
+PULSE_BASE = (3.0e5, 3.5e5)
+"""Absolute pressure (Pa) each cap (rod) chamber is brought to before its pulses: an
+exhaust from there chokes (the atmosphere is below b = 0.3 of it), an intake from a 7 bar
+supply passes at least 90 % of choked flow, and a cap side pulsed from 3 bar lifts its leg
+less than the rod side, held at the supply, presses it down."""
+
+
+def identify_valves(
+    hardware: Hardware,
+    pressure_zero: NDArray[np.float64],
+    atmosphere: float = 1.01325e5,
+    config: ControllerConfig | None = None,
+    geometry: Geometry = DEFAULT_GEOMETRY,
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Each valve's air per pulse, with every leg on its lower end stop (the chambers'
+    volumes known): test pulses of two lengths into and out of each chamber, the air each
+    passed measured as the air observer measures it (change of p V over its polytropic
+    index) and divided by the flow the observer's ISO 6358 model gives. A straight line
+    through the pulse lengths gives each valve's gain (air it passes against the model's)
+    and its extra time (s: closing delay less opening delay, what a pulse passes beyond
+    its length). Returns (gains, extra times), 24 each, valve ``2c`` the intake of chamber
+    ``c``. Leaves every chamber vented and every valve closed."""
+    cfg = config if config is not None else ControllerConfig()
+    q = supervision.build(cfg.supervision, atmosphere, 4.0e-3)
+    area_cap = math.pi * cfg.bore**2 / 4.0
+    area_ann = area_cap - math.pi * cfg.rod**2 / 4.0
+    volume = np.empty(12)
+    volume[0::2] = cfg.dead_volume
+    volume[1::2] = cfg.dead_volume + area_ann * geometry.stroke
+    sensors = np.zeros(signals.N_SENSORS)
+    valves = np.zeros(signals.N_VALVES, dtype=np.uint8)
+
+    def read(pattern: NDArray[np.uint8], ticks: int = SENSOR_PERIOD_TICKS) -> NDArray[np.float64]:
+        for _ in range(ticks):
+            hardware.write_valves(pattern)
+            hardware.wait_tick()
+        hardware.read_sensors(sensors)
+        out = sensors.copy()
+        out[:12] -= pressure_zero
+        return out
+
+    def mean(pattern: NDArray[np.uint8]) -> NDArray[np.float64]:
+        average: NDArray[np.float64] = np.mean([read(pattern) for _ in range(PULSE_READS)], axis=0)
+        return average
+
+    samples: dict[int, list[tuple[float, float]]] = {v: [] for v in range(24)}
+    try:
+        for side in (0, 1):
+            chambers = list(range(side, 12, 2))
+            valves[:] = 0
+            if side == 0:  # the rod sides at the supply hold each leg down
+                valves[2::4] = 1
+            for _ in range(HOLD_READS):
+                reading = read(valves)
+            for _ in range(2000):  # bring each pulsed chamber to its base pressure
+                low = [c for c in chambers if reading[c] < PULSE_BASE[side]]
+                for c in chambers:
+                    valves[2 * c] = 1 if c in low else 0
+                if not low:
+                    break
+                reading = read(valves, 1)
+            before = mean(valves)
+            for cycle in range(PULSE_CYCLES * len(PULSE_TICKS)):
+                width = PULSE_TICKS[cycle % len(PULSE_TICKS)]
+                for intake in (True, False):
+                    pulse = valves.copy()
+                    for c in chambers:
+                        pulse[2 * c + (0 if intake else 1)] = 1
+                    read(pulse, width)
+                    for _ in range(PULSE_WAIT_READS):
+                        read(valves)
+                    after = mean(valves)
+                    for c in chambers:
+                        mid = 0.5 * (before[c] + after[c])
+                        if intake:
+                            flow = supervision.valve_flow(before[12], mid, q)
+                        else:
+                            flow = supervision.valve_flow(mid, atmosphere, q)
+                        air = abs(after[c] - before[c]) * volume[c] / q.obs_k
+                        samples[2 * c + (0 if intake else 1)].append(
+                            (width / TICK_HZ, air / max(flow, 1e-9))
+                        )
+                    before = after
+            valves[:] = 0
+            valves[1::2] = 1
+            for _ in range(int(VENT_OPEN_S * TICK_HZ / SENSOR_PERIOD_TICKS)):
+                read(valves)
+    finally:
+        hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
+    gains, extras = [], []
+    for v in range(24):
+        width, passed = np.array(samples[v]).T
+        gain, offset = np.polyfit(width, passed, 1)
+        gains.append(float(gain))
+        extras.append(float(offset / gain))
+    return tuple(gains), tuple(extras)
