@@ -24,8 +24,11 @@ PRESSURE_ZERO_MAX = 0.3e5
 """A chamber transducer more than this (Pa) off the atmosphere while vented is faulty."""
 VALVE_GAIN_RANGE = (0.5, 1.6)
 """A valve passing outside this share of the observer's model per pulse is not a build's
-spread (conductance -20/+23 %, the fill's and the discharge's polytropic index against the
-observer's 1.2: 0.83-1.17) but a blocked, leaking or wrongly wired valve."""
+spread (conductance -20/+23 % and 10 % per valve, the fill's and the discharge's polytropic
+index against the observer's 1.2: 0.83-1.17) but a blocked, leaking or miswired valve."""
+DEAD_VOLUME_RANGE = (1.0e-6, 30.0e-6)
+"""A chamber's volume beyond its piston (m3) outside this is not a build's tube (4-15 cm3
+for 0.3-1 m of 4 mm tube with its port) but a kinked, blocked or wrongly fitted one."""
 VALVE_EXTRA_MAX = 1.0e-3
 """A valve whose pulse passes more than this (s) beyond or short of its length is not a
 build's spread of delays (closing less opening: -0.6 to +0.8 ms at the extremes)."""
@@ -52,6 +55,9 @@ class Calibration:
     valve_extra: tuple[float, ...] = ()
     """Per valve: the time (s) of full flow a pulse passes beyond its length (closing
     delay less opening delay)."""
+    dead_volume: tuple[float, ...] = ()
+    """Per chamber: its volume with the piston at that chamber's end, tube included (m3),
+    from the same test pulses. Empty: the design's."""
     identified_at: str = ""
     """When (ISO 8601, UTC); empty for the uncalibrated default."""
     notes: tuple[str, ...] = field(default=())
@@ -67,6 +73,12 @@ class Calibration:
     @property
     def valves_identified(self) -> bool:
         return len(self.valve_gain) == 24 and len(self.valve_extra) == 24
+
+    def dead_volumes(self, design: float) -> NDArray[np.float64]:
+        """Per chamber (m3), for the controller: the design's where not identified."""
+        if len(self.dead_volume) == 12:
+            return np.array(self.dead_volume)
+        return np.full(12, design)
 
     def valve_gains(self) -> NDArray[np.float64]:
         """Per valve, for the controller: 1 where not identified."""
@@ -89,6 +101,7 @@ class Calibration:
                 ft_zero=_floats(data["ft_zero"], 6, "ft_zero"),
                 valve_gain=_floats(data.get("valve_gain", []), 24, "valve_gain", True),
                 valve_extra=_floats(data.get("valve_extra", []), 24, "valve_extra", True),
+                dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
             )
@@ -126,6 +139,13 @@ class Calibration:
                 )
         if len(self.valve_gain) != len(self.valve_extra) or len(self.valve_gain) not in (0, 24):
             raise IdentificationError("valve_gain and valve_extra need 24 numbers each, or none")
+        low, high = DEAD_VOLUME_RANGE
+        for c, vol in enumerate(self.dead_volume):
+            if not low <= vol <= high:
+                raise IdentificationError(
+                    f"chamber {c} holds {vol * 1e6:.1f} cm3 beyond its piston (healthy: "
+                    f"{low * 1e6:g}-{high * 1e6:g} cm3): check its tube for a leak or a kink"
+                )
         low, high = VALVE_GAIN_RANGE
         for v, (g, e) in enumerate(zip(self.valve_gain, self.valve_extra, strict=True)):
             if not low <= g <= high or abs(e) > VALVE_EXTRA_MAX:

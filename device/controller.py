@@ -292,7 +292,7 @@ class ControllerParams(NamedTuple):
     dt_tick: float
     dt_sensor: float
     dt_control: float
-    dead_volume: float
+    dead_volume: NDArray[np.float64]  # (12,) per chamber, the calibration's or the design's
     area_annulus: float
     sup: SupervisionParams
     sensor_zero: NDArray[np.float64]  # (25,) subtracted from each reading
@@ -402,7 +402,7 @@ def build_params(
         dt_tick=dt_tick,
         dt_sensor=SENSOR_PERIOD * dt_tick,
         dt_control=CONTROL_PERIOD * dt_tick,
-        dead_volume=config.dead_volume,
+        dead_volume=config.calibration.dead_volumes(config.dead_volume),
         area_annulus=area_ann,
         sup=supervision.build(
             config.supervision,
@@ -620,8 +620,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     supply = s.sensors[12]
     x = s.leg_x[leg]
     # Each chamber's volume from the measured piston, for the air checks below.
-    volume_lo = p.dead_volume + p.area_cap * x
-    volume_up = p.dead_volume + p.area_annulus * (p.stroke - x)
+    volume_lo = p.dead_volume[lo] + p.area_cap * x
+    volume_up = p.dead_volume[up] + p.area_annulus * (p.stroke - x)
     for c in (lo, up):
         # Driven: a pulse at least as long as the valve's response time, so it moved air.
         driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS

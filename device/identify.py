@@ -121,13 +121,14 @@ def identify(
     pressure_zero = mean[:12] - atmosphere
     if progress:
         progress("identification: test pulses through every valve")
-    gains, extras = identify_valves(hardware, pressure_zero, atmosphere)
+    gains, extras, dead = identify_valves(hardware, pressure_zero, atmosphere)
     cal = Calibration(
         leg_zero=tuple(float(v) for v in mean[signals.SENSOR_LEG : signals.SENSOR_LEG + 6]),
         pressure_zero=tuple(float(v) for v in pressure_zero),
         ft_zero=tuple(float(v) for v in mean[signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6]),
         valve_gain=gains,
         valve_extra=extras,
+        dead_volume=dead,
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
     cal.check()
@@ -146,6 +147,10 @@ PULSE_WAIT_READS = 15
 1.5 ms after its coil) and the air in the tube has settled."""
 PULSE_READS = 5
 """Readings averaged before and after each pulse (the noise of the mean: 0.1 % of a pulse)."""
+FILL_INDEX = 1.4
+DISCHARGE_INDEX = 1.0
+"""Polytropic indices of a fast fill (adiabatic) and of a discharge (nearly isothermal),
+Richer and Hurmuzlu 2000: what separates a chamber's volume from its valves' flow."""
 HOLD_READS = 300
 """Reads (1 ms) the rod sides fill before the cap sides are pulsed: they reach the supply."""
 PULSE_BASE = (3.0e5, 3.5e5)
@@ -161,15 +166,17 @@ def identify_valves(
     atmosphere: float = 1.01325e5,
     config: ControllerConfig | None = None,
     geometry: Geometry = DEFAULT_GEOMETRY,
-) -> tuple[tuple[float, ...], tuple[float, ...]]:
+) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
     """Each valve's air per pulse, with every leg on its lower end stop (the chambers'
     volumes known): test pulses of two lengths into and out of each chamber, the air each
     passed measured as the air observer measures it (change of p V over its polytropic
     index) and divided by the flow the observer's ISO 6358 model gives. A straight line
     through the pulse lengths gives each valve's gain (air it passes against the model's)
     and its extra time (s: closing delay less opening delay, what a pulse passes beyond
-    its length). Returns (gains, extra times), 24 each, valve ``2c`` the intake of chamber
-    ``c``. Leaves every chamber vented and every valve closed."""
+    its length). The gains of a chamber's two valves also give its volume (see below).
+    Returns (gains, extra times), 24 each, valve ``2c`` the intake of chamber ``c``, and
+    each chamber's dead volume (m3, 12). Leaves every chamber vented and every valve
+    closed."""
     cfg = config if config is not None else ControllerConfig()
     q = supervision.build(cfg.supervision, atmosphere, 4.0e-3)
     area_cap = math.pi * cfg.bore**2 / 4.0
@@ -237,10 +244,23 @@ def identify_valves(
                 read(valves)
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
-    gains, extras = [], []
+    slope, extras = np.zeros(24), np.zeros(24)
     for v in range(24):
         width, passed = np.array(samples[v]).T
-        gain, offset = np.polyfit(width, passed, 1)
-        gains.append(float(gain))
-        extras.append(float(offset / gain))
-    return tuple(gains), tuple(extras)
+        slope[v], offset = np.polyfit(width, passed, 1)
+        extras[v] = offset / slope[v]
+    # The slopes carry each chamber's true volume against the design's (its tube): what a
+    # fill and a discharge of the same air do to p V differs only by their polytropic
+    # indices, so a chamber's two slopes against those give its volume, and what is left
+    # of each slope is the valve's own conductance. The cap side, empty at its stop, tells
+    # its leg's dead volume best (a rod side's is a seventh of its volume there): both
+    # sides of a leg have the same tube and port.
+    ratio = np.sqrt(slope[0::2] * slope[1::2] / (FILL_INDEX * DISCHARGE_INDEX)) * q.obs_k
+    dead = np.repeat(volume[0::2] / ratio[0::2], 2)
+    true_volume = dead + volume - cfg.dead_volume
+    gains = slope * np.repeat(true_volume / volume, 2)
+    return (
+        tuple(float(g) for g in gains),
+        tuple(float(e) for e in extras),
+        tuple(float(d) for d in dead),
+    )

@@ -101,13 +101,16 @@ def test_with_its_calibration_the_controller_reads_true_leg_lengths() -> None:
 
 
 def test_identification_measures_what_each_valves_pulse_passes() -> None:
-    """Test pulses give each valve's gain and extra time; valves that close 0.35 ms later
-    (the type's slow end) are measured as passing that much more per pulse."""
+    """Test pulses give each valve's gain and extra time and each chamber's volume: valves
+    that close 0.35 ms later (the type's slow end) are measured as passing that much more
+    per pulse, and a 1 m tube (twice the design's dead volume) as the volume it holds."""
     extras = {}
-    for name, overrides in (("nominal", ()), ("slow closing", (("valve_close_delay", 1.2e-3),))):
+    slow = (("valve_close_delay", 1.2e-3), ("tube_length", 1.0))
+    for name, overrides in (("nominal", ()), ("slow closing", slow)):
         hw = SimulatedHardware(PlantConfig(patient="absent", overrides=overrides), seed=3)
         cal = identify(hw)
         assert cal.valves_identified
+        assert np.abs(np.array(cal.dead_volume) - hw.params.dead_volume).max() < 2e-6
         gain = np.array(cal.valve_gain)
         # Against the observer's polytropic 1.2: a fill passes about 1.4/1.2, a discharge
         # 1.0/1.2 of the model's air (each valve's conductance within 5 %).
@@ -131,10 +134,12 @@ def test_a_calibration_without_valves_still_loads_and_bad_valves_are_refused(
     loaded = Calibration.load(path)
     assert not loaded.valves_identified
     assert np.all(loaded.valve_gains() == 1.0) and np.all(loaded.valve_extras() == 0.0)
+    assert np.all(loaded.dead_volumes(7e-6) == 7e-6)
     for change, match in (
         ({"valve_gain": [1.0] * 23}, "valve_gain needs 24"),
         ({"valve_extra": [0.0] * 5 + [3e-3] + [0.0] * 18}, "exhaust of chamber 2"),
         ({"valve_gain": [0.1] + [1.0] * 23}, "intake of chamber 0"),
+        ({"dead_volume": [7e-6] * 11 + [60e-6]}, "chamber 11 holds 60.0 cm3"),
     ):
         path.write_text(json.dumps(json.loads(cal.to_json()) | change))
         with pytest.raises(IdentificationError, match=match):
