@@ -151,6 +151,10 @@ FILL_INDEX = 1.4
 DISCHARGE_INDEX = 1.0
 """Polytropic indices of a fast fill (adiabatic) and of a discharge (nearly isothermal),
 Richer and Hurmuzlu 2000: what separates a chamber's volume from its valves' flow."""
+BASE_BAND = 0.1e5
+"""Each cycle starts within this (Pa) of its base pressure..."""
+BASE_TICKS_MAX = 3500
+"""...reached by opening the intake or the exhaust for at most this many ticks (0.5 s)."""
 HOLD_READS = 300
 """Reads (1 ms) the rod sides fill before the cap sides are pulsed: they reach the supply."""
 PULSE_BASE = (3.0e5, 3.5e5)
@@ -200,6 +204,25 @@ def identify_valves(
         average: NDArray[np.float64] = np.mean([read(pattern) for _ in range(PULSE_READS)], axis=0)
         return average
 
+    def to_base(pattern: NDArray[np.uint8], chambers: list[int], base: float) -> None:
+        """Every cycle starts from the same pressure: a small chamber's pulses would
+        otherwise ratchet it towards the supply, where the flow is least like the model."""
+        reading = read(pattern)
+        for _ in range(BASE_TICKS_MAX):
+            done = True
+            for c in chambers:
+                off = reading[c] - base
+                pattern[2 * c] = 1 if off < -BASE_BAND else 0
+                pattern[2 * c + 1] = 1 if off > BASE_BAND else 0
+                done = done and abs(off) <= BASE_BAND
+            if done:
+                break
+            reading = read(pattern, 1)
+        for c in chambers:
+            pattern[2 * c] = pattern[2 * c + 1] = 0
+        for _ in range(PULSE_WAIT_READS):
+            read(pattern)
+
     samples: dict[int, list[tuple[float, float]]] = {v: [] for v in range(24)}
     try:
         for side in (0, 1):
@@ -208,17 +231,11 @@ def identify_valves(
             if side == 0:  # the rod sides at the supply hold each leg down
                 valves[2::4] = 1
             for _ in range(HOLD_READS):
-                reading = read(valves)
-            for _ in range(2000):  # bring each pulsed chamber to its base pressure
-                low = [c for c in chambers if reading[c] < PULSE_BASE[side]]
-                for c in chambers:
-                    valves[2 * c] = 1 if c in low else 0
-                if not low:
-                    break
-                reading = read(valves, 1)
-            before = mean(valves)
+                read(valves)
             for cycle in range(PULSE_CYCLES * len(PULSE_TICKS)):
                 width = PULSE_TICKS[cycle % len(PULSE_TICKS)]
+                to_base(valves, chambers, PULSE_BASE[side])
+                before = mean(valves)
                 for intake in (True, False):
                     pulse = valves.copy()
                     for c in chambers:
