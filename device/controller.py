@@ -351,6 +351,7 @@ def build_params(
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0
+    observed = config.calibration if config.supervision.use_identified_valves else Calibration()
     area_ann = area_cap - math.pi * config.rod**2 / 4.0
     p_supply_abs = config.supply_pressure + config.atmosphere
     dt_tick = 1.0 / TICK_HZ
@@ -402,17 +403,17 @@ def build_params(
         dt_tick=dt_tick,
         dt_sensor=SENSOR_PERIOD * dt_tick,
         dt_control=CONTROL_PERIOD * dt_tick,
-        dead_volume=config.calibration.dead_volumes(config.dead_volume),
+        dead_volume=observed.dead_volumes(config.dead_volume),
         area_annulus=area_ann,
         sup=supervision.build(
             config.supervision,
             config.atmosphere,
             CONTROL_PERIOD * dt_tick,
-            config.calibration.valves_identified,
+            config.calibration.valves_identified and config.supervision.use_identified_valves,
         ),
         sensor_zero=config.calibration.sensor_zero(),
-        valve_gain=config.calibration.valve_gains(),
-        valve_extra=config.calibration.valve_extras(),
+        valve_gain=observed.valve_gains(),
+        valve_extra=observed.valve_extras(),
     )
     return params, sched
 

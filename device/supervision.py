@@ -251,6 +251,9 @@ class SupervisionConfig:
     each valve's own air per pulse: the valves' jitter (up to 0.1 ms rms per switching) and
     what the identification's straight line misses of a pulse at another pressure."""
     observer_flow_tolerance_identified: float = 0.15
+    use_identified_valves: bool = False
+    """Off: a healthy strength exercise on draw 11 reached 1.6 of the narrowed tolerance (a
+    false service warning). Measured gains and times are kept in the calibration."""
     """...and the share of the flow, once identified: what is left of the type's range is
     the critical ratio at another pressure than the identification's (up to 10 %) and the
     polytropic index of a mixed period. Measured healthy, holding at four poses with a
@@ -650,9 +653,9 @@ def check_air_flow(
         into = slots > 0
         flow = valve_flow(supply + q.atm, p_mid, q) if into else -valve_flow(p_mid, q.atm, q)
         v = 2 * c + (0 if into else 1)
-        flow *= valve_gain[v]
         open_time = width * q.slot_time
-        if width < 28:
+        if width < 28:  # a pulse: as this build's valve passes one (device.identify)
+            flow *= valve_gain[v]
             open_time = max(0.0, open_time + valve_extra[v])
         expected = flow * open_time
         tolerance += q.obs_flow_tol * abs(expected)

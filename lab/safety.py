@@ -83,15 +83,8 @@ class FaultRun:
     notes: str = ""
 
 
-def _rig(patient: str, seed: int, cfg: PlantConfig | None = None) -> Rig:
-    """The nominal unit (or build ``cfg``), calibrated by its start-up identification as the
-    device is: its zeros and each valve's air per pulse."""
-    from device.controller import ControllerConfig
-    from lab.experiments import calibration_of
-
-    plant = cfg if cfg is not None else PlantConfig(patient=patient)
-    config = ControllerConfig(calibration=calibration_of(plant))
-    return Rig(SimulatedHardware(plant, seed=seed), config=config)
+def _rig(patient: str, seed: int) -> Rig:
+    return Rig(SimulatedHardware(PlantConfig(patient=patient), seed=seed))
 
 
 def _start(rig: Rig, scenario: str) -> None:
@@ -248,9 +241,13 @@ def _library_targets(
 
 def _drawn_rig(patient: str, draw: int) -> Rig:
     """Drawn build ``draw``, calibrated by its start-up identification as the device is."""
+    from device.controller import ControllerConfig
     from device.plant.params import draw_plant
+    from lab.experiments import calibration_of
 
-    return _rig(patient, draw, draw_plant(draw, patient))
+    cfg = draw_plant(draw, patient)
+    config = ControllerConfig(calibration=calibration_of(cfg))
+    return Rig(SimulatedHardware(cfg, seed=draw), config=config)
 
 
 def start_exercise(rig: Rig, kind: ExerciseKind) -> None:
