@@ -22,6 +22,16 @@ LEG_ZERO_MAX = 3.0e-3
 the identification refuses it rather than let the controller trust it."""
 PRESSURE_ZERO_MAX = 0.3e5
 """A chamber transducer more than this (Pa) off the atmosphere while vented is faulty."""
+VALVE_GAIN_RANGE = (0.5, 1.6)
+"""A valve passing outside this share of the observer's model per pulse is not a build's
+spread (conductance -20/+23 % and 10 % per valve, the fill's and the discharge's polytropic
+index against the observer's 1.2: 0.83-1.17) but a blocked, leaking or miswired valve."""
+DEAD_VOLUME_RANGE = (1.0e-6, 30.0e-6)
+"""A chamber's volume beyond its piston (m3) outside this is not a build's tube (4-15 cm3
+for 0.3-1 m of 4 mm tube with its port) but a kinked, blocked or wrongly fitted one."""
+VALVE_EXTRA_MAX = 1.0e-3
+"""A valve whose pulse passes more than this (s) beyond or short of its length is not a
+build's spread of delays (closing less opening: -0.6 to +0.8 ms at the extremes)."""
 
 
 class IdentificationError(RuntimeError):
@@ -38,6 +48,16 @@ class Calibration:
     """What each chamber transducer reads above the atmosphere when vented (Pa)."""
     ft_zero: tuple[float, ...] = (0.0,) * 6
     """What the force/torque sensor reads with nothing on the plate (N, N m)."""
+    valve_gain: tuple[float, ...] = ()
+    """Per valve (``2c`` intake, ``2c + 1`` exhaust of chamber ``c``): the air a pulse passes
+    against the air observer's ISO 6358 model (device.supervision.valve_flow). Empty: not
+    identified, and the observer forgives the whole type's range."""
+    valve_extra: tuple[float, ...] = ()
+    """Per valve: the time (s) of full flow a pulse passes beyond its length (closing
+    delay less opening delay)."""
+    dead_volume: tuple[float, ...] = ()
+    """Per chamber: its volume with the piston at that chamber's end, tube included (m3),
+    from the same test pulses. Empty: the design's."""
     identified_at: str = ""
     """When (ISO 8601, UTC); empty for the uncalibrated default."""
     notes: tuple[str, ...] = field(default=())
@@ -50,6 +70,24 @@ class Calibration:
         z[signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6] = self.ft_zero
         return z
 
+    @property
+    def valves_identified(self) -> bool:
+        return len(self.valve_gain) == 24 and len(self.valve_extra) == 24
+
+    def dead_volumes(self, design: float) -> NDArray[np.float64]:
+        """Per chamber (m3), for the controller: the design's where not identified."""
+        if len(self.dead_volume) == 12:
+            return np.array(self.dead_volume)
+        return np.full(12, design)
+
+    def valve_gains(self) -> NDArray[np.float64]:
+        """Per valve, for the controller: 1 where not identified."""
+        return np.array(self.valve_gain) if self.valves_identified else np.ones(24)
+
+    def valve_extras(self) -> NDArray[np.float64]:
+        """Per valve (s), for the controller: 0 where not identified."""
+        return np.array(self.valve_extra) if self.valves_identified else np.zeros(24)
+
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
 
@@ -61,6 +99,9 @@ class Calibration:
                 leg_zero=_floats(data["leg_zero"], 6, "leg_zero"),
                 pressure_zero=_floats(data["pressure_zero"], 12, "pressure_zero"),
                 ft_zero=_floats(data["ft_zero"], 6, "ft_zero"),
+                valve_gain=_floats(data.get("valve_gain", []), 24, "valve_gain", True),
+                valve_extra=_floats(data.get("valve_extra", []), 24, "valve_extra", True),
+                dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
             )
@@ -96,9 +137,29 @@ class Calibration:
                     f"chamber {c} transducer reads {z / 1e5:+.2f} bar vented (more than "
                     f"{PRESSURE_ZERO_MAX / 1e5:g} bar): check the transducer and its valves"
                 )
+        if len(self.valve_gain) != len(self.valve_extra) or len(self.valve_gain) not in (0, 24):
+            raise IdentificationError("valve_gain and valve_extra need 24 numbers each, or none")
+        low, high = DEAD_VOLUME_RANGE
+        for c, vol in enumerate(self.dead_volume):
+            if not low <= vol <= high:
+                raise IdentificationError(
+                    f"chamber {c} holds {vol * 1e6:.1f} cm3 beyond its piston (healthy: "
+                    f"{low * 1e6:g}-{high * 1e6:g} cm3): check its tube for a leak or a kink"
+                )
+        low, high = VALVE_GAIN_RANGE
+        for v, (g, e) in enumerate(zip(self.valve_gain, self.valve_extra, strict=True)):
+            if not low <= g <= high or abs(e) > VALVE_EXTRA_MAX:
+                which = "intake" if v % 2 == 0 else "exhaust"
+                raise IdentificationError(
+                    f"the {which} of chamber {v // 2} passes {g:.2f} times the model's air "
+                    f"and {e * 1e3:+.2f} ms beyond its pulse (healthy: {low:g}-{high:g} and "
+                    f"within {VALVE_EXTRA_MAX * 1e3:g} ms): check the valve and its tube"
+                )
 
 
-def _floats(values: object, n: int, name: str) -> tuple[float, ...]:
+def _floats(values: object, n: int, name: str, optional: bool = False) -> tuple[float, ...]:
+    if optional and isinstance(values, list | tuple) and not values:
+        return ()
     if not isinstance(values, list | tuple) or len(values) != n:
         raise ValueError(f"{name} needs {n} numbers")
     out = tuple(float(v) for v in values)

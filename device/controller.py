@@ -292,10 +292,12 @@ class ControllerParams(NamedTuple):
     dt_tick: float
     dt_sensor: float
     dt_control: float
-    dead_volume: float
+    dead_volume: NDArray[np.float64]  # (12,) per chamber, the calibration's or the design's
     area_annulus: float
     sup: SupervisionParams
     sensor_zero: NDArray[np.float64]  # (25,) subtracted from each reading
+    valve_gain: NDArray[np.float64]  # (24,) each valve's air per pulse against the model
+    valve_extra: NDArray[np.float64]  # (24,) s each valve's pulse passes beyond its length
 
 
 class ControllerState(NamedTuple):
@@ -349,6 +351,7 @@ def build_params(
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0
+    observed = config.calibration if config.supervision.use_identified_valves else Calibration()
     area_ann = area_cap - math.pi * config.rod**2 / 4.0
     p_supply_abs = config.supply_pressure + config.atmosphere
     dt_tick = 1.0 / TICK_HZ
@@ -400,10 +403,17 @@ def build_params(
         dt_tick=dt_tick,
         dt_sensor=SENSOR_PERIOD * dt_tick,
         dt_control=CONTROL_PERIOD * dt_tick,
-        dead_volume=config.dead_volume,
+        dead_volume=observed.dead_volumes(config.dead_volume),
         area_annulus=area_ann,
-        sup=supervision.build(config.supervision, config.atmosphere, CONTROL_PERIOD * dt_tick),
+        sup=supervision.build(
+            config.supervision,
+            config.atmosphere,
+            CONTROL_PERIOD * dt_tick,
+            config.calibration.valves_identified and config.supervision.use_identified_valves,
+        ),
         sensor_zero=config.calibration.sensor_zero(),
+        valve_gain=observed.valve_gains(),
+        valve_extra=observed.valve_extras(),
     )
     return params, sched
 
@@ -611,8 +621,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     supply = s.sensors[12]
     x = s.leg_x[leg]
     # Each chamber's volume from the measured piston, for the air checks below.
-    volume_lo = p.dead_volume + p.area_cap * x
-    volume_up = p.dead_volume + p.area_annulus * (p.stroke - x)
+    volume_lo = p.dead_volume[lo] + p.area_cap * x
+    volume_up = p.dead_volume[up] + p.area_annulus * (p.stroke - x)
     for c in (lo, up):
         # Driven: a pulse at least as long as the valve's response time, so it moved air.
         driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
@@ -622,8 +632,9 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     for c, volume in ((lo, volume_lo), (up, volume_up)):
         # The air of the period that just ended, against what its valves were told.
         if supervision.check_air_flow(
-            s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup
-        ):
+            s.monitor, s.counters, c, s.slots[c], s.pressure[c], volume, supply - p.p_atm, p.sup,
+            p.valve_gain, p.valve_extra,
+        ):  # fmt: skip
             ask_service(s, c)
     for c, u, volume in ((lo, u_l, volume_lo), (up, u_u, volume_up)):
         s.u[c] = u

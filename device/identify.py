@@ -24,21 +24,27 @@ The result is a :class:`~device.calibration.Calibration`: saved as JSON, loaded 
 :class:`~device.hardware.Hardware` interface only (sensors in, valves out), so it is the
 same routine on the simulation and on an I/O board.
 
-What it does not identify (yet): the valves' own dead times, the platform's mass and centre
-of mass (the outer loop's integral takes up their static part), the sensors' span errors.
+4. **Pulse every valve** (:func:`identify_valves`): how much air each valve passes per
+   pulse, against the air observer's model, so that the observer (device.supervision)
+   judges a held chamber against this build's valves rather than the type's range.
+
+What it does not identify (yet): the platform's mass and centre of mass (the outer loop's
+integral takes up their static part), the sensors' span errors.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from datetime import UTC, datetime
 
 import numpy as np
 from numpy.typing import NDArray
 
-from device import signals
+from device import signals, supervision
 from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig
+from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
 from device.plant.params import TICK_HZ
 
@@ -112,11 +118,166 @@ def identify(
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
     mean = np.mean(np.array(history), axis=0)
+    pressure_zero = mean[:12] - atmosphere
+    if progress:
+        progress("identification: test pulses through every valve")
+    gains, extras, dead = identify_valves(hardware, pressure_zero, atmosphere)
     cal = Calibration(
         leg_zero=tuple(float(v) for v in mean[signals.SENSOR_LEG : signals.SENSOR_LEG + 6]),
-        pressure_zero=tuple(float(v - atmosphere) for v in mean[:12]),
+        pressure_zero=tuple(float(v) for v in pressure_zero),
         ft_zero=tuple(float(v) for v in mean[signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6]),
+        valve_gain=gains,
+        valve_extra=extras,
+        dead_volume=dead,
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
     cal.check()
     return cal
+
+
+# -- each valve's air per pulse (start-up, after the zeros) ------------------------------
+
+PULSE_TICKS = (12, 24)
+"""Test pulse lengths (ticks of 1/7 ms): 1.7 and 3.4 ms, both longer than the slowest
+valve a build may have takes to open fully (1.21 ms of delay and 0.3 ms of travel)."""
+PULSE_CYCLES = 6
+"""Intake-then-exhaust cycles per pulse length and chamber."""
+PULSE_WAIT_READS = 15
+"""Reads (1 ms) after each pulse before its air is read: the valve has closed (at most
+1.5 ms after its coil) and the air in the tube has settled."""
+PULSE_READS = 5
+"""Readings averaged before and after each pulse (the noise of the mean: 0.1 % of a pulse)."""
+FILL_INDEX = 1.4
+DISCHARGE_INDEX = 1.0
+"""Polytropic indices of a fast fill (adiabatic) and of a discharge (nearly isothermal),
+Richer and Hurmuzlu 2000: what separates a chamber's volume from its valves' flow."""
+BASE_BAND = 0.1e5
+"""Each cycle starts within this (Pa) of its base pressure..."""
+BASE_TICKS_MAX = 3500
+"""...reached by opening the intake or the exhaust for at most this many ticks (0.5 s)."""
+HOLD_READS = 300
+"""Reads (1 ms) the rod sides fill before the cap sides are pulsed: they reach the supply."""
+PULSE_BASE = (3.0e5, 3.5e5)
+"""Absolute pressure (Pa) each cap (rod) chamber is brought to before its pulses: an
+exhaust from there chokes (the atmosphere is below b = 0.3 of it), an intake from a 7 bar
+supply passes at least 90 % of choked flow, and a cap side pulsed from 3 bar lifts its leg
+less than the rod side, held at the supply, presses it down."""
+
+
+def identify_valves(
+    hardware: Hardware,
+    pressure_zero: NDArray[np.float64],
+    atmosphere: float = 1.01325e5,
+    config: ControllerConfig | None = None,
+    geometry: Geometry = DEFAULT_GEOMETRY,
+) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """Each valve's air per pulse, with every leg on its lower end stop (the chambers'
+    volumes known): test pulses of two lengths into and out of each chamber, the air each
+    passed measured as the air observer measures it (change of p V over its polytropic
+    index) and divided by the flow the observer's ISO 6358 model gives. A straight line
+    through the pulse lengths gives each valve's gain (air it passes against the model's)
+    and its extra time (s: closing delay less opening delay, what a pulse passes beyond
+    its length). The gains of a chamber's two valves also give its volume (see below).
+    Returns (gains, extra times), 24 each, valve ``2c`` the intake of chamber ``c``, and
+    each chamber's dead volume (m3, 12). Leaves every chamber vented and every valve
+    closed."""
+    cfg = config if config is not None else ControllerConfig()
+    q = supervision.build(cfg.supervision, atmosphere, 4.0e-3)
+    area_cap = math.pi * cfg.bore**2 / 4.0
+    area_ann = area_cap - math.pi * cfg.rod**2 / 4.0
+    volume = np.empty(12)
+    volume[0::2] = cfg.dead_volume
+    volume[1::2] = cfg.dead_volume + area_ann * geometry.stroke
+    sensors = np.zeros(signals.N_SENSORS)
+    valves = np.zeros(signals.N_VALVES, dtype=np.uint8)
+
+    def read(pattern: NDArray[np.uint8], ticks: int = SENSOR_PERIOD_TICKS) -> NDArray[np.float64]:
+        for _ in range(ticks):
+            hardware.write_valves(pattern)
+            hardware.wait_tick()
+        hardware.read_sensors(sensors)
+        out = sensors.copy()
+        out[:12] -= pressure_zero
+        return out
+
+    def mean(pattern: NDArray[np.uint8]) -> NDArray[np.float64]:
+        average: NDArray[np.float64] = np.mean([read(pattern) for _ in range(PULSE_READS)], axis=0)
+        return average
+
+    def to_base(pattern: NDArray[np.uint8], chambers: list[int], base: float) -> None:
+        """Every cycle starts from the same pressure: a small chamber's pulses would
+        otherwise ratchet it towards the supply, where the flow is least like the model."""
+        reading = read(pattern)
+        for _ in range(BASE_TICKS_MAX):
+            done = True
+            for c in chambers:
+                off = reading[c] - base
+                pattern[2 * c] = 1 if off < -BASE_BAND else 0
+                pattern[2 * c + 1] = 1 if off > BASE_BAND else 0
+                done = done and abs(off) <= BASE_BAND
+            if done:
+                break
+            reading = read(pattern, 1)
+        for c in chambers:
+            pattern[2 * c] = pattern[2 * c + 1] = 0
+        for _ in range(PULSE_WAIT_READS):
+            read(pattern)
+
+    samples: dict[int, list[tuple[float, float]]] = {v: [] for v in range(24)}
+    try:
+        for side in (0, 1):
+            chambers = list(range(side, 12, 2))
+            valves[:] = 0
+            if side == 0:  # the rod sides at the supply hold each leg down
+                valves[2::4] = 1
+            for _ in range(HOLD_READS):
+                read(valves)
+            for cycle in range(PULSE_CYCLES * len(PULSE_TICKS)):
+                width = PULSE_TICKS[cycle % len(PULSE_TICKS)]
+                to_base(valves, chambers, PULSE_BASE[side])
+                before = mean(valves)
+                for intake in (True, False):
+                    pulse = valves.copy()
+                    for c in chambers:
+                        pulse[2 * c + (0 if intake else 1)] = 1
+                    read(pulse, width)
+                    for _ in range(PULSE_WAIT_READS):
+                        read(valves)
+                    after = mean(valves)
+                    for c in chambers:
+                        mid = 0.5 * (before[c] + after[c])
+                        if intake:
+                            flow = supervision.valve_flow(before[12], mid, q)
+                        else:
+                            flow = supervision.valve_flow(mid, atmosphere, q)
+                        air = abs(after[c] - before[c]) * volume[c] / q.obs_k
+                        samples[2 * c + (0 if intake else 1)].append(
+                            (width / TICK_HZ, air / max(flow, 1e-9))
+                        )
+                    before = after
+            valves[:] = 0
+            valves[1::2] = 1
+            for _ in range(int(VENT_OPEN_S * TICK_HZ / SENSOR_PERIOD_TICKS)):
+                read(valves)
+    finally:
+        hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
+    slope, extras = np.zeros(24), np.zeros(24)
+    for v in range(24):
+        width, passed = np.array(samples[v]).T
+        slope[v], offset = np.polyfit(width, passed, 1)
+        extras[v] = offset / slope[v]
+    # The slopes carry each chamber's true volume against the design's (its tube): what a
+    # fill and a discharge of the same air do to p V differs only by their polytropic
+    # indices, so a chamber's two slopes against those give its volume, and what is left
+    # of each slope is the valve's own conductance. The cap side, empty at its stop, tells
+    # its leg's dead volume best (a rod side's is a seventh of its volume there): both
+    # sides of a leg have the same tube and port.
+    ratio = np.sqrt(slope[0::2] * slope[1::2] / (FILL_INDEX * DISCHARGE_INDEX)) * q.obs_k
+    dead = np.repeat(volume[0::2] / ratio[0::2], 2)
+    true_volume = dead + volume - cfg.dead_volume
+    gains = slope * np.repeat(true_volume / volume, 2)
+    return (
+        tuple(float(g) for g in gains),
+        tuple(float(e) for e in extras),
+        tuple(float(d) for d in dead),
+    )

@@ -13,7 +13,7 @@ from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig
 from device.hardware import SimulatedHardware
 from device.identify import identify
-from device.plant.params import PlantConfig, draw_plant
+from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
 
 
@@ -98,3 +98,49 @@ def test_with_its_calibration_the_controller_reads_true_leg_lengths() -> None:
     # What is left: the spans' error (not identified), a count and the noise.
     assert errors["calibrated"] < span + 30e-6
     assert errors["raw"] > 100e-6  # the unit's own zeros (up to 0.2 mm nominal)
+
+
+def test_identification_measures_what_each_valves_pulse_passes() -> None:
+    """Test pulses give each valve's gain and extra time and each chamber's volume: valves
+    that close 0.35 ms later (the type's slow end) are measured as passing that much more
+    per pulse, and a 1 m tube (twice the design's dead volume) as the volume it holds."""
+    extras = {}
+    slow = (("valve_close_delay", 1.2e-3), ("tube_length", 1.0))
+    for name, overrides in (("nominal", ()), ("slow closing", slow)):
+        hw = SimulatedHardware(PlantConfig(patient="absent", overrides=overrides), seed=3)
+        cal = identify(hw)
+        assert cal.valves_identified
+        assert np.abs(np.array(cal.dead_volume) - hw.params.dead_volume).max() < 2e-6
+        gain = np.array(cal.valve_gain)
+        # Against the observer's polytropic 1.2: a fill passes about 1.4/1.2, a discharge
+        # 1.0/1.2 of the model's air (each valve's conductance within 5 %).
+        assert np.all(np.abs(gain[0::2] - 1.0) < 0.2) and np.all(np.abs(gain[1::2] - 0.83) < 0.1)
+        extras[name] = np.array(cal.valve_extra)
+        assert not hw.state.valve_cmd.any()
+    shift = extras["slow closing"] - extras["nominal"]
+    true_shift = 1.2e-3 - PARAMETERS["valve_close_delay"].value
+    assert abs(shift.mean() - true_shift) < 0.1e-3, shift
+
+
+def test_a_calibration_without_valves_still_loads_and_bad_valves_are_refused(
+    tmp_path: Path,
+) -> None:
+    cal = Calibration(valve_gain=(1.0,) * 24, valve_extra=(1e-4,) * 24, identified_at="x")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    assert Calibration.load(path) == cal and cal.valves_identified
+    older = {k: v for k, v in json.loads(cal.to_json()).items() if not k.startswith("valve_")}
+    path.write_text(json.dumps(older))
+    loaded = Calibration.load(path)
+    assert not loaded.valves_identified
+    assert np.all(loaded.valve_gains() == 1.0) and np.all(loaded.valve_extras() == 0.0)
+    assert np.all(loaded.dead_volumes(7e-6) == 7e-6)
+    for change, match in (
+        ({"valve_gain": [1.0] * 23}, "valve_gain needs 24"),
+        ({"valve_extra": [0.0] * 5 + [3e-3] + [0.0] * 18}, "exhaust of chamber 2"),
+        ({"valve_gain": [0.1] + [1.0] * 23}, "intake of chamber 0"),
+        ({"dead_volume": [7e-6] * 11 + [60e-6]}, "chamber 11 holds 60.0 cm3"),
+    ):
+        path.write_text(json.dumps(json.loads(cal.to_json()) | change))
+        with pytest.raises(IdentificationError, match=match):
+            Calibration.load(path)
