@@ -137,6 +137,10 @@ class Calibration:
                     f"chamber {c} transducer reads {z / 1e5:+.2f} bar vented (more than "
                     f"{PRESSURE_ZERO_MAX / 1e5:g} bar): check the transducer and its valves"
                 )
+        self.check_valves()
+
+    def check_valves(self) -> None:
+        """Refuse valve figures and dead volumes no healthy unit has."""
         if len(self.valve_gain) != len(self.valve_extra) or len(self.valve_gain) not in (0, 24):
             raise IdentificationError("valve_gain and valve_extra need 24 numbers each, or none")
         low, high = DEAD_VOLUME_RANGE
