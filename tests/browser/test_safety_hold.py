@@ -14,7 +14,7 @@ from playwright.sync_api import BrowserContext, Page, expect
 from tests.browser.test_live import sign_in, therapist_token
 from tests.browser.test_patient_page import uploaded_session, wait_for_page
 from tests.system.harness import System
-from tests.system.test_hold import stall
+from tests.system.test_hold import STALL_S, stall
 
 MINUTE_MS = 60_000
 LIMIT_S = 30
@@ -54,7 +54,7 @@ def test_a_safety_hold_is_told_apart_from_a_pause_and_ends_by_itself(
     expect(todo).to_contain_text(BODY["instructions"], timeout=MINUTE_MS)
     expect(platform).to_have_text("The platform is moving with you", timeout=MINUTE_MS)
 
-    stall(system, 1.0)
+    stall(system, STALL_S)
     expect(todo).to_contain_text(
         "The platform stopped to keep you safe: it lost contact with this computer for a "
         "moment. Keep your foot still. Your therapist has been told and can carry on; if "

@@ -21,6 +21,7 @@ from sessions.prescription import AXIS_INDEX
 from sessions.recording import decode
 from station.reasons import HOLD_LIMIT_S
 from tests.system.harness import (
+    WATCHDOG_MS,
     System,
     active,
     bearer,
@@ -34,8 +35,9 @@ from tests.system.harness import (
 )
 
 LIMIT_S = 3.0
-STALL_S = 1.0
-"""Five times the device's watchdog time (200 ms): the device holds for certain."""
+STALL_S = 2 * WATCHDOG_MS / 1000
+"""Twice the device's watchdog time in these tests (``harness.WATCHDOG_MS``): it holds for
+certain."""
 
 
 def stall(system: System, seconds: float) -> None:
