@@ -17,18 +17,13 @@ from server.attention import OFFLINE_DAYS, missed_this_week, week_start
 from server.models import Session, Station
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import (
-    MAGIC,
     SAMPLE_DTYPE,
-    DeviceInfo,
     End,
     EndReason,
-    Header,
-    RecordType,
     SessionEvent,
-    encode_json,
-    encode_samples,
 )
 from tests.server.live_server import Live, World, bearer
+from tests.server.test_series import recording_bytes
 
 pytestmark = pytest.mark.both_stores
 
@@ -44,26 +39,21 @@ def recording(
     end: End,
     events: list[SessionEvent],
 ) -> bytes:
-    """A short recording as a station writes it: header, samples, events, end."""
+    """A short recording as a station writes it (``test_series.recording_bytes``): 2 s of
+    samples from ``started``, ending as ``end`` says."""
     rows = np.zeros(20, SAMPLE_DTYPE)
     rows["t"] = np.arange(20) / 10
     rows["wall"] = started + np.arange(20) / 10
-    header = Header(
-        session_id=sid,
-        station_id=station,
-        patient_id=patient,
-        prescription_id=rx,
-        prescription=STRENGTH,
-        device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=10, home_pose=[0.0] * 6),
-        software="test",
-        started_at=started,
-    )
-    return (
-        MAGIC
-        + encode_json(RecordType.HEADER, header)
-        + encode_samples(rows)
-        + b"".join(encode_json(RecordType.EVENT, e) for e in events)
-        + encode_json(RecordType.END, end)
+    return recording_bytes(
+        sid,
+        rows,
+        station,
+        patient,
+        rx,
+        events=events,
+        reason=end.reason,
+        end_text=end.text,
+        repetitions=end.repetitions_completed,
     )
 
 

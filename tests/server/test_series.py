@@ -78,6 +78,7 @@ def recording_bytes(
     events: Sequence[SessionEvent] = (),
     reason: EndReason = "completed",
     end_text: str = "",
+    repetitions: int = 3,
 ) -> bytes:
     """A whole recording (header, samples, events, end record) as the station writes it;
     its times are those of ``rows["wall"]``."""
@@ -97,7 +98,7 @@ def recording_bytes(
         reason=reason,
         text=end_text,
         sets_completed=1,
-        repetitions_completed=3,
+        repetitions_completed=repetitions,
     )
     blocks = [encode_samples(rows[i : i + 1000]) for i in range(0, len(rows), 1000)]
     return (
