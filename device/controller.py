@@ -147,6 +147,14 @@ class ControllerConfig:
     13.7 Hz at yaw K = 200, B = 0.2; 1.0 mm let a stiff-sealed leg trip the stuck-sensor
     check in a slow push; 0.6 and 0.7 mm passed both, and a frozen leg sensor moved the
     platform at most 1.4 deg, 3.3 mm before its trip."""
+    position_integral_deadband: float = 30.0e-6
+    """Outside rendering, the integral sees only the part of the error beyond this (m): one
+    count of the leg sensor (25 um, 12 bits over the stroke and its margins) and its noise
+    (5 um rms). An error the sensor cannot resolve says nothing about which way the leg
+    should go, and integrating it is what let a frozen reading move the platform: with the
+    reading stuck one count short of a held target, the integral grew by 3.6 N a second
+    until the leg broke free and ran 20 mm (9 deg) before anything noticed. A leg resting
+    within a count of its target is where its sensor says it should be."""
     position_integral_zone: float = 2.0e-3
     """The outer integral runs only while the leg is this close to its target (m)..."""
     position_integral_speed: float = 5.0e-3
@@ -267,6 +275,7 @@ class ControllerParams(NamedTuple):
     pos_i_zone: float
     pos_i_speed: float
     pos_i_band: float
+    pos_i_deadband: float
     pos_i_max: float
     kp_p: float
     ki_p: float
@@ -378,6 +387,7 @@ def build_params(
         pos_i_zone=config.position_integral_zone,
         pos_i_speed=config.position_integral_speed,
         pos_i_band=config.position_integral_band,
+        pos_i_deadband=config.position_integral_deadband,
         pos_i_max=config.position_integral_max,
         kp_p=config.pressure_kp,
         ki_p=config.pressure_ki,
@@ -582,8 +592,10 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             if s.compliant[k] > 0.5:
                 rendering = True
     error = s.leg_target[leg] - s.leg_x[leg]
-    if rendering:  # only what friction holds back beyond the band
-        error = math.copysign(max(0.0, abs(error) - p.pos_i_band), error)
+    # Rendering: only what friction holds back beyond the band; otherwise only what the
+    # sensor can resolve.
+    band = p.pos_i_band if rendering else p.pos_i_deadband
+    error = math.copysign(max(0.0, abs(error) - band), error)
     s.integral[12 + leg] = position_loop.integrate(
         s.integral[12 + leg],
         error,

@@ -137,20 +137,22 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
     caught = 0
     for scenario in safety.SCENARIOS:
         run = safety.run_fault(kind, scenario)
-        # Measured: a stuck-open intake while holding tilts the platform 1.2 deg (1.3 mm)
-        # before its VALVE trip (issue 12 keeps that open); 1.5 deg bounds it here.
-        assert run.excursion_deg <= 1.5 and run.excursion_mm <= 1.5, run
+        # Measured: a stuck-open intake while holding tilts the platform 0.86 deg (1.66 mm)
+        # before its VALVE trip (1.13 deg, 1.35 mm before the outer integral's dead band);
+        # the issue's bound is 2 deg and 3 mm, and 1.5 deg and 2 mm bound it here.
+        assert run.excursion_deg <= 1.5 and run.excursion_mm <= 2.0, run
         if run.detected:
             caught += 1
             assert run.trip in ("AIR_BALANCE (service)", Trip.VALVE.name), run
-            assert run.channel == 4 and run.detect_ms <= 450.0, run
+            assert run.channel == 4 and run.detect_ms <= 500.0, run
         else:
             assert run.trip == Trip.NONE.name, run
     # Measured today: a stuck-open intake is caught everywhere within 50 ms (the air
-    # observer); a 0.5 C leak where the loop must move much air one way (mid-exercise,
-    # pushing); a stuck-closed exhaust nowhere (below: open). The README's fault table says
-    # so.
-    least = {FaultKind.VALVE_STUCK_OPEN: 3, FaultKind.CHAMBER_LEAK: 2}.get(kind, 0)
+    # observer); a 0.5 C leak while the patient pushes (201 ms); a stuck-closed exhaust
+    # while holding (489 ms). Since the outer integral ignores an error the leg sensor
+    # cannot resolve, a leak is caught less often: 4 of 9 runs (seeds 1-3, each situation,
+    # 1 s) against 8 of 9 before. The README's fault table says so.
+    least = {FaultKind.VALVE_STUCK_OPEN: 3, FaultKind.CHAMBER_LEAK: 1}.get(kind, 0)
     assert caught >= least, kind
 
 
@@ -320,23 +322,34 @@ WATCH_S = 2.0
 faults it does not catch do over the next second."""
 
 
-def test_a_leg_sensor_frozen_while_holding_is_caught_only_after_its_leg_ran_away() -> None:
-    """While the platform holds, the frozen reading is right at first; the loop then pushes
-    on a constant error it cannot see shrink, and the leg, held by nothing but that loop,
-    runs off. Nothing catches it until the legs disagree with the force sensor (measured:
-    953 ms, 9.0 deg, 20 mm on seed 1). The README's fault table says so."""
-    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", after=WATCH_S)
+def test_a_leg_sensor_frozen_a_count_from_a_held_target_does_not_wind_the_loop_up() -> None:
+    """Seed 1, leg 2: the reading froze one count (24 um) short of the held target. The
+    outer integral used to grow on that error by 3.6 N a second until the leg broke free
+    and ran 20 mm (9 deg) before the force sensor cross-check tripped at 953 ms. An error
+    the sensor cannot resolve is no longer integrated (ControllerConfig.
+    position_integral_deadband), so the loop leaves the leg where it was."""
+    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=2, after=WATCH_S)
+    assert run.excursion_deg <= 0.5 and run.excursion_mm <= 1.0, run
+
+
+def test_a_leg_sensor_frozen_while_holding_that_lets_its_leg_run_off_is_caught_late() -> None:
+    """Seed 1, leg 3: the loop no longer pushes on an unresolvable error, but a leg whose
+    sensor is frozen is held by nothing but its air and friction, and this one still runs
+    off; nothing catches it until the legs disagree with the force sensor (measured: 2.4 s,
+    8.3 deg, 26 mm). The README's fault table says so."""
+    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=3, after=4.0)
     assert run.detected and run.trip in (Trip.FORCE_SENSOR.name, Trip.LEG_SENSOR.name), run
-    assert run.detect_ms <= 1500.0, run
+    assert run.detect_ms <= 3500.0, run
 
 
 @pytest.mark.xfail(
     strict=True,
-    reason="open (issue 11): a leg sensor frozen while the platform holds lets that leg run "
-    "away (20 mm, 9 deg within 1 s on seed 1) before the force sensor cross-check trips",
+    reason="open (issue 11): a leg sensor frozen while the platform holds can still let that "
+    "leg run away (3 of 18 seed x leg runs; seed 1 leg 3: 7.9 deg, 26 mm within 2 s, "
+    "undetected) before the force sensor cross-check trips",
 )
 def test_a_leg_sensor_frozen_while_holding_leaves_the_platform_where_it_was() -> None:
-    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", after=WATCH_S)
+    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=3, after=WATCH_S)
     assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
 
 
