@@ -376,6 +376,15 @@ def adherence(
     )
 
 
+def missed_weeks(
+    p: PrescriptionFacts, sessions: Sequence[SessionFacts], now: datetime, since: datetime
+) -> list[AdherenceWeek]:
+    """The prescribed weeks of ``p`` that ended between ``since`` and ``now`` with sessions
+    missed, oldest first. They are :func:`adherence`'s weeks and counts, the one definition
+    of a missed session: the week in progress misses nothing yet."""
+    return [w for w in adherence(p, sessions, now, since).weeks if not w.in_progress and w.missed]
+
+
 def progress(
     prescriptions: Sequence[PrescriptionFacts],
     sessions: Sequence[SessionFacts],

@@ -22,6 +22,7 @@ from sessions.progress import (
     PrescriptionFacts,
     SessionFacts,
     minimal_detectable_change,
+    missed_weeks,
     progress,
 )
 from sessions.summary import Summary
@@ -189,6 +190,25 @@ def test_each_prescription_is_measured_against_itself() -> None:
         assert [(w.prescribed, w.completed, w.missed) for w in a.weeks] == [(5, 1, 4)]
     assert p.adherence[5].weeks[0].completed == 1
     assert len(p.adherence[5].weeks) == 4  # still active: 24 days, 4 weeks begun
+
+
+def test_missed_weeks_are_the_adherence_weeks_over_with_sessions_missed() -> None:
+    rx = PrescriptionFacts(
+        id=7, exercise=ExerciseKind.STRENGTH, sessions_per_week=3, created_at=MONDAY
+    )
+    history = [
+        session(1, 7, MONDAY + DAY),  # week 1: 1 of 3, 2 missed
+        *(session(10 + i, 7, MONDAY + 7 * DAY + i * DAY) for i in range(3)),  # week 2: all
+        session(20, 7, MONDAY + 14 * DAY, reason="stopped"),  # week 3: 1 ended early, 2 missed
+    ]
+    now = MONDAY + 22 * DAY  # week 4 in progress, nothing done: nothing missed yet
+    weeks = missed_weeks(rx, history, now, since=MONDAY)
+    assert [(w.week, w.completed, w.ended_early, w.missed) for w in weeks] == [
+        (1, 1, 0, 2),
+        (3, 0, 1, 2),
+    ]
+    assert [w.week for w in missed_weeks(rx, history, now, since=now - 7 * DAY)] == [3]
+    assert missed_weeks(rx, history, MONDAY + 6 * DAY, since=MONDAY) == []
 
 
 def test_a_prescription_ended_part_way_asks_pro_rata() -> None:
