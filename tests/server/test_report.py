@@ -21,9 +21,12 @@ from server.models import Prescription
 from sessions.anatomy import LABELS
 from sessions.fhir import LATERALITY_EXTENSION
 from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import SessionEvent
 from sessions.summary import AxisSummary, Summary
 from tests.server.live_server import Live, World, bearer
+from tests.server.test_progress_route import DAY, assessment_rows, prescribe
+from tests.server.test_progress_route import upload as upload_assessment
 from tests.server.test_series import (
     HZ,
     PEAK_DEG,
@@ -193,6 +196,50 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
         "sessions": 2,
         "observations": 16,
     }
+
+
+@pytest.mark.asyncio
+async def test_a_direction_never_moved_has_no_mdc95_on_the_progress_or_the_report(
+    live: Live, world: World
+) -> None:
+    """ROM assessments of pitch and roll in which the roll never moved: every roll trial is
+    0°, a zero scatter that measures no reliability. Not "MDC95 0.0°" but null with its
+    reason, a sentence in the PDF, and no change judged against it."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    axes = EXERCISE_LIBRARY[ExerciseKind.ROM_ASSESSMENT].defaults.axes
+    assert {"pitch", "roll"} <= {a.axis for a in axes}  # the uploads move pitch only
+    now = datetime.now(UTC).timestamp()
+    for days, trials in ((20, [(20.0, 10.0), (22.0, 12.0)]), (13, [(21.0, 11.0), (23.0, 13.0)])):
+        await upload_assessment(
+            live, world, assessment_rows(trials), rx, ExerciseKind.ROM_ASSESSMENT, now - days * DAY
+        )
+    await upload_assessment(
+        live,
+        world,
+        assessment_rows([(25.0, 10.0), (27.0, 12.0)]),
+        rx,
+        ExerciseKind.ROM_ASSESSMENT,
+        now - 6 * DAY,
+    )
+    t1 = bearer(world.t1)
+    p = (await live.client.get(f"/patients/{world.p1}/progress", headers=t1)).json()
+    mdc = {(m["axis"], m["sign"]): m for m in p["mdc"]}
+    for sign in (1, -1):
+        roll = mdc[("roll", sign)]
+        assert (roll["mdc95_deg"], roll["sem_deg"], roll["reason"]) == (None, None, "no_scatter")
+        assert roll["text"] == "not measurable: never moved this way in 6 trials"
+    assert mdc[("pitch", 1)]["mdc95_deg"] == pytest.approx(3.92, abs=1e-3)
+    (rom,) = (e for e in p["exercises"] if e["exercise"] == "rom_assessment")
+    for m in rom["measures"]:
+        if m["axis"] == "roll":
+            assert [pt["real_change"] for pt in m["points"]] == [None, None, None], m
+
+    r = await live.client.get(f"/patients/{world.p1}/report.pdf", headers=t1)
+    assert r.status_code == 200, r.text
+    text = pdf_text(r.content)
+    assert "Range of motion against the baseline" in text
+    assert text.count("not measurable: never moved this way in 6 trials") == 2, text
+    assert "MDC95 0.0" not in text and "beyond MDC95: a real change" in text
 
 
 @pytest.mark.asyncio

@@ -87,6 +87,32 @@ def test_mdc95_from_the_scatter_of_repeated_trials() -> None:
     assert "6 trials in 3 assessments" in mdc.text
 
 
+def test_a_direction_never_moved_has_no_mdc_and_flags_nothing() -> None:
+    """Every trial of dorsiflexion at 0°: a zero scatter is no measure of reliability, so
+    there is no MDC95 (not "0.0°") and no change is judged against it."""
+    never = minimal_detectable_change([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    assert (never.mdc95_deg, never.sem_deg, never.reason) == (None, None, "no_scatter")
+    assert never.text == "not measurable: never moved this way in 6 trials"
+    same = minimal_detectable_change([[5.0, 5.0], [7.0, 7.0, 7.0, 7.0]])
+    assert same.mdc95_deg is None and same.reason == "no_scatter"
+    assert same.text.startswith("not measurable: each assessment's trials measured the same")
+    assert minimal_detectable_change([[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]).mdc95_deg is not None
+
+    history = [
+        assessment(1, MONDAY, [(20, 0), (22, 0)]),
+        assessment(2, MONDAY + 7 * DAY, [(21, 0), (23, 0)]),
+        assessment(3, MONDAY + 14 * DAY, [(25, 0), (27, 0)]),
+        assessment(4, MONDAY + 21 * DAY, [(25, 3)]),  # one trial: not in the MDC
+    ]
+    p = progress([ASSESS], history, now=MONDAY + 30 * DAY)
+    mdc = {m.sign: m for m in p.mdc}
+    assert mdc[1].reason is None and mdc[1].mdc95_deg == pytest.approx(1.96 * 2)
+    assert mdc[-1].mdc95_deg is None and mdc[-1].reason == "no_scatter"
+    dorsi = next(m for m in p.exercises[0].measures if m.sign == -1)
+    assert [pt.change for pt in dorsi.points] == [0.0, 0.0, 0.0, 3.0]
+    assert [pt.real_change for pt in dorsi.points] == [None, None, None, None]
+
+
 def test_too_few_trials_flag_nothing() -> None:
     history = [
         assessment(1, MONDAY, [(20, 10), (22, 10)]),
@@ -95,7 +121,7 @@ def test_too_few_trials_flag_nothing() -> None:
     assert MDC_MIN_TRIALS > 4
     p = progress([ASSESS], history, now=MONDAY + 20 * DAY)
     up = next(m for m in p.mdc if (m.axis, m.sign) == ("pitch", 1))
-    assert up.mdc95_deg is None
+    assert up.mdc95_deg is None and up.reason == "too_few_trials"
     assert up.text.startswith("not enough repeated trials yet")
     (rom,) = p.exercises
     plantar = next(m for m in rom.measures if m.sign == 1)
