@@ -19,6 +19,7 @@ from sqlalchemy import update
 
 from server.models import Prescription
 from sessions.anatomy import LABELS
+from sessions.export import FORMATS
 from sessions.fhir import LATERALITY_EXTENSION
 from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
@@ -240,6 +241,47 @@ async def test_a_direction_never_moved_has_no_mdc95_on_the_progress_or_the_repor
     assert "Range of motion against the baseline" in text
     assert text.count("not measurable: never moved this way in 6 trials") == 2, text
     assert "MDC95 0.0" not in text and "beyond MDC95: a real change" in text
+
+
+@pytest.mark.asyncio
+async def test_each_session_download_is_audited_as_an_export_and_not_cached(
+    live: Live, world: World
+) -> None:
+    """A recorded session's files leave the system as the report does: one patient.export
+    row per download, naming the session and the format, and Cache-Control: no-store."""
+    session_id = await upload(live, world, rows_at(TODAY))
+    formats = [*FORMATS, "rec"]
+    for fmt in formats:
+        r = await live.client.get(
+            f"/sessions/{session_id}/download/{fmt}", headers=bearer(world.t1)
+        )
+        assert r.status_code == 200, (fmt, r.text)
+        assert r.headers["cache-control"] == "no-store", fmt
+        assert r.content and r.headers["x-content-sha256"], fmt
+    again = await live.client.get(
+        f"/sessions/{session_id}/download/csv", headers=bearer(world.admin)
+    )
+    assert again.status_code == 200 and again.headers["cache-control"] == "no-store"
+    # Refused, or a format there is none of: nothing left the system, nothing is audited.
+    assert (
+        await live.client.get(f"/sessions/{session_id}/download/csv", headers=bearer(world.t2))
+    ).status_code == 404
+    bad = await live.client.get(f"/sessions/{session_id}/download/xls", headers=bearer(world.t1))
+    assert bad.status_code == 422
+
+    rows = list(reversed(await exports(live, world)))  # oldest first
+    admin_id = (await live.client.get("/auth/me", headers=bearer(world.admin))).json()["id"]
+    assert [(r["actor"], r["new"]["format"]) for r in rows] == [
+        *((f"user:{world.t1_id}", fmt) for fmt in formats),
+        (f"user:{admin_id}", "csv"),
+    ]
+    for row in rows:
+        assert (row["entity"], row["entity_id"], row["patient_id"]) == (
+            "session",
+            str(session_id),
+            world.p1,
+        )
+        assert row["new"]["session_id"] == session_id and row["old"] is None
 
 
 @pytest.mark.asyncio
