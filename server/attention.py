@@ -2,28 +2,31 @@
 
 From the last :data:`LOOKBACK_DAYS` days of the therapist's current patients: sessions with a
 fault, sessions held, sessions ended early (stopped, interrupted, or completed with fewer
-repetitions than prescribed), active prescriptions with sessions missed so far this week,
-and home stations not seen for :data:`OFFLINE_DAYS` days. Each item says what happened in a
-sentence and links to where it happened: the session's review page, or the patient's page
-(their prescriptions and stations).
+repetitions than prescribed), active prescriptions with sessions missed in a prescribed week
+that ended in those days (``sessions.progress.missed_weeks``: the weeks and counts of the
+progress page's adherence, so the two never disagree), and home stations not seen for
+:data:`OFFLINE_DAYS` days. Each item says what happened in a sentence and links to where it
+happened: the session's review page, or the patient's page (their prescriptions and
+stations).
 
 Five queries whatever the number of patients and sessions (the patients' names, sessions
-with their stored summaries, this week's session counts per prescription, active
-prescriptions, stations), plus one look-up of which stations are connected now.
+with their stored summaries, active prescriptions, their sessions of the last two weeks,
+stations), plus one look-up of which stations are connected now.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Awaitable, Callable, Iterable
 from datetime import datetime, timedelta
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
-from sqlalchemy import func, select
+from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.models import Patient, Prescription, Session, Station, User
+from server.routes.progress import prescription_facts
+from sessions.progress import WEEK, SessionFacts, missed_weeks
 
 LOOKBACK_DAYS = 7
 """Sessions from this many days back are looked at."""
@@ -40,7 +43,8 @@ class AttentionItem(BaseModel):
 
     kind: Kind = Field(
         description="fault, held (the exercise was put on hold), ended_early, missed "
-        "(prescribed sessions not done so far this week) or offline (a station not seen)."
+        "(prescribed sessions not done in a prescribed week that ended in the last 7 days, "
+        "as the progress page's adherence counts them) or offline (a station not seen)."
     )
     patient_id: int
     patient_name: str
@@ -50,28 +54,6 @@ class AttentionItem(BaseModel):
     session_id: int | None = None
     station_id: int | None = None
     prescription_id: int | None = None
-
-
-def week_start(now: datetime) -> datetime:
-    """Monday 00:00 of ``now``'s week, in ``now``'s time zone."""
-    day = now.replace(hour=0, minute=0, second=0, microsecond=0)
-    return day - timedelta(days=day.weekday())
-
-
-def missed_this_week(
-    per_week: int, done: int, now: datetime, prescribed_at: datetime
-) -> tuple[int, int]:
-    """(sessions missed so far, sessions due so far) this week for one prescription.
-
-    Counts this week's sessions (``done``) against the prescription's sessions per week,
-    spread evenly over the week: by Thursday noon half of a week's sessions are due. A
-    prescription written during the week is due only from then on. Never more missed than
-    due, never below zero.
-    """
-    start = max(week_start(now), prescribed_at)
-    share = max(0.0, (now - start) / timedelta(days=7))
-    due = math.floor(per_week * share)
-    return max(0, due - done), due
 
 
 def _patients(user: User) -> Any:
@@ -144,40 +126,50 @@ async def attention(
 async def _missed(
     db: AsyncSession, mine: Any, names: dict[int, str], now: datetime
 ) -> list[AttentionItem]:
-    monday = week_start(now)
-    counted = await db.execute(
-        select(Session.prescription_id, func.count())
-        .where(Session.patient_id.in_(mine), Session.started_at >= monday)
-        .group_by(Session.prescription_id)
+    active = (
+        await db.scalars(
+            select(Prescription)
+            .where(Prescription.patient_id.in_(mine), Prescription.status == "active")
+            .order_by(Prescription.id)
+        )
+    ).all()
+    # A prescribed week that ended within the look-back began up to a week before it.
+    since = now - timedelta(days=LOOKBACK_DAYS)
+    rows = await db.execute(
+        select(Session.id, Session.prescription_id, Session.started_at, Session.end_reason).where(
+            Session.prescription_id.in_([p.id for p in active]),
+            Session.started_at >= since - WEEK,
+        )
     )
-    counts: dict[int | None, int] = dict(counted.all())
+    sessions = [
+        SessionFacts(id=i, prescription_id=rx, started_at=at, end_reason=why, summary=None)
+        for i, rx, at, why in rows
+    ]
     out: list[AttentionItem] = []
-    active = await db.execute(
-        select(Prescription.id, Prescription.patient_id, Prescription.body, Prescription.created_at)
-        .where(Prescription.patient_id.in_(mine), Prescription.status == "active")
-        .order_by(Prescription.id)
-    )
-    for rx_id, pid, body, created in active:
-        per_week = body.get("sessions_per_week")
-        if type(per_week) is not int:
-            continue
-        done = counts.get(rx_id, 0)
-        missed, due = missed_this_week(per_week, done, now, created)
-        if missed:
-            title = body.get("title") or str(body.get("exercise", "")).replace("_", " ")
+    for row in active:
+        rx = prescription_facts(row)
+        for w in missed_weeks(rx, sessions, now, since):
+            title = rx.title or rx.exercise.value.replace("_", " ")
+            early = f", {w.ended_early} ended early" if w.ended_early else ""
+            last_day = w.end - timedelta(microseconds=1)
             out.append(
                 AttentionItem(
                     kind="missed",
-                    patient_id=pid,
-                    patient_name=names[pid],
+                    patient_id=row.patient_id,
+                    patient_name=names[row.patient_id],
                     at=None,
-                    text=f"“{title}”: {done} of {due} sessions due so far this week were done "
-                    f"({per_week} a week prescribed).",
-                    link=f"/app/patients/{pid}",
-                    prescription_id=rx_id,
+                    text=f"“{title}”: {w.missed} of {w.prescribed} prescribed sessions missed "
+                    f"in its week {w.week} ({_day(w.start)} to {_day(last_day)}): "
+                    f"{w.completed} done{early}.",
+                    link=f"/app/patients/{row.patient_id}",
+                    prescription_id=row.id,
                 )
             )
     return out
+
+
+def _day(when: datetime) -> str:
+    return f"{when.day} {when:%b}"
 
 
 async def _offline(

@@ -20,6 +20,9 @@ from server.models import AuditEntry, Station, User
 log = logging.getLogger("ankle.server.audit")
 
 SYSTEM = "system"
+EXPORT = "patient.export"
+"""The action of every download of a patient's data out of the system: the report and the
+FHIR bundle (entity ``patient``) and each recorded session's files (entity ``session``)."""
 
 
 def user_actor(user: User) -> str:

@@ -216,7 +216,7 @@ def baseline_section(progress: Progress, side: str | None) -> list[Flowable]:
             last = m.points[-1]
             limit = mdc.get((m.axis, m.sign))
             judged = (
-                "not enough repeated trials yet"
+                "not judged: no MDC95"
                 if last.real_change is None
                 else ("beyond MDC95: a real change" if last.real_change else "within MDC95")
             )

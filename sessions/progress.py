@@ -32,9 +32,12 @@ standard deviation pooled over every assessment with two or more trials,
 and ``MDC95 = 1.96 · √2 · SEM`` (the smallest change between two measurements that error
 alone would not give in 95 % of cases). With fewer than :data:`MDC_MIN_TRIALS` trials from at
 least :data:`MDC_MIN_ASSESSMENTS` assessments, MDC95 is null and the text says "not enough
-repeated trials yet": nothing is flagged. A change is flagged real (``real_change``) only when
-its size exceeds MDC95; MDC95 is that of a single trial, so flagging a session's mean of
-several trials against it is conservative.
+repeated trials yet": nothing is flagged. When every trial measured the same (a direction the
+patient never moved: every trial 0°), the scatter is zero, which measures no reliability at
+all: MDC95 is null too, "not measurable", and nothing is flagged against it (``Mdc.reason``
+says which). A change is flagged real (``real_change``) only when its size exceeds MDC95;
+MDC95 is that of a single trial, so flagging a session's mean of several trials against it is
+conservative.
 
 **Adherence.** Per prescription, per prescribed week: week 1 starts when it was prescribed,
 and weeks run until it was withdrawn or completed (``ended_at``), or until ``now``. A week
@@ -150,6 +153,9 @@ class ExerciseProgress(BaseModel):
     measures: list[Measure]
 
 
+MdcMissing = Literal["too_few_trials", "no_scatter"]
+
+
 class Mdc(BaseModel):
     """The minimal detectable change of one direction's active range (see the module)."""
 
@@ -157,8 +163,14 @@ class Mdc(BaseModel):
 
     axis: str
     sign: int
-    mdc95_deg: float | None = Field(description="Null when there are not enough trials yet.")
+    mdc95_deg: float | None = Field(description="Null when it cannot be measured (``reason``).")
     sem_deg: float | None
+    reason: MdcMissing | None = Field(
+        default=None,
+        description="Why mdc95_deg is null: too_few_trials (not enough repeated trials yet) "
+        "or no_scatter (every trial measured the same, e.g. a direction never moved, so the "
+        "trials show no measurement error to judge a change against); null when measured.",
+    )
     trials: int = Field(description="Trials in assessments of two or more trials.")
     assessments: int = Field(description="Assessments with two or more trials.")
     text: str = Field(description="In words, for a page or report.")
@@ -295,10 +307,24 @@ def minimal_detectable_change(trials_per_session: Sequence[Sequence[float]]) -> 
             sign=0,
             mdc95_deg=None,
             sem_deg=None,
+            reason="too_few_trials",
             trials=n,
             assessments=len(repeated),
             text=f"not enough repeated trials yet ({n} trials in {len(repeated)} assessments; "
             f"at least {MDC_MIN_TRIALS} in {MDC_MIN_ASSESSMENTS} are needed)",
+        )
+    if all(x == t[0] for t in repeated for x in t):
+        return Mdc(
+            axis="",
+            sign=0,
+            mdc95_deg=None,
+            sem_deg=None,
+            reason="no_scatter",
+            trials=n,
+            assessments=len(repeated),
+            text=f"not measurable: never moved this way in {n} trials"
+            if all(x == 0 for t in repeated for x in t)
+            else f"not measurable: each assessment's trials measured the same ({n} trials)",
         )
     ss = sum(sum((x - sum(t) / len(t)) ** 2 for x in t) for t in repeated)
     sem = math.sqrt(ss / df)
@@ -374,6 +400,15 @@ def adherence(
         missed=sum(w.missed for w in over),
         percent=100.0 * completed / prescribed if prescribed else None,
     )
+
+
+def missed_weeks(
+    p: PrescriptionFacts, sessions: Sequence[SessionFacts], now: datetime, since: datetime
+) -> list[AdherenceWeek]:
+    """The prescribed weeks of ``p`` that ended between ``since`` and ``now`` with sessions
+    missed, oldest first. They are :func:`adherence`'s weeks and counts, the one definition
+    of a missed session: the week in progress misses nothing yet."""
+    return [w for w in adherence(p, sessions, now, since).weeks if not w.in_progress and w.missed]
 
 
 def progress(

@@ -73,9 +73,10 @@ async def list_patients(
 )
 async def needs_attention(user: TherapistOrAdmin, db: Db, request: Request) -> list[AttentionItem]:
     """Across the caller's current patients (an admin: all of them), from the last
-    seven days: faults, exercises held, sessions ended early, prescribed sessions missed so
-    far this week and stations not seen for two days, each with a sentence and the page
-    where it happened."""
+    seven days: faults, exercises held, sessions ended early, prescribed sessions missed in a
+    prescribed week that ended in those days (as the progress page's adherence counts them)
+    and stations not seen for two days, each with a sentence and the page where it
+    happened."""
     return await attention(db, user, utcnow(), request.app.state.hub.online_of)
 
 

@@ -32,7 +32,6 @@ DEFAULT_DAYS = 90
 """The period a report covers when not told: this many days up to today, inclusive."""
 FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
 """The days a period may name: any a record can hold, with room to count a day past it."""
-EXPORT_ACTION = "patient.export"
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 _WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
 """How a refusal names each parameter: as the patient page labels it, and as the API does."""
@@ -177,7 +176,7 @@ async def _exported(
     audit.record(
         db,
         audit.user_actor(user),
-        EXPORT_ACTION,
+        audit.EXPORT,
         "patient",
         patient.id,
         patient.id,

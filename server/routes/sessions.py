@@ -4,7 +4,8 @@ and the whole time series decimated for charts.
 Downloads are made from the stored recording on first request and kept beside it; each
 answer carries the file's SHA-256 (``X-Content-SHA256`` and the ``ETag``), so a clinician or
 a script can check what they got. Files are served with HTTP Range support, so a large
-download resumes.
+download resumes. Each download is audited as ``patient.export`` (entity ``session``, with
+its format) and sent with ``Cache-Control: no-store``, as the patient's report is.
 
 The chart series is computed from the recording on every request and kept nowhere: a 3 min
 session at 100 Hz reads and decimates in milliseconds, and nothing can go stale.
@@ -26,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from device.protocol.messages import DeviceMode
+from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
@@ -159,6 +161,8 @@ async def get_session(
 async def download(
     session_id: Id, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
+    """Audited as data leaving the system (``patient.export``, entity ``session``, with the
+    format), as the patient's report is, and kept by no cache on the way."""
     row = await _session_for(db, user, session_id)
     source = recording_path(request, row)
     name = f"session-{row.id}-{row.started_at:%Y%m%d-%H%M%S}"
@@ -177,11 +181,26 @@ async def download(
                 f.write(digest)
         digest = sidecar.read_text().strip()
         media, filename = MEDIA_TYPES[fmt], f"{name}{FILE_SUFFIX[fmt]}"
+    audit.record(
+        db,
+        audit.user_actor(user),
+        audit.EXPORT,
+        "session",
+        row.id,
+        row.patient_id,
+        None,
+        {"format": fmt, "session_id": row.id},
+    )
+    await db.commit()
     return FileResponse(
         path,
         media_type=media,
         filename=filename,
-        headers={"X-Content-SHA256": digest, "ETag": f'"{digest}"'},
+        headers={
+            "X-Content-SHA256": digest,
+            "ETag": f'"{digest}"',
+            "Cache-Control": "no-store",
+        },
     )
 
 

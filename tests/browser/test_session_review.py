@@ -343,6 +343,11 @@ def test_rom_assessments_trials_and_progress_with_mdc(
     chart = page.locator("#chart-rom_assessment")
     expect(chart).to_contain_text("a real change (beyond MDC95 3.9°)")
     expect(page.locator("#progress-mdc")).to_contain_text("3.9° (6 trials in 3 assessments)")
+    # Roll is prescribed but never moved: no "MDC95 0.0°", and no change judged against it.
+    never = "not measurable: never moved this way in 6 trials"
+    expect(page.locator("#progress-mdc")).to_contain_text(f"{label('roll', 1, side)} {never}")
+    expect(chart).to_contain_text(f"not judged, MDC95 {never}")
+    expect(page.locator("#progress-mdc")).not_to_contain_text(" 0.0°")
     drawn = page.locator("#chart-rom_assessment-canvas").evaluate(
         """(c, name) => Chart.getChart(c).data.datasets
         .filter(d => d.label === name).map(d => [d.data, d.pointRadius])[0]""",

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from sqlalchemy import event, update
 
-from server.attention import OFFLINE_DAYS, missed_this_week, week_start
-from server.models import Session, Station
+from server.attention import OFFLINE_DAYS
+from server.models import Prescription, Session, Station
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import (
     SAMPLE_DTYPE,
@@ -191,14 +191,64 @@ async def test_the_queries_do_not_grow_with_the_sessions(live: Live, world: Worl
     assert many == few
 
 
-def test_missed_this_week_counts_the_weeks_sessions_against_its_prescription() -> None:
-    monday = datetime(2026, 11, 23, tzinfo=UTC)
-    assert week_start(datetime(2026, 11, 26, 15, 0, tzinfo=UTC)) == monday
-    thursday_noon = monday + timedelta(days=3, hours=12)
-    long_ago = monday - timedelta(days=30)
-    assert missed_this_week(4, 0, thursday_noon, long_ago) == (2, 2)  # half the week: 2 due
-    assert missed_this_week(4, 1, thursday_noon, long_ago) == (1, 2)
-    assert missed_this_week(4, 5, thursday_noon, long_ago) == (0, 2)  # never below zero
-    # prescribed on Wednesday: only the time since counts
-    assert missed_this_week(7, 0, thursday_noon, monday + timedelta(days=2)) == (1, 1)
-    assert missed_this_week(5, 0, monday + timedelta(hours=1), long_ago) == (0, 0)
+async def upload_at(live: Live, world: World, rx: int, started: float, reason: EndReason) -> int:
+    """A session of ``rx`` (patient 1's) started at ``started`` (epoch seconds)."""
+    sid = str(uuid.uuid4())
+    reps = STRENGTH["sets"] * STRENGTH["repetitions"] if reason == "completed" else 2
+    end = End(
+        ended_at=started + 2, reason=reason, sets_completed=1, repetitions_completed=reps, text=""
+    )
+    data = recording(sid, world.s1_id, world.p1, rx, started, end, [])
+    return await upload(live, world.s1, data, sid)
+
+
+@pytest.mark.asyncio
+async def test_missed_sessions_are_the_progress_pages_missed_sessions(
+    live: Live, world: World
+) -> None:
+    """Missed means what the progress page's adherence says: per prescribed week from the day
+    of the prescription, a week in progress missing nothing yet. The calendar week's share
+    used before would have disagreed both ways here: five sessions this week hid a first week
+    with three missed, and a prescription six days old would have been missed already."""
+    now = datetime.now(UTC)
+    body = {**STRENGTH, "title": "Heel raises"}
+    r = await live.client.post(
+        f"/patients/{world.p1}/prescriptions", json=body, headers=bearer(world.t1)
+    )
+    assert r.status_code == 201, r.text
+    young = r.json()["id"]
+    async with live.app.state.sessionmaker() as db:
+        await db.execute(
+            update(Prescription)
+            .where(Prescription.id == world.rx1)
+            .values(created_at=now - timedelta(days=7, hours=3))
+        )
+        await db.execute(
+            update(Prescription)
+            .where(Prescription.id == young)
+            .values(created_at=now - timedelta(days=6))
+        )
+        await db.commit()
+    first_week = (now - timedelta(days=7, hours=2)).timestamp()
+    await upload_at(live, world, world.rx1, first_week, "completed")
+    await upload_at(live, world, world.rx1, first_week + 3600, "stopped")
+    for k in range(5):  # the second week, in progress: done already, but not the first's
+        await upload_at(
+            live, world, world.rx1, (now - timedelta(minutes=50 - 5 * k)).timestamp(), "completed"
+        )
+
+    items = (await live.client.get("/patients/attention", headers=bearer(world.t1))).json()
+    missed = [i for i in items if i["kind"] == "missed"]
+    assert [i["prescription_id"] for i in missed] == [world.rx1]
+    (item,) = missed
+    assert item["link"] == f"/app/patients/{world.p1}" and item["patient_id"] == world.p1
+    assert "3 of 5 prescribed sessions missed in its week 1" in item["text"], item["text"]
+    assert "1 done, 1 ended early" in item["text"], item["text"]
+
+    r = await live.client.get(f"/patients/{world.p1}/progress", headers=bearer(world.t1))
+    assert r.status_code == 200, r.text
+    (week1, week2) = next(
+        a["weeks"] for a in r.json()["adherence"] if a["prescription_id"] == world.rx1
+    )
+    assert (week1["missed"], week1["completed"], week1["ended_early"]) == (3, 1, 1)
+    assert week2["in_progress"] and week2["completed"] == 5

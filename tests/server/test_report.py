@@ -19,11 +19,15 @@ from sqlalchemy import update
 
 from server.models import Prescription
 from sessions.anatomy import LABELS
+from sessions.export import FORMATS
 from sessions.fhir import LATERALITY_EXTENSION
 from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
+from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import SessionEvent
 from sessions.summary import AxisSummary, Summary
 from tests.server.live_server import Live, World, bearer
+from tests.server.test_progress_route import DAY, assessment_rows, prescribe
+from tests.server.test_progress_route import upload as upload_assessment
 from tests.server.test_series import (
     HZ,
     PEAK_DEG,
@@ -193,6 +197,91 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
         "sessions": 2,
         "observations": 16,
     }
+
+
+@pytest.mark.asyncio
+async def test_a_direction_never_moved_has_no_mdc95_on_the_progress_or_the_report(
+    live: Live, world: World
+) -> None:
+    """ROM assessments of pitch and roll in which the roll never moved: every roll trial is
+    0°, a zero scatter that measures no reliability. Not "MDC95 0.0°" but null with its
+    reason, a sentence in the PDF, and no change judged against it."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    axes = EXERCISE_LIBRARY[ExerciseKind.ROM_ASSESSMENT].defaults.axes
+    assert {"pitch", "roll"} <= {a.axis for a in axes}  # the uploads move pitch only
+    now = datetime.now(UTC).timestamp()
+    for days, trials in ((20, [(20.0, 10.0), (22.0, 12.0)]), (13, [(21.0, 11.0), (23.0, 13.0)])):
+        await upload_assessment(
+            live, world, assessment_rows(trials), rx, ExerciseKind.ROM_ASSESSMENT, now - days * DAY
+        )
+    await upload_assessment(
+        live,
+        world,
+        assessment_rows([(25.0, 10.0), (27.0, 12.0)]),
+        rx,
+        ExerciseKind.ROM_ASSESSMENT,
+        now - 6 * DAY,
+    )
+    t1 = bearer(world.t1)
+    p = (await live.client.get(f"/patients/{world.p1}/progress", headers=t1)).json()
+    mdc = {(m["axis"], m["sign"]): m for m in p["mdc"]}
+    for sign in (1, -1):
+        roll = mdc[("roll", sign)]
+        assert (roll["mdc95_deg"], roll["sem_deg"], roll["reason"]) == (None, None, "no_scatter")
+        assert roll["text"] == "not measurable: never moved this way in 6 trials"
+    assert mdc[("pitch", 1)]["mdc95_deg"] == pytest.approx(3.92, abs=1e-3)
+    (rom,) = (e for e in p["exercises"] if e["exercise"] == "rom_assessment")
+    for m in rom["measures"]:
+        if m["axis"] == "roll":
+            assert [pt["real_change"] for pt in m["points"]] == [None, None, None], m
+
+    r = await live.client.get(f"/patients/{world.p1}/report.pdf", headers=t1)
+    assert r.status_code == 200, r.text
+    text = pdf_text(r.content)
+    assert "Range of motion against the baseline" in text
+    assert text.count("not measurable: never moved this way in 6 trials") == 2, text
+    assert "MDC95 0.0" not in text and "beyond MDC95: a real change" in text
+
+
+@pytest.mark.asyncio
+async def test_each_session_download_is_audited_as_an_export_and_not_cached(
+    live: Live, world: World
+) -> None:
+    """A recorded session's files leave the system as the report does: one patient.export
+    row per download, naming the session and the format, and Cache-Control: no-store."""
+    session_id = await upload(live, world, rows_at(TODAY))
+    formats = [*FORMATS, "rec"]
+    for fmt in formats:
+        r = await live.client.get(
+            f"/sessions/{session_id}/download/{fmt}", headers=bearer(world.t1)
+        )
+        assert r.status_code == 200, (fmt, r.text)
+        assert r.headers["cache-control"] == "no-store", fmt
+        assert r.content and r.headers["x-content-sha256"], fmt
+    again = await live.client.get(
+        f"/sessions/{session_id}/download/csv", headers=bearer(world.admin)
+    )
+    assert again.status_code == 200 and again.headers["cache-control"] == "no-store"
+    # Refused, or a format there is none of: nothing left the system, nothing is audited.
+    assert (
+        await live.client.get(f"/sessions/{session_id}/download/csv", headers=bearer(world.t2))
+    ).status_code == 404
+    bad = await live.client.get(f"/sessions/{session_id}/download/xls", headers=bearer(world.t1))
+    assert bad.status_code == 422
+
+    rows = list(reversed(await exports(live, world)))  # oldest first
+    admin_id = (await live.client.get("/auth/me", headers=bearer(world.admin))).json()["id"]
+    assert [(r["actor"], r["new"]["format"]) for r in rows] == [
+        *((f"user:{world.t1_id}", fmt) for fmt in formats),
+        (f"user:{admin_id}", "csv"),
+    ]
+    for row in rows:
+        assert (row["entity"], row["entity_id"], row["patient_id"]) == (
+            "session",
+            str(session_id),
+            world.p1,
+        )
+        assert row["new"]["session_id"] == session_id and row["old"] is None
 
 
 @pytest.mark.asyncio

@@ -22,6 +22,7 @@ from sessions.progress import (
     PrescriptionFacts,
     SessionFacts,
     minimal_detectable_change,
+    missed_weeks,
     progress,
 )
 from sessions.summary import Summary
@@ -86,6 +87,32 @@ def test_mdc95_from_the_scatter_of_repeated_trials() -> None:
     assert "6 trials in 3 assessments" in mdc.text
 
 
+def test_a_direction_never_moved_has_no_mdc_and_flags_nothing() -> None:
+    """Every trial of dorsiflexion at 0°: a zero scatter is no measure of reliability, so
+    there is no MDC95 (not "0.0°") and no change is judged against it."""
+    never = minimal_detectable_change([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    assert (never.mdc95_deg, never.sem_deg, never.reason) == (None, None, "no_scatter")
+    assert never.text == "not measurable: never moved this way in 6 trials"
+    same = minimal_detectable_change([[5.0, 5.0], [7.0, 7.0, 7.0, 7.0]])
+    assert same.mdc95_deg is None and same.reason == "no_scatter"
+    assert same.text.startswith("not measurable: each assessment's trials measured the same")
+    assert minimal_detectable_change([[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]]).mdc95_deg is not None
+
+    history = [
+        assessment(1, MONDAY, [(20, 0), (22, 0)]),
+        assessment(2, MONDAY + 7 * DAY, [(21, 0), (23, 0)]),
+        assessment(3, MONDAY + 14 * DAY, [(25, 0), (27, 0)]),
+        assessment(4, MONDAY + 21 * DAY, [(25, 3)]),  # one trial: not in the MDC
+    ]
+    p = progress([ASSESS], history, now=MONDAY + 30 * DAY)
+    mdc = {m.sign: m for m in p.mdc}
+    assert mdc[1].reason is None and mdc[1].mdc95_deg == pytest.approx(1.96 * 2)
+    assert mdc[-1].mdc95_deg is None and mdc[-1].reason == "no_scatter"
+    dorsi = next(m for m in p.exercises[0].measures if m.sign == -1)
+    assert [pt.change for pt in dorsi.points] == [0.0, 0.0, 0.0, 3.0]
+    assert [pt.real_change for pt in dorsi.points] == [None, None, None, None]
+
+
 def test_too_few_trials_flag_nothing() -> None:
     history = [
         assessment(1, MONDAY, [(20, 10), (22, 10)]),
@@ -94,7 +121,7 @@ def test_too_few_trials_flag_nothing() -> None:
     assert MDC_MIN_TRIALS > 4
     p = progress([ASSESS], history, now=MONDAY + 20 * DAY)
     up = next(m for m in p.mdc if (m.axis, m.sign) == ("pitch", 1))
-    assert up.mdc95_deg is None
+    assert up.mdc95_deg is None and up.reason == "too_few_trials"
     assert up.text.startswith("not enough repeated trials yet")
     (rom,) = p.exercises
     plantar = next(m for m in rom.measures if m.sign == 1)
@@ -189,6 +216,25 @@ def test_each_prescription_is_measured_against_itself() -> None:
         assert [(w.prescribed, w.completed, w.missed) for w in a.weeks] == [(5, 1, 4)]
     assert p.adherence[5].weeks[0].completed == 1
     assert len(p.adherence[5].weeks) == 4  # still active: 24 days, 4 weeks begun
+
+
+def test_missed_weeks_are_the_adherence_weeks_over_with_sessions_missed() -> None:
+    rx = PrescriptionFacts(
+        id=7, exercise=ExerciseKind.STRENGTH, sessions_per_week=3, created_at=MONDAY
+    )
+    history = [
+        session(1, 7, MONDAY + DAY),  # week 1: 1 of 3, 2 missed
+        *(session(10 + i, 7, MONDAY + 7 * DAY + i * DAY) for i in range(3)),  # week 2: all
+        session(20, 7, MONDAY + 14 * DAY, reason="stopped"),  # week 3: 1 ended early, 2 missed
+    ]
+    now = MONDAY + 22 * DAY  # week 4 in progress, nothing done: nothing missed yet
+    weeks = missed_weeks(rx, history, now, since=MONDAY)
+    assert [(w.week, w.completed, w.ended_early, w.missed) for w in weeks] == [
+        (1, 1, 0, 2),
+        (3, 0, 1, 2),
+    ]
+    assert [w.week for w in missed_weeks(rx, history, now, since=now - 7 * DAY)] == [3]
+    assert missed_weeks(rx, history, MONDAY + 6 * DAY, since=MONDAY) == []
 
 
 def test_a_prescription_ended_part_way_asks_pro_rata() -> None:

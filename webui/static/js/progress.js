@@ -116,7 +116,7 @@ function measureWords(progress, m, label) {
         ? `a real change (beyond MDC95 ${withUnit(mdc.mdc95_deg, "°", 1)})`
         : last.real_change === false
           ? `within MDC95 ${withUnit(mdc.mdc95_deg, "°", 1)}: not a detectable change`
-          : "MDC95: not enough repeated trials yet";
+          : `not judged, MDC95 ${mdc ? mdc.text : "not measured"}`;
     text += `, ${signed(last.change, q.unit, q.digits)} from the baseline ${withUnit(m.baseline, q.unit, q.digits)}, ${verdict}`;
   }
   return text;
