@@ -233,8 +233,16 @@ def test_prescribe_from_the_library_edit_and_withdraw(
     assert (roll["axis"], roll["stiffness"]) == ("roll", 25.0)
     assert (pitch_axis["waveform"], pitch_axis["amplitude"]) == ("sine", 10.0)
     card = page.locator(f'article[data-prescription-id="{created["id"]}"]')
-    expect(card).to_contain_text("25.0 N·m/rad")
-    expect(card).to_contain_text(f"{roll['damping']:.2f} N·m·s/rad")
+    # K and B as the form writes them: per radian and per degree (25·π/180 = 0.436).
+    k_cell = card.locator("tbody tr").first.locator("td").nth(0)
+    expect(k_cell).to_have_text("25 N·m/rad0.436 N·m/°")
+    expect(k_cell.locator(".pt-per-degree")).to_have_text("0.436 N·m/°")
+    kb = created["impedance_text"][0]
+    expect(card.locator("tbody tr").first.locator("td").nth(1)).to_have_text(
+        kb["damping"] + kb["damping_per_degree"]
+    )
+    assert kb["damping"].endswith(" N·m·s/rad") and kb["damping_per_degree"].endswith(" N·m·s/°")
+    card.screenshot(path=shots / "prescription-card.png")
     expect(card).to_contain_text("Sine 0.0° ± 10.0° at 0.10 Hz")
     expect(card).to_contain_text("version 1")
 
