@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from playwright.sync_api import Locator, Page, expect
 
@@ -23,6 +24,7 @@ from sessions.recording import End, EndReason, SessionEvent
 from tests.browser.a11y import assert_controls_labelled
 from tests.server.live_server import STRENGTH
 from tests.server.test_attention import recording
+from tests.server.test_series import HZ, recording_bytes, samples
 from tests.system.harness import System, live, next_of, short_strength
 
 API = "/api/v1"
@@ -453,3 +455,50 @@ def test_needs_attention_links_to_where_it_happened(
     page.screenshot(path=shots / "patients-attention.png", full_page=True)
     items.filter(has_text="Fault").get_by_role("link", name="Review the session").click()
     expect(page).to_have_url(f"{system.url}/app/sessions/{ids['fault']}")
+
+
+def test_progress_is_in_the_first_screen_of_a_tablet_held_upright(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    """768 x 1024: the progress charts come right after the patient's details, two side by
+    side, so however many prescriptions the patient has, the first chart starts on the first
+    screen."""
+    r = client.post(f"{API}/patients", json={"display_name": "T. P.", "affected_side": "right"})
+    assert r.status_code == 201, r.text
+    patient = r.json()["id"]
+    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home"})
+    assert r.status_code == 201, r.text
+    station, token = r.json()["id"], r.json()["token"]
+    rxs = []
+    for title in ("Strength, morning", "Strength, evening", "Strength, weekend"):
+        r = client.post(
+            f"{API}/patients/{patient}/prescriptions", json={**STRENGTH, "title": title}
+        )
+        assert r.status_code == 201, r.text
+        rxs.append(r.json()["id"])
+    started = time.time() - 3 * 86_400
+    for _ in range(2):
+        sid = str(uuid.uuid4())
+        rows = samples()[:3000]  # 30 s: one upload request
+        rows["wall"] = started + np.arange(len(rows)) / HZ
+        _upload(system, token, recording_bytes(sid, rows, station, patient, rxs[0]), sid)
+        started += 86_400
+
+    sign_in(page, system)
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(f"{system.url}/app/patients/{patient}")
+    expect(page.locator("#chart-strength-canvas")).to_be_visible()
+    expect(page.locator(".pt-rx")).to_have_count(3)
+    first = page.locator("#chart-strength").bounding_box()
+    beside = page.locator(f"#chart-adherence-{rxs[0]}").bounding_box()
+    assert first is not None and beside is not None
+    assert first["y"] >= 0 and first["y"] + 200 <= 1024, first  # its top and title in view
+    # The width is used: the next chart sits beside the first, not under it.
+    assert beside["y"] == pytest.approx(first["y"], abs=2)
+    assert beside["x"] >= first["x"] + first["width"]
+    # The prescriptions, below, still fit their cards: no sideways scrolling.
+    tables = page.locator(".pt-rx .pt-scroll")
+    for i in range(tables.count()):
+        sizes = tables.nth(i).evaluate("e => [e.scrollWidth, e.clientWidth]")
+        assert sizes[0] <= sizes[1], sizes
+    page.screenshot(path=shots / "patient-tablet-portrait.png")
