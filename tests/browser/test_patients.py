@@ -397,6 +397,16 @@ def test_demo_patient_station_online_and_progress_charts(
     assert_controls_labelled(page)
 
 
+def patient_with_station(client: httpx.Client, name: str, side: str) -> tuple[int, int, str]:
+    """A new patient of the demo therapist with a home station: (patient, station, token)."""
+    r = client.post(f"{API}/patients", json={"display_name": name, "affected_side": side})
+    assert r.status_code == 201, r.text
+    patient: int = r.json()["id"]
+    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home"})
+    assert r.status_code == 201, r.text
+    return patient, r.json()["id"], r.json()["token"]
+
+
 def _upload(system: System, token: str, data: bytes, sid: str) -> int:
     """File a recording as a station does, with the station's own token."""
     station = {"Authorization": f"Bearer {token}"}
@@ -419,12 +429,7 @@ def _upload(system: System, token: str, data: bytes, sid: str) -> int:
 def test_needs_attention_links_to_where_it_happened(
     system: System, page: Page, client: httpx.Client, shots: Path
 ) -> None:
-    r = client.post(f"{API}/patients", json={"display_name": "A. T.", "affected_side": "left"})
-    assert r.status_code == 201, r.text
-    patient = r.json()["id"]
-    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home, hall"})
-    assert r.status_code == 201, r.text
-    station, token = r.json()["id"], r.json()["token"]
+    patient, station, token = patient_with_station(client, "A. T.", "left")
     r = client.post(f"{API}/patients/{patient}/prescriptions", json=STRENGTH)
     assert r.status_code == 201, r.text
     rx = r.json()["id"]
@@ -463,12 +468,7 @@ def test_progress_is_in_the_first_screen_of_a_tablet_held_upright(
     """768 x 1024: the progress charts come right after the patient's details, two side by
     side, so however many prescriptions the patient has, the first chart starts on the first
     screen."""
-    r = client.post(f"{API}/patients", json={"display_name": "T. P.", "affected_side": "right"})
-    assert r.status_code == 201, r.text
-    patient = r.json()["id"]
-    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home"})
-    assert r.status_code == 201, r.text
-    station, token = r.json()["id"], r.json()["token"]
+    patient, station, token = patient_with_station(client, "T. P.", "right")
     rxs = []
     for title in ("Strength, morning", "Strength, evening", "Strength, weekend"):
         r = client.post(
