@@ -36,6 +36,7 @@ from reportlab.platypus import (
 )
 from reportlab.platypus.doctemplate import BaseDocTemplate
 
+from server import fonts
 from sessions.anatomy import label
 from sessions.measures import Measure
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
@@ -53,15 +54,18 @@ _SERIES_COLOURS = (
     colors.HexColor("#ff7f0e"),
     colors.HexColor("#8c564b"),
 )
+# Set in the typeface that draws every patient's name (server.fonts), not Helvetica.
 _STYLES = getSampleStyleSheet()
-_BODY = _STYLES["BodyText"]
+_BODY = ParagraphStyle("body", parent=_STYLES["BodyText"], fontName=fonts.REGULAR)
 _SMALL = ParagraphStyle("small", parent=_BODY, fontSize=8, leading=10)
-_H1, _H2 = _STYLES["Title"], _STYLES["Heading2"]
+_H1 = ParagraphStyle("title", parent=_STYLES["Title"], fontName=fonts.BOLD)
+_H2 = ParagraphStyle("heading", parent=_STYLES["Heading2"], fontName=fonts.BOLD)
 _GRID = TableStyle(
     [
         ("GRID", (0, 0), (-1, -1), 0.4, colors.grey),
         ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#e8eef4")),
-        ("FONTNAME", (0, 0), (-1, 0), "Helvetica-Bold"),
+        ("FONTNAME", (0, 0), (-1, -1), fonts.REGULAR),
+        ("FONTNAME", (0, 0), (-1, 0), fonts.BOLD),
         ("FONTSIZE", (0, 0), (-1, -1), 8),
         ("VALIGN", (0, 0), (-1, -1), "TOP"),
     ]
@@ -166,17 +170,20 @@ def _chart(rows: Sequence[Trend], title: str) -> Drawing:
         plot.lines[i].strokeWidth = 1.2
     plot.xValueAxis.labelTextFormat = "%d"
     plot.xValueAxis.labels.fontSize = plot.yValueAxis.labels.fontSize = 7
+    plot.xValueAxis.labels.fontName = plot.yValueAxis.labels.fontName = fonts.REGULAR
     plot.yValueAxis.labelTextFormat = "%.0f"
     drawing.add(plot)
     legend = LineLegend()
     legend.x, legend.y = 125 * mm, 58 * mm
-    legend.fontSize = 7
+    legend.fontSize, legend.fontName = 7, fonts.REGULAR
     legend.colorNamePairs = [
         (_SERIES_COLOURS[i % len(_SERIES_COLOURS)], t.label[:40]) for i, t in enumerate(rows)
     ]
     drawing.add(legend)
-    drawing.add(String(15 * mm, 64 * mm, title, fontSize=9))
-    drawing.add(String(55 * mm, 2 * mm, "days since the period began", fontSize=7))
+    drawing.add(String(15 * mm, 64 * mm, title, fontSize=9, fontName=fonts.REGULAR))
+    drawing.add(
+        String(55 * mm, 2 * mm, "days since the period began", fontSize=7, fontName=fonts.REGULAR)
+    )
     return drawing
 
 
@@ -308,7 +315,7 @@ def _signature() -> Flowable:
 
 def _footer(canvas: Any, doc: BaseDocTemplate) -> None:
     canvas.saveState()
-    canvas.setFont("Helvetica", 7)
+    canvas.setFont(fonts.REGULAR, 7)
     canvas.drawString(doc.leftMargin, 10 * mm, doc.title)
     canvas.drawRightString(A4[0] - doc.rightMargin, 10 * mm, f"page {doc.page}")
     canvas.restoreState()
@@ -316,6 +323,7 @@ def _footer(canvas: Any, doc: BaseDocTemplate) -> None:
 
 def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes:
     """The report as PDF bytes; ``progress`` defaults to :func:`trends` of the record."""
+    fonts.register()
     p = record.patient
     first, last = record.days
     period = f"{first} to {last}"
@@ -415,6 +423,7 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
         rightMargin=18 * mm,
         topMargin=16 * mm,
         bottomMargin=18 * mm,
+        initialFontName=fonts.REGULAR,  # else every page also declares Helvetica
     )
     doc.build(story, onFirstPage=_footer, onLaterPages=_footer)
     return out.getvalue()

@@ -26,8 +26,8 @@ from pydantic import (
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
 from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
 from sessions.anatomy import direction_table
-from sessions.prescription import PrescriptionBody, PrescriptionInput
-from sessions.sentences import FieldError, field_label
+from sessions.prescription import AxisPrescription, PrescriptionBody, PrescriptionInput
+from sessions.sentences import FieldError, field_label, setting_parts
 
 Email = Annotated[
     str,
@@ -251,6 +251,29 @@ class PrescriptionUpdate(PrescriptionInput):
     """The whole new body of an active prescription; the version goes up by one."""
 
 
+class AxisImpedanceText(BaseModel):
+    """One axis's K and B in the words of the forms and their sentences (sessions.sentences)."""
+
+    axis: str
+    stiffness: str = Field(description='K per radian: "40 N·m/rad".')
+    stiffness_per_degree: str = Field(description='The same K per degree: "0.698 N·m/°".')
+    damping: str = Field(description='B per radian: "2 N·m·s/rad".')
+    damping_per_degree: str = Field(description='The same B per degree: "0.0349 N·m·s/°".')
+
+    @classmethod
+    def of(cls, a: AxisPrescription) -> AxisImpedanceText:
+        k, k_deg = setting_parts(a, "stiffness")
+        b, b_deg = setting_parts(a, "damping")
+        assert k_deg is not None and b_deg is not None  # both are per radian
+        return cls(
+            axis=a.axis,
+            stiffness=k,
+            stiffness_per_degree=k_deg,
+            damping=b,
+            damping_per_degree=b_deg,
+        )
+
+
 class PrescriptionPublic(BaseModel):
     id: int
     patient_id: int
@@ -264,6 +287,10 @@ class PrescriptionPublic(BaseModel):
     updated_at: datetime
     total_s: float = Field(description="Exercise time including rests between sets, s.")
     body: PrescriptionBody
+    impedance_text: list[AxisImpedanceText] = Field(
+        description="Each axis's K and B (in body.axes' order) per radian and per degree, as "
+        "the forms write them."
+    )
 
     @classmethod
     def from_row(cls, row: Prescription) -> PrescriptionPublic:
@@ -278,6 +305,7 @@ class PrescriptionPublic(BaseModel):
             updated_at=row.updated_at,
             total_s=body.total_s(),
             body=body,
+            impedance_text=[AxisImpedanceText.of(a) for a in body.axes],
         )
 
 

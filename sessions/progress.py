@@ -301,28 +301,29 @@ def minimal_detectable_change(trials_per_session: Sequence[Sequence[float]]) -> 
     repeated = [list(t) for t in trials_per_session if len(t) >= 2]
     n = sum(len(t) for t in repeated)
     df = n - len(repeated)
-    if n < MDC_MIN_TRIALS or len(repeated) < MDC_MIN_ASSESSMENTS:
+
+    def unmeasured(reason: MdcMissing, text: str) -> Mdc:
         return Mdc(
             axis="",
             sign=0,
             mdc95_deg=None,
             sem_deg=None,
-            reason="too_few_trials",
+            reason=reason,
             trials=n,
             assessments=len(repeated),
-            text=f"not enough repeated trials yet ({n} trials in {len(repeated)} assessments; "
+            text=text,
+        )
+
+    if n < MDC_MIN_TRIALS or len(repeated) < MDC_MIN_ASSESSMENTS:
+        return unmeasured(
+            "too_few_trials",
+            f"not enough repeated trials yet ({n} trials in {len(repeated)} assessments; "
             f"at least {MDC_MIN_TRIALS} in {MDC_MIN_ASSESSMENTS} are needed)",
         )
     if all(x == t[0] for t in repeated for x in t):
-        return Mdc(
-            axis="",
-            sign=0,
-            mdc95_deg=None,
-            sem_deg=None,
-            reason="no_scatter",
-            trials=n,
-            assessments=len(repeated),
-            text=f"not measurable: never moved this way in {n} trials"
+        return unmeasured(
+            "no_scatter",
+            f"not measurable: never moved this way in {n} trials"
             if all(x == 0 for t in repeated for x in t)
             else f"not measurable: each assessment's trials measured the same ({n} trials)",
         )

@@ -51,14 +51,21 @@ def number(value: float) -> str:
     return f"{v:.1f}" if abs(v) >= 10 else f"{v:.3g}"
 
 
-def quantity(value: float, unit: str) -> str:
-    """``value`` with its unit; a per-radian unit also per degree: "40 N·m/rad (0.698 N·m/°)"."""
+def quantity_parts(value: float, unit: str) -> tuple[str, str | None]:
+    """``value`` with its unit, and for a per-radian unit the same per degree (else None):
+    ("40 N·m/rad", "0.698 N·m/°")."""
     if not unit:
-        return number(value)
+        return number(value), None
     text = f"{number(value)}{unit}" if unit.startswith("°") else f"{number(value)} {unit}"
     if unit.endswith("/rad"):
-        text += f" ({number(math.radians(value))} {unit[: -len('/rad')]}/°)"
-    return text
+        return text, f"{number(math.radians(value))} {unit[: -len('/rad')]}/°"
+    return text, None
+
+
+def quantity(value: float, unit: str) -> str:
+    """``value`` with its unit; a per-radian unit also per degree: "40 N·m/rad (0.698 N·m/°)"."""
+    text, per_degree = quantity_parts(value, unit)
+    return f"{text} ({per_degree})" if per_degree else text
 
 
 _OP_WORDS: dict[Op, str] = {
@@ -86,6 +93,12 @@ def field_unit(info: FieldInfo | None) -> str:
     extra = info.json_schema_extra if info is not None else None
     unit = extra.get("unit") if isinstance(extra, dict) else None
     return unit if isinstance(unit, str) else ""
+
+
+def setting_parts(model: BaseModel, name: str) -> tuple[str, str | None]:
+    """A number setting of ``model`` in its field's unit as the forms and sentences write it,
+    and per degree if its unit is per radian: ("40 N·m/rad", "0.698 N·m/°")."""
+    return quantity_parts(getattr(model, name), field_unit(type(model).model_fields[name]))
 
 
 def _models_in(annotation: Any) -> list[type[BaseModel]]:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from playwright.sync_api import Locator, Page, expect
 
@@ -23,6 +24,7 @@ from sessions.recording import End, EndReason, SessionEvent
 from tests.browser.a11y import assert_controls_labelled
 from tests.server.live_server import STRENGTH
 from tests.server.test_attention import recording
+from tests.server.test_series import HZ, recording_bytes, samples
 from tests.system.harness import System, live, next_of, short_strength
 
 API = "/api/v1"
@@ -233,8 +235,16 @@ def test_prescribe_from_the_library_edit_and_withdraw(
     assert (roll["axis"], roll["stiffness"]) == ("roll", 25.0)
     assert (pitch_axis["waveform"], pitch_axis["amplitude"]) == ("sine", 10.0)
     card = page.locator(f'article[data-prescription-id="{created["id"]}"]')
-    expect(card).to_contain_text("25.0 N·m/rad")
-    expect(card).to_contain_text(f"{roll['damping']:.2f} N·m·s/rad")
+    # K and B as the form writes them: per radian and per degree (25·π/180 = 0.436).
+    k_cell = card.locator("tbody tr").first.locator("td").nth(0)
+    expect(k_cell).to_have_text("25 N·m/rad0.436 N·m/°")
+    expect(k_cell.locator(".pt-per-degree")).to_have_text("0.436 N·m/°")
+    kb = created["impedance_text"][0]
+    expect(card.locator("tbody tr").first.locator("td").nth(1)).to_have_text(
+        kb["damping"] + kb["damping_per_degree"]
+    )
+    assert kb["damping"].endswith(" N·m·s/rad") and kb["damping_per_degree"].endswith(" N·m·s/°")
+    card.screenshot(path=shots / "prescription-card.png")
     expect(card).to_contain_text("Sine 0.0° ± 10.0° at 0.10 Hz")
     expect(card).to_contain_text("version 1")
 
@@ -387,6 +397,16 @@ def test_demo_patient_station_online_and_progress_charts(
     assert_controls_labelled(page)
 
 
+def patient_with_station(client: httpx.Client, name: str, side: str) -> tuple[int, int, str]:
+    """A new patient of the demo therapist with a home station: (patient, station, token)."""
+    r = client.post(f"{API}/patients", json={"display_name": name, "affected_side": side})
+    assert r.status_code == 201, r.text
+    patient: int = r.json()["id"]
+    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home"})
+    assert r.status_code == 201, r.text
+    return patient, r.json()["id"], r.json()["token"]
+
+
 def _upload(system: System, token: str, data: bytes, sid: str) -> int:
     """File a recording as a station does, with the station's own token."""
     station = {"Authorization": f"Bearer {token}"}
@@ -409,12 +429,7 @@ def _upload(system: System, token: str, data: bytes, sid: str) -> int:
 def test_needs_attention_links_to_where_it_happened(
     system: System, page: Page, client: httpx.Client, shots: Path
 ) -> None:
-    r = client.post(f"{API}/patients", json={"display_name": "A. T.", "affected_side": "left"})
-    assert r.status_code == 201, r.text
-    patient = r.json()["id"]
-    r = client.post(f"{API}/patients/{patient}/stations", json={"name": "Home, hall"})
-    assert r.status_code == 201, r.text
-    station, token = r.json()["id"], r.json()["token"]
+    patient, station, token = patient_with_station(client, "A. T.", "left")
     r = client.post(f"{API}/patients/{patient}/prescriptions", json=STRENGTH)
     assert r.status_code == 201, r.text
     rx = r.json()["id"]
@@ -445,3 +460,45 @@ def test_needs_attention_links_to_where_it_happened(
     page.screenshot(path=shots / "patients-attention.png", full_page=True)
     items.filter(has_text="Fault").get_by_role("link", name="Review the session").click()
     expect(page).to_have_url(f"{system.url}/app/sessions/{ids['fault']}")
+
+
+def test_progress_is_in_the_first_screen_of_a_tablet_held_upright(
+    system: System, page: Page, client: httpx.Client, shots: Path
+) -> None:
+    """768 x 1024: the progress charts come right after the patient's details, two side by
+    side, so however many prescriptions the patient has, the first chart starts on the first
+    screen."""
+    patient, station, token = patient_with_station(client, "T. P.", "right")
+    rxs = []
+    for title in ("Strength, morning", "Strength, evening", "Strength, weekend"):
+        r = client.post(
+            f"{API}/patients/{patient}/prescriptions", json={**STRENGTH, "title": title}
+        )
+        assert r.status_code == 201, r.text
+        rxs.append(r.json()["id"])
+    started = time.time() - 3 * 86_400
+    for _ in range(2):
+        sid = str(uuid.uuid4())
+        rows = samples()[:3000]  # 30 s: one upload request
+        rows["wall"] = started + np.arange(len(rows)) / HZ
+        _upload(system, token, recording_bytes(sid, rows, station, patient, rxs[0]), sid)
+        started += 86_400
+
+    sign_in(page, system)
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(f"{system.url}/app/patients/{patient}")
+    expect(page.locator("#chart-strength-canvas")).to_be_visible()
+    expect(page.locator(".pt-rx")).to_have_count(3)
+    first = page.locator("#chart-strength").bounding_box()
+    beside = page.locator(f"#chart-adherence-{rxs[0]}").bounding_box()
+    assert first is not None and beside is not None
+    assert first["y"] >= 0 and first["y"] + 200 <= 1024, first  # its top and title in view
+    # The width is used: the next chart sits beside the first, not under it.
+    assert beside["y"] == pytest.approx(first["y"], abs=2)
+    assert beside["x"] >= first["x"] + first["width"]
+    # The prescriptions, below, still fit their cards: no sideways scrolling.
+    tables = page.locator(".pt-rx .pt-scroll")
+    for i in range(tables.count()):
+        sizes = tables.nth(i).evaluate("e => [e.scrollWidth, e.clientWidth]")
+        assert sizes[0] <= sizes[1], sizes
+    page.screenshot(path=shots / "patient-tablet-portrait.png")

@@ -356,6 +356,16 @@ def test_rom_assessments_trials_and_progress_with_mdc(
     values, radii = drawn
     assert values == pytest.approx([21.0, 22.0, 26.0], abs=1e-4)  # the device's float32
     assert radii[2] > radii[1] == radii[0]  # only the change beyond the MDC95 is marked
+    # The baselines are drawn, dotted, but not listed in the legend: the plot keeps its height.
+    legend, datasets, plot_h = page.locator("#chart-rom_assessment-canvas").evaluate(
+        """c => { const ch = Chart.getChart(c);
+        return [ch.legend.legendItems.map(i => i.text), ch.data.datasets.map(d => d.label),
+                ch.chartArea.height]; }"""
+    )
+    assert f"{label('pitch', 1, side)}: baseline" in datasets
+    assert legend == [d for d in datasets if not d.endswith(": baseline")] and len(legend) == 4
+    assert plot_h >= 120, plot_h
+    expect(chart).to_contain_text("Dotted lines: the baselines.")
     page.locator("#chart-rom_assessment summary").click()
     expect(page.locator("#chart-rom_assessment table")).to_contain_text("+5.0° real change")
     chart.screenshot(path=shots / "progress-rom.png")

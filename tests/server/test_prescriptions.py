@@ -126,6 +126,16 @@ async def test_create_update_cancel(
     rx = r.json()
     assert (rx["status"], rx["version"], rx["created_by"]) == ("active", 1, world.t1_id)
     assert rx["body"]["axes"][0]["stiffness"] == 25.0
+    # K and B as the form writes them, per radian and per degree (25·π/180 = 0.436).
+    assert rx["impedance_text"] == [
+        {
+            "axis": "pitch",
+            "stiffness": "25 N·m/rad",
+            "stiffness_per_degree": "0.436 N·m/°",
+            "damping": "2 N·m·s/rad",
+            "damping_per_degree": "0.0349 N·m·s/°",
+        }
+    ]
     assert rx["total_s"] == PrescriptionBody.model_validate(body).total_s()
     assert sorted(nudged) == [world.s1_id, world.s1_spare_id]
 

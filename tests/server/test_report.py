@@ -15,8 +15,10 @@ import pytest
 from fhir.resources.R4B.bundle import Bundle
 from numpy.typing import NDArray
 from pypdf import PdfReader
+from reportlab.pdfbase import pdfmetrics
 from sqlalchemy import update
 
+from server import fonts
 from server.models import Prescription
 from sessions.anatomy import LABELS
 from sessions.export import FORMATS
@@ -282,6 +284,44 @@ async def test_each_session_download_is_audited_as_an_export_and_not_cached(
             world.p1,
         )
         assert row["new"]["session_id"] == session_id and row["old"] is None
+
+
+NAMES = ("Łukasz Żółć", "Ελένη Παπαδοπούλου", "Ольга Иванова", "Nguyễn Thị Hằng")
+"""Polish, Greek, Russian and Vietnamese: letters Helvetica (WinAnsi) has no glyph for."""
+
+
+def embedded_fonts(body: bytes) -> set[str]:
+    """The fonts the pages use, without their subset prefix ("ABCDEF+DejaVuSans")."""
+    out = set()
+    for page in PdfReader(io.BytesIO(body)).pages:
+        resources: Any = page["/Resources"]
+        for font in resources["/Font"].values():
+            out.add(str(font.get_object()["/BaseFont"]).split("+")[-1])
+    return out
+
+
+@pytest.mark.asyncio
+async def test_names_beyond_western_europe_are_drawn_and_read_back(
+    live: Live, world: World
+) -> None:
+    """Helvetica drew "Łukasz Żółć" with boxes or dropped letters. The report embeds DejaVu
+    Sans, which has a glyph for every letter of these names, and its text reads them back."""
+    face = None
+    for name in NAMES:
+        r = await live.client.patch(
+            f"/patients/{world.p1}", json={"display_name": name}, headers=bearer(world.t1)
+        )
+        assert r.status_code == 200, r.text
+        r = await live.client.get(f"/patients/{world.p1}/report.pdf", headers=bearer(world.t1))
+        assert r.status_code == 200, r.text
+        assert name in pdf_text(r.content), name
+        assert embedded_fonts(r.content) == {"DejaVuSans", "DejaVuSans-Bold"}, (
+            f"set in {fonts.register()}: the server finds DejaVu Sans on the system "
+            "(fonts-dejavu-core) or in matplotlib"
+        )
+        face = face or pdfmetrics.getFont(fonts.REGULAR).face  # registered by the server
+        missing = [c for c in name if c != " " and ord(c) not in face.charToGlyph]
+        assert not missing, (name, missing)
 
 
 @pytest.mark.asyncio

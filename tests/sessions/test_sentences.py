@@ -21,7 +21,7 @@ from sessions.prescription import (
     PrescriptionBody,
     PrescriptionInput,
 )
-from sessions.sentences import FieldError, bound_sentence, number, quantity, sentence
+from sessions.sentences import FieldError, bound_sentence, number, quantity, sentence, setting_parts
 
 STRENGTH: dict[str, Any] = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
 PYDANTIC_WORDS = ("Input should", "String should", "List should", "Value error", "Field required")
@@ -185,6 +185,10 @@ def test_numbers_and_units_read_as_a_clinician_writes_them() -> None:
     assert quantity(300.0, "N·m/rad") == f"300 N·m/rad ({number(math.radians(300))} N·m/°)"
     assert quantity(22.9, "°") == "22.9°"
     assert bound_sentence("Sets", "ge", 1, "") == "Sets must be at least 1."
+    axis = AxisPrescription(axis="roll", stiffness=12.5, damping=0.8)
+    assert setting_parts(axis, "stiffness") == ("12.5 N·m/rad", "0.218 N·m/°")
+    assert setting_parts(axis, "damping") == ("0.8 N·m·s/rad", "0.014 N·m·s/°")
+    assert setting_parts(axis, "center") == ("0°", None)
 
 
 def test_a_field_error_keeps_its_sentence_and_place() -> None:

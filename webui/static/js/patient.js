@@ -233,8 +233,9 @@ function axisTable(rx) {
           "tr",
           {},
           el("th", { scope: "col" }, "Axis"),
-          el("th", { scope: "col", class: "num" }, "Stiffness K ", el("span", { class: "unit" }, "(N·m/rad)")),
-          el("th", { scope: "col", class: "num" }, "Damping B ", el("span", { class: "unit" }, "(N·m·s/rad)")),
+          // The units are in each value: per radian, and per degree below it.
+          el("th", { scope: "col", class: "num" }, "Stiffness K"),
+          el("th", { scope: "col", class: "num" }, "Damping B"),
           el("th", { scope: "col" }, "Target ", el("span", { class: "unit" }, "(degrees)")),
           el("th", { scope: "col" }, "Range of motion ", el("span", { class: "unit" }, "(degrees)")),
         ),
@@ -242,13 +243,14 @@ function axisTable(rx) {
       el(
         "tbody",
         {},
-        rx.body.axes.map((a) =>
+        rx.body.axes.map((a, i) =>
           el(
             "tr",
             {},
             el("th", { scope: "row" }, AXIS_WORDS[a.axis] || a.axis),
-            el("td", { class: "num" }, `${fmt.num(a.stiffness, 1)} N·m/rad`),
-            el("td", { class: "num" }, `${fmt.num(a.damping, 2)} N·m·s/rad`),
+            // As the forms write them, per radian and per degree (the server's sessions.sentences).
+            el("td", { class: "num" }, rx.impedance_text[i].stiffness, el("span", { class: "pt-per-degree" }, rx.impedance_text[i].stiffness_per_degree)),
+            el("td", { class: "num" }, rx.impedance_text[i].damping, el("span", { class: "pt-per-degree" }, rx.impedance_text[i].damping_per_degree)),
             el("td", {}, targetWords(a)),
             el("td", {}, romWords(a)),
           ),

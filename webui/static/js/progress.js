@@ -95,7 +95,14 @@ function options(yTitle, beginAtZero = true) {
       // A short title: a long one is clipped on a chart this high.
       y: { beginAtZero, title: { display: true, text: yTitle } },
     },
-    plugins: { legend: { position: "bottom", labels: { usePointStyle: true } } },
+    plugins: {
+      legend: {
+        position: "bottom",
+        // A baseline is its direction's colour, dotted, and said in the caption: a legend
+        // entry each would take the plot's height on a narrow chart.
+        labels: { usePointStyle: true, filter: (item, data) => !data.datasets[item.datasetIndex].baseline },
+      },
+    },
   };
 }
 
@@ -156,6 +163,7 @@ function exerciseChart(progress, ex, name) {
     });
     if (m.baseline != null) {
       datasets.push({
+        baseline: true,
         label: `${label}: baseline`,
         data: ids.map(() => m.baseline),
         borderColor: style.color,
@@ -178,7 +186,8 @@ function exerciseChart(progress, ex, name) {
     });
   });
   const words = ex.measures.map((m) => measureWords(progress, m, directionLabel(progress.directions, m.axis, m.sign)));
-  const summary = `${ex.sessions} session${ex.sessions === 1 ? "" : "s"}, oldest first. ${words.join("; ")}.`;
+  const dotted = ex.measures.some((m) => m.baseline != null) ? " Dotted lines: the baselines." : "";
+  const summary = `${ex.sessions} session${ex.sessions === 1 ? "" : "s"}, oldest first. ${words.join("; ")}.${dotted}`;
   const table = dataTable(title, head, ids.map((_, i) => [labels[i], ...columns.map((c) => c(i))]));
   const { fig, canvas } = figure(id, title, summary, table);
   return { fig, canvas, config: { type: "line", data: { labels, datasets }, options: options(q.axis) } };
