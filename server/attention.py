@@ -24,8 +24,8 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, Station, User
-from server.routes.progress import prescription_facts
 from sessions.progress import WEEK, SessionFacts, missed_weeks
 
 LOOKBACK_DAYS = 7

@@ -41,15 +41,14 @@ ANATOMICAL_DEG: dict[str, tuple[float, float]] = {
 }
 """Normal adult active ranges (AAOS), conservative: a prescription never goes past them."""
 
-_DEVICE = SafetyLimits().published()
+DEVICE_LIMITS = SafetyLimits().published()
 """The device's limits as it publishes them in its HELLO (float32)."""
-DEVICE_LIMITS = _DEVICE
 
 
 def device_range_deg(axis: str) -> tuple[float, float]:
     """The device's own range of motion on one axis, degrees."""
     i = AXIS_INDEX[axis]
-    return math.degrees(_DEVICE.rom_low[i]), math.degrees(_DEVICE.rom_high[i])
+    return math.degrees(DEVICE_LIMITS.rom_low[i]), math.degrees(DEVICE_LIMITS.rom_high[i])
 
 
 def allowed_range_deg(axis: str) -> tuple[float, float]:
@@ -59,14 +58,14 @@ def allowed_range_deg(axis: str) -> tuple[float, float]:
     return max(lo_a, lo_d), min(hi_a, hi_d)
 
 
-STIFFNESS_MAX = _DEVICE.stiffness_max[3]
+STIFFNESS_MAX = DEVICE_LIMITS.stiffness_max[3]
 """N·m/rad: the device's largest rotational stiffness."""
-DAMPING_MAX = _DEVICE.damping_max[3]
+DAMPING_MAX = DEVICE_LIMITS.damping_max[3]
 """N·m·s/rad: the device's largest rotational damping."""
-SPEED_MAX_DEG_S = math.degrees(_DEVICE.axis_speed_max[3])
+SPEED_MAX_DEG_S = math.degrees(DEVICE_LIMITS.axis_speed_max[3])
 """Fastest target motion the device accepts on a rotation axis, deg/s."""
-TORQUE_LIMIT_MAX = _DEVICE.torque_limit
-FORCE_LIMIT_MAX = _DEVICE.force_limit
+TORQUE_LIMIT_MAX = DEVICE_LIMITS.torque_limit
+FORCE_LIMIT_MAX = DEVICE_LIMITS.force_limit
 SEGMENT_S_MAX = 600.0
 """Longest repetition (s): one device segment."""
 
@@ -265,9 +264,9 @@ class AxisPrescription(BaseModel):
                 "center.",
             )
         speed = self.peak_speed_deg_s()
-        if speed > SPEED_MAX_DEG_S:
+        if speed > SPEED_MAX_DEG_S:  # a sine's (a ramp's rate has its own bound)
             raise FieldError(
-                ("frequency" if self.waveform == "sine" else "ramp_rate",),
+                ("frequency",),
                 f"The target on {self.axis} moves at up to {number(speed)}°/s, faster than the "
                 f"device allows ({number(SPEED_MAX_DEG_S)}°/s): lower the amplitude or the "
                 "frequency.",
@@ -369,7 +368,7 @@ class PrescriptionBody(BaseModel):
         if self.exercise not in COMPLIANT_KINDS:
             return self
         for i, a in enumerate(self.axes):
-            least = _DEVICE.damping_min_at(AXIS_INDEX[a.axis], a.stiffness)
+            least = DEVICE_LIMITS.damping_min_at(AXIS_INDEX[a.axis], a.stiffness)
             if to_float32(a.damping) < least:  # as the device receives it
                 raise FieldError(
                     ("axes", i, "damping"),

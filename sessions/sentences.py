@@ -118,11 +118,10 @@ def _models_in(annotation: Any) -> list[type[BaseModel]]:
 
 
 class _Place:
-    """What a location names: the field's info, its label and unit, and the axis it is on."""
+    """What a location names: the field, its label and unit (on its axis)."""
 
     def __init__(self, name: str, info: FieldInfo | None, axis: str | None) -> None:
         self.name = name
-        self.info = info
         self.label = field_label(name, info, axis)
         self.unit = field_unit(info)
 

@@ -8,20 +8,20 @@ minimal detectable change, and adherence per prescription (``sessions.progress``
 from __future__ import annotations
 
 from datetime import UTC, date, datetime, time, timedelta
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from pydantic import Field
 from sqlalchemy import select
 
 from server.deps import Db, Id, TherapistOrAdmin, patient_for
+from server.facts import prescription_facts, session_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.sessions import with_metrics
 from sessions.anatomy import direction_table
 from sessions.prescription import ExerciseKind
-from sessions.progress import PrescriptionFacts, Progress, SessionFacts, progress
-from sessions.summary import Summary
+from sessions.progress import Progress, progress
 
 router = APIRouter(prefix="/patients", tags=["patients"])
 
@@ -72,29 +72,6 @@ def parse_kind(text: str | None) -> ExerciseKind | None:
         raise HTTPException(
             422, f"kind '{text[:40]}' is not an exercise type: one of {kinds}"
         ) from None
-
-
-def prescription_facts(row: Prescription) -> PrescriptionFacts:
-    body: dict[str, Any] = row.body
-    return PrescriptionFacts(
-        id=row.id,
-        exercise=ExerciseKind(body["exercise"]),
-        title=str(body.get("title") or ""),
-        sessions_per_week=int(body.get("sessions_per_week") or 1),
-        created_at=row.created_at,
-        # A withdrawn or finished prescription asked for sessions up to its change of status.
-        ended_at=None if row.status == "active" else row.updated_at,
-    )
-
-
-def session_facts(row: Session) -> SessionFacts:
-    return SessionFacts(
-        id=row.id,
-        prescription_id=row.prescription_id,
-        started_at=row.started_at,
-        end_reason=row.end_reason,
-        summary=Summary.model_validate(row.summary) if row.summary is not None else None,
-    )
 
 
 async def load_progress(

@@ -20,6 +20,7 @@ from sqlalchemy import select
 
 from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, patient_for
+from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
@@ -109,8 +110,8 @@ async def patient_record(
         )
     ).all()
     # A prescription withdrawn or completed before the period began is not in it.
-    ends = {p.id: (None if p.status == "active" else p.updated_at) for p in prescriptions}
-    prescriptions = [p for p in prescriptions if (ends[p.id] or until) >= since]
+    facts = {p.id: prescription_facts(p) for p in prescriptions}
+    prescriptions = [p for p in prescriptions if (facts[p.id].ended_at or until) >= since]
     rows = (
         await db.scalars(
             select(Session)
@@ -122,15 +123,15 @@ async def patient_record(
             .order_by(Session.started_at, Session.id)
         )
     ).all()
-    kinds = {p.id: p.body.get("exercise") for p in prescriptions}
+    kinds = {p.id: facts[p.id].exercise.value for p in prescriptions}
     rxs = [
         record.Prescription(
             id=p.id,
-            title=str(p.body.get("title") or p.body.get("exercise") or f"prescription {p.id}"),
-            exercise=str(p.body.get("exercise", "")),
+            title=facts[p.id].title or facts[p.id].exercise.value,
+            exercise=facts[p.id].exercise.value,
             status=p.status,
             created_at=p.created_at,
-            sessions_per_week=p.body.get("sessions_per_week"),
+            sessions_per_week=facts[p.id].sessions_per_week,
         )
         for p in prescriptions
     ]
