@@ -5,9 +5,6 @@ Made with reportlab's page layout (platypus) and its charts, from one
 done against prescribed, each session's measures (per direction, named for the patient's
 side), their trend, the notable events (faults, holds, early ends) and a signature block.
 The numbers are those of :mod:`sessions.measures`, as in the FHIR export.
-
-:func:`progress_section` takes the rows it shows, so a richer progress (baseline, minimal
-detectable change) can feed it without touching the rest.
 """
 
 from __future__ import annotations
@@ -79,11 +76,14 @@ class Trend:
     code: str
     label: str
     unit: str
-    sessions: int
     first: float
     last: float
     points: list[tuple[float, float]]
     """(days since the period began, value), oldest first."""
+
+    @property
+    def sessions(self) -> int:
+        return len(self.points)
 
     @property
     def change(self) -> float:
@@ -127,7 +127,7 @@ def trends(record: PatientRecord) -> list[Trend]:
                 continue
             series.setdefault(m.code.code, (m, []))[1].append((day, m.value))
     return [
-        Trend(m.code.code, m.label, m.code.unit, len(pts), pts[0][1], pts[-1][1], pts)
+        Trend(m.code.code, m.label, m.code.unit, pts[0][1], pts[-1][1], pts)
         for m, pts in series.values()
     ]
 
@@ -321,8 +321,8 @@ def _footer(canvas: Any, doc: BaseDocTemplate) -> None:
     canvas.restoreState()
 
 
-def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes:
-    """The report as PDF bytes; ``progress`` defaults to :func:`trends` of the record."""
+def pdf(record: PatientRecord) -> bytes:
+    """The report as PDF bytes."""
     fonts.register()
     p = record.patient
     first, last = record.days
@@ -402,7 +402,7 @@ def pdf(record: PatientRecord, progress: Sequence[Trend] | None = None) -> bytes
         )
     else:
         story.append(_p("No sessions in this period.", _BODY))
-    story += progress_section(trends(record) if progress is None else progress)
+    story += progress_section(trends(record))
     story += baseline_section(record.progress, record.patient.affected_side)
     story.append(Paragraph("Notable events", _H2))
     events = _event_rows(record)
