@@ -251,15 +251,15 @@ class SupervisionConfig:
     each valve's own air per pulse: the valves' jitter (up to 0.1 ms rms per switching) and
     what the identification's straight line misses of a pulse at another pressure."""
     observer_flow_tolerance_identified: float = 0.15
-    use_identified_valves: bool = False
-    """Off: a healthy strength exercise on draw 11 reached 1.6 of the narrowed tolerance (a
-    false service warning). Measured gains and times are kept in the calibration."""
     """...and the share of the flow, once identified: what is left of the type's range is
     the critical ratio at another pressure than the identification's (up to 10 %) and the
     polytropic index of a mixed period. Measured healthy, holding at four poses with a
     relaxed and a resisting foot on the nominal plant and two drawn builds: the residual
     reached at most 0.41 of this tolerance (0.17 nominal); a 0.5 C leak and a stuck-closed
     exhaust go outside it within 33 and 73 ms."""
+    use_identified_valves: bool = False
+    """Off: a healthy strength exercise on draw 11 reached 1.6 of the narrowed tolerance (a
+    false service warning). Measured gains and times are kept in the calibration."""
     observer_volume_tolerance: float = 0.35
     """Share of the air a pressure change alone seems to move (V dp / k) that the observer
     forgives: the dead volume of a real build (port and tube, 4-15 cm3 for 0.3-1 m of tube)

@@ -16,6 +16,7 @@ the boundary-command run, which goes through the real device service over a pty.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -160,6 +161,15 @@ def excursion(faulty: np.ndarray, healthy: np.ndarray, detect_row: int | None) -
     return result
 
 
+@functools.cache
+def _healthy_pose(scenario: str, seed: int, after: float) -> np.ndarray:
+    """The twin run without the fault: the same for every fault kind and channel (the plant
+    and the controller are deterministic for a seed), so simulated once."""
+    _, pose, _, _ = _run(None, scenario, seed, after=after)
+    pose.flags.writeable = False
+    return pose
+
+
 def run_fault(
     kind: FaultKind,
     scenario: str,
@@ -169,7 +179,7 @@ def run_fault(
 ) -> FaultRun:
     """``kind`` injected in ``scenario`` on ``channel`` (default: the one of FAULTS), watched
     for ``after`` seconds."""
-    _, healthy, _, _ = _run(None, scenario, seed, after=after)
+    healthy = _healthy_pose(scenario, seed, after)
     rig, pose, detect, onset = _run(kind, scenario, seed, channel, after)
     row = None if math.isnan(detect) else round(detect * 1000.0)
     if rig.mode != Mode.FAULT and not rig.supply_low:

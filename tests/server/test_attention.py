@@ -84,7 +84,10 @@ async def session(
     end = End(
         ended_at=started + 2, reason=reason, sets_completed=1, repetitions_completed=reps, text=text
     )
-    evs = [SessionEvent(wall=started + 1, kind=k, by=by, detail={"text": k}) for k, by in events]
+    evs = [
+        SessionEvent(wall=started + 1, kind=k, by=by, detail={"text": text or k})
+        for k, by in events
+    ]
     station, patient, rx, token = (
         (world.s1_id, world.p1, world.rx1, world.s1)
         if mine
@@ -120,7 +123,7 @@ async def test_faults_holds_and_early_ends_of_own_patients_link_to_their_session
     early = next(i for i in items if i["session_id"] == held and i["kind"] == "ended_early")
     assert f"3 of {full} repetitions" in early["text"]
     fault = next(i for i in items if i["session_id"] == faulted)
-    assert "supply pressure low" in fault["text"] or "fault" in fault["text"]
+    assert fault["text"] == "Fault: supply pressure low.", fault  # the fault event's own words
 
     theirs = (await live.client.get("/patients/attention", headers=bearer(world.t2))).json()
     assert {i["session_id"] for i in theirs if i["session_id"]} == {others}

@@ -136,6 +136,9 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
     assert "Strength (resistive) 5 10 1 0 1 8 10 %" in text, text
     # The trend: the peak plantarflexion grew with the second session's larger angles.
     assert "Progress over the period" in text
+    grown = PEAK_DEG * 1.2
+    trend = f"{LABELS['plantarflexion']} 2 {PEAK_DEG:.1f}° {grown:.1f}° {grown - PEAK_DEG:+.1f}°"
+    assert trend in text, text
     # Notable events: the second session's hold, fault and early end.
     assert "fault at 30 s (device): supply lost" in text
     assert "held 1 time" in text

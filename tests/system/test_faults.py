@@ -70,7 +70,6 @@ async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device
         system.stop(system.station, signal.SIGKILL)
         assert system.station.returncode == -signal.SIGKILL
         await presence(ws, online=False, timeout=15)
-        killed_at = time.monotonic()
 
         system.start_station()
         await presence(ws, online=True, timeout=60)  # a new process starts slowly when loaded
@@ -87,7 +86,6 @@ async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device
         assert min(times) > last_t
         state = await status_until(ws, lambda s: s.device_link == "connected", 10)
         assert state.device_mode in SAFE_MODES and state.session_id is None, state
-        assert time.monotonic() - killed_at < 90
     finally:
         await ws.close()
 
