@@ -34,7 +34,6 @@ integral takes up their static part), the sensors' span errors.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime
@@ -44,7 +43,7 @@ from numpy.typing import NDArray
 
 from device import signals, supervision
 from device.calibration import Calibration, IdentificationError
-from device.controller import ControllerConfig
+from device.controller import CONTROL_PERIOD, ControllerConfig, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
 from device.plant.params import TICK_HZ
@@ -188,9 +187,10 @@ def identify_valves(
     each chamber's dead volume (m3, 12). Leaves every chamber vented and every valve
     closed."""
     cfg = config if config is not None else ControllerConfig()
-    q = supervision.build(cfg.supervision, atmosphere, 4.0e-3)
-    area_cap = math.pi * cfg.bore**2 / 4.0
-    area_ann = area_cap - math.pi * cfg.rod**2 / 4.0
+    # The air observer's model and the cylinder's areas, as the controller builds them.
+    q = supervision.build(cfg.supervision, atmosphere, CONTROL_PERIOD / TICK_HZ)
+    params, _ = build_params(cfg, geometry)
+    area_ann = params.area_annulus
     volume = np.empty(12)
     volume[0::2] = cfg.dead_volume
     volume[1::2] = cfg.dead_volume + area_ann * geometry.stroke

@@ -3,7 +3,6 @@ item linking to where it happened, in a number of queries that does not grow wit
 
 from __future__ import annotations
 
-import hashlib
 import time
 import uuid
 from datetime import UTC, datetime, timedelta
@@ -23,7 +22,7 @@ from sessions.recording import (
     SessionEvent,
 )
 from tests.server.live_server import Live, World, bearer
-from tests.server.test_series import recording_bytes
+from tests.server.test_series import recording_bytes, upload_bytes
 
 pytestmark = pytest.mark.both_stores
 
@@ -57,19 +56,6 @@ def recording(
     )
 
 
-async def upload(live: Live, token: str, data: bytes, sid: str) -> int:
-    station = bearer(token)
-    r = await live.client.patch(
-        f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
-    )
-    assert r.status_code == 204, r.text
-    body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=station)
-    assert r.status_code == 201, r.text
-    session_id: int = r.json()["id"]
-    return session_id
-
-
 async def session(
     live: Live,
     world: World,
@@ -93,7 +79,9 @@ async def session(
         if mine
         else (world.s2_id, world.p2, world.rx2, world.s2)
     )
-    return await upload(live, token, recording(sid, station, patient, rx, started, end, evs), sid)
+    return await upload_bytes(
+        live, token, sid, recording(sid, station, patient, rx, started, end, evs)
+    )
 
 
 @pytest.mark.asyncio
@@ -202,7 +190,7 @@ async def upload_at(live: Live, world: World, rx: int, started: float, reason: E
         ended_at=started + 2, reason=reason, sets_completed=1, repetitions_completed=reps, text=""
     )
     data = recording(sid, world.s1_id, world.p1, rx, started, end, [])
-    return await upload(live, world.s1, data, sid)
+    return await upload_bytes(live, world.s1, sid, data)
 
 
 @pytest.mark.asyncio

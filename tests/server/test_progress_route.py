@@ -3,9 +3,7 @@ they existed."""
 
 from __future__ import annotations
 
-import hashlib
 import time
-import uuid
 from typing import Any
 
 import numpy as np
@@ -15,16 +13,8 @@ from sqlalchemy import update
 
 from server.models import Session
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
-from sessions.recording import (
-    MAGIC,
-    DeviceInfo,
-    End,
-    Header,
-    RecordType,
-    encode_json,
-    encode_samples,
-)
-from station.uploader import CHUNK
+from sessions.recording import EndReason
+from tests.server import test_series as series
 from tests.server.live_server import Live, World, bearer
 from tests.sessions.test_exercise_metrics import lopsided, samples
 
@@ -38,42 +28,6 @@ def assessment_rows(trials: list[tuple[float, float]]) -> NDArray[np.void]:
     return samples([{"pitch": lopsided(up, down)} for up, down in trials], 2.0)
 
 
-def recording_data(
-    station_id: int,
-    patient_id: int,
-    rx: int,
-    kind: ExerciseKind,
-    rows: NDArray[np.void],
-    started_at: float,
-    reason: str = "completed",
-) -> tuple[str, bytes]:
-    """A whole recording of ``kind`` as a station writes it, and its session id."""
-    sid = str(uuid.uuid4())
-    head = Header(
-        session_id=sid,
-        station_id=station_id,
-        patient_id=patient_id,
-        prescription_id=rx,
-        prescription=EXERCISE_LIBRARY[kind].defaults.model_dump(mode="json"),
-        device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=100, home_pose=[0.0] * 6),
-        software="test",
-        started_at=started_at,
-    )
-    end = End(
-        ended_at=started_at + 60,
-        reason=reason,  # type: ignore[arg-type]
-        sets_completed=1,
-        repetitions_completed=1,
-    )
-    data = (
-        MAGIC
-        + encode_json(RecordType.HEADER, head)
-        + encode_samples(rows)
-        + encode_json(RecordType.END, end)
-    )
-    return sid, data
-
-
 async def upload(
     live: Live,
     world: World,
@@ -81,23 +35,12 @@ async def upload(
     rx: int,
     kind: ExerciseKind,
     started_at: float,
-    reason: str = "completed",
+    reason: EndReason = "completed",
 ) -> int:
-    """File a session as a station does: append its bytes, then complete."""
-    sid, data = recording_data(world.s1_id, world.p1, rx, kind, rows, started_at, reason)
-    station = bearer(world.s1)
-    for offset in range(0, len(data), CHUNK):
-        r = await live.client.patch(
-            f"/uploads/{sid}",
-            content=data[offset : offset + CHUNK],
-            headers={**station, "Upload-Offset": str(offset)},
-        )
-        assert r.status_code == 204, r.text
-    body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=station)
-    assert r.status_code == 201, r.text
-    session_id: int = r.json()["id"]
-    return session_id
+    """File a session of ``kind`` started at ``started_at`` as a station does."""
+    return await series.upload(
+        live, world, rows, rx=rx, kind=kind, started_at=started_at, reason=reason, repetitions=1
+    )
 
 
 async def prescribe(live: Live, world: World, kind: ExerciseKind) -> int:

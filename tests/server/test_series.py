@@ -79,10 +79,13 @@ def recording_bytes(
     reason: EndReason = "completed",
     end_text: str = "",
     repetitions: int = 3,
+    kind: ExerciseKind = ExerciseKind.STRENGTH,
+    started_at: float | None = None,
 ) -> bytes:
-    """A whole recording (header, samples, events, end record) as the station writes it;
-    its times are those of ``rows["wall"]``."""
-    body = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+    """A whole recording (header, samples, events, end record) of the library's ``kind`` as
+    the station writes it; it starts at ``started_at``, by default at ``rows["wall"]``'s."""
+    body = EXERCISE_LIBRARY[kind].defaults.model_dump(mode="json")
+    start = float(rows["wall"][0]) if started_at is None else started_at
     header = Header(
         session_id=sid,
         station_id=station_id,
@@ -91,10 +94,10 @@ def recording_bytes(
         prescription=body,
         device=DeviceInfo(firmware="sim", hardware="sim", telemetry_hz=100, home_pose=[0.0] * 6),
         software="test",
-        started_at=float(rows["wall"][0]),
+        started_at=start,
     )
     end = End(
-        ended_at=float(rows["wall"][0]) + N / HZ,  # as the whole 3 min session would
+        ended_at=start + N / HZ,  # as the whole 3 min session would
         reason=reason,
         text=end_text,
         sets_completed=1,
@@ -111,12 +114,18 @@ def recording_bytes(
 
 
 async def upload(live: Live, world: World, rows: NDArray[np.void], **end: Any) -> int:
-    """File a session the way a station does: append the bytes, then complete. ``end``:
-    ``recording_bytes``' events, reason and end_text."""
+    """File a session of the first station's patient the way a station does. ``end``:
+    ``recording_bytes``' keywords (events, reason, end_text, kind...)."""
     sid = str(uuid.uuid4())
-    data = recording_bytes(sid, rows, world.s1_id, world.p1, world.rx1, **end)
-    c, station = live.client, bearer(world.s1)
-    for offset in range(0, len(data), CHUNK):  # in the station's chunks: one is at most ~1 MiB
+    data = recording_bytes(sid, rows, world.s1_id, world.p1, end.pop("rx", world.rx1), **end)
+    return await upload_bytes(live, world.s1, sid, data)
+
+
+async def upload_bytes(live: Live, token: str, sid: str, data: bytes) -> int:
+    """Append ``data`` in the station's chunks (one is at most ~1 MiB), then complete: the
+    new session's id."""
+    c, station = live.client, bearer(token)
+    for offset in range(0, len(data), CHUNK):
         r = await c.patch(
             f"/uploads/{sid}",
             content=data[offset : offset + CHUNK],
