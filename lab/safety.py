@@ -560,19 +560,26 @@ def run(
     long each injected run is watched."""
     started = time.perf_counter()
     faults = fault_matrix(seeds=(1,), progress=progress, kinds=only or tuple(FAULTS), after=after)
+    out: dict[str, Any] = {**_fault_summary(faults), "after_s": after}
     if only:
-        part = {**_fault_summary(faults), "only": [k.name for k in only], "after_s": after}
-        part["wall_s"] = time.perf_counter() - started
-        part["targets_met"] = {t.key: t.met(float(part[t.key])) for t in TARGETS if t.key in part}
-        return part
+        out["only"] = [k.name for k in only]
+    else:
+        out.update(_the_rest(progress, seeds, draws))
+    out["wall_s"] = time.perf_counter() - started
+    out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS if t.key in out}
+    return out
+
+
+def _the_rest(
+    progress: Callable[[str], None] | None, seeds: tuple[int, ...], draws: tuple[int, ...]
+) -> dict[str, Any]:
+    """The healthy runs, the boundary commands and the K-B grid."""
     healthy = healthy_runs(seeds=seeds, progress=progress, draws=draws)
     if progress is not None:
         progress("boundary commands through the service")
     sent, mismatched, deaths, boundary_trips = boundary_run()
     grid = kb_grid(progress=progress)
-    out: dict[str, Any] = {
-        **_fault_summary(faults),
-        "after_s": after,
+    return {
         "healthy_seconds": sum(h.seconds for h in healthy),
         "false_trips": sum(h.trip != Trip.NONE.name or h.supply_low or h.service for h in healthy),
         "residual_max_n": max(h.residual_max_n for h in healthy),
@@ -596,10 +603,7 @@ def run(
             {"axis": a, "k": k, "b": b, "patient": pt, "stable": st, "pp_deg": pp}
             for a, k, b, pt, st, pp in grid
         ],
-        "wall_s": time.perf_counter() - started,
     }
-    out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS}
-    return out
 
 
 def fault_table(result: dict[str, Any]) -> str:

@@ -99,7 +99,7 @@ def test_the_modules_come_from_the_wheel(installed: Path) -> None:
         "import webui.home.app as h;"
         "print(json.dumps({'files': [m.__file__ for m in (ankle, device, server, station, "
         "webui, sessions, lab)], 'missing': a.missing_vendor(),"
-        "'home': [n for n in h.FILES if not (h.STATIC / n).is_file()]}))",
+        "'home': [n for n in (h.PAGE, *h.FILES) if not (h.STATIC / n).is_file()]}))",
         cwd=installed.parent,
         env=_clean_env(),
     )

@@ -52,13 +52,15 @@ from webui.home.messages import (
 from webui.home.progress import progress_lines
 
 STATIC = Path(__file__).resolve().parent / "static"
+PAGE = "home.html"
+"""The page itself, served at ``/`` only."""
 FILES = {
-    "home.html": "text/html",
     "home.js": "text/javascript",
     "game.js": "text/javascript",
     "home.css": "text/css",
 }
-"""The page's own files, by name, and their types: nothing else in the folder is served."""
+"""What the page loads from ``/static/``, by name, and its type: nothing else in the folder
+is served there."""
 
 log = logging.getLogger("ankle.station.page")
 
@@ -162,13 +164,13 @@ def create_patient_app(station: PatientStation, hosts: Collection[str] = LOOPBAC
         "/", methods=["GET", "HEAD"], dependencies=[Depends(local)], include_in_schema=False
     )
     async def index() -> FileResponse:
-        return _file("home.html")
+        return _file(PAGE, "text/html")
 
     @app.get("/static/{name}", dependencies=[Depends(local)], include_in_schema=False)
     async def static(name: str) -> FileResponse:
-        if name not in FILES or name.endswith(".html"):
+        if name not in FILES:
             raise HTTPException(404, "no such file")
-        return _file(name)
+        return _file(name, FILES[name])
 
     @app.get("/schemas", dependencies=[Depends(local)], include_in_schema=False)
     async def schemas() -> dict[str, Any]:
@@ -190,10 +192,10 @@ def create_patient_app(station: PatientStation, hosts: Collection[str] = LOOPBAC
     return app
 
 
-def _file(name: str) -> FileResponse:
+def _file(name: str, media_type: str) -> FileResponse:
     return FileResponse(
         STATIC / name,
-        media_type=FILES[name],
+        media_type=media_type,
         headers={"Cache-Control": "no-cache", "Content-Security-Policy": CSP},
     )
 
