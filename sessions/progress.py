@@ -59,7 +59,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from sessions.metrics import ExerciseMetrics
-from sessions.prescription import ExerciseKind
+from sessions.prescription import AXIS_INDEX, ExerciseKind
 from sessions.summary import Summary
 
 MDC_MIN_TRIALS = 6
@@ -503,7 +503,6 @@ def _exercise(
                     real_change=real,
                 )
             )
-    order = {"roll": 0, "pitch": 1, "yaw": 2}
     measures = [
         Measure(
             axis=axis,
@@ -516,7 +515,7 @@ def _exercise(
             else None,
         )
         for (axis, sign, q), points in sorted(
-            series.items(), key=lambda kv: (order.get(kv[0][0], 9), -kv[0][1])
+            series.items(), key=lambda kv: (AXIS_INDEX.get(kv[0][0], 9), -kv[0][1])
         )
     ]
     return ExerciseProgress(exercise=kind, sessions=len(sessions), measures=measures)
