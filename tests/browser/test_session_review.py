@@ -11,6 +11,7 @@ import io
 import json
 import re
 import time
+import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from email.message import Message
@@ -27,7 +28,8 @@ from sessions.anatomy import label
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import decode
 from tests.browser.a11y import assert_controls_labelled
-from tests.server.test_progress_route import assessment_rows, recording_data
+from tests.server.test_progress_route import assessment_rows
+from tests.server.test_series import recording_bytes
 from tests.system.harness import System
 
 FORMATS = ("csv", "parquet", "mcap", "json", "rec")
@@ -304,13 +306,16 @@ def test_rom_assessments_trials_and_progress_with_mdc(
         rx = r.json()["id"]
         ids = []
         for at, trials in history:
-            sid, data = recording_data(
+            sid = str(uuid.uuid4())
+            data = recording_bytes(
+                sid,
+                assessment_rows(trials),
                 system.station_id,
                 int(creds["patient_id"]),
                 rx,
-                ExerciseKind.ROM_ASSESSMENT,
-                assessment_rows(trials),
-                at,
+                repetitions=1,
+                kind=ExerciseKind.ROM_ASSESSMENT,
+                started_at=at,
             )
             r = client.patch(
                 f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
