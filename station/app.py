@@ -103,10 +103,8 @@ class Station:
         if self.run_ is not None:
             self.run_.stop()
         if self.dev is not None:
-            latest = self.dev.latest
             with contextlib.suppress(DeviceError):
-                if latest is not None and latest.mode == DeviceMode.ACTIVE:
-                    await self.dev.hold()
+                await self.dev.hold()  # whatever the telemetry says: see ExerciseRun's abort
             await self.dev.close()
         if self.writer is not None:
             self.writer.close()  # left open: recovered and closed as interrupted next start

@@ -272,8 +272,12 @@ class ExerciseRun:
         latest = self.dev.latest
         if latest is None or latest.mode in STOPPED_MODES:
             return
-        if latest.mode == DeviceMode.ACTIVE:
-            await self.dev.hold()
+        # Held whatever the newest telemetry says: a segment the device ACKed a moment ago
+        # may not show as ACTIVE in it yet (and homing is refused while ACTIVE, so the
+        # platform would run the repetition out after STOP). HOLD changes nothing in READY;
+        # its ACK says the mode the device is in now.
+        if (await self.dev.hold()).mode in STOPPED_MODES:
+            return
         try:
             await self.dev.arm_home()
         except CommandRefused as exc:
