@@ -98,6 +98,10 @@ class DeviceClient:
         self.latest: msg.Telemetry | None = None
         self.latest_at = 0.0
         """Host clock (``time.perf_counter``) when :attr:`latest` arrived."""
+        self.mode: DeviceMode | None = None
+        """The device's mode as the newest telemetry sample or ACK says. The link keeps
+        order, so the last of them heard is the newest state; telemetry alone lags a
+        command's ACK by up to a telemetry period (a segment ACKed is ACTIVE at once)."""
         self._seq = itertools.count(random.randrange(0x10000))
         self._pending: dict[int, asyncio.Future[msg.Ack | msg.Nack]] = {}
         self._hello: asyncio.Future[msg.DeviceHello] | None = None
@@ -265,9 +269,11 @@ class DeviceClient:
             self._event_subs.remove(q)
 
     async def wait_for_mode(self, *modes: DeviceMode, timeout: float = 5.0) -> msg.Telemetry:
-        """The first telemetry sample in one of ``modes``; :class:`LinkTimeout` otherwise."""
-        if self.latest is not None and self.latest.mode in modes:
-            return self.latest
+        """The first telemetry sample in one of ``modes``; :class:`LinkTimeout` otherwise.
+        The newest sample counts only while no ACK since has said another mode."""
+        latest = self.latest
+        if latest is not None and latest.mode in modes and self.mode == latest.mode:
+            return latest
         try:
             async with asyncio.timeout(timeout):
                 async for sample in self.telemetry():
@@ -332,6 +338,7 @@ class DeviceClient:
         if isinstance(message, msg.Telemetry):
             self.latest = message
             self.latest_at = time.perf_counter()
+            self.mode = message.mode
             for q in self._telemetry_subs:
                 if q.full():
                     q.get_nowait()
@@ -341,6 +348,8 @@ class DeviceClient:
         elif isinstance(message, msg.Ack | msg.Nack):
             fut = self._pending.get(message.ack_seq)
             if fut is not None and not fut.done():
+                if isinstance(message, msg.Ack):
+                    self.mode = message.mode
                 fut.set_result(message)
         elif isinstance(message, msg.Event):
             if message.event_id <= self._last_event_id:

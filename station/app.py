@@ -343,7 +343,7 @@ class Station:
             if cmd.action == "hold":
                 if run is not None:
                     run.pause()
-                if run is not None or (dev.latest and dev.latest.mode == DeviceMode.ACTIVE):
+                if run is not None or dev.mode == DeviceMode.ACTIVE:
                     self.reasons.asked(cmd.by or "station")  # else it holds nothing
                 await dev.hold()
             elif cmd.action == "resume":
@@ -352,7 +352,7 @@ class Station:
                 hold = self._hold()
                 if cmd.by == "patient" and hold is not None and not hold.patient_may_resume:
                     return result(False, "REFUSED", "action", patient_resume_refusal(hold))
-                if dev.latest is not None and dev.latest.mode == DeviceMode.HOLD:
+                if dev.mode == DeviceMode.HOLD:
                     await dev.resume()
                 self.reasons.resumed()
                 if run is not None:
@@ -377,19 +377,17 @@ class Station:
         before = (dict(run.stiffness), dict(run.damping))
         k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
         after = (run.stiffness, run.damping)
-        latest = dev.latest
-        if latest is None or latest.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
+        if dev.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
             return wire.ImpedanceChange.between(before, after, cmd, "next_repetition")
         try:
-            await dev.set_impedance(k, b)
+            ack = await dev.set_impedance(k, b)
         except CommandRefused:
             undo = wire.ImpedanceChange.between(before, after, cmd, "now").old
             run.apply_impedance(undo.stiffness, undo.damping)
             raise
         # Held, the device keeps rendering what it had and slews to the new K and B from
         # Resume: the mode at its ACK says which.
-        latest = dev.latest
-        held = latest is not None and latest.mode == DeviceMode.HOLD
+        held = ack.mode == DeviceMode.HOLD
         return wire.ImpedanceChange.between(before, after, cmd, "on_resume" if held else "now")
 
     # -- the patient's page ----------------------------------------------------------------
@@ -486,7 +484,7 @@ class Station:
         return wire.StatusMsg(
             sent=time.time(),
             device_link="connected" if dev is not None else "lost",
-            device_mode=latest.mode.name if latest else "UNKNOWN",
+            device_mode=dev.mode.name if dev is not None and dev.mode is not None else "UNKNOWN",
             trip=int(latest.trip) if latest else 0,
             phase=run.phase if run else self._last_phase,
             session_id=self.session_id,

@@ -213,15 +213,16 @@ class ExerciseRun:
 
     async def _home(self) -> None:
         latest = await self.dev.wait_for_mode(*DeviceMode, timeout=5.0)
-        if latest.mode in STOPPED_MODES:
-            self.message = f"the device is in {latest.mode.name}; it must be re-armed"
+        mode = latest.mode if self.dev.mode is None else self.dev.mode  # an ACK is newer
+        if mode in STOPPED_MODES:
+            self.message = f"the device is in {mode.name}; it must be re-armed"
             self._stop.set()
             return
-        if latest.mode == DeviceMode.READY:
+        if mode == DeviceMode.READY:
             return
-        if latest.mode in (DeviceMode.ACTIVE,):
+        if mode == DeviceMode.ACTIVE:
             await self.dev.hold()
-        if latest.mode != DeviceMode.HOMING:
+        if mode != DeviceMode.HOMING:
             await self.dev.arm_home()
         self.phase = "homing"
         self._on_change()

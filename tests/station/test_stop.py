@@ -94,6 +94,7 @@ def test_stop_as_a_repetition_starts_holds_and_homes_though_telemetry_lags(
             watcher.cancel()
 
             assert stale == [DeviceMode.READY], "the test must catch the telemetry lagging"
+            assert dev.mode == DeviceMode.READY, "the run ended before the platform was home"
             assert end.reason == "stopped", end
             assert "could not go home" not in end.text, end.text
             modes = [e.mode_to for e in events if e.kind == msg.EventKind.MODE_CHANGE]
