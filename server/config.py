@@ -156,6 +156,14 @@ class Settings(BaseSettings):
         "proxy: its https:// address, whose origin is then also allowed). Empty: "
         "http://{host}:{port}, with 127.0.0.1 for a wildcard host.",
     )
+    fhir_base: str = Field(
+        default="",
+        description="Base URL of this site's own FHIR names: the session-measure code system "
+        "is {fhir_base}/CodeSystem/session-measures, patient numbers are identified by "
+        "{fhir_base}/patient-id. A URL under a domain the clinic holds; set it once before "
+        "the first export and never change it (records already exported carry it). Empty: "
+        "{public_url}/api/v1/fhir, where this server serves the code system.",
+    )
 
     @field_validator("login_account_limit", "login_address_limit")
     @classmethod
@@ -166,6 +174,16 @@ class Settings(BaseSettings):
             raise ValueError(
                 f"{value!r} is not a rate such as '10 per 15 minutes' or '30/hour'"
             ) from None
+        return value
+
+    @field_validator("fhir_base")
+    @classmethod
+    def _fhir_base(cls, value: str) -> str:
+        parts = urlsplit(value)
+        if parts.scheme not in ("http", "https") or not parts.netloc or parts.query:
+            raise ValueError(
+                f"{value!r} is not a base URL such as https://records.clinic.example/fhir"
+            )
         return value
 
     @field_validator("relay_url")
@@ -196,7 +214,10 @@ class Settings(BaseSettings):
             shown = "127.0.0.1" if host in _WILDCARD_HOSTS else host
             if ":" in shown:
                 shown = f"[{shown}]"
-            data["public_url"] = f"http://{shown}:{port}"
+            data["public_url"] = public = f"http://{shown}:{port}"
+        if not data.get("fhir_base"):
+            data["fhir_base"] = f"{public.rstrip('/')}/api/v1/fhir"  # routes.fhir serves it
+        data["fhir_base"] = str(data["fhir_base"]).rstrip("/")
         return data
 
     @property

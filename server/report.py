@@ -22,6 +22,7 @@ from reportlab.lib import colors
 from reportlab.lib.pagesizes import A4
 from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
 from reportlab.lib.units import mm
+from reportlab.pdfbase.pdfmetrics import stringWidth
 from reportlab.platypus import (
     Flowable,
     KeepTogether,
@@ -57,13 +58,17 @@ _BODY = ParagraphStyle("body", parent=_STYLES["BodyText"], fontName=fonts.REGULA
 _SMALL = ParagraphStyle("small", parent=_BODY, fontSize=8, leading=10)
 _H1 = ParagraphStyle("title", parent=_STYLES["Title"], fontName=fonts.BOLD)
 _H2 = ParagraphStyle("heading", parent=_STYLES["Heading2"], fontName=fonts.BOLD)
+_CELL = ParagraphStyle("cell", parent=_BODY, fontSize=8, leading=10, splitLongWords=False)
+_HEAD = ParagraphStyle("head", parent=_CELL, fontName=fonts.BOLD)
+_CELL_PAD = 6.0
+"""Left and right padding of a table cell, points (reportlab's default, set below)."""
 _GRID = TableStyle(
     [
         ("GRID", (0, 0), (-1, -1), 0.4, colors.grey),
         ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#e8eef4")),
-        ("FONTNAME", (0, 0), (-1, -1), fonts.REGULAR),
-        ("FONTNAME", (0, 0), (-1, 0), fonts.BOLD),
-        ("FONTSIZE", (0, 0), (-1, -1), 8),
+        ("FONTNAME", (0, 0), (-1, -1), fonts.REGULAR),  # else the grid declares Helvetica
+        ("LEFTPADDING", (0, 0), (-1, -1), _CELL_PAD),
+        ("RIGHTPADDING", (0, 0), (-1, -1), _CELL_PAD),
         ("VALIGN", (0, 0), (-1, -1), "TOP"),
     ]
 )
@@ -110,10 +115,40 @@ def _p(text: str, style: ParagraphStyle = _SMALL) -> Paragraph:
     return Paragraph(text.replace("&", "&amp;").replace("<", "&lt;"), style)
 
 
-def _table(header: Sequence[str], rows: list[list[Any]], widths: Sequence[float]) -> Table:
-    table = Table([list(header), *rows], colWidths=list(widths), repeatRows=1)
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]], widths: Sequence[float]) -> Table:
+    """A grid whose every cell wraps between words and never inside one: ``widths`` are the
+    columns' designed widths; a column whose longest word (a date, "interrupted", a header
+    word) would not fit takes the room from columns that have some to spare, so a word
+    never runs into its neighbour or breaks in two, whatever the typeface's widths."""
+    cells = [[_p(h, _HEAD) for h in header]]
+    cells += [[_p(c, _CELL) for c in row] for row in rows]
+    least = [
+        max(_longest_word(str(c), font) for c, font in column) + 2 * _CELL_PAD
+        for column in zip(
+            *([(h, fonts.BOLD) for h in header], *[[(c, fonts.REGULAR) for c in r] for r in rows]),
+            strict=True,
+        )
+    ]
+    table = Table(cells, colWidths=fit_widths(widths, least), repeatRows=1)
     table.setStyle(_GRID)
     return table
+
+
+def fit_widths(wanted: Sequence[float], least: Sequence[float]) -> list[float]:
+    """Column widths as ``wanted``, none below its ``least``: a column that needs more takes
+    it from the others' slack, in proportion, so the table keeps its width; only when all
+    the slack is too little does the table grow (a word is never cut)."""
+    widths = [max(w, m) for w, m in zip(wanted, least, strict=True)]
+    over = sum(widths) - sum(wanted)
+    slack = [w - m for w, m in zip(widths, least, strict=True)]
+    if over > 0 and sum(slack) > 0:
+        share = min(1.0, over / sum(slack))
+        widths = [w - x * share for w, x in zip(widths, slack, strict=True)]
+    return widths
+
+
+def _longest_word(text: str, font: str) -> float:
+    return max((stringWidth(w, font, _CELL.fontSize) for w in text.split()), default=0.0)
 
 
 def trends(record: PatientRecord) -> list[Trend]:
@@ -142,7 +177,7 @@ def progress_section(rows: Sequence[Trend]) -> list[Flowable]:
             ["Measure", "Sessions", "First", "Last", "Change"],
             [
                 [
-                    _p(t.label),
+                    t.label,
                     str(t.sessions),
                     value_text(t.first, t.unit),
                     value_text(t.last, t.unit),
@@ -192,7 +227,7 @@ def _adherence_rows(rows: Sequence[PrescriptionAdherence]) -> list[list[Any]]:
     progress misses nothing yet): never more completed than prescribed."""
     return [
         [
-            _p(a.title or exercise_name(a.exercise)),
+            a.title or exercise_name(a.exercise),
             f"{a.sessions_per_week}",
             str(a.prescribed),
             str(a.completed),
@@ -229,12 +264,12 @@ def baseline_section(progress: Progress, side: str | None) -> list[Flowable]:
             )
             rows.append(
                 [
-                    _p(label(m.axis, m.sign, side)),  # type: ignore[arg-type]
+                    label(m.axis, m.sign, side),  # type: ignore[arg-type]
                     value_text(m.baseline, "deg"),
                     f"{value_text(last.value, 'deg')} ({_date(last.at)})",
                     "" if last.change is None else f"{last.change:+.1f}°",
-                    _p(limit.text if limit is not None else ""),
-                    _p(judged),
+                    limit.text if limit is not None else "",
+                    judged,
                 ]
             )
     if rows:
@@ -265,10 +300,10 @@ def _session_rows(record: PatientRecord) -> list[list[Any]]:
         rows.append(
             [
                 f"{s.started_at:%Y-%m-%d %H:%M}",
-                _p(exercise_name(s.exercise)),
-                _p(s.end_reason or "no end record"),
+                exercise_name(s.exercise),
+                s.end_reason or "no end record",
                 reps,
-                _p(_measures_text(record.measures(s)) or "no summary"),
+                _measures_text(record.measures(s)) or "no summary",
             ]
         )
     return rows
@@ -294,7 +329,7 @@ def notable_events(s: Session) -> list[str]:
 
 def _event_rows(record: PatientRecord) -> list[list[Any]]:
     return [
-        [f"{s.started_at:%Y-%m-%d %H:%M}", _p(exercise_name(s.exercise)), _p(text)]
+        [f"{s.started_at:%Y-%m-%d %H:%M}", exercise_name(s.exercise), text]
         for s in record.sessions
         for text in notable_events(s)
     ]
@@ -333,8 +368,8 @@ def pdf(record: PatientRecord) -> bytes:
             ["Patient", "Reference", "Birth year", "Affected side", "Period"],
             [
                 [
-                    _p(p.display_name),
-                    _p(p.reference or "none"),
+                    p.display_name,
+                    p.reference or "none",
                     "unknown" if p.birth_year is None else str(p.birth_year),
                     _SIDE.get(p.affected_side or "", "not recorded"),
                     period,
@@ -351,8 +386,8 @@ def pdf(record: PatientRecord) -> bytes:
                 ["Prescription", "Exercise", "Status", "Per week", "Prescribed on"],
                 [
                     [
-                        _p(rx.title or rx.exercise),
-                        _p(exercise_name(rx.exercise)),
+                        rx.title or rx.exercise,
+                        exercise_name(rx.exercise),
                         rx.status,
                         "" if rx.sessions_per_week is None else str(rx.sessions_per_week),
                         _date(rx.created_at),

@@ -6,7 +6,8 @@ the angle, torques and work; a clinician's record wants *measures*: a code, a va
 unit and, for an angle, the movement direction of this patient's foot. :func:`measures`
 turns the one into the other, naming directions only through :mod:`sessions.anatomy`.
 
-The codes form the project's own code system (:data:`SYSTEM`), listed whole in
+The codes form the project's own code system (``{site}/CodeSystem/session-measures``, see
+:func:`system_url`), listed whole in
 :data:`CODES` (generated from the axes and the direction table, so a new direction or axis
 appears here by itself) and documented in ``docs/measures.md`` (a test keeps that file
 equal to :func:`code_table_markdown`). A new measure (say, per-exercise metrics) is a new
@@ -26,10 +27,17 @@ from device.axes import ROTATION_AXES, RotationAxis
 from sessions.anatomy import LABELS, Direction, direction_name, directions
 from sessions.summary import Summary
 
-SYSTEM: Final = "https://ankle-telerehab.org/fhir/CodeSystem/session-measures"
-"""The canonical URL of the project's code system of session measures. It names the
-system (FHIR canonical URLs identify; they need not resolve); never change it, or records
-already exported stop matching."""
+CODE_SYSTEM_ID: Final = "session-measures"
+
+
+def system_url(site: str) -> str:
+    """The canonical URL of the session-measure code system under ``site``, the base of the
+    running server's FHIR names (its setting ``fhir_base``: a URL under a domain the
+    clinic holds; the server serves the code system there). The code system is the
+    project's; its canonical URL is the site's, because no domain is the project's own
+    and a canonical URL must be under one its publisher holds."""
+    return f"{site.rstrip('/')}/CodeSystem/{CODE_SYSTEM_ID}"
+
 
 UCUM: Final = "http://unitsofmeasure.org"
 
@@ -39,7 +47,7 @@ _SIDES: Final = ("right", "left", None)
 
 @dataclass(frozen=True)
 class Code:
-    """One code of :data:`SYSTEM`."""
+    """One code of the session-measure code system."""
 
     code: str
     display: str
@@ -132,7 +140,7 @@ def _all_codes() -> dict[str, Code]:
 
 
 CODES: Final[dict[str, Code]] = _all_codes()
-"""Every code of :data:`SYSTEM`, in a stable order."""
+"""Every code of the session-measure code system, in a stable order."""
 
 
 def measures(summary: Summary | Mapping[str, Any], side: str | None) -> list[Measure]:

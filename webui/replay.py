@@ -46,8 +46,9 @@ from numpy.typing import NDArray
 from viser.infra import StateSerializer
 
 from server.deps import Db, Id, TherapistOrAdmin
+from server.models import Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
-from server.routes.sessions import _session_for, recording_path, session_time
+from server.routes.sessions import _session_for, exported, recording_path, session_time
 from sessions.recording import Recording, read
 from webui.assets import VIEWER_CSP
 from webui.scene import CAMERA_LOOK_AT, CAMERA_POSITION, PlatformScene
@@ -177,14 +178,16 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
 router = APIRouter(tags=["sessions"], responses=UNAUTHORIZED, lifespan=_lifespan)
 
 
-async def _replay_file(request: Request, db: Db, user: TherapistOrAdmin, session_id: int) -> Path:
+async def _replay_file(
+    request: Request, db: Db, user: TherapistOrAdmin, session_id: int
+) -> tuple[Session, Path]:
     row = await _session_for(db, user, session_id)
     source = recording_path(request, row)
     sha256 = row.sha256
     if sha256 is None:
         sha256 = await asyncio.to_thread(_sha256, source)
     replays: Replays = request.app.state.replays
-    return await asyncio.to_thread(replays.get, source, sha256)
+    return row, await asyncio.to_thread(replays.get, source, sha256)
 
 
 def _sha256(path: Path) -> str:
@@ -205,13 +208,17 @@ def _sha256(path: Path) -> str:
     summary="The session's 3D replay as one HTML page",
 )
 async def replay_page(session_id: Id, request: Request, db: Db, user: TherapistOrAdmin) -> Response:
-    path = await _replay_file(request, db, user, session_id)
+    """A file to keep: audited as the session leaving the system (``patient.export``,
+    format ``replay-html``), as a session's other downloads are, and kept by no cache."""
+    row, path = await _replay_file(request, db, user, session_id)
     html = await asyncio.to_thread(lambda: standalone_html(path.read_bytes()))
+    await exported(db, user, row, "replay-html")
     return Response(
         html,
         media_type="text/html; charset=utf-8",
         headers={
             "Content-Security-Policy": VIEWER_CSP,
+            "Cache-Control": "no-store",
             "Content-Disposition": f'inline; filename="session-{session_id}-replay.html"',
         },
     )
@@ -233,9 +240,14 @@ async def replay_page(session_id: Id, request: Request, db: Db, user: TherapistO
 async def replay_recording(
     session_id: Id, request: Request, db: Db, user: TherapistOrAdmin
 ) -> FileResponse:
-    path = await _replay_file(request, db, user, session_id)
+    """What the session page plays: viewed, not kept, so not audited as an export (as the
+    page's charts are not); still kept by no cache on the way."""
+    _, path = await _replay_file(request, db, user, session_id)
     return FileResponse(
-        path, media_type="application/octet-stream", filename=f"session-{session_id}.viser"
+        path,
+        media_type="application/octet-stream",
+        filename=f"session-{session_id}.viser",
+        headers={"Cache-Control": "no-store"},
     )
 
 

@@ -250,13 +250,14 @@ async def report_fhir(
     since: Since = None,
     until: Until = None,
 ) -> Response:
-    """Codes: the project's session-measures code system (docs/measures.md), SNOMED CT for
+    """Codes: the project's session-measures code system (docs/measures.md; served at
+    ``{fhir_base}/CodeSystem/session-measures``), SNOMED CT for
     the body site, laterality and a passive range-of-motion assessment. Audited as
     ``patient.export`` (format fhir)."""
     patient = await patient_for(db, user, patient_id)
     first, last = period(since, until)
     data = await patient_record(request, db, patient, first, last)
-    bundle = fhir.bundle(data)
+    bundle = fhir.bundle(request.app.state.settings.fhir_base, data)
     await _exported(
         db,
         user,

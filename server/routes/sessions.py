@@ -181,6 +181,21 @@ async def download(
                 f.write(digest)
         digest = sidecar.read_text().strip()
         media, filename = MEDIA_TYPES[fmt], f"{name}{FILE_SUFFIX[fmt]}"
+    await exported(db, user, row, fmt)
+    return FileResponse(
+        path,
+        media_type=media,
+        filename=filename,
+        headers={
+            "X-Content-SHA256": digest,
+            "ETag": f'"{digest}"',
+            "Cache-Control": "no-store",
+        },
+    )
+
+
+async def exported(db: Db, user: Any, row: Session, fmt: str) -> None:
+    """Audit a session leaving the system as a file (``patient.export``, entity session)."""
     audit.record(
         db,
         audit.user_actor(user),
@@ -192,16 +207,6 @@ async def download(
         {"format": fmt, "session_id": row.id},
     )
     await db.commit()
-    return FileResponse(
-        path,
-        media_type=media,
-        filename=filename,
-        headers={
-            "X-Content-SHA256": digest,
-            "ETag": f'"{digest}"',
-            "Cache-Control": "no-store",
-        },
-    )
 
 
 def _summarize_file(source: Path) -> Summary:

@@ -140,6 +140,7 @@ SPARE_USER = {"user_id": lambda r: r.spare_user_id}
 ACCESS: dict[tuple[str, str], Call] = {
     ("GET", "/health"): Call(PUBLIC),
     ("GET", "/schemas/ws"): Call(PUBLIC),
+    ("GET", "/fhir/CodeSystem/session-measures"): Call(PUBLIC),  # definitions, no patient
     (
         "POST",
         "/auth/login",

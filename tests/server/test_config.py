@@ -14,6 +14,7 @@ def test_defaults_follow_data_dir_and_port(tmp_path: Path) -> None:
     assert s.database_url == f"sqlite+aiosqlite:///{tmp_path}/ankle.db"
     assert s.allowed_origins == ["http://127.0.0.1:8123", "http://localhost:8123"]
     assert s.public_url == "http://127.0.0.1:8123"
+    assert s.fhir_base == "http://127.0.0.1:8123/api/v1/fhir"  # where it serves its own
     assert s.token_ttl_s == 12 * 3600
     assert s.upload_max_bytes == 512 * 1024 * 1024
 
@@ -76,3 +77,13 @@ def test_the_relay_is_redis_or_nothing() -> None:
     assert "redis://host:port/db" in str(refused.value)
     with pytest.raises(ValueError, match="relay_lease_s"):
         Settings(relay_lease_s=0)
+
+
+def test_the_fhir_names_are_under_the_clinics_own_base_url() -> None:
+    behind = Settings(public_url="https://rehab.clinic.example/")
+    assert behind.fhir_base == "https://rehab.clinic.example/api/v1/fhir"
+    own = Settings(fhir_base="https://records.clinic.example/fhir/")
+    assert own.fhir_base == "https://records.clinic.example/fhir"
+    for bad in ("records.clinic.example/fhir", "urn:ankle", "https://x.example/fhir?a=1"):
+        with pytest.raises(ValueError, match="is not a base URL"):
+            Settings(fhir_base=bad)

@@ -13,17 +13,19 @@ from typing import Any
 import numpy as np
 import pytest
 from fhir.resources.R4B.bundle import Bundle
+from fhir.resources.R4B.codesystem import CodeSystem
 from numpy.typing import NDArray
 from pypdf import PdfReader
+from reportlab.lib.units import mm
 from reportlab.pdfbase import pdfmetrics
 from sqlalchemy import update
 
-from server import fonts
+from server import fonts, report
 from server.models import Prescription
 from sessions.anatomy import LABELS
 from sessions.export import FORMATS
 from sessions.fhir import LATERALITY_EXTENSION
-from sessions.measures import CODES, SYSTEM, code_table_markdown, measures
+from sessions.measures import CODES, code_table_markdown, measures, system_url
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import SessionEvent
 from sessions.summary import AxisSummary, Summary
@@ -166,6 +168,10 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
     body = r.json()
     bundle = Bundle.model_validate(body)  # raises on anything R4B does not allow
     assert bundle.type == "collection"
+    # The project's own names are the site's: its code system is served where it says.
+    site = live.settings.fhir_base
+    system = system_url(site)
+    assert system == f"{live.settings.public_url}/api/v1/fhir/CodeSystem/session-measures"
 
     patient, *observations = [e["resource"] for e in body["entry"]]
     assert patient["resourceType"] == "Patient" and patient["name"] == [{"text": "Pat One"}]
@@ -179,7 +185,7 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
         assert o["valueQuantity"]["system"] == "http://unitsofmeasure.org"
         assert math.isfinite(o["valueQuantity"]["value"])
         (coding,) = o["code"]["coding"]
-        assert coding["system"] == SYSTEM and coding["code"] in CODES
+        assert coding["system"] == system and coding["code"] in CODES
         assert o["valueQuantity"]["code"] == CODES[coding["code"]].unit
         site = o["bodySite"]
         assert site["coding"][0]["code"] == "344001"  # SNOMED CT: ankle region structure
@@ -202,6 +208,34 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
         "sessions": 2,
         "observations": 16,
     }
+
+
+@pytest.mark.asyncio
+async def test_the_code_system_is_served_at_its_canonical_url_and_holds_every_code_used(
+    live: Live, world: World
+) -> None:
+    await two_sessions(live, world)
+    system = system_url(live.settings.fhir_base)
+    path = system.removeprefix(f"{live.settings.public_url}/api/v1")
+    r = await live.client.get(path)  # no token: definitions only
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "application/fhir+json"
+    code_system = CodeSystem.model_validate(r.json())
+    assert code_system.url == system and code_system.content == "complete"
+    defined = {c.code: c for c in code_system.concept or []}
+    assert list(defined) == list(CODES) and code_system.count == len(CODES)
+    assert all(c.definition for c in defined.values())
+
+    r = await live.client.get(f"/patients/{world.p1}/fhir", headers=bearer(world.t1))
+    used = [
+        e["resource"]["code"]["coding"][0]
+        for e in r.json()["entry"][1:]  # after the Patient
+    ]
+    assert used and all(c["system"] == system for c in used)
+    for c in used:
+        assert defined[c["code"]].display == c["display"]
+    patient = r.json()["entry"][0]["resource"]
+    assert patient["identifier"][0]["system"] == f"{live.settings.fhir_base}/patient-id"
 
 
 @pytest.mark.asyncio
@@ -421,5 +455,27 @@ def test_directions_follow_the_affected_side() -> None:
 def test_the_code_system_is_documented() -> None:
     """docs/measures.md carries the whole code system, as generated."""
     doc = (ROOT / "docs" / "measures.md").read_text()
-    assert SYSTEM in doc
+    assert "{fhir_base}/CodeSystem/session-measures" in doc
     assert code_table_markdown() in doc
+
+
+def test_a_column_is_never_narrower_than_its_longest_word() -> None:
+    """DejaVu Sans is wider than Helvetica: at the widths laid out for Helvetica, "Per week"
+    ran into "Prescribed", the date into the exercise and "interrupted" broke in two. Each
+    column now takes the room its longest word needs from columns that have some to spare."""
+    header = ["Date", "Exercise", "Ended", "Repetitions", "Measures"]
+    rows = [["2026-11-15 12:00", "Strength (resistive)", "interrupted", "3 of 30", "x " * 80]]
+    wanted = [26 * mm, 24 * mm, 20 * mm, 20 * mm, 80 * mm]
+    table = report._table(header, rows, wanted)
+    widths = table._colWidths
+    assert sum(widths) == pytest.approx(sum(wanted))  # the table keeps its designed width
+    for i, column in enumerate(zip(header, *rows, strict=True)):
+        for j, text in enumerate(column):
+            font = fonts.BOLD if j == 0 else fonts.REGULAR
+            for word in text.split():
+                assert pdfmetrics.stringWidth(word, font, 8) + 12 <= widths[i] + 1e-6, word
+    # Slack comes from the columns that have it; a table whose words need more than all
+    # of it grows rather than cut a word.
+    assert report.fit_widths([10, 50], [30, 20]) == pytest.approx([30, 30])
+    assert report.fit_widths([10, 10], [30, 20]) == [30, 20]
+    assert report.fit_widths([40, 40], [10, 10]) == [40, 40]

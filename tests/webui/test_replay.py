@@ -24,6 +24,7 @@ from server.config import Settings
 from sessions.prescription import AXIS_INDEX
 from sessions.recording import SAMPLE_DTYPE, decode
 from tests.server.live_server import World, bearer, running, seeded
+from tests.server.test_report import exports
 from tests.server.test_series import recording_bytes, upload
 from webui.app import create_app
 from webui.assets import VIEWER_CSP
@@ -153,12 +154,20 @@ async def test_replay_routes_check_access_and_serve_one_build(
         assert len(cached) == 1 and cached[0].read_bytes() == r.content
         assert live.app.state.replays.builds == 1
 
+        assert r.headers["cache-control"] == "no-store"
+        assert await exports(live, world) == []  # played on the page: viewed, not kept
+
         r = await c.get(f"/sessions/{sid}/replay", headers=t1)
         assert r.status_code == 200
         assert r.headers["content-type"].startswith("text/html")
         assert r.headers["content-security-policy"] == VIEWER_CSP
+        assert r.headers["cache-control"] == "no-store"
         assert "__VISER_EMBED_DATA__" in r.text
         assert live.app.state.replays.builds == 1  # the page is made from the same build
+        # A file to keep: it leaves the system, and the audit says who took it.
+        (row,) = await exports(live, world)
+        assert row["actor"] == f"user:{world.t1_id}" and row["entity_id"] == str(sid)
+        assert row["new"] == {"format": "replay-html", "session_id": sid}
 
         for path in (f"/sessions/{sid}/replay", f"/sessions/{sid}/replay.viser"):
             assert (await c.get(path, headers=bearer(world.t2))).status_code == 404
