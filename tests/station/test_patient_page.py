@@ -12,7 +12,6 @@ import asyncio
 import io
 import json
 import socket
-import threading
 import time
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
@@ -29,8 +28,7 @@ from websockets.typing import Origin
 from device.hardware import SimulatedHardware
 from device.plant.model import SCRIPT_SINE
 from device.plant.params import PlantConfig
-from device.rig import Rig
-from device.service import DeviceService, ServiceConfig
+from device.service import ServiceConfig
 from device.transport import PtyLink
 from sessions import wire
 from sessions.prescription import PrescriptionBody
@@ -38,6 +36,7 @@ from sessions.recording import read
 from sessions.summary import summarize
 from station.app import Station
 from station.config import StationConfig
+from tests.device.service_thread import service_in_thread
 from webui.home.app import MAX_MESSAGE_BYTES, serve_patient_page
 from webui.home.game import game_field
 
@@ -67,17 +66,10 @@ def free_port() -> int:
 @pytest.fixture
 def device() -> Iterator[PtyLink]:
     """The simulated device in a thread; the patient's foot pushes in pitch, 4 N·m, 0.5 Hz."""
-    link = PtyLink()
     hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=9)
     hardware.script_torque(4, SCRIPT_SINE, 0.0, PATIENT_TORQUE_NM, PATIENT_HZ)
-    service = DeviceService(Rig(hardware), link, ServiceConfig(telemetry_hz=100, watchdog_ms=400))
-    thread = threading.Thread(target=service.run, daemon=True)
-    thread.start()
-    yield link
-    service.stop()
-    thread.join(5.0)
-    assert not thread.is_alive(), "the service loop did not stop"
-    service.shutdown()
+    with service_in_thread(hardware, ServiceConfig(telemetry_hz=100, watchdog_ms=400)) as link:
+        yield link
 
 
 @dataclass

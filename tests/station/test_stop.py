@@ -8,7 +8,6 @@ wide, so the test always lands in it."""
 from __future__ import annotations
 
 import asyncio
-import threading
 from collections.abc import Iterator
 
 import pytest
@@ -18,49 +17,21 @@ from device.hardware import SimulatedHardware
 from device.plant.params import PlantConfig
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode
-from device.rig import Rig
-from device.service import DeviceService, ServiceConfig
+from device.service import ServiceConfig
 from device.transport import PtyLink
 from sessions.prescription import PrescriptionBody
 from station.timeline import ExerciseRun
+from tests.device.service_thread import service_in_thread
+from tests.system.harness import short_strength
 
-BODY = PrescriptionBody.model_validate(
-    {
-        "exercise": "strength",
-        "title": "Stop test",
-        "axes": [
-            {
-                "axis": "pitch",
-                "stiffness": 40.0,
-                "damping": 2.0,
-                "waveform": "sine",
-                "amplitude": 6.0,
-                "frequency": 0.5,
-            }
-        ],
-        "sets": 1,
-        "repetitions": 2,
-        "repetition_s": 4.0,
-        "rest_s": 0.0,
-    }
-)
+BODY = PrescriptionBody.model_validate(short_strength("Stop test", 2))
 
 
 @pytest.fixture
 def link() -> Iterator[PtyLink]:
-    link = PtyLink()
-    service = DeviceService(
-        Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=5)),
-        link,
-        ServiceConfig(telemetry_hz=2, watchdog_ms=2000),
-    )
-    thread = threading.Thread(target=service.run, daemon=True)
-    thread.start()
-    yield link
-    service.stop()
-    thread.join(5.0)
-    assert not thread.is_alive(), "the service loop did not stop"
-    service.shutdown()
+    hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=5)
+    with service_in_thread(hardware, ServiceConfig(telemetry_hz=2, watchdog_ms=2000)) as link:
+        yield link
 
 
 def test_stop_as_a_repetition_starts_holds_and_homes_though_telemetry_lags(
