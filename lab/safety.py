@@ -212,6 +212,7 @@ def run_fault(
     """``kind`` injected in ``scenario`` on ``channel`` (default: the one of FAULTS), watched
     for ``after`` seconds."""
     healthy = _healthy_pose(scenario, seed, after)
+    channel = FAULTS[kind][0] if channel is None else channel
     rig, pose, detect, onset = _run(kind, scenario, seed, channel, after)
     row = None if math.isnan(detect) else round(detect * 1000.0)
     if rig.mode != Mode.FAULT and not rig.supply_low:
@@ -227,7 +228,7 @@ def run_fault(
         kind=kind.name,
         scenario=scenario,
         seed=seed,
-        injected=FAULTS[kind][0] if channel is None else channel,
+        injected=channel,
         detected=not math.isnan(detect),
         trip=name,
         channel=rig.service_chamber if service else rig.trip_channel,

@@ -70,6 +70,20 @@ def record(
     return entry
 
 
+async def export(
+    db: AsyncSession,
+    actor: str,
+    entity: str,
+    entity_id: int | str,
+    patient_id: int | None,
+    what: Mapping[str, Any],
+) -> None:
+    """Audit data leaving the system as a file (:data:`EXPORT`) and commit it: the file goes
+    out only once its row is stored."""
+    record(db, actor, EXPORT, entity, entity_id, patient_id, None, what)
+    await db.commit()
+
+
 _Queued = tuple[dict[str, Any], "asyncio.Future[None] | None"]
 
 

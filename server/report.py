@@ -123,11 +123,9 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], widths: Sequenc
     cells = [[_p(h, _HEAD) for h in header]]
     cells += [[_p(c, _CELL) for c in row] for row in rows]
     least = [
-        max(_longest_word(str(c), font) for c, font in column) + 2 * _CELL_PAD
-        for column in zip(
-            *([(h, fonts.BOLD) for h in header], *[[(c, fonts.REGULAR) for c in r] for r in rows]),
-            strict=True,
-        )
+        max(_longest_word(h, fonts.BOLD), *(_longest_word(r[i], fonts.REGULAR) for r in rows))
+        + 2 * _CELL_PAD
+        for i, h in enumerate(header)
     ]
     table = Table(cells, colWidths=fit_widths(widths, least), repeatRows=1)
     table.setStyle(_GRID)

@@ -174,17 +174,8 @@ def file_name(patient: Patient, first: date, last: date, suffix: str) -> str:
 async def _exported(
     db: Db, user: Any, patient: Patient, fmt: str, first: date, last: date, **counts: int
 ) -> None:
-    audit.record(
-        db,
-        audit.user_actor(user),
-        audit.EXPORT,
-        "patient",
-        patient.id,
-        patient.id,
-        None,
-        {"format": fmt, "since": str(first), "until": str(last), **counts},
-    )
-    await db.commit()
+    what = {"format": fmt, "since": str(first), "until": str(last), **counts}
+    await audit.export(db, audit.user_actor(user), "patient", patient.id, patient.id, what)
 
 
 def _attachment(body: bytes, media_type: str, name: str) -> Response:

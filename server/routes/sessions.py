@@ -196,17 +196,8 @@ async def download(
 
 async def exported(db: Db, user: Any, row: Session, fmt: str) -> None:
     """Audit a session leaving the system as a file (``patient.export``, entity session)."""
-    audit.record(
-        db,
-        audit.user_actor(user),
-        audit.EXPORT,
-        "session",
-        row.id,
-        row.patient_id,
-        None,
-        {"format": fmt, "session_id": row.id},
-    )
-    await db.commit()
+    what = {"format": fmt, "session_id": row.id}
+    await audit.export(db, audit.user_actor(user), "session", row.id, row.patient_id, what)
 
 
 def _summarize_file(source: Path) -> Summary:
