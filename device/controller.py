@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from device import impedance, position_loop, pressure_loop, pwm, safety, supervision
+from device import impedance, position_loop, pressure_loop, pwm, quiet, safety, supervision
 from device._jit import njit, njit_inline
 from device.calibration import Calibration
 from device.geometry import DEFAULT_GEOMETRY, Geometry
@@ -182,6 +182,32 @@ class ControllerConfig:
     (2 % raised the worst overshoot and steady error)."""
     deadband_compensation: bool = True
     """Map inputs onto [d_dead, d_max] (eq. 2-3) instead of using them as the duty."""
+    quiet_hold: bool = True
+    """A leg at rest closes its valves and is held by its trapped air, corrected by single
+    doses of air (device.quiet); off: wave 1's minimum pulse every period."""
+    rest_enter: float = 50.0e-6
+    """A leg rests once its reading has stayed within this of a still target (m): two
+    sensor counts, ..."""
+    rest_periods: int = 12
+    """...for this many control periods (48 ms): a step has arrived and its integrals have
+    done their work (5 periods let legs rest while a step was still settling; drawn plants'
+    overshoot grew by 1-3 %)."""
+    rest_target_rate: float = 1.0e-3
+    """A target slower than this (m/s) counts as still."""
+    rest_dose: float = 100.0e-6
+    """A resting leg whose reading is this far from its target (m) gets a dose of air."""
+    rest_wake: float = 500.0e-6
+    """...and one this far wakes the full loop (m)."""
+    rest_move: float = 150.0e-6
+    """A target that moved this far (m) since the rest began wakes the full loop."""
+    rest_settle: int = 1
+    """Control periods after a dose before the next may fire: the dose's air has reached
+    the transducer by the next period (the valve shuts within 2 ms), and where the leg will
+    settle is judged from the chambers' force, before the leg has moved (4 periods let the
+    leg wander 0.45 mm on its air spring before the second dose)."""
+    rest_quantum: float = 1.5e3
+    """The pressure change (Pa) a dose should make: 0.015 bar, about 0.7 N on a cap, 0.07
+    mm on the trapped air's stiffness; six transducer counts, well above their noise."""
     valve_response_time: float = 1e-3
     """T_v of eq. (1): the paper's ~1 ms, giving d_dead = 25 %."""
     supply_pressure: float = 6.0e5
@@ -307,6 +333,8 @@ class ControllerParams(NamedTuple):
     sensor_zero: NDArray[np.float64]  # (25,) subtracted from each reading
     valve_gain: NDArray[np.float64]  # (24,) each valve's air per pulse against the model
     valve_extra: NDArray[np.float64]  # (24,) s each valve's pulse passes beyond its length
+    quiet: quiet.QuietParams
+    dose_start: int  # slots of a first dose: the compensated PWM's shortest pulse
 
 
 class ControllerState(NamedTuple):
@@ -340,6 +368,8 @@ class ControllerState(NamedTuple):
     impedance_map: NDArray[np.float64]  # (6, 9) per axis: J, K, B and their step's map
     monitor: NDArray[np.float64]  # supervision's memory (device.supervision M_*)
     counters: NDArray[np.int64]  # supervision's counters (device.supervision C_*)
+    rest: NDArray[np.float64]  # (6, quiet.N_REST) the quiet hold per leg (device.quiet R_*)
+    dose: NDArray[np.int64]  # (24,) slots of each valve's dose, learnt (0: not yet)
 
 
 def build_params(
@@ -424,6 +454,23 @@ def build_params(
         sensor_zero=config.calibration.sensor_zero(),
         valve_gain=observed.valve_gains(),
         valve_extra=observed.valve_extras(),
+        quiet=quiet.QuietParams(
+            on=config.quiet_hold,
+            enter=config.rest_enter,
+            periods=config.rest_periods,
+            dose=config.rest_dose,
+            wake=config.rest_wake,
+            move=config.rest_move,
+            settle=config.rest_settle,
+            quantum=config.rest_quantum,
+            rate=config.rest_target_rate,
+            polytropic=config.supervision.observer_polytropic,
+        ),
+        dose_start=abs(
+            pwm.duty_slots(
+                pwm.duty(1e-9, pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD), True)
+            )
+        ),
     )
     return params, sched
 
@@ -461,6 +508,8 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         impedance_map=np.full((6, 9), -1.0),
         monitor=np.zeros(supervision.N_MONITOR),
         counters=np.zeros(supervision.N_COUNTERS, dtype=np.int64),
+        rest=quiet.new_rest(),
+        dose=np.zeros(24, dtype=np.int64),
     )
     state.trajectory[:, 1] = home
     state.istate[I_TRIP_CHANNEL] = -1
@@ -584,6 +633,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.counters[supervision.C_AIR + up] = 0
         s.counters[supervision.C_OBS + lo] = 0
         s.counters[supervision.C_OBS + up] = 0
+        quiet.reset(s.rest, leg)
         return
     # While an axis renders an impedance the integral sees only the error beyond a band.
     rendering = False
@@ -591,21 +641,28 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         for k in range(6):
             if s.compliant[k] > 0.5:
                 rendering = True
+    # At rest (not while rendering) the valves close and the integrals keep what they have.
+    rests = False
+    if rendering:
+        quiet.reset(s.rest, leg)
+    else:
+        rests = quiet.resting(s.rest, leg, s.leg_target[leg], s.leg_x[leg], p.quiet)
     error = s.leg_target[leg] - s.leg_x[leg]
     # Rendering: only what friction holds back beyond the band; otherwise only what the
     # sensor can resolve.
     band = p.pos_i_band if rendering else p.pos_i_deadband
     error = math.copysign(max(0.0, abs(error) - band), error)
-    s.integral[12 + leg] = position_loop.integrate(
-        s.integral[12 + leg],
-        error,
-        s.leg_target_rate[leg] - s.leg_rate[leg],
-        p.ki_pos,
-        p.dt_control,
-        p.pos_i_zone,
-        p.pos_i_speed,
-        p.pos_i_max,
-    )
+    if not rests:
+        s.integral[12 + leg] = position_loop.integrate(
+            s.integral[12 + leg],
+            error,
+            s.leg_target_rate[leg] - s.leg_rate[leg],
+            p.ki_pos,
+            p.dt_control,
+            p.pos_i_zone,
+            p.pos_i_speed,
+            p.pos_i_max,
+        )
     dP = position_loop.pd(
         s.leg_target[leg],
         s.leg_x[leg],
@@ -617,6 +674,10 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         p.max_error,
     )
     s.monitor[supervision.M_PUSH + leg] = (dP - s.compensation[leg]) * p.area_cap
+    if not rests and not rendering:
+        rests = quiet.enter(
+            s.rest, leg, s.leg_target[leg], s.leg_target_rate[leg], s.leg_x[leg], p.quiet
+        )
     r = p.area_ratio
     P_l, P_u = pressure_loop.distribute(dP, s.pressure[lo], s.pressure[up], r, p.p_min, p.p_max)
     s.p_desired[lo] = P_l
@@ -624,12 +685,14 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     e_l = P_l - s.pressure[lo]  # eq. (5)
     e_u = r * (P_u - s.pressure[up])  # eq. (6)
     near = abs(s.leg_target[leg] - s.leg_x[leg]) < p.i_zone
-    u_l, s.integral[lo] = pressure_loop.pi_step(
-        e_l, s.integral[lo], p.kp_p, p.ki_p, p.dt_control, near
-    )
-    u_u, s.integral[up] = pressure_loop.pi_step(
-        e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control, near
-    )
+    u_l = u_u = 0.0
+    if not rests:
+        u_l, s.integral[lo] = pressure_loop.pi_step(
+            e_l, s.integral[lo], p.kp_p, p.ki_p, p.dt_control, near
+        )
+        u_u, s.integral[up] = pressure_loop.pi_step(
+            e_u, s.integral[up], p.kp_p, p.ki_p, p.dt_control, near
+        )
     supply = s.sensors[12]
     x = s.leg_x[leg]
     # Each chamber's volume from the measured piston, for the air checks below.
@@ -648,10 +711,28 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.valve_gain, p.valve_extra,
         ):  # fmt: skip
             ask_service(s, c)
+    dose_lo = dose_up = 0
+    if rests:
+        quiet.learn(s.rest, s.dose, leg, s.pressure, p.quiet, pwm.PWM_SLOTS)
+        settles = quiet.settles_at(
+            s.leg_target[leg] - s.leg_x[leg],
+            s.pressure[lo] * p.area_cap - s.pressure[up] * p.area_annulus,
+            (s.compensation[leg] + s.integral[12 + leg]) * p.area_cap,
+            s.pressure[lo] + p.p_atm, s.pressure[up] + p.p_atm, volume_lo, volume_up,
+            p.area_cap, p.area_annulus, p.quiet,
+        )  # fmt: skip
+        dose_lo, dose_up = quiet.dose_slots(
+            s.rest, s.dose, leg, settles, s.pressure, P_l, P_u,
+            supervision.intake_allowed(supply, s.pressure[lo], p.sup),
+            supervision.intake_allowed(supply, s.pressure[up], p.sup),
+            p.quiet, p.dose_start,
+        )  # fmt: skip
     for c, u, volume in ((lo, u_l, volume_lo), (up, u_u, volume_up)):
         s.u[c] = u
         n = 0
-        if abs(u) > p.hold_band:
+        if rests:
+            n = dose_lo if c == lo else dose_up
+        elif abs(u) > p.hold_band:
             n = pwm.duty_slots(pwm.duty(u, p.d_dead, p.compensate))
         if n > 0 and not supervision.intake_allowed(supply, s.pressure[c], p.sup):
             n = 0  # an intake would vent this chamber backwards into a falling supply

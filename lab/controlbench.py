@@ -62,12 +62,17 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("stiffness_error_pct", "rendered pitch stiffness: error (%)"),
     ("damping_pitch_nm_s_per_rad", "rendered pitch damping, B = 1 (N m s/rad; 0.5-2 Hz fit)"),
     ("damping_error_pct", "rendered pitch damping: error (%)"),
-    ("valve_switches_per_s_rest", "valve switches at rest (per s per valve, mean)"),
-    ("valve_switches_per_s_rest_wave1", "  wave 1's scheme (the same: no quiet scheme yet)"),
-    ("air_nl_per_min_rest", "air at rest (NL/min at the supply)"),
+    ("valve_switches_per_s_rest", "valve switches at rest, quiet hold (per s per valve, mean)"),
+    ("valve_switches_per_s_max_rest", "  the busiest valve"),
+    ("valve_switches_per_s_rest_wave1", "  wave 1's scheme (mean)"),
+    ("air_nl_per_min_rest", "air at rest, quiet hold (NL/min at the supply)"),
     ("air_nl_per_min_rest_wave1", "  wave 1's scheme"),
+    ("rest_error_mm", "leg error at rest, quiet hold (mm, mean of the largest leg's)"),
+    ("rest_error_mm_wave1", "  wave 1's scheme"),
     ("valve_switches_per_s_exercise", "valve switches, pitch 10 deg at 0.5 Hz (per s per valve)"),
+    ("valve_switches_per_s_exercise_wave1", "  wave 1's scheme"),
     ("air_nl_per_min_exercise", "air, pitch 10 deg at 0.5 Hz (NL/min)"),
+    ("air_nl_per_min_exercise_wave1", "  wave 1's scheme"),
     ("realtime_factor_cpu", "real-time factor, full 7 kHz loop, CPU time"),
     ("realtime_factor", "real-time factor, full 7 kHz loop, wall clock"),
     ("ticks_per_s", "ticks per wall second"),
@@ -129,11 +134,26 @@ ROWS_OF: dict[str, tuple[str, ...]] = {
     "realtime": ("realtime_factor", "realtime_factor_cpu", "ticks_per_s"),
     "valves_rest": (
         "valve_switches_per_s_rest",
-        "valve_switches_per_s_rest_wave1",
+        "valve_switches_per_s_max_rest",
         "air_nl_per_min_rest",
-        "air_nl_per_min_rest_wave1",
+        "rest_error_mm",
     ),
-    "valves_exercise": ("valve_switches_per_s_exercise", "air_nl_per_min_exercise"),
+    "valves_exercise": (
+        "valve_switches_per_s_exercise",
+        "valve_switches_per_s_max_exercise",
+        "air_nl_per_min_exercise",
+    ),
+    "valves_rest_wave1": (
+        "valve_switches_per_s_rest_wave1",
+        "valve_switches_per_s_max_rest_wave1",
+        "air_nl_per_min_rest_wave1",
+        "rest_error_mm_wave1",
+    ),
+    "valves_exercise_wave1": (
+        "valve_switches_per_s_exercise_wave1",
+        "valve_switches_per_s_max_exercise_wave1",
+        "air_nl_per_min_exercise_wave1",
+    ),
 }
 
 
@@ -278,20 +298,23 @@ def _run(plots: Path | None, progress: Callable[[str], None] | None) -> dict[str
         progress("control: valve switches and air")
     from lab import valves
 
-    for situation in ("rest", "exercise"):
-        act = valves.measure("wave1", situation)
-        out[f"valve_switches_per_s_{situation}"] = act.switches_per_s_mean
-        out[f"air_nl_per_min_{situation}"] = act.air_nl_per_min
-        checks[f"valves_{situation}"] = {
-            "tripped": act.trip is not None,
-            "trip": act.trip,
-            "saturated": [],
-            "valid": act.trip is None,
-            "invalid_reason": f"tripped {act.trip}" if act.trip else None,
-        }
-    out["valve_switches_per_s_rest_wave1"] = out["valve_switches_per_s_rest"]
-    out["air_nl_per_min_rest_wave1"] = out["air_nl_per_min_rest"]
-    out["quiet_valve_scheme"] = False
+    for scheme in valves.SCHEMES:
+        for situation in ("rest", "exercise"):
+            act = valves.measure(scheme, situation)
+            suffix = "" if scheme == "quiet" else f"_{scheme}"
+            out[f"valve_switches_per_s_{situation}{suffix}"] = act.switches_per_s_mean
+            out[f"valve_switches_per_s_max_{situation}{suffix}"] = act.switches_per_s_max
+            out[f"air_nl_per_min_{situation}{suffix}"] = act.air_nl_per_min
+            if situation == "rest":
+                out[f"rest_error_mm{suffix}"] = act.steady_error_mm
+            checks[f"valves_{situation}{suffix}"] = {
+                "tripped": act.trip is not None,
+                "trip": act.trip,
+                "saturated": [],
+                "valid": act.trip is None,
+                "invalid_reason": f"tripped {act.trip}" if act.trip else None,
+            }
+    out["quiet_valve_scheme"] = True
     out["realtime_factor"] = rt
     out["realtime_factor_cpu"] = rt_cpu
     out["ticks_per_s"] = ticks

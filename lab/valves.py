@@ -4,10 +4,10 @@ The plant counts every coil energisation per valve and integrates the mass of ai
 the supply line (``device.plant.model``: ``valve_switches``, ``air``), so both come from the
 physics, not from the controller's intentions.
 
-The controller still runs wave 1's scheme: at rest the dead-band-compensated PWM fires a
-minimum pulse on every chamber every period (a quiet hold at rest is open work: holds tried
-so far either chattered on or cost the steps their overshoot target). ``scheme`` names
-what was measured so a quiet scheme can be compared with wave 1's in the same run.
+Two schemes, measured in the same run: ``quiet`` (the device's: a leg at rest closes its
+valves and is held by its trapped air, corrected by single doses; device.quiet) and
+``wave1`` (a minimum pulse on every chamber every period, the dead-band-compensated PWM's
+dither).
 
 Air is reported in NL/min at the supply: normal litres (ISO 8778, 1.185 kg/m3), what a
 compressor's rating is given in.
@@ -53,14 +53,14 @@ class Activity:
     trip: str | None
 
 
-SCHEMES = ("wave1",)
-"""The valve schemes the controller has: wave 1's (a minimum pulse every period)."""
+SCHEMES = ("quiet", "wave1")
+"""The valve schemes the controller has: the quiet hold (the default) and wave 1's."""
 
 
 def _config(scheme: str) -> ControllerConfig:
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, not {scheme!r}")
-    return ControllerConfig()
+    return ControllerConfig(quiet_hold=scheme == "quiet")
 
 
 def measure(scheme: str, situation: str, seed: int = 1) -> Activity:

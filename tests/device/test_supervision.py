@@ -34,12 +34,26 @@ DETECTED: dict[FaultKind, tuple[str, float]] = {
 """(A force/torque offset: the matrix's 30 N is under both rules that catch one at once;
 the tests below take a jump and a creep.)"""
 
+WATCH_S = 2.0
+"""How long the runs below watch an injected fault: the benchmark's 0.5 s hides what the
+faults it does not catch do over the next second."""
+
+HARMLESS_AT_REST = {(FaultKind.PRESSURE_STUCK, "holding")}
+"""Held at home the legs rest on their trapped air with every valve shut (device.quiet):
+a transducer that stops there reads what the chamber still holds, and nothing can tell
+it from a live one until the leg is driven again. Nothing moves meanwhile (measured over
+2 s: 0.03 deg, 0.16 mm)."""
+
 
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
 @pytest.mark.parametrize("kind", list(DETECTED), ids=lambda k: k.name)
 def test_a_sensor_or_supply_fault_trips_at_once_and_the_platform_stays(
     kind: FaultKind, scenario: str
 ) -> None:
+    if (kind, scenario) in HARMLESS_AT_REST:
+        run = safety.run_fault(kind, scenario, after=WATCH_S)
+        assert run.excursion_deg <= 0.2 and run.excursion_mm <= 0.5, run
+        return
     run = safety.run_fault(kind, scenario)
     trip, within_ms = DETECTED[kind]
     assert run.detected and run.trip == trip, run
@@ -68,7 +82,11 @@ def test_every_channel_is_watched_and_named(kind: FaultKind, channels: range, tr
 
 def test_a_drooping_supply_holds_the_exercise_before_it_can_no_longer_carry_the_foot() -> None:
     for scenario in safety.SCENARIOS:
-        run = safety.run_fault(FaultKind.SUPPLY_DROOP, scenario)
+        # A regulator droops under flow: held at rest, with the valves shut, it takes
+        # longer than the matrix's 0.5 s to reach the low mark (measured 475 ms after the
+        # injection); the detection is timed from there.
+        after = WATCH_S if scenario == "holding" else safety.AFTER_S
+        run = safety.run_fault(FaultKind.SUPPLY_DROOP, scenario, after=after)
         assert run.detected and run.trip == "SUPPLY_LOW (hold)", run
         # From the regulator's output crossing the low mark: 31-35 ms measured.
         assert run.detect_ms <= 50.0, run
@@ -179,14 +197,10 @@ def test_a_stuck_open_intake_is_caught_within_50_ms_or_does_nothing(
         assert run.excursion_deg <= 0.2 and run.excursion_mm <= 0.3, run
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 12): on the plant with leaks and tube delays a stuck-closed exhaust "
-    "goes unnoticed for 0.5 s in every situation (the loop holds the leg: at most 0.09 deg, "
-    "0.24 mm); it is caught after 0.5-1.1 s (below)",
-)
 def test_a_stuck_closed_exhaust_is_caught_while_the_patient_pushes() -> None:
-    assert safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "pushing").detected
+    # Measured 401 ms (an air-balance service warning), 0.09 deg, 0.25 mm.
+    run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "pushing")
+    assert run.detected and run.excursion_deg <= 1.0 and run.excursion_mm <= 1.0, run
 
 
 def test_a_service_warning_stops_new_motion_until_a_technician_rearms() -> None:
@@ -322,11 +336,6 @@ def test_a_leg_resting_short_of_a_still_target_is_not_taken_for_a_stuck_sensor()
     assert rig.trip == Trip.NONE, (rig.trip, rig.trip_channel)
 
 
-WATCH_S = 2.0
-"""How long the runs below watch an injected fault: the benchmark's 0.5 s hides what the
-faults it does not catch do over the next second."""
-
-
 def test_a_leg_sensor_frozen_a_count_from_a_held_target_does_not_wind_the_loop_up() -> None:
     """Seed 1, leg 2: the reading froze one count (24 um) short of the held target. The
     outer integral used to grow on that error by 3.6 N a second until the leg broke free
@@ -337,33 +346,26 @@ def test_a_leg_sensor_frozen_a_count_from_a_held_target_does_not_wind_the_loop_u
     assert run.excursion_deg <= 0.5 and run.excursion_mm <= 1.0, run
 
 
-def test_a_leg_sensor_frozen_while_holding_that_lets_its_leg_run_off_is_caught_late() -> None:
-    """Seed 1, leg 3: the loop no longer pushes on an unresolvable error, but a leg whose
-    sensor is frozen is held by nothing but its air and friction, and this one still runs
-    off; nothing catches it until the legs disagree with the force sensor (measured: 2.4 s,
-    8.3 deg, 26 mm). The README's fault table says so."""
-    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=3, after=4.0)
-    assert run.detected and run.trip in (Trip.FORCE_SENSOR.name, Trip.LEG_SENSOR.name), run
-    assert run.detect_ms <= 3500.0, run
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 11): a leg sensor frozen while the platform holds can still let that "
-    "leg run away (3 of 18 seed x leg runs; seed 1 leg 3: 7.9 deg, 26 mm within 2 s, "
-    "undetected) before the force sensor cross-check trips",
-)
 def test_a_leg_sensor_frozen_while_holding_leaves_the_platform_where_it_was() -> None:
-    run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=3, after=WATCH_S)
-    assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
+    """Every leg, watched 2 s. Before the quiet hold the loop drove a leg whose reading had
+    stopped on nothing but its air and friction, and some ran off (seed 1, leg 3: 8.3 deg,
+    26 mm before the force cross-check tripped at 2.4 s). Resting, the leg is held by its
+    shut chambers' air and gets a dose only when its reading moves: a frozen reading asks
+    for none (measured: at most 0.06 deg, 0.15 mm)."""
+    for leg in range(6):
+        run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=leg, after=WATCH_S)
+        assert run.excursion_deg <= 0.5 and run.excursion_mm <= 1.0, run
 
 
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
 def test_a_stuck_closed_exhaust_is_caught_within_seconds_and_moves_nothing(scenario: str) -> None:
     """The loop hardly uses that exhaust, so the chamber's pressure creeps up until a check
-    notices (measured: 0.4-1.1 s); the leg stays within a millimetre meanwhile."""
+    notices (measured: 0.4-1.1 s); the leg stays within a millimetre meanwhile. Held at
+    home, the legs rest with every valve shut and the fault is not seen, nor does it move
+    anything, until the leg is driven."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, scenario, after=WATCH_S)
-    assert run.detected and run.channel == 4, run
+    if scenario != "holding":
+        assert run.detected and run.channel == 4, run
     assert run.excursion_deg <= 1.0 and run.excursion_mm <= 1.0, run
 
 

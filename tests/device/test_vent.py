@@ -82,7 +82,8 @@ def test_vent_pulse_must_fit_the_pwm_period() -> None:
 @pytest.mark.parametrize(("patient", "seed"), [("relaxed", 2), ("relaxed", 7), ("resisting", 1)])
 def test_venting_from_a_hold_lowers_every_chamber_gently(patient: str, seed: int) -> None:
     r = held_at_home(patient, seed)
-    assert np.all(r.state.pressure > 4.5e5)
+    # At working pressure (resting on their trapped air the chambers hold 3.7-4.7 bar).
+    assert np.all(r.state.pressure > 3.5e5)
     r.state.istate[ctl.I_VENT] = 1
     log = r.run(6.0, log_hz=1000)
     t_vent, speed = vent_time_and_speed(log)
@@ -108,9 +109,12 @@ def test_venting_to_the_stroke_end_does_not_trip() -> None:
 
 def test_venting_works_while_tripped_and_keeps_the_trip() -> None:
     r = held_at_home()
+    before = plant_gauge(r)
     r.estop()
     r.run(0.2, log_hz=0)
-    assert np.all(plant_gauge(r) > 4.5e5)  # tripped: everything closed, pressures held
+    # Tripped: everything closed, pressures held (what a chamber's piston leak moves aside).
+    assert np.all(plant_gauge(r) > 3.5e5)
+    assert np.allclose(plant_gauge(r), before, atol=0.1e5)
     r.state.istate[ctl.I_VENT] = 1
     log = r.run(5.0, log_hz=1000)
     t_vent, speed = vent_time_and_speed(log)

@@ -17,6 +17,16 @@ def test_at_rest_wave_1s_scheme_fires_every_valve_and_the_air_is_counted() -> No
     assert rest.steady_error_mm < 0.3
 
 
+def test_the_quiet_hold_rests_the_valves_and_holds_the_legs_as_closely() -> None:
+    quiet = valves.measure("quiet", "rest")
+    assert quiet.trip is None
+    # Single doses of air instead of a pulse every period: a few switches a second.
+    assert quiet.switches_per_s_mean < 10.0
+    assert quiet.switches_per_s_max < 25.0
+    assert quiet.air_nl_per_min < 10.0
+    assert quiet.steady_error_mm < 0.3
+
+
 def test_an_unknown_scheme_or_situation_is_refused() -> None:
     with pytest.raises(ValueError, match="scheme"):
         valves.measure("silent", "rest")

@@ -1,0 +1,203 @@
+"""The quiet hold: a leg at rest is held by the air trapped in its chambers, not by chatter.
+
+Wave 1's loop fires a minimum pulse on every chamber every PWM period at rest: the
+dead-band compensation turns any pressure error, however small, into a pulse of at least
+the valve's response time, and that pulse moves a chamber by 0.06-0.08 bar, more than the
+loop asked for, so the next period answers it the other way. Every valve switched about 125
+times a second all day, and the compressor fed the dither 150 NL/min.
+
+Here a leg that has stood within ``enter`` of a still target for ``periods`` control
+periods rests: both chambers close and its integrals keep what they learnt. Closed, the
+chambers are an air spring (about 10 N/mm per leg at working pressures) that holds the leg
+where it is against the load. The leg is corrected by single doses of air while it rests:
+
+- a reading more than ``dose`` from the target gets one pulse on the chamber that moves
+  it back (the cap's intake or the rod side's exhaust to extend, the other two to
+  retract: whichever chamber is further from the pressure the loop would want), then
+  ``settle`` periods to let the air and the piston answer before the next;
+- the dose is as short as the valve allows: each valve learns it (``dose_slots``). A pulse
+  shorter than a valve's opening delay passes nothing, one a slot or two longer passes a
+  little air, and where that edge lies differs from valve to valve and build to build
+  (0.55-1.2 ms). After each dose the chamber's pressure change says whether it was too
+  large (more than twice ``quantum``: one slot less next time) or passed nothing (under
+  half of it: one slot more). The widths start at the loop's own minimum pulse, which
+  every build opens.
+
+The leg wakes (the full loop, its integrals where it left them) when the reading is more
+than ``wake`` from its target or the target has moved ``move`` since the rest began.
+
+With the valves shut the chambers' air is known between doses, which is what lets the
+supervision see a leg sensor that stopped while the piston moves (device.supervision).
+
+State per leg in ``rest`` (slots R_*), learnt widths per valve in ``dose``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from device._jit import njit_inline
+
+R_ON = 0
+"""1 while the leg rests."""
+R_STILL = 1
+"""Control periods in a row within the enter band of a still target."""
+R_WAIT = 2
+"""Periods left before the next dose may fire."""
+R_TARGET = 3
+"""The target when the rest began (m)."""
+R_DOSED = 4
+"""Valve (0-23) of the dose fired last period, to learn from (-1: none)."""
+R_P_BEFORE = 5
+"""Its chamber's pressure before that dose (Pa)."""
+N_REST = 6
+
+
+class QuietParams(NamedTuple):
+    on: bool
+    enter: float
+    periods: int
+    dose: float
+    wake: float
+    move: float
+    settle: int
+    quantum: float
+    rate: float
+    polytropic: float
+
+
+def new_rest() -> NDArray[np.float64]:
+    rest = np.zeros((6, N_REST))
+    rest[:, R_DOSED] = -1.0
+    return rest
+
+
+@njit_inline
+def reset(rest: NDArray[np.float64], leg: int) -> None:
+    """The leg is driven by the full loop (or not at all)."""
+    rest[leg, R_ON] = 0.0
+    rest[leg, R_STILL] = 0.0
+    rest[leg, R_WAIT] = 0.0
+    rest[leg, R_DOSED] = -1.0
+
+
+@njit_inline
+def resting(rest: NDArray[np.float64], leg: int, target: float, x: float, q: QuietParams) -> bool:
+    """Whether a resting ``leg`` goes on resting this control period (else it wakes)."""
+    if not q.on or rest[leg, R_ON] < 0.5:
+        return False
+    if abs(target - x) > q.wake or abs(target - rest[leg, R_TARGET]) > q.move:
+        reset(rest, leg)
+        return False
+    return True
+
+
+@njit_inline
+def enter(
+    rest: NDArray[np.float64],
+    leg: int,
+    target: float,
+    target_rate: float,
+    x: float,
+    q: QuietParams,
+) -> bool:
+    """Whether a driven ``leg`` starts resting this period: it has stood within ``enter`` of
+    a still target for ``periods`` periods."""
+    if not q.on:
+        return False
+    if abs(target - x) < q.enter and abs(target_rate) < q.rate:
+        rest[leg, R_STILL] += 1.0
+    else:
+        rest[leg, R_STILL] = 0.0
+        return False
+    if rest[leg, R_STILL] < q.periods:
+        return False
+    rest[leg, R_ON] = 1.0
+    rest[leg, R_TARGET] = target
+    rest[leg, R_WAIT] = 0.0
+    rest[leg, R_DOSED] = -1.0
+    return True
+
+
+@njit_inline
+def learn(
+    rest: NDArray[np.float64], dose: NDArray[np.int64], leg: int, pressure: NDArray[np.float64],
+    q: QuietParams, max_slots: int,
+) -> None:  # fmt: skip
+    """What last period's dose did to its chamber sets that valve's next width."""
+    v = int(rest[leg, R_DOSED])
+    if v < 0:
+        return
+    rest[leg, R_DOSED] = -1.0
+    moved = abs(pressure[v // 2] - rest[leg, R_P_BEFORE])
+    if moved > 2.0 * q.quantum and dose[v] > 1:
+        dose[v] -= 1
+    elif moved < 0.5 * q.quantum and dose[v] < max_slots:
+        dose[v] += 1
+
+
+@njit_inline
+def settles_at(
+    error: float, made: float, hold: float, p_lo: float, p_up: float, v_lo: float, v_up: float,
+    a_lo: float, a_up: float, q: QuietParams,
+) -> float:  # fmt: skip
+    """Where the leg will settle on its trapped air, as its error from the target (m).
+
+    ``made``: the force its chambers make (N); ``hold``: what holds it still (the load
+    compensation and what the outer integral learnt; N); pressures absolute (Pa), volumes
+    (m3) and areas (m2) of cap and rod side. Closed, the two chambers are springs of
+    ``n p A^2 / V`` each: a surplus of force moves the leg by surplus over their sum.
+    Closing the valves at an instant of the loop's pulses leaves up to 3-4 N over or under,
+    which would move the leg 0.3 mm: the first dose answers that before the leg has moved.
+    """
+    stiffness = q.polytropic * (p_lo * a_lo * a_lo / v_lo + p_up * a_up * a_up / v_up)
+    return error - (made - hold) / stiffness
+
+
+@njit_inline
+def dose_slots(
+    rest: NDArray[np.float64],
+    dose: NDArray[np.int64],
+    leg: int,
+    error: float,
+    pressure: NDArray[np.float64],
+    p_lo: float,
+    p_up: float,
+    intake_ok_lo: bool,
+    intake_ok_up: bool,
+    q: QuietParams,
+    start: int,
+) -> tuple[int, int]:
+    """Signed slots (cap, rod side) of this period's dose: (0, 0) but for one pulse when the
+    resting leg has drifted ``dose`` from its target. ``p_lo``, ``p_up``: the pressures the
+    loop would want (Pa gauge)."""
+    if rest[leg, R_WAIT] > 0.5:
+        rest[leg, R_WAIT] -= 1.0
+        return 0, 0
+    if abs(error) <= q.dose:
+        return 0, 0
+    lo, up = 2 * leg, 2 * leg + 1
+    if error > 0.0:  # extend: air into the cap, or out of the rod side
+        cap_wants = p_lo - pressure[lo] if intake_ok_lo else -np.inf
+        rod_wants = pressure[up] - p_up
+        cap = cap_wants >= rod_wants
+        v = 2 * lo if cap else 2 * up + 1
+    else:  # retract: air out of the cap, or into the rod side
+        cap_wants = pressure[lo] - p_lo
+        rod_wants = p_up - pressure[up] if intake_ok_up else -np.inf
+        cap = cap_wants >= rod_wants
+        v = 2 * lo + 1 if cap else 2 * up
+    rest[leg, R_DOSED] = float(v)
+    rest[leg, R_P_BEFORE] = pressure[v // 2]
+    rest[leg, R_WAIT] = float(q.settle)
+    if dose[v] == 0:
+        dose[v] = start
+    n = int(dose[v])
+    if v % 2 == 1:
+        n = -n
+    if v // 2 == lo:
+        return n, 0
+    return 0, n
