@@ -737,11 +737,18 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         if n > 0 and not supervision.intake_allowed(supply, s.pressure[c], p.sup):
             n = 0  # an intake would vent this chamber backwards into a falling supply
         s.slots[c] = n
-        if supervision.check_valves(
+        answer = supervision.check_valves(
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
-        ):
+        )
+        # An intake that stalls against a chamber whose air already did not add up: the
+        # same fault (a leak, the exhaust stuck open), and the loop's to outrun.
+        known = s.counters[supervision.C_SERVICE] == c + 1
+        if answer == supervision.VALVE_DEAD or (answer == supervision.VALVE_STALLED and not known):
             trip(s, Trip.VALVE, c)
             return
+        if answer != supervision.VALVES_OK:
+            ask_service(s, c)
+            quiet.reset(s.rest, leg)  # the full loop holds it from the next period
         if supervision.check_air(
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
         ):

@@ -558,6 +558,21 @@ def _window(
     return ended, total_in, total_out, change
 
 
+VALVES_OK = 0
+VALVE_DEAD = 1
+"""A trip (Trip.VALVE): closing every valve stops whatever the dead valve was for."""
+VALVE_STALLED = 3
+"""Told to take air in, the chamber's air stayed where it was: its intake does not open,
+or a leak or its exhaust stuck open takes what it brings. A trip, unless the chamber's air
+already did not add up (C_SERVICE names it): then the other path is known, and the loop's
+to outrun as for VALVE_OUTRUN."""
+VALVE_OUTRUN = 2
+"""A service warning, not a trip: the air leaves by another path, a leak or the exhaust
+stuck open, and closing every valve would leave that path alone to move the leg
+(an exhaust stuck open while holding: 13.5 mm within 0.5 s of a trip). The loop keeps the
+leg by outrunning it while the segment finishes, and nothing new starts (C_SERVICE)."""
+
+
 @njit_inline
 def check_valves(
     monitor: NDArray[np.float64],
@@ -568,10 +583,14 @@ def check_valves(
     volume: float,
     supply: float,
     q: SupervisionParams,
-) -> bool:
+) -> int:
     """One PWM period of chamber ``c`` (gauge pressure, its volume in m3, gauge supply) with
-    ``slots`` about to be driven (+ intake, - exhaust). True when, over the window just
-    ended, the chamber did not answer its valves.
+    ``slots`` about to be driven (+ intake, - exhaust). Over the window just ended:
+    :data:`VALVES_OK`, :data:`VALVE_DEAD` (the chamber did not answer the exhaust it was
+    told to use: that valve does not open, or its transducer is wrong),
+    :data:`VALVE_STALLED` (nor the intake) or
+    :data:`VALVE_OUTRUN` (told to take air in, it lost air: a leak or its exhaust stuck
+    open takes more than the intake brings).
 
     The air in the chamber is judged, not its pressure: ``p V`` (absolute pressure times the
     volume from the measured piston) rises only by an intake and falls only by an exhaust,
@@ -583,14 +602,19 @@ def check_valves(
         monitor, counters, C_WINDOW, M_P_START, M_VALVE_IN, M_VALVE_OUT, c, q.valve_window,
         air, max(0, slots), max(0, -slots),
     )  # fmt: skip
-    failed = False
-    if ended:
-        change = moved / volume
-        if intake >= q.valve_slots and exhaust == 0 and pressure < supply - q.valve_headroom:
-            failed = change < q.valve_min_change
-        elif exhaust >= q.valve_slots and intake == 0 and pressure > q.valve_headroom:
-            failed = -change < q.valve_min_change
-    return failed
+    if not ended:
+        return VALVES_OK
+    change = moved / volume
+    if intake >= q.valve_slots and exhaust == 0 and pressure < supply - q.valve_headroom:
+        if change >= q.valve_min_change:
+            return VALVES_OK
+        return VALVE_OUTRUN if change <= -q.valve_min_change else VALVE_STALLED
+    if exhaust >= q.valve_slots and intake == 0 and pressure > q.valve_headroom:
+        # Not the mirror case: while the loop exhausts a chamber its piston is compressing
+        # it, and the air read as p V may rise without any intake (a stuck-closed exhaust
+        # mid-exercise read so); a stuck-open intake is the observer's (check_air_flow).
+        return VALVES_OK if -change >= q.valve_min_change else VALVE_DEAD
+    return VALVES_OK
 
 
 @njit_inline
