@@ -11,10 +11,11 @@ periods rests: both chambers close and its integrals keep what they learnt. Clos
 chambers are an air spring (about 10 N/mm per leg at working pressures) that holds the leg
 where it is against the load. The leg is corrected by single doses of air while it rests:
 
-- a reading more than ``dose`` from the target gets one pulse on the chamber that moves
-  it back (the cap's intake or the rod side's exhaust to extend, the other two to
+- a leg that will settle more than ``dose`` from its target (judged from its reading and
+  from the force its shut chambers make: :func:`settles_at`) gets one pulse on the
+  chamber that moves it back (the cap's intake or the rod side's exhaust to extend, the other two to
   retract: whichever chamber is further from the pressure the loop would want), then
-  ``settle`` periods to let the air and the piston answer before the next;
+  ``settle`` periods before the next (the dose's air reaches the transducer within one);
 - the dose is as short as the valve allows: each valve learns it (``dose_slots``). A pulse
   shorter than a valve's opening delay passes nothing, one a slot or two longer passes a
   little air, and where that edge lies differs from valve to valve and build to build
