@@ -395,6 +395,7 @@ def build_params(
     area_cap = math.pi * config.bore**2 / 4.0
     observed = config.calibration if config.supervision.use_identified_valves else Calibration()
     area_ann = area_cap - math.pi * config.rod**2 / 4.0
+    d_dead = pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD)
     p_supply_abs = config.supply_pressure + config.atmosphere
     dt_tick = 1.0 / TICK_HZ
 
@@ -426,7 +427,7 @@ def build_params(
         ki_p=config.pressure_ki,
         i_zone=config.pressure_integral_zone,
         hold_band=config.hold_band,
-        d_dead=pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD),
+        d_dead=d_dead,
         compensate=config.deadband_compensation,
         leg_alpha=alpha(config.leg_rate_cutoff_hz, SENSOR_PERIOD * dt_tick),
         pose_alpha=alpha(config.pose_rate_cutoff_hz, CONTROL_PERIOD * dt_tick),
@@ -469,11 +470,7 @@ def build_params(
             rate=config.rest_target_rate,
             polytropic=config.supervision.observer_polytropic,
         ),
-        dose_start=abs(
-            pwm.duty_slots(
-                pwm.duty(1e-9, pwm.dead_band(config.valve_response_time, pwm.PWM_PERIOD), True)
-            )
-        ),
+        dose_start=abs(pwm.duty_slots(pwm.duty(1e-9, d_dead, True))),
     )
     return params, sched
 

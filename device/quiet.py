@@ -13,8 +13,9 @@ where it is against the load. The leg is corrected by single doses of air while 
 
 - a leg that will settle more than ``dose`` from its target (judged from its reading and
   from the force its shut chambers make: :func:`settles_at`) gets one pulse on the
-  chamber that moves it back (the cap's intake or the rod side's exhaust to extend, the other two to
-  retract: whichever chamber is further from the pressure the loop would want), then
+  chamber that moves it back (the cap's intake or the rod side's exhaust to extend, the
+  other two to retract: whichever chamber is further from the pressure the loop would
+  want), then
   ``settle`` periods before the next (the dose's air reaches the transducer within one);
 - the dose is as short as the valve allows: each valve learns it (``dose_slots``). A pulse
   shorter than a valve's opening delay passes nothing, one a slot or two longer passes a
@@ -27,8 +28,9 @@ where it is against the load. The leg is corrected by single doses of air while 
 The leg wakes (the full loop, its integrals where it left them) when the reading is more
 than ``wake`` from its target or the target has moved ``move`` since the rest began.
 
-With the valves shut the chambers' air is known between doses, which is what lets the
-supervision see a leg sensor that stopped while the piston moves (device.supervision).
+With the valves shut a leg whose sensor stopped is held by its air as any other (a frozen
+reading asks for no dose), and a chamber that loses air shows it at once: the supervision's
+valve and air checks see a leak or an exhaust stuck open within 21 ms of holding.
 
 State per leg in ``rest`` (slots R_*), learnt widths per valve in ``dose``.
 """

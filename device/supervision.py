@@ -561,16 +561,16 @@ def _window(
 VALVES_OK = 0
 VALVE_DEAD = 1
 """A trip (Trip.VALVE): closing every valve stops whatever the dead valve was for."""
-VALVE_STALLED = 3
-"""Told to take air in, the chamber's air stayed where it was: its intake does not open,
-or a leak or its exhaust stuck open takes what it brings. A trip, unless the chamber's air
-already did not add up (C_SERVICE names it): then the other path is known, and the loop's
-to outrun as for VALVE_OUTRUN."""
 VALVE_OUTRUN = 2
 """A service warning, not a trip: the air leaves by another path, a leak or the exhaust
 stuck open, and closing every valve would leave that path alone to move the leg
 (an exhaust stuck open while holding: 13.5 mm within 0.5 s of a trip). The loop keeps the
 leg by outrunning it while the segment finishes, and nothing new starts (C_SERVICE)."""
+VALVE_STALLED = 3
+"""Told to take air in, the chamber's air stayed where it was: its intake does not open,
+or a leak or its exhaust stuck open takes what it brings. A trip, unless the chamber's air
+already did not add up (C_SERVICE names it): then the other path is known, and the loop's
+to outrun as for VALVE_OUTRUN."""
 
 
 @njit_inline

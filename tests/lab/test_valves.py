@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from lab import valves
+from lab import experiments, valves
 
 
 def test_at_rest_wave_1s_scheme_fires_every_valve_and_the_air_is_counted() -> None:
@@ -17,8 +17,12 @@ def test_at_rest_wave_1s_scheme_fires_every_valve_and_the_air_is_counted() -> No
     assert rest.steady_error_mm < 0.3
 
 
-def test_the_quiet_hold_rests_the_valves_and_holds_the_legs_as_closely() -> None:
-    quiet = valves.measure("quiet", "rest")
+@pytest.mark.parametrize("draw", [None, 4, 33], ids=["nominal", "draw4", "draw33"])
+def test_the_quiet_hold_rests_the_valves_and_holds_the_legs_as_closely(draw: int | None) -> None:
+    # Drawn builds too: each valve opens at its own delay, so the dose widths are learnt
+    # (measured on draw 33: 4.4 switches a second, busiest 15, error 0.15 mm).
+    with experiments.on_plant(experiments.PlantChoice(draw=draw)):
+        quiet = valves.measure("quiet", "rest")
     assert quiet.trip is None
     # Single doses of air instead of a pulse every period: a few switches a second.
     assert quiet.switches_per_s_mean < 10.0
