@@ -134,15 +134,25 @@ async def set_active(db: AsyncSession, by: User, user: User, active: bool) -> bo
 
     Deactivation keeps the logins (so that the live views close saying why, code 4006) but
     none of them signs in any more; an admin cannot deactivate themself, nor the last active
-    admin (checked in the same statement that deactivates, so two admins deactivating each
-    other at once cannot leave none). Reactivation ends the logins from before, so a token
-    from then does not come back to life. Audited as user.deactivate / user.reactivate.
+    admin (the active admins' rows are locked, then counted in the statement that
+    deactivates, so two admins deactivating each other at once cannot leave none).
+    Reactivation ends the logins from before, so a token from then does not come back to
+    life. Audited as user.deactivate / user.reactivate.
     """
     if user.active == active:
         return False
     if not active:
         if user.id == by.id:
             raise AccountRefused(NOT_YOURSELF)
+        if user.role == "admin":
+            # Lock the active admins' rows first. On PostgreSQL (read committed) the
+            # statement below alone is not enough: two admins deactivating each other each
+            # saw the other still active and both went through. The second now waits for
+            # the first to commit, and its statement then counts afresh. SQLite takes its
+            # one write lock anyway (FOR UPDATE is not rendered there).
+            await db.execute(
+                select(User.id).where(User.role == "admin", User.active.is_(True)).with_for_update()
+            )
         other_admins = (
             select(func.count())
             .select_from(User)

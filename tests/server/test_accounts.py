@@ -352,6 +352,38 @@ async def test_an_admin_cannot_deactivate_themself_and_one_admin_always_remains(
 
 
 @pytest.mark.asyncio
+async def test_two_admins_deactivating_each_other_in_overlapping_transactions(
+    live: Live, world: World
+) -> None:
+    """The same race, held open: the first deactivation is not yet committed when the
+    second is asked. The second waits for it and is then refused (on PostgreSQL both went
+    through while each statement counted the other admin as still active)."""
+    first = await admin_id(live, world)
+    r = await live.client.post(
+        "/users",
+        json={"email": "a3@clinic.test", "name": "A3", "role": "admin", "password": PASSWORD},
+        headers=bearer(world.admin),
+    )
+    second = r.json()["id"]
+    async with live.sessionmaker() as db1, live.sessionmaker() as db2:
+        by1, target1 = await db1.get(User, first), await db1.get(User, second)
+        by2, target2 = await db2.get(User, second), await db2.get(User, first)
+        assert by1 and target1 and by2 and target2
+        assert await accounts.set_active(db1, by1, target1, False)  # uncommitted
+        racing = asyncio.create_task(accounts.set_active(db2, by2, target2, False))
+        await asyncio.sleep(0.5)
+        assert not racing.done(), "the second deactivation did not wait for the first"
+        await db1.commit()
+        with pytest.raises(accounts.AccountRefused, match="last active admin"):
+            await racing
+    async with live.sessionmaker() as db:
+        active_admins = (
+            await db.execute(select(User.id).where(User.role == "admin", User.active.is_(True)))
+        ).all()
+    assert [a.id for a in active_admins] == [first]
+
+
+@pytest.mark.asyncio
 async def test_the_last_active_admin_is_never_deactivated(live: Live, world: World) -> None:
     """The rule behind the API's: even asked by an admin who is no longer active (a race the
     API cannot otherwise show), the last active admin stays."""
