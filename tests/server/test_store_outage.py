@@ -9,12 +9,16 @@ import sqlite3
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import select
 from websockets.exceptions import InvalidStatus
 
+from server.audit import AuditWriter
 from server.errors import DATABASE_AWAY
+from server.models import AuditEntry
 from tests.server.live_server import Live, Seeds, World, bearer, on_store, running
 from tests.server.postgres import Cluster
 from tests.server.ws_client import station_ws, viewer_ws
@@ -110,3 +114,42 @@ async def test_sqlite_locked_past_its_busy_timeout(live: Live, world: World) -> 
         holder.close()
     r = await live.client.post("/patients", json={"display_name": "Now"}, headers=bearer(world.t1))
     assert r.status_code == 201, r.text
+
+
+@pytest.mark.asyncio
+async def test_the_live_audit_writer_outlives_a_postgresql_restart(
+    seeds: Seeds, tmp_path: Path
+) -> None:
+    """The live links' audit writer keeps one connection; PostgreSQL restarting under it (the
+    connection dropped) costs no row: the next batch goes through on a new connection."""
+    template, _ = seeds.get("postgres")
+    cluster: Cluster = seeds.cluster
+    with on_store(seeds, "postgres", tmp_path, template) as settings:
+        async with running(settings) as live:
+            writer = AuditWriter(live.sessionmaker)
+
+            def row(action: str) -> dict[str, Any]:
+                return {
+                    "actor": "system",
+                    "action": action,
+                    "entity": "station",
+                    "entity_id": 1,
+                    "patient_id": None,
+                    "old": None,
+                    "new": {"n": 1},
+                }
+
+            await writer.write(**row("test.before"))
+            # A clean stop drops the connection as a restart does; the test cluster runs
+            # without synchronous commit, so a crash could lose the committed row itself.
+            await _run_off_loop(cluster.stop)
+            await _run_off_loop(cluster.start)
+            await writer.write(**row("test.after"))
+            await writer.close(flush_s=10.0)
+            async with live.sessionmaker() as db:
+                actions = (
+                    await db.execute(
+                        select(AuditEntry.action).where(AuditEntry.action.like("test.%"))
+                    )
+                ).scalars()
+                assert sorted(actions) == ["test.after", "test.before"]
