@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sqlalchemy import insert
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine, AsyncSession, async_sessionmaker
 
 from server.models import AuditEntry, Station, User
@@ -92,7 +93,7 @@ class AuditWriter:
     rollback on its return, each a round trip to the driver's thread that waits its turn
     on a busy event loop: a K/B change, sent only once its row is committed, was answered
     in 8-37 ms at the median at 100 stations, a HOLD (not waiting for its row) in 2 ms.
-    A connection that fails is dropped and the batch tried once more on a new one (the
+    A connection that is lost is dropped and the batch tried once more on a new one (the
     database restarted; a commit whose answer was lost on the way may then be stored
     twice: a duplicate row rather than a missing one).
     """
@@ -170,7 +171,7 @@ class AuditWriter:
         """Write ``batch`` in one transaction and tell its waiters; the error if it failed."""
         rows = [_values(**row) for row, _ in batch]
         error: Exception | None = None
-        for _ in range(2):  # a second time on a new connection if this one failed
+        for _ in range(2):  # a second time on a new connection if this one was lost
             reused = self._conn is not None
             try:
                 conn = await self._connection()
@@ -180,9 +181,14 @@ class AuditWriter:
                 break
             except Exception as exc:
                 error = exc
-                await self._drop()
-                if not reused:
-                    break  # a fresh connection failed: the database refused the rows
+                lost = not isinstance(exc, DBAPIError) or exc.connection_invalidated
+                if lost:
+                    await self._drop()
+                elif self._conn is not None:  # the rows were refused; the connection is good
+                    with contextlib.suppress(Exception):
+                        await self._conn.rollback()
+                if not (lost and reused):
+                    break
         if error is not None:
             return error
         for _, done in batch:
