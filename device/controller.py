@@ -454,6 +454,7 @@ def build_params(
             config.atmosphere,
             CONTROL_PERIOD * dt_tick,
             config.calibration.valves_identified and config.supervision.use_identified_valves,
+            lever=geometry.ankle_height,
         ),
         sensor_zero=config.calibration.sensor_zero(),
         valve_gain=observed.valve_gains(),
@@ -814,6 +815,11 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
         s.wrench[3 + k] = E[0, k] * M[0] + E[1, k] * M[1] + E[2, k] * M[2]
 
     L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
+    if s.istate[I_MODE] == Mode.JOINT:
+        leg = supervision.check_leg_following(s.counters, s.leg_x, s.leg_target, p.sup)
+        if leg >= 0:
+            trip(s, Trip.FOLLOWING, 6 + leg)
+            return
     if s.istate[I_MODE] == Mode.TASK:
         if not (
             safety.all_finite(s.trajectory)
@@ -886,6 +892,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
         pose_jacobian(s.pose_cmd, J, Jq)
         leg_lo = p.limits[safety.ROW_SCALARS, 3] + LEG_HEADROOM
         leg_hi = p.stroke - leg_lo
+        reachable = True
         for i in range(6):
             x = L[i] - p.min_length
             s.leg_target[i] = min(max(x, leg_lo), leg_hi)
@@ -893,7 +900,20 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             if x == s.leg_target[i]:  # a clamped leg waits at the wall: no feedforward
                 for k in range(6):
                     rate += Jq[i, k] * s.pose_cmd_rate[k]
+            else:
+                reachable = False
             s.leg_target_rate[i] = rate
+        if reachable:
+            axis = supervision.check_following(
+                s.monitor, s.counters, s.pose, s.pose_cmd, s.pose_cmd_rate, s.compliant, p.sup
+            )
+            if axis >= 0:
+                trip(s, Trip.FOLLOWING, axis)
+                return
+        else:
+            # A leg held at its stroke's wall cannot give the commanded pose: no error to
+            # judge, and the check waits for the platform to be back on command.
+            supervision.disarm_following(s.counters)
 
     if moving(s):
         rel = s.pose.copy()

@@ -57,6 +57,7 @@ FAULT_TRIPS = (
     Trip.FORCE_BALANCE,
     Trip.VALVE,
     Trip.AIR_BALANCE,
+    Trip.FOLLOWING,
 )
 """Trips reported as FAULT events; the others are limits the motion reached (LIMIT)."""
 

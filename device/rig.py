@@ -149,9 +149,15 @@ class Rig:
         if self.mode == Mode.FAULT:
             return
         self._start_motion()
-        self.state.leg_target[:] = x
-        self.state.leg_target_rate[:] = 0.0 if rate is None else rate
-        self.state.istate[ctl.I_MODE] = Mode.JOINT
+        s = self.state
+        bound = self.params.sup.following_translation
+        if self.mode != Mode.JOINT or np.max(np.abs(np.asarray(x) - s.leg_x)) > bound:
+            # A step the legs must first travel (an experiment's), or joint mode starting:
+            # the following check waits until they have arrived.
+            supervision.disarm_following(s.counters)
+        s.leg_target[:] = x
+        s.leg_target_rate[:] = 0.0 if rate is None else rate
+        s.istate[ctl.I_MODE] = Mode.JOINT
 
     def apply_track(self, targets: Sequence[AxisTarget]) -> None:
         """Task mode on six checked waveforms (relative to home); no-op if tripped."""
@@ -178,6 +184,7 @@ class Rig:
             self.state.tare[:] = self.state.wrench
             self.state.x_m[:] = 0.0
             self.state.v_m[:] = 0.0
+            supervision.disarm_following(self.state.counters)
         self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def apply_impedance(
@@ -204,6 +211,7 @@ class Rig:
     def resume_task(self) -> None:
         """Back to task mode on the loaded waveforms, from a hold; no-op if tripped."""
         if self.mode != Mode.FAULT:
+            supervision.disarm_following(self.state.counters)
             self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def set_vent(self, on: bool) -> None:

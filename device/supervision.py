@@ -68,7 +68,10 @@ M_OBS_R = 154  # 12: filtered air residual: measured minus expected inflow (Pa m
 M_OBS_T = 166  # 12: filtered tolerance of that residual (Pa m3/s)
 M_OBS_PEAK = 178  # 1: largest |residual| / tolerance seen since the last reset
 M_LEG_TARGET_SEEN = 179  # 6: a leg's target when its reading last changed (calibrated, m)
-N_MONITOR = 185
+M_FOLLOW_SPEED = 185  # 6: commanded speed per axis, held and decaying with the loop's lag
+M_FOLLOW_TURN = 191  # 3: commanded rotation rates, low-passed with the loop's lag (rad/s)
+M_FOLLOW_SWERVE = 194  # 1: how far the rotation rates left that, held and decaying (rad/s)
+N_MONITOR = 195
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -89,12 +92,18 @@ C_WRENCH = 58
 """Control periods in a row with the wrench residual over its limit."""
 C_OBS_OVER = 59  # 12: control periods in a row a chamber's air residual was over tolerance
 C_OBS = 71  # 12: control periods a chamber's air has been observed since motion started
+C_FOLLOW = 83
+"""Pose periods in a row the platform was further from its commanded pose than allowed."""
+C_FOLLOW_ARMED = 84
+"""1 once the platform has been within the following bound since task motion (re)started:
+a segment resumed after a hold starts wherever the foot left the platform, and the loop
+first brings it back to its command."""
 C_SERVICE = 57
 """Chamber + 1 whose air did not add up (0: none): the device needs service. Not a trip:
 closing every valve would let a leaking chamber, or one whose intake is stuck open, move
 its leg with nothing to stop it, while the loop holds it. So the running segment finishes
 under control and nothing new starts until a technician re-arms (device.modes)."""
-N_COUNTERS = 83
+N_COUNTERS = 85
 
 
 @dataclass(frozen=True)
@@ -311,6 +320,45 @@ class SupervisionConfig:
     measured as above 3.8 N m (2.1 nominal), from the stiffest seals' friction. A torque
     offset smaller than this is indistinguishable from friction, and acts on the platform
     like a patient's torque of that size (bounded by the range of motion)."""
+    following_translation: float = 2.0e-3
+    """In task mode, measured pose further than this (m) from the commanded pose along x, y
+    or z is a following error: something pushes the platform that the loop cannot hold
+    (a force/torque reading of a load that is not there, fed to the legs by the load
+    compensation; a valve or leak the loop cannot overcome). The commanded pose includes
+    the rendered compliance, so a foot moving a compliant axis is not an error. Largest
+    healthy value over every library exercise with a relaxed and a resisting foot on the
+    nominal plant and 38 drawn builds (draws 0-39 but 15 and 17, which oscillate, issue 12):
+    2.11 mm (draw 11, ROM assessment; 1.7 mm on every other build). 30 N of force-sensor
+    offset on Fx or Fy walks a held platform 7-9 mm within 0.5 s, below the wrench
+    cross-check; this bound stops it at about its own size."""
+    following_rotation: float = math.radians(1.5)
+    """...and about roll, pitch or yaw (rad). Largest healthy value as above: 1.24 deg."""
+    following_lag: float = 0.1
+    """...plus the commanded speed along (about) that axis times this (s): a loop that lags
+    its command by a fixed time is this far behind it at that speed. The position loop lags
+    a sine by 20-80 ms (|1 - G| / w of the measured frequency responses of every axis, 0.5-40
+    Hz): an exercise's own motion, or a foot swinging a compliant axis, is not an error.
+    Held axes, where a false load pushes, have no command speed. The legs that turn the
+    plate about the ankle also shift it when the rotation lags: in a 2 deg pitch sine at 8
+    Hz the pitch lagged about 1 deg and the ankle moved 2.4 mm along x with it (dynamic
+    coupling; the error at the plate's centre was no smaller). So the translational bound
+    also grows by the rotation's own error times ``ankle_height`` (device.geometry, 0.1 m),
+    a lever of the right size: 1.7 mm for that 1 deg. A rotation that lags little may still
+    drag the plate: with no foot on it, a 2 N m push on roll at K 5 swung the plate 11.8 deg
+    in 0.15 s (2.3 rad/s), and while the roll stopped on its command the ankle was 2.5 mm
+    off along y. So it grows too by the lag the rotations' commanded speed allows
+    (``following_lag`` times that speed, held as it decays) times the same lever."""
+    following_turn: float = 0.02
+    """Time constant (s) of the low-pass against which a rotation's commanded rate counts
+    as changing (``following_lag``): about the position loop's own lag (12-35 ms, from the
+    damping it adds to a rendered impedance, README), so a steady turn or an exercise's
+    slow sine (0.14 rad/s of change at 0.1 s, a 1.4 mm allowance that let a 30 N force
+    offset walk a pitching platform 7.6 mm) barely widens the bound while a plate swung and
+    stopped within tens of milliseconds does."""
+    following_periods: int = 2
+    """Pose periods (4 ms) in a row past the bound before the trip (8 ms), against a single
+    bad reading: 30 N of phantom force accelerates platform and foot about 100 mm/s within
+    30 ms, so each period more lets the platform run 0.4 mm further."""
 
 
 class SupervisionParams(NamedTuple):
@@ -365,13 +413,25 @@ class SupervisionParams(NamedTuple):
     residual_periods: int
     wrench_force_limit: float
     wrench_torque_limit: float
+    following_translation: float
+    following_rotation: float
+    following_lag: float
+    following_lever: float
+    following_decay: float
+    following_turn_decay: float
+    following_periods: int
 
 
 def build(
-    config: SupervisionConfig, atmosphere: float, control_dt: float, identified: bool = False
+    config: SupervisionConfig,
+    atmosphere: float,
+    control_dt: float,
+    identified: bool = False,
+    lever: float = 0.0,
 ) -> SupervisionParams:
     """The compiled thresholds; ``identified``: the calibration knows each valve's air per
-    pulse (device.identify), and the air observer forgives less."""
+    pulse (device.identify), and the air observer forgives less; ``lever``: the ankle's
+    height above the platform's joint plane (m, see ``following_lag``)."""
     return SupervisionParams(
         atm=atmosphere,
         open_below=config.pressure_open_below,
@@ -428,6 +488,13 @@ def build(
         residual_periods=config.residual_periods,
         wrench_force_limit=config.wrench_force_limit,
         wrench_torque_limit=config.wrench_torque_limit,
+        following_translation=config.following_translation,
+        following_rotation=config.following_rotation,
+        following_lag=config.following_lag,
+        following_lever=lever,
+        following_decay=math.exp(-control_dt / config.following_lag),
+        following_turn_decay=math.exp(-control_dt / config.following_turn),
+        following_periods=config.following_periods,
     )
 
 
@@ -827,6 +894,99 @@ def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
     return bool(monitor[M_RESIDUAL + leg] ** 2 > 0.5 * total)
 
 
+@njit_inline
+def _follow(counters: NDArray[np.int64], worst: int, q: SupervisionParams) -> int:
+    if worst < 0:
+        counters[C_FOLLOW_ARMED] = 1
+        counters[C_FOLLOW] = 0
+        return -1
+    if counters[C_FOLLOW_ARMED] == 0:
+        return -1
+    # A chamber whose air does not add up is what pushes (a valve stuck open, a leak): the
+    # air checks name it and the loop keeps holding against it (see C_SERVICE). Closing
+    # every valve here would leave that valve alone to drive its leg.
+    if counters[C_SERVICE] > 0:
+        return -1
+    for c in range(12):
+        if counters[C_OBS_OVER + c] > 0:
+            return -1
+    counters[C_FOLLOW] += 1
+    return worst if counters[C_FOLLOW] >= q.following_periods else -1
+
+
+@njit_inline
+def check_following(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    pose: NDArray[np.float64],
+    command: NDArray[np.float64],
+    command_rate: NDArray[np.float64],
+    compliant: NDArray[np.float64],
+    q: SupervisionParams,
+) -> int:
+    """Task mode: the axis (0..5) whose following error stayed past its bound, -1 while all
+    is well. Counts only once armed: after the platform was within every bound since task
+    motion (re)started. The speed allowance decays with the loop's lag once the command
+    stops (a ramp's end), as the platform's own lag does. An axis that renders an
+    impedance (``compliant`` > 0.5) is not judged: the foot's measured torque moves its
+    command, a false torque included, and a hard push on a light virtual inertia runs the
+    command ahead of any loop (2 N m for 0.1 s on roll at K 5, 11.8 deg); its lag still
+    widens the translational bound."""
+    tilt = swerve = 0.0
+    for k in range(6):
+        speed = max(abs(command_rate[k]), q.following_decay * monitor[M_FOLLOW_SPEED + k])
+        monitor[M_FOLLOW_SPEED + k] = speed
+        if k >= 3:
+            tilt += (pose[k] - command[k]) ** 2
+            lp = monitor[M_FOLLOW_TURN + k - 3]
+            swerve += (command_rate[k] - lp) ** 2
+            monitor[M_FOLLOW_TURN + k - 3] = command_rate[k] + q.following_turn_decay * (
+                lp - command_rate[k]
+            )
+    swerve = max(math.sqrt(swerve), q.following_decay * monitor[M_FOLLOW_SWERVE])
+    monitor[M_FOLLOW_SWERVE] = swerve
+    # How far the rotation lags, or may lag where its commanded rate changes: the legs that
+    # turn the plate about the ankle drag it sideways by that much times the lever.
+    sway = q.following_lever * (math.sqrt(tilt) + q.following_lag * swerve)
+    worst, share = -1, 1.0
+    for k in range(6):
+        if compliant[k] > 0.5:
+            continue
+        bound = q.following_translation if k < 3 else q.following_rotation
+        bound += q.following_lag * monitor[M_FOLLOW_SPEED + k]
+        if k < 3:
+            bound += sway
+        v = abs(pose[k] - command[k]) / bound
+        if v > share:
+            worst, share = k, v
+    return _follow(counters, worst, q)
+
+
+@njit_inline
+def check_leg_following(
+    counters: NDArray[np.int64],
+    x: NDArray[np.float64],
+    target: NDArray[np.float64],
+    q: SupervisionParams,
+) -> int:
+    """Joint mode (homing, legs held at targets): the leg (0..5) that stayed further from
+    its target than the translational bound, -1 while all is well; armed as above. A leg
+    error of that size moves the ankle by about as much."""
+    worst, share = -1, 1.0
+    for i in range(6):
+        v = abs(x[i] - target[i]) / q.following_translation
+        if v > share:
+            worst, share = i, v
+    return _follow(counters, worst, q)
+
+
+@njit
+def disarm_following(counters: NDArray[np.int64]) -> None:
+    """Task motion (re)starts: the following check waits until the platform is on command."""
+    counters[C_FOLLOW] = 0
+    counters[C_FOLLOW_ARMED] = 0
+
+
 @njit
 def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> None:
     """Forget what motion-bound checks accumulated (a new motion starts from a hold)."""
@@ -837,6 +997,7 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
         monitor[M_PUSH + i] = 0.0
         monitor[M_WRENCH + i] = 0.0
     counters[C_WRENCH] = 0
+    disarm_following(counters)
     for c in range(12):
         counters[C_P_SAME + c] = 0
         counters[C_AIR + c] = 0

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+from device.axes import AXES
+
 
 class Trip(IntEnum):
     """Why the controller stopped. 0 means no trip."""
@@ -52,6 +54,9 @@ class Trip(IntEnum):
     AIR_BALANCE = 18
     """A chamber's air did not add up with what its valves moved over 0.2 s (reported in a
     SERVICE event, not latched as a trip: see device.supervision.C_SERVICE)."""
+    FOLLOWING = 19
+    """The platform stayed further from its commanded pose than the following bound (task
+    mode; the channel names the axis, 0-5) or a leg from its target (joint mode; 6 + leg)."""
 
 
 TRIP_TEXT: dict[Trip, str] = {
@@ -82,6 +87,8 @@ TRIP_TEXT: dict[Trip, str] = {
     "closed, a frozen pressure reading or a blocked tube",
     Trip.AIR_BALANCE: "a chamber's air does not add up with what its valves moved: a leak "
     "in its tube, fitting or seal, a valve stuck, or its leg's length sensor stuck",
+    Trip.FOLLOWING: "the platform left the pose it was commanded to: check the foot's "
+    "force/torque sensor zero, then the valves and tubes for a leak",
 }
 """For the technician: what tripped and where to look. Events carry the code; hosts show this."""
 
@@ -107,6 +114,10 @@ def where(trip: int, channel: int) -> str:
         return f"leg {channel + 1}"
     if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
         return _WRENCH_PARTS[channel]
+    if trip == Trip.FOLLOWING:
+        if channel < len(AXES):
+            return AXES[channel]
+        return f"leg {channel - len(AXES) + 1}"
     return ""
 
 
