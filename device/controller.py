@@ -250,6 +250,18 @@ class ControllerConfig:
     push on an empty plate trip the speed limit up to B = 1; 0.05 and 0.1 need more
     damping at low K (the virtual mass rings on the ankle's stiffness at 2-7 Hz).
     Translations: not measured, left at 0."""
+    impedance_lag_max: float = 0.05
+    """Largest lag (s) of the position loop that ``learn_lag`` may find. The platform follows
+    its command 7-12 ms late on the five builds measured (from the damping that lag adds),
+    more where stiff seals hold it back at low frequency (an error that stays while the
+    command turns), and a foot that moves the plate feels that lag as K times it of extra
+    damping: B = 1 at K = 50 rendered 1.5 on the nominal unit and up to 2.6 on a
+    stiff-sealed build. The admittance law renders that much less damping, never less than
+    the envelope's least (``safety.damping_min``), where stability was measured. 0 turns
+    the correction off."""
+    impedance_lag_window: float = 2.0
+    """Time constant (s) over which the lag is learnt: a period of the slowest exercise
+    (0.5 Hz) a foot moves at; at 1 s a fit over half a period of it was poor."""
     virtual_frequency_max: float = 12.0
     """On an axis with a virtual inertia, the inertia grows with the stiffness so that the
     virtual natural frequency ``sqrt(K/J)`` stays at or below this (Hz): ``J = max(J_axis,
@@ -323,6 +335,8 @@ class ControllerParams(NamedTuple):
     load_compensation: bool
     virtual_inertia: NDArray[np.float64]
     virtual_omega2: float
+    lag_max: float
+    lag_forget: float
     vent_pulse_slots: int
     vent_every_periods: int
     limits: NDArray[np.float64]
@@ -369,6 +383,7 @@ class ControllerState(NamedTuple):
     slots: NDArray[np.int64]  # (12,) signed PWM slots
     valves: NDArray[np.uint8]  # (24,)
     impedance_map: NDArray[np.float64]  # (6, 9) per axis: J, K, B and their step's map
+    lag: NDArray[np.float64]  # (6, N_LAG) per axis: the position loop's lag, learnt (L_*)
     monitor: NDArray[np.float64]  # supervision's memory (device.supervision M_*)
     counters: NDArray[np.int64]  # supervision's counters (device.supervision C_*)
     rest: NDArray[np.float64]  # (6, quiet.N_REST) the quiet hold per leg (device.quiet R_*)
@@ -440,6 +455,8 @@ def build_params(
         load_compensation=config.load_compensation,
         virtual_inertia=np.array(config.virtual_inertia, dtype=np.float64),
         virtual_omega2=(2.0 * math.pi * config.virtual_frequency_max) ** 2,
+        lag_max=config.impedance_lag_max,
+        lag_forget=math.exp(-CONTROL_PERIOD * dt_tick / config.impedance_lag_window),
         vent_pulse_slots=int(config.vent_pulse_slots),
         vent_every_periods=int(config.vent_every_periods),
         limits=limits.as_array(),
@@ -507,6 +524,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         slots=np.zeros(12, dtype=np.int64),
         valves=np.zeros(24, dtype=np.uint8),
         impedance_map=np.full((6, 9), -1.0),
+        lag=np.zeros((6, N_LAG)),
         monitor=np.zeros(supervision.N_MONITOR),
         counters=np.zeros(supervision.N_COUNTERS, dtype=np.int64),
         rest=quiet.new_rest(),
@@ -787,6 +805,59 @@ def waveform(row: NDArray[np.float64], t: float, fade: float) -> tuple[float, fl
     return center, 0.0
 
 
+# Slots of ControllerState.lag (per axis): the lag fit's forgetful sums, the lag, and when
+# and what the command was at the last two periods of the fit.
+L_N, L_C, L_E, L_CC, L_EC, L_TAU, L_TICK, L_PREV = 0, 1, 2, 3, 4, 5, 6, 7
+N_LAG = 8
+LAG_MIN_RATE = 0.01
+"""Commanded rate (rad/s, or m/s) whose variance the lag fit needs before it trusts itself:
+a foot at rest teaches nothing about the lag."""
+LAG_B_STEP = 0.005
+"""Share of B by which the damping the law renders may differ from the one its kept step
+map was made for before the map is made anew."""
+
+
+@njit
+def learn_lag(
+    row: NDArray[np.float64],
+    command: float,
+    previous: float,
+    measured: float,
+    tick: int,
+    p: ControllerParams,
+) -> None:
+    """One step of the fit of the position loop's lag on a compliant axis, ``command``
+    being this period's and ``previous`` the last one sent: the platform ``measured`` now
+    is where the command was ``tau`` before it was sent, so ``previous - measured`` is about
+    ``tau`` times its rate. A forgetful least-squares fit with an offset (friction and load
+    leave a steady error that is no lag), kept within ``0..lag_max``; the admittance law
+    renders that lag's damping less (``pose_task``). Rates are taken only over consecutive
+    periods of this fit: a hold or a mode change in between starts it anew."""
+    dt = p.dt_control
+    consecutive = tick - row[L_TICK] <= CONTROL_PERIOD + 0.5 and row[L_TICK] > 0.0
+    row[L_TICK] = float(tick)
+    before = row[L_PREV]
+    row[L_PREV] = previous
+    if not consecutive:
+        row[L_PREV] = math.nan  # the period before ``previous`` is not known
+        return
+    if math.isnan(before):
+        return
+    rate = (previous - before) / dt
+    error = previous - measured
+    lam = p.lag_forget
+    row[L_N] = lam * row[L_N] + 1.0
+    row[L_C] = lam * row[L_C] + rate
+    row[L_E] = lam * row[L_E] + error
+    row[L_CC] = lam * row[L_CC] + rate * rate
+    row[L_EC] = lam * row[L_EC] + error * rate
+    n = row[L_N]
+    variance = row[L_CC] / n - (row[L_C] / n) ** 2
+    if variance > LAG_MIN_RATE**2:
+        tau = (row[L_EC] / n - row[L_E] * row[L_C] / (n * n)) / variance
+        row[L_TAU] = min(max(tau, 0.0), p.lag_max)
+
+
 @njit
 def pose_task(s: ControllerState, p: ControllerParams) -> None:
     lengths = np.empty(6)
@@ -845,14 +916,26 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             j_k = p.virtual_inertia[k]
             if j_k > 0.0 and p.virtual_omega2 > 0.0:
                 j_k = max(j_k, s.stiffness[k] / p.virtual_omega2)
-            if s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0):
+            renders = s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0)
+            b_k = s.damping[k]
+            if renders and p.lag_max > 0.0:
+                # The platform follows its command tau late, which a foot feels as K tau of
+                # extra damping: the law renders that much less, never below the envelope.
+                b_k = max(
+                    b_k - s.stiffness[k] * s.lag[k, L_TAU],
+                    safety.damping_min(p.limits, k, s.stiffness[k]),
+                )
+            if renders:
                 if j_k > 0.0:
                     z = s.impedance_map[k]
-                    if z[0] != j_k or z[1] != s.stiffness[k] or z[2] != s.damping[k]:
-                        # J, K and B change only while they slew: the exact map of the step
-                        # is kept between changes instead of taken again every period.
-                        m = impedance.step_map(j_k, s.stiffness[k], s.damping[k], p.dt_control)
-                        z[0], z[1], z[2] = j_k, s.stiffness[k], s.damping[k]
+                    if abs(b_k - z[2]) <= LAG_B_STEP * s.damping[k]:
+                        b_k = z[2]  # the learnt lag wanders: keep the map for small changes
+                    if z[0] != j_k or z[1] != s.stiffness[k] or z[2] != b_k:
+                        # J, K and B change only while they slew or the lag is learnt: the
+                        # exact map of the step is kept between changes instead of taken
+                        # again every period.
+                        m = impedance.step_map(j_k, s.stiffness[k], b_k, p.dt_control)
+                        z[0], z[1], z[2] = j_k, s.stiffness[k], b_k
                         for i in range(6):
                             z[3 + i] = m[i]
                     f_k = s.wrench[k] - s.tare[k]
@@ -865,7 +948,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         s.x_m[k],
                         s.wrench[k] - s.tare[k],
                         s.stiffness[k],
-                        s.damping[k],
+                        b_k,
                         p.dt_control,
                     )
             else:
@@ -884,6 +967,8 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 # there instead of coasting on beyond what the platform may show.
                 s.x_m[k] = x_c - x_d
                 s.v_m[k] = 0.0
+            if renders and p.lag_max > 0.0 and not clamped:
+                learn_lag(s.lag[k], x_c, s.pose_cmd[k], s.pose[k], s.istate[I_TICK], p)
             s.pose_cmd[k] = x_c
             s.pose_cmd_rate[k] = v_d + v_m
         leg_vectors(s.pose_cmd, p.base, p.plat, L, U, A)

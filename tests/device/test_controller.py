@@ -1,5 +1,7 @@
 """The controller on the simulated plant: modes, latching trips, command validation."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -172,3 +174,41 @@ def test_an_exercise_started_from_joint_mode_tares_the_foot() -> None:
     # tare it would sit 0.011 rad (0.6 deg) down.
     assert abs(r.state.pose[4] - r.geometry.home_pose[4]) < 0.002
     assert abs(r.state.tare[4]) > 0.3
+
+
+def test_the_position_loops_lag_is_learnt_from_the_command_and_the_measured_pose() -> None:
+    """``learn_lag`` on a command and a platform that follows it exactly ``tau`` late with a
+    steady offset (friction): the fit finds ``tau`` whatever the offset, holds it while the
+    command rests, starts its differences anew after a gap, and never exceeds its bound."""
+    p, _ = ctl.build_params()
+    dt, period = p.dt_control, ctl.CONTROL_PERIOD
+
+    def follow(row: np.ndarray, tau: float, seconds: float, start: int, hz: float = 1.0) -> int:
+        def command(t: float) -> float:
+            return 0.05 * math.sin(2.0 * math.pi * hz * t)
+
+        previous = command(-dt)
+        n = round(seconds / dt)
+        for i in range(n):
+            t = i * dt
+            c = command(t)
+            # measured now: where the command sent last period was tau before it was sent
+            ctl.learn_lag(row, c, previous, command(t - dt - tau) + 0.004, start + i * period, p)
+            previous = c
+        return start + n * period
+
+    row = np.zeros(ctl.N_LAG)
+    tick = follow(row, 0.011, 4.0, start=period)
+    assert row[ctl.L_TAU] == pytest.approx(0.011, abs=0.0005)
+    # A platform at rest teaches nothing: the lag learnt stays.
+    for i in range(500):
+        ctl.learn_lag(row, 0.0, 0.0, 0.004, tick + i * period, p)
+    assert row[ctl.L_TAU] == pytest.approx(0.011, abs=0.0005)
+    # After a gap (a hold, a mode change) the first period gives no rate.
+    before = row.copy()
+    ctl.learn_lag(row, 0.02, -0.02, 0.0, tick + 10_000 * period, p)
+    assert row[ctl.L_N] == before[ctl.L_N] and np.isnan(row[ctl.L_PREV])
+    # A lag beyond any build's is held at the bound.
+    row = np.zeros(ctl.N_LAG)
+    follow(row, 0.2, 4.0, start=period, hz=0.5)
+    assert row[ctl.L_TAU] == p.lag_max

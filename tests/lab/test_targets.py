@@ -59,12 +59,13 @@ def test_dynamic_impedance_recovers_k_and_b_on_pitch() -> None:
     r = ex.impedance_dynamic("pitch", k=50.0, b=1.0, torque=5.0, hz=(0.5, 1.0, 2.0))
     assert r.valid and not r.tripped
     j = r.joint
-    # Tolerances: K within 5 %; B within 0.8 N m s/rad, because the position loop's lag
-    # behind the admittance command adds about 0.6 N m s/rad of apparent damping (the
-    # admittance law alone renders B within 15 %).
+    # K and B within 5 %. The platform lags the admittance command by about 11 ms, which a
+    # foot feels as K times that of extra damping (B rendered 1.5 before the controller
+    # learnt the lag); the law alone now renders that much less, and never below the
+    # envelope's least damping (0.2 at K 50).
     assert r.stiffness_error_pct <= 5.0, j
-    assert r.damping_error <= 0.8, j
-    assert abs(j.law_stiffness - 50.0) <= 2.5 and abs(j.law_damping - 1.0) <= 0.15, j
+    assert r.damping_error_pct <= 5.0, j
+    assert abs(j.law_stiffness - 50.0) <= 2.5 and 0.2 <= j.law_damping <= 0.8, j
     # The plate measures the device's impedance; the patient's muscles also work against
     # the relaxed ankle's own 15 N m/rad in parallel.
     assert 12.0 <= j.patient_stiffness - j.stiffness <= 18.0, j
