@@ -12,6 +12,7 @@ import argparse
 import math
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, NoReturn
 
 from device.plant.params import HARDWARE_KINDS, PATIENTS
@@ -102,6 +103,22 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
         help="simulation only: inject a plant fault at TIME s after the start (repeatable), "
         "e.g. supply_loss@30 or pressure_open@12:4",
+    )
+    unit = dev.add_mutually_exclusive_group()
+    unit.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="this unit's calibration (made by --identify): the controller subtracts its "
+        "zeros from every reading and the device says so in its HELLO",
+    )
+    unit.add_argument(
+        "--identify",
+        type=Path,
+        metavar="FILE",
+        help="maintenance, nobody on the plate: pull every leg onto its lower stop, vent, "
+        "read every sensor's zero and pulse every valve, save the calibration to FILE and "
+        "exit (the simulation identifies its plant with the plate empty)",
     )
     add_plant_options(dev, seed_default=0)
 
@@ -201,21 +218,31 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _device(args: argparse.Namespace) -> int:
+    from device.calibration import Calibration, IdentificationError
+    from device.controller import ControllerConfig
     from device.hardware import HardwareError, SimulatedHardware, open_hardware
     from device.plant.model import SCRIPT_SINE
     from device.rig import Rig
     from device.service import DeviceService, ServiceConfig, serve
     from device.transport import LinkError, open_link
 
+    if args.hardware != "sim" and (args.plant or args.plant_draw is not None):
+        print(
+            "error: --plant and --plant-draw change the plant simulation: use --sim",
+            file=sys.stderr,
+        )
+        return USAGE_ERROR
+    if args.identify is not None:
+        return _identify(args)
+    calibration = Calibration()
     try:
-        if args.hardware != "sim" and (args.plant or args.plant_draw is not None):
-            print(
-                "error: --plant and --plant-draw change the plant simulation: use --sim",
-                file=sys.stderr,
-            )
-            return USAGE_ERROR
+        if args.calibration is not None:
+            calibration = Calibration.load(args.calibration)
         hardware = open_hardware(args.hardware, plant_config(args, args.patient), args.seed)
         link = open_link(args.link, args.baud)
+    except IdentificationError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except (HardwareError, LinkError) as exc:
         print(f"error: {exc.args[-1]}", file=sys.stderr)
         return 1
@@ -233,8 +260,54 @@ def _device(args: argparse.Namespace) -> int:
             return USAGE_ERROR
     if args.hardware == "sim":
         print("ankle device: preparing the simulated device (first start compiles ~20 s)...")
-    service = DeviceService(Rig(hardware), link, ServiceConfig(args.telemetry_hz, args.watchdog_ms))
+    if args.calibration is not None:
+        print(f"ankle device: {describe(calibration)} ({args.calibration})")
+    else:
+        print("ankle device: uncalibrated (no --calibration): sensor zeros are not subtracted")
+    rig = Rig(hardware, ControllerConfig(calibration=calibration))
+    service = DeviceService(rig, link, ServiceConfig(args.telemetry_hz, args.watchdog_ms))
     return serve(service, args.seconds)
+
+
+def describe(calibration: Any) -> str:
+    """One line for the technician: when the unit was identified and its largest zeros."""
+    legs = max(abs(z) for z in calibration.leg_zero) * 1e3
+    bar = max(abs(z) for z in calibration.pressure_zero) / 1e5
+    valves = "valves identified" if calibration.valves_identified else "valves not identified"
+    when = calibration.identified_at or "an unknown date"
+    return (
+        f"calibration of {when}: leg zeros up to {legs:.3f} mm, transducer zeros up to "
+        f"{bar:.3f} bar, {valves}"
+    )
+
+
+def _identify(args: argparse.Namespace) -> int:
+    """``ankle device --identify FILE``: identify the unit, save, and exit."""
+    from device.calibration import IdentificationError
+    from device.hardware import HardwareError, open_hardware
+    from device.identify import identify
+
+    # The plate must be empty: the simulation takes its patient off, a technician the foot.
+    patient = "absent" if args.hardware == "sim" else args.patient
+    try:
+        hardware = open_hardware(args.hardware, plant_config(args, patient), args.seed)
+    except HardwareError as exc:
+        print(f"error: {exc.args[-1]}", file=sys.stderr)
+        return 1
+    print("ankle device: identifying the unit; nobody may stand on the plate...", flush=True)
+    try:
+        calibration = identify(hardware)
+        calibration.save(args.identify)
+    except IdentificationError as exc:
+        print(f"error: identification failed: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"error: cannot save the calibration to {args.identify}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        hardware.close()
+    print(f"ankle device: {describe(calibration)}; saved to {args.identify}")
+    return 0
 
 
 def main(argv: Sequence[str] | None = None, prog: str = "device") -> int:

@@ -30,6 +30,7 @@ from typing import TextIO
 
 from device import commands
 from device import controller as ctl
+from device.calibration import Calibration
 from device.commands import (
     SEGMENT_DURATION_MAX,
     WATCHDOG_MS_MAX,
@@ -411,6 +412,8 @@ class DeviceService:
         caps |= msg.Capability.EVENT_REPLAY
         if simulated:
             caps |= msg.Capability.SIMULATED
+        if self.rig.config.calibration != Calibration():
+            caps |= msg.Capability.CALIBRATED
         return msg.DeviceHello(
             firmware=FIRMWARE,
             hardware="sim" if simulated else "board",

@@ -256,3 +256,49 @@ def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> Non
     r = ankle("sim", "step", "--fault", fault, "--json")
     data = json.loads(r.stdout)
     assert data["valid"] is False and data["trip"] == "LEG_SENSOR"
+
+
+def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
+    tmp_path: Path,
+) -> None:
+    """The maintenance step a technician runs (``--identify FILE``, plate empty), then the
+    service started with that file: its HELLO carries CALIBRATED, and without the file it
+    does not. A file no healthy unit could have made is refused in one line."""
+    import asyncio
+
+    from device.calibration import Calibration
+    from device.client import DeviceClient
+    from device.protocol.messages import Capability
+
+    path = tmp_path / "unit.json"
+    r = ankle("device", "--sim", "--identify", str(path), "--plant-draw", "4")
+    assert r.returncode == 0, r.stderr
+    assert "nobody may stand on the plate" in r.stdout and f"saved to {path}" in r.stdout
+    cal = Calibration.load(path)
+    assert cal.valves_identified and cal.identified_at
+    assert max(abs(z) for z in cal.leg_zero) > 50e-6  # draw 4's zeros, not the default's
+
+    async def capabilities(*args: str) -> tuple[Capability, list[str]]:
+        proc = ServiceProcess("--link", "tcp://127.0.0.1:0", "--plant-draw", "4", *args)
+        try:
+            client = await DeviceClient.connect(proc.link, timeout=10.0)
+            try:
+                assert client.hello is not None
+                return client.hello.capabilities, list(proc.output)
+            finally:
+                await client.close()
+        finally:
+            proc.stop()
+
+    caps, output = asyncio.run(capabilities("--calibration", str(path)))
+    assert caps & Capability.CALIBRATED, caps
+    assert any("calibration of " in line and "valves identified" in line for line in output)
+    caps, output = asyncio.run(capabilities())
+    assert not caps & Capability.CALIBRATED, caps
+    assert any("uncalibrated" in line for line in output)
+
+    bad = tmp_path / "bent.json"
+    bad.write_text(path.read_text().replace(str(cal.leg_zero[0]), "0.01", 1))
+    r = ankle("device", "--sim", "--calibration", str(bad), "--link", "tcp://127.0.0.1:0")
+    assert r.returncode == 1 and "leg 1 sensor reads +10.00 mm" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -68,6 +68,10 @@ class Capability(IntFlag):
     IMPEDANCE = 4
     RELEASE = 8
     EVENT_REPLAY = 16
+    CALIBRATED = 32
+    """The controller subtracts this unit's identified zeros from its readings
+    (``ankle device --calibration FILE``, made by ``ankle device --identify FILE``); without
+    it a leg sensor's zero error (up to 1 mm on a build) is a steady error of the platform."""
 
 
 class EventKind(IntEnum):
