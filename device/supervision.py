@@ -95,9 +95,15 @@ C_OBS = 71  # 12: control periods a chamber's air has been observed since motion
 C_FOLLOW = 83
 """Pose periods in a row the platform was further from its commanded pose than allowed."""
 C_FOLLOW_ARMED = 84
-"""1 once the platform has been within the following bound since task motion (re)started:
-a segment resumed after a hold starts wherever the foot left the platform, and the loop
-first brings it back to its command."""
+"""Pose periods in a row the platform has been within the following bound since motion
+(re)started; the check is armed at FOLLOW_ARM_PERIODS. A segment resumed after a hold
+starts wherever the foot left the platform, and the loop first brings it back to its
+command; a leg stepping to a new target slows as it arrives (drawn build 34's 10 mm step
+came within 1.8 mm at 60 ms, then crept at 2.1 mm for 8 ms before it settled: armed at
+its first period within the bound, that tripped a healthy step)."""
+FOLLOW_ARM_PERIODS = 10
+"""40 ms within the bound before the check counts: the arrival above is over by then, and a
+fault that strikes a platform already on command is judged at once."""
 C_SERVICE = 57
 """Chamber + 1 whose air did not add up (0: none): the device needs service. Not a trip:
 closing every valve would let a leaking chamber, or one whose intake is stuck open, move
@@ -896,11 +902,13 @@ def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
 
 @njit_inline
 def _follow(counters: NDArray[np.int64], worst: int, q: SupervisionParams) -> int:
+    """``worst``: the axis (or leg) furthest past its bound, -1 if none."""
     if worst < 0:
-        counters[C_FOLLOW_ARMED] = 1
+        counters[C_FOLLOW_ARMED] = min(counters[C_FOLLOW_ARMED] + 1, FOLLOW_ARM_PERIODS)
         counters[C_FOLLOW] = 0
         return -1
-    if counters[C_FOLLOW_ARMED] == 0:
+    if counters[C_FOLLOW_ARMED] < FOLLOW_ARM_PERIODS:
+        counters[C_FOLLOW_ARMED] = 0
         return -1
     # A chamber whose air does not add up is what pushes (a valve stuck open, a leak): the
     # air checks name it and the loop keeps holding against it (see C_SERVICE). Closing
@@ -948,7 +956,7 @@ def check_following(
     # How far the rotation lags, or may lag where its commanded rate changes: the legs that
     # turn the plate about the ankle drag it sideways by that much times the lever.
     sway = q.following_lever * (math.sqrt(tilt) + q.following_lag * swerve)
-    worst, share = -1, 1.0
+    worst, share = -1, 0.0
     for k in range(6):
         if compliant[k] > 0.5:
             continue
@@ -958,7 +966,9 @@ def check_following(
             bound += sway
         v = abs(pose[k] - command[k]) / bound
         if v > share:
-            worst, share = k, v
+            share = v
+            if v > 1.0:
+                worst = k
     return _follow(counters, worst, q)
 
 
@@ -972,11 +982,13 @@ def check_leg_following(
     """Joint mode (homing, legs held at targets): the leg (0..5) that stayed further from
     its target than the translational bound, -1 while all is well; armed as above. A leg
     error of that size moves the ankle by about as much."""
-    worst, share = -1, 1.0
+    worst, share = -1, 0.0
     for i in range(6):
         v = abs(x[i] - target[i]) / q.following_translation
         if v > share:
-            worst, share = i, v
+            share = v
+            if v > 1.0:
+                worst = i
     return _follow(counters, worst, q)
 
 

@@ -434,14 +434,15 @@ def test_a_sideways_force_sensor_offset_is_stopped_by_the_following_check(scenar
     """30 N on Fx or Fy, under the jump rule and the wrench cross-check: the load
     compensation pushes a held axis with it, and the platform leaves its commanded pose.
     Before the following check it walked 7.5-8.9 mm in 0.5 s, undetected mid-exercise and
-    on. Now caught in 46-86 ms at 3.5-7.5 mm: the false Fx also reads as a pitch torque (the
-    sensor sits below the ankle), which turns the compliant pitch as a patient's would and
-    so widens the sideways bound (``SupervisionConfig.following_turn``)."""
+    on. Now caught in 46-114 ms at 3.5-7.6 mm: the false Fx also reads as a pitch torque
+    (the sensor sits below the ankle), which turns the compliant pitch as a patient's would
+    and so widens the sideways bound (``SupervisionConfig.following_turn``); the more so
+    since the law renders the loop's lag out of the damping (86 ms before)."""
     for channel in (0, 1):
         run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=channel)
         assert run.detected and run.trip == Trip.FOLLOWING.name, run
         assert run.channel == channel, run  # the axis the false force pushed: x or y
-        assert run.detect_ms <= 100.0 and run.excursion_mm <= 8.0, run
+        assert run.detect_ms <= 130.0 and run.excursion_mm <= 8.0, run
 
 
 @pytest.mark.xfail(
@@ -458,10 +459,11 @@ def test_a_sideways_force_sensor_offset_moves_the_platform_at_most_3_mm() -> Non
 
 
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:
-    """The rule by itself: nothing counts until the platform has been within the bound once
-    (a resumed segment starts wherever the hold left it); then two pose periods past it
-    trip, naming the axis; a chamber whose air does not add up holds the trip back (the
-    loop, not closed valves, must hold a stuck-open valve)."""
+    """The rule by itself: nothing counts until the platform has been within the bound for
+    FOLLOW_ARM_PERIODS (a resumed segment starts wherever the hold left it, a stepping leg
+    slows as it arrives); then two pose periods past it trip, naming the axis; a chamber
+    whose air does not add up holds the trip back (the loop, not closed valves, must hold a
+    stuck-open valve)."""
     import numpy as np
 
     from device import supervision
@@ -473,42 +475,47 @@ def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the
     command, rate, held = np.zeros(6), np.zeros(6), np.zeros(6)
     off = np.zeros(6)
     off[1] = 1.5 * q.following_translation
-    assert (
-        supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
-    )  # not armed
-    assert supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
-    assert (
-        supervision.check_following(monitor, counters, command, command, rate, held, q) == -1
-    )  # arms
-    assert (
-        supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
-    )  # one period
-    assert supervision.check_following(monitor, counters, off, command, rate, held, q) == 1  # y
+
+    def check(pose: np.ndarray) -> int:
+        return int(supervision.check_following(monitor, counters, pose, command, rate, held, q))
+
+    def arm() -> None:
+        supervision.disarm_following(counters)
+        for _ in range(supervision.FOLLOW_ARM_PERIODS):
+            assert check(command) == -1
+
+    for _ in range(5):
+        assert check(off) == -1  # not armed
+    for _ in range(supervision.FOLLOW_ARM_PERIODS - 1):
+        assert check(command) == -1
+    assert check(off) == -1 and check(off) == -1  # one period short of armed: starts again
+    arm()
+    assert check(off) == -1  # one period
+    assert check(off) == 1  # y
     # A commanded speed widens the bound by the loop's lag: the same error is no fault.
-    supervision.disarm_following(counters)
     rate[1] = q.following_translation / q.following_lag
+    arm()
     for _ in range(2 + q.following_periods):
-        assert supervision.check_following(monitor, counters, command, command, rate, held, q) == -1
-        assert supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
+        assert check(off) == -1
     rate[1] = 0.0
     monitor[:] = 0.0  # the command's speed, remembered as it decays, forgotten here
+    arm()
     counters[supervision.C_OBS_OVER + 5] = 1
     for _ in range(2 + q.following_periods):
-        assert supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
+        assert check(off) == -1
     counters[supervision.C_OBS_OVER + 5] = 0
-    assert supervision.check_following(monitor, counters, off, command, rate, held, q) == -1
-    assert supervision.check_following(monitor, counters, off, command, rate, held, q) == 1
+    assert check(off) == -1
+    assert check(off) == 1
     # An axis that renders an impedance is the foot's to move: not judged.
-    supervision.disarm_following(counters)
     tilted = np.zeros(6)
     tilted[4] = 3.0 * q.following_rotation
     held[4] = 1.0
-    assert supervision.check_following(monitor, counters, command, command, rate, held, q) == -1
+    arm()
     for _ in range(2 + q.following_periods):
-        assert supervision.check_following(monitor, counters, tilted, command, rate, held, q) == -1
+        assert check(tilted) == -1
     held[4] = 0.0
-    assert supervision.check_following(monitor, counters, tilted, command, rate, held, q) == -1
-    assert supervision.check_following(monitor, counters, tilted, command, rate, held, q) == 4
+    assert check(tilted) == -1
+    assert check(tilted) == 4
     assert trips.where(Trip.FOLLOWING, 1) == "y"
     assert trips.where(Trip.FOLLOWING, 6 + 2) == "leg 3"
 
