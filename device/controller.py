@@ -631,9 +631,12 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
 
 @njit_inline
 def ask_service(s: ControllerState, c: int) -> None:
-    """Chamber ``c``'s air did not add up: the first such chamber is the one reported."""
+    """Chamber ``c``'s air did not add up: the first such chamber is the one reported. A
+    second leg's as well is the supply failing unseen (``supervision.supply_by_air``)."""
     if s.counters[supervision.C_SERVICE] == 0:
         s.counters[supervision.C_SERVICE] = c + 1
+    if supervision.supply_by_air(s.counters, c):
+        trip(s, Trip.SUPPLY_LOSS, supervision.SUPPLY_BY_AIR)
 
 
 @njit_inline
@@ -730,6 +733,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.valve_gain, p.valve_extra,
         ):  # fmt: skip
             ask_service(s, c)
+    if not moving(s):
+        return  # the supply, by the air of two legs: tripped
     dose_lo = dose_up = 0
     if rests:
         quiet.learn(s.rest, s.dose, leg, s.pressure, p.quiet, pwm.PWM_SLOTS)
@@ -772,6 +777,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
         ):
             ask_service(s, c)
+        if not moving(s):
+            return
 
 
 @njit

@@ -280,6 +280,7 @@ class Rig:
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
         s.counters[supervision.C_SERVICE] = 0
+        s.counters[supervision.C_SERVICE_LEGS] = 0
         s.istate[ctl.I_MODE] = Mode.IDLE
         s.integral[:] = 0.0
         s.slots[:] = 0

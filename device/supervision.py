@@ -109,7 +109,12 @@ C_SERVICE = 57
 closing every valve would let a leaking chamber, or one whose intake is stuck open, move
 its leg with nothing to stop it, while the loop holds it. So the running segment finishes
 under control and nothing new starts until a technician re-arms (device.modes)."""
-N_COUNTERS = 85
+C_SERVICE_LEGS = 85
+"""Bits of the legs (1 << leg) a chamber of which did not add up since the last re-arm."""
+N_COUNTERS = 86
+SUPPLY_BY_AIR = 13
+"""The channel of a SUPPLY_LOSS trip that the chambers' air found, not the supply
+transducer (see :func:`supply_by_air`)."""
 
 
 @dataclass(frozen=True)
@@ -990,6 +995,22 @@ def check_leg_following(
             if v > 1.0:
                 worst = i
     return _follow(counters, worst, q)
+
+
+@njit_inline
+def supply_by_air(counters: NDArray[np.int64], chamber: int) -> bool:
+    """Chamber ``chamber``'s air did not add up: True once chambers of two legs or more have
+    not. Each leg has its own valves, tubes and seals, and one fault of them shows in its
+    own leg's chambers; what the legs share is the supply. A supply that fails while its
+    transducer is frozen (or lies) reads as a healthy one, and the chambers' air is then
+    the only witness: measured, the air observer flagged a second leg 41-49 ms after the
+    supply was lost mid-exercise (197 ms holding), and nothing else tripped. No healthy run
+    flagged even one chamber (README, safety benchmark)."""
+    counters[C_SERVICE_LEGS] |= 1 << (chamber // 2)
+    legs = 0
+    for leg in range(6):
+        legs += (counters[C_SERVICE_LEGS] >> leg) & 1
+    return bool(legs >= 2)
 
 
 @njit

@@ -114,6 +114,8 @@ def where(trip: int, channel: int) -> str:
         return f"leg {channel + 1}"
     if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
         return _WRENCH_PARTS[channel]
+    if trip == Trip.SUPPLY_LOSS and channel == 13:  # device.supervision.SUPPLY_BY_AIR
+        return "the air of two legs or more (the supply transducer did not see it: check it too)"
     if trip == Trip.FOLLOWING:
         if channel < len(AXES):
             return AXES[channel]

@@ -528,3 +528,26 @@ def test_a_fast_sine_the_device_accepts_does_not_trip_the_following_check() -> N
 
     result = experiments.sine("pitch", 2.0, 8.0)
     assert not result.health.tripped, result.health
+
+
+@pytest.mark.parametrize("scenario", ["exercise", "pushing"])
+def test_a_supply_lost_behind_a_frozen_supply_transducer_is_found_by_the_legs_air(
+    scenario: str,
+) -> None:
+    """A frozen supply transducer alone reads like a healthy supply and is harmless; if the
+    supply then fails, the transducer cannot say so. The chambers' air of two legs can: a
+    SUPPLY_LOSS trip on the channel that says the air found it, within 100 ms."""
+    from device.plant.faults import Fault
+
+    rig, _, _, _ = safety._run(None, scenario, seed=1)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    t0 = float(hw.state.time[0])
+    hw.inject(Fault(FaultKind.PRESSURE_STUCK, t0, 12, 0.0, math.inf))
+    rig.run(0.5, log_hz=0)
+    unseen = (rig.trip, rig.service_chamber)
+    assert unseen == (Trip.NONE, -1), unseen  # frozen alone: nothing to see
+    hw.inject(Fault(FaultKind.SUPPLY_LOSS, float(hw.state.time[0]), -1, 0.0, math.inf))
+    rig.run(0.1, log_hz=0)
+    assert rig.trip == Trip.SUPPLY_LOSS, (rig.trip, rig.service_chamber)
+    assert "two legs" in trips.where(rig.trip, rig.trip_channel)
