@@ -15,6 +15,11 @@ depends on where the platform goes. With a small B (or B = 0) the admittance's b
 coupled loop oscillates or trips (see ``lab_envelope.py`` and ``findings.md``). The device
 therefore adds a virtual inertia J per axis (``inertial_compliance_step``):
 ``J ddX_m + B dX_m + K X_m = F``, which rolls the admittance off at high frequency.
+
+The platform follows ``X_c`` some milliseconds late, and a foot feels that lag as ``K`` times
+it of extra damping. The controller learns the lag per compliant axis
+(``device.controller.learn_lag``) and runs this law with ``B - K lag`` instead of ``B``,
+never below the stable envelope's least damping, so that the foot feels the B it was given.
 """
 
 from __future__ import annotations
