@@ -906,6 +906,16 @@ def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
 
 
 @njit_inline
+def _past(ratio: NDArray[np.float64]) -> int:
+    """The index of the largest error past its bound (``ratio``: error / bound), -1 if none."""
+    worst, share = -1, 1.0
+    for k in range(len(ratio)):
+        if ratio[k] > share:
+            worst, share = k, ratio[k]
+    return worst
+
+
+@njit_inline
 def _follow(counters: NDArray[np.int64], worst: int, q: SupervisionParams) -> int:
     """``worst``: the axis (or leg) furthest past its bound, -1 if none."""
     if worst < 0:
@@ -961,7 +971,7 @@ def check_following(
     # How far the rotation lags, or may lag where its commanded rate changes: the legs that
     # turn the plate about the ankle drag it sideways by that much times the lever.
     sway = q.following_lever * (math.sqrt(tilt) + q.following_lag * swerve)
-    worst, share = -1, 0.0
+    ratio = np.zeros(6)
     for k in range(6):
         if compliant[k] > 0.5:
             continue
@@ -969,12 +979,8 @@ def check_following(
         bound += q.following_lag * monitor[M_FOLLOW_SPEED + k]
         if k < 3:
             bound += sway
-        v = abs(pose[k] - command[k]) / bound
-        if v > share:
-            share = v
-            if v > 1.0:
-                worst = k
-    return _follow(counters, worst, q)
+        ratio[k] = abs(pose[k] - command[k]) / bound
+    return _follow(counters, _past(ratio), q)
 
 
 @njit_inline
@@ -987,14 +993,7 @@ def check_leg_following(
     """Joint mode (homing, legs held at targets): the leg (0..5) that stayed further from
     its target than the translational bound, -1 while all is well; armed as above. A leg
     error of that size moves the ankle by about as much."""
-    worst, share = -1, 0.0
-    for i in range(6):
-        v = abs(x[i] - target[i]) / q.following_translation
-        if v > share:
-            share = v
-            if v > 1.0:
-                worst = i
-    return _follow(counters, worst, q)
+    return _follow(counters, _past(np.abs(x - target) / q.following_translation), q)
 
 
 @njit_inline
