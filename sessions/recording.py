@@ -97,6 +97,11 @@ class DeviceInfo(BaseModel):
     hardware: str
     telemetry_hz: int
     home_pose: list[float] = Field(description="m, rad")
+    calibrated: bool = Field(
+        default=False,
+        description="The device subtracted its unit's identified sensor zeros (its HELLO "
+        "said CALIBRATED). False also in sessions recorded before this was kept.",
+    )
 
 
 class Header(BaseModel):

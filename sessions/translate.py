@@ -32,6 +32,7 @@ def device_info(hello: msg.DeviceHello) -> DeviceInfo:
         hardware=hello.hardware,
         telemetry_hz=hello.telemetry_hz,
         home_pose=list(hello.home_pose),
+        calibrated=bool(hello.capabilities & msg.Capability.CALIBRATED),
     )
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from device.client import CommandRefused, DeviceClient, DeviceError
-from device.protocol.messages import DeviceMode
+from device.protocol.messages import Capability, DeviceMode
 from sessions import wire
 from sessions.home_progress import HomeProgress
 from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
@@ -125,6 +125,14 @@ class Station:
             log.info(
                 "device %s (%s) on %s", dev.hello.firmware, dev.hello.hardware, self.config.device
             )
+            if not dev.hello.capabilities & Capability.CALIBRATED:
+                # Sessions record it too (DeviceInfo.calibrated): their ranges carry the
+                # sensors' zero errors, up to a millimetre of leg on a real build.
+                log.warning(
+                    "device on %s runs uncalibrated: start it with --calibration "
+                    "(made once by `ankle device --identify FILE`, plate empty)",
+                    self.config.device,
+                )
             self.link.send(self._hello())
             self._status_dirty.set()
             try:

@@ -43,3 +43,6 @@ def test_the_device_a_session_ran_on() -> None:
     info = device_info(hello)
     assert (info.firmware, info.hardware, info.telemetry_hz) == ("fw 1", "sim", 100)
     assert len(info.home_pose) == 6
+    assert not info.calibrated
+    calibrated = replace(hello, capabilities=m.Capability.SIMULATED | m.Capability.CALIBRATED)
+    assert device_info(calibrated).calibrated
