@@ -87,6 +87,34 @@ def test_the_controller_never_renders_a_pair_outside_on_the_way() -> None:
     assert rig.state.damping[4] == pytest.approx(0.2)
 
 
+def test_the_law_takes_the_learnt_lag_out_of_b_but_never_goes_below_the_envelope() -> None:
+    """While a foot moves the plate the law learns the loop's lag and renders B - K lag (so
+    that the foot feels B); at the envelope's edge there is nothing to take out, and the
+    law's B (the one its step map was made for) stays at the published least."""
+    from device.controller import L_TAU
+    from device.plant.model import SCRIPT_SINE
+
+    for k, b in ((50.0, 1.0), (50.0, float(LIMITS.damping_min_at(4, 50.0)))):
+        rig = Rig(SimulatedHardware(PlantConfig(patient="relaxed")))
+        rig.move_legs(np.full(6, 0.05))
+        rig.run(0.3, log_hz=0)
+        K, B = np.zeros(6), np.zeros(6)
+        K[4], B[4] = k, b
+        rig.set_impedance(K, B, [i == 4 for i in range(6)])
+        rig.track({})
+        hw = rig.hardware
+        assert isinstance(hw, SimulatedHardware)
+        hw.script_torque(4, SCRIPT_SINE, rig.time, 5.0, 1.0)
+        least = LIMITS.damping_min_at(4, k)
+        for _ in range(100):
+            rig.run(0.03, log_hz=0)
+            assert rig.state.impedance_map[4, 2] >= least - 1e-9
+        lag = float(rig.state.lag[4, L_TAU])
+        assert 0.004 <= lag <= 0.03, lag  # the nominal unit's loop: about 11 ms
+        law = float(rig.state.impedance_map[4, 2])
+        assert law == pytest.approx(max(b - k * lag, least), rel=0.02, abs=1e-6), (law, lag)
+
+
 def test_the_prescription_refuses_a_compliant_axis_below_the_envelope() -> None:
     body = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump()
     body["axes"][0] |= {"stiffness": 2.0, "damping": 0.3}
