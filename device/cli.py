@@ -13,9 +13,12 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from device.plant.params import HARDWARE_KINDS, PATIENTS
+
+if TYPE_CHECKING:
+    from device.calibration import Calibration
 
 USAGE_ERROR = 2
 
@@ -269,7 +272,7 @@ def _device(args: argparse.Namespace) -> int:
     return serve(service, args.seconds)
 
 
-def describe(calibration: Any) -> str:
+def describe(calibration: Calibration) -> str:
     """One line for the technician: when the unit was identified and its largest zeros."""
     legs = max(abs(z) for z in calibration.leg_zero) * 1e3
     bar = max(abs(z) for z in calibration.pressure_zero) / 1e5

@@ -59,6 +59,7 @@ from device.plant.params import PARAMETERS, TICK_HZ, nominal_dead_volume
 from device.safety import SafetyLimits, Trip
 from device.scheduler import Schedule, Task, schedule
 from device.supervision import SupervisionConfig, SupervisionParams
+from device.trips import SUPPLY_BY_AIR
 from device.waveforms import Waveform as Waveform  # re-exported: older callers import it here
 
 # Task ids: indices into the task list handed to the scheduler.
@@ -636,7 +637,7 @@ def ask_service(s: ControllerState, c: int) -> None:
     if s.counters[supervision.C_SERVICE] == 0:
         s.counters[supervision.C_SERVICE] = c + 1
     if supervision.supply_by_air(s.counters, c):
-        trip(s, Trip.SUPPLY_LOSS, supervision.SUPPLY_BY_AIR)
+        trip(s, Trip.SUPPLY_LOSS, SUPPLY_BY_AIR)
 
 
 @njit_inline

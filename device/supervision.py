@@ -112,9 +112,6 @@ under control and nothing new starts until a technician re-arms (device.modes)."
 C_SERVICE_LEGS = 85
 """Bits of the legs (1 << leg) a chamber of which did not add up since the last re-arm."""
 N_COUNTERS = 86
-SUPPLY_BY_AIR = 13
-"""The channel of a SUPPLY_LOSS trip that the chambers' air found, not the supply
-transducer (see :func:`supply_by_air`)."""
 
 
 @dataclass(frozen=True)
@@ -948,13 +945,13 @@ def check_following(
     q: SupervisionParams,
 ) -> int:
     """Task mode: the axis (0..5) whose following error stayed past its bound, -1 while all
-    is well. Counts only once armed: after the platform was within every bound since task
-    motion (re)started. The speed allowance decays with the loop's lag once the command
-    stops (a ramp's end), as the platform's own lag does. An axis that renders an
-    impedance (``compliant`` > 0.5) is not judged: the foot's measured torque moves its
-    command, a false torque included, and a hard push on a light virtual inertia runs the
-    command ahead of any loop (2 N m for 0.1 s on roll at K 5, 11.8 deg); its lag still
-    widens the translational bound."""
+    is well. Counts only once armed: after the platform has been within every bound for
+    FOLLOW_ARM_PERIODS since motion (re)started. The speed allowance decays with the loop's
+    lag once the command stops (a ramp's end), as the platform's own lag does. An axis that
+    renders an impedance (``compliant`` > 0.5) is not judged: the foot's measured torque
+    moves its command, a false torque included, and a hard push on a light virtual inertia
+    runs the command ahead of any loop (2 N m for 0.1 s on roll at K 5, 11.8 deg); its lag
+    still widens the translational bound."""
     tilt = swerve = 0.0
     for k in range(6):
         speed = max(abs(command_rate[k]), q.following_decay * monitor[M_FOLLOW_SPEED + k])
@@ -1003,18 +1000,16 @@ def supply_by_air(counters: NDArray[np.int64], chamber: int) -> bool:
     own leg's chambers; what the legs share is the supply. A supply that fails while its
     transducer is frozen (or lies) reads as a healthy one, and the chambers' air is then
     the only witness: measured, the air observer flagged a second leg 41-49 ms after the
-    supply was lost mid-exercise (197 ms holding), and nothing else tripped. No healthy run
-    flagged even one chamber (README, safety benchmark)."""
-    counters[C_SERVICE_LEGS] |= 1 << (chamber // 2)
-    legs = 0
-    for leg in range(6):
-        legs += (counters[C_SERVICE_LEGS] >> leg) & 1
-    return bool(legs >= 2)
+    supply was lost mid-exercise (205 ms holding), where nothing had tripped before. No
+    healthy run flagged even one chamber (README, safety benchmark)."""
+    legs = counters[C_SERVICE_LEGS] | (1 << (chamber // 2))
+    counters[C_SERVICE_LEGS] = legs
+    return bool(legs & (legs - 1))  # more than one bit
 
 
 @njit
 def disarm_following(counters: NDArray[np.int64]) -> None:
-    """Task motion (re)starts: the following check waits until the platform is on command."""
+    """Motion (re)starts: the following check waits until the platform is on command."""
     counters[C_FOLLOW] = 0
     counters[C_FOLLOW_ARMED] = 0
 

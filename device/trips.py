@@ -59,6 +59,11 @@ class Trip(IntEnum):
     mode; the channel names the axis, 0-5) or a leg from its target (joint mode; 6 + leg)."""
 
 
+SUPPLY_BY_AIR = 13
+"""The channel of a SUPPLY_LOSS trip that the chambers' air found, not the supply transducer
+(device.supervision.supply_by_air); the transducer's own trip names channel 12."""
+
+
 TRIP_TEXT: dict[Trip, str] = {
     Trip.NONE: "no fault",
     Trip.SENSOR_INVALID: "a sensor gave no number (NaN or infinity): check its wiring and ADC",
@@ -114,7 +119,7 @@ def where(trip: int, channel: int) -> str:
         return f"leg {channel + 1}"
     if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
         return _WRENCH_PARTS[channel]
-    if trip == Trip.SUPPLY_LOSS and channel == 13:  # device.supervision.SUPPLY_BY_AIR
+    if trip == Trip.SUPPLY_LOSS and channel == SUPPLY_BY_AIR:
         return "the air of two legs or more (the supply transducer did not see it: check it too)"
     if trip == Trip.FOLLOWING:
         if channel < len(AXES):
