@@ -221,6 +221,11 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _device(args: argparse.Namespace) -> int:
+    import faulthandler
+
+    # A crash (or SIGABRT from whoever waits on a hung start) prints every thread's stack to
+    # stderr: the journal on the embedded PC, the start error in a test.
+    faulthandler.enable()
     from device.calibration import Calibration, IdentificationError
     from device.controller import ControllerConfig
     from device.hardware import HardwareError, SimulatedHardware, open_hardware
@@ -262,7 +267,7 @@ def _device(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return USAGE_ERROR
     if args.hardware == "sim":
-        print("ankle device: preparing the simulated device (first start compiles ~20 s)...")
+        print("ankle device: preparing the simulated device (first start compiles for ~40 s)...")
     if args.calibration is not None:
         print(f"ankle device: {describe(calibration)} ({args.calibration})")
     else:

@@ -6,6 +6,7 @@ would on the embedded PC.
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import re
 import selectors
@@ -54,7 +55,8 @@ class ServiceProcess:
         assert self.proc.stdout is not None
         sel = selectors.DefaultSelector()
         sel.register(self.proc.stdout, selectors.EVENT_READ)
-        deadline = time.monotonic() + timeout
+        start = time.monotonic()
+        deadline = start + timeout
         try:
             while time.monotonic() < deadline:
                 if not sel.select(timeout=0.5):
@@ -62,7 +64,9 @@ class ServiceProcess:
                         break
                     continue
                 line = self.proc.stdout.readline()
-                if not line:
+                if not line:  # its output closed: it is exiting
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        self.proc.wait(5.0)
                     break
                 self.output.append(line.rstrip("\n"))
                 found = SERVING.search(line)
@@ -70,9 +74,23 @@ class ServiceProcess:
                     return found.group(1)
         finally:
             sel.close()
+        waited = time.monotonic() - start
+        if self.proc.poll() is None:
+            # Hung: its faulthandler prints every thread's stack on SIGABRT.
+            how = f"still not serving after {waited:.0f} s; its stack when stopped:"
+            self.proc.send_signal(signal.SIGABRT)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                rest, _ = self.proc.communicate(timeout=10.0)
+                self.output.extend(rest.splitlines())
+        elif self.proc.returncode < 0:
+            name = signal.Signals(-self.proc.returncode).name
+            oom = " (out of memory?)" if name == "SIGKILL" else ""
+            how = f"killed by {name}{oom} after {waited:.0f} s:"
+        else:
+            how = f"exited with code {self.proc.returncode} after {waited:.0f} s:"
         self.stop()
         raise ServiceStartError(
-            "the device service did not start:\n" + "\n".join(list(self.output)[-20:])
+            f"the device service did not start ({how})\n" + "\n".join(list(self.output)[-60:])
         )
 
     @property

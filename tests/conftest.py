@@ -1,6 +1,8 @@
 """Shared test settings, and the store fixtures every directory that serves the API uses
 (SQLite by default, PostgreSQL too for tests marked ``both_stores``)."""
 
+import subprocess
+import sys
 from collections.abc import Iterator
 
 import pytest
@@ -14,6 +16,29 @@ __all__ = ["pg_cluster", "pg_url", "seeded_store", "seeds", "store"]
 # Hypothesis keeps no example database in the tree; CI runs are reproducible from seeds.
 settings.register_profile("project", database=None, deadline=None)
 settings.load_profile("project")
+
+
+WARM_TIMEOUT_S = 1800.0
+"""A cold compile takes ~40 s on an idle core; a slow, shared CI machine several times that."""
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the device's loops once, before any worker starts (runs ahead of xdist's own
+    hook, which starts the workers). Cold, every worker and every device service a test
+    starts would compile the same code at the same time: on two busy cores that took one
+    service past its start deadline. Warm, each loads the cache in about a second."""
+    if hasattr(session.config, "workerinput"):  # a worker: the controller has warmed it
+        return
+    argv = [sys.executable, "-m", "device", "device", "--sim", "--link", "tcp://127.0.0.1:0"]
+    done = subprocess.run(
+        [*argv, "--seconds", "0"], capture_output=True, text=True, timeout=WARM_TIMEOUT_S
+    )
+    if done.returncode != 0:
+        raise pytest.UsageError(
+            f"the device service does not start (exit {done.returncode}):\n"
+            + done.stdout[-4000:]
+            + done.stderr[-4000:]
+        )
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
