@@ -63,6 +63,8 @@ def run_one_session(system: System) -> dict[str, Any]:
         "--spool",
         str(system.spool),
         "--autostart",
+        "--page-port",
+        "0",  # no patient's page: 8765 may be another station's (another test run's)
         env={"ANKLE_STATION_TOKEN": system.creds["station_token"]},
     )
     with therapist(system) as client:

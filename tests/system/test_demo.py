@@ -18,7 +18,7 @@ from websockets.typing import Origin
 
 from tests.system.harness import System, short_strength
 
-REPEAT_S = 4.0
+REPEAT_S = 2.5
 """The test's repeat: short, so that waiting three times as long is still quick."""
 QUIET_S = 3 * REPEAT_S
 MOVING = ("homing", "running", "rest", "paused")
