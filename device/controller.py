@@ -553,48 +553,67 @@ def trip(s: ControllerState, code: int, channel: int = -1) -> None:
         s.valves[v] = 0
 
 
+# The helpers run every tick take the arrays they use, not the state tuples: numba
+# increments and decrements the reference count of every array of a tuple passed to a
+# function, inlined or not (about 50 atomic operations for a state and its parameters),
+# and per tick that cost more than the whole plant.
+
+
 @njit_inline
-def moving(s: ControllerState) -> bool:
-    m = int(s.istate[I_MODE])
+def moving(istate: NDArray[np.int64]) -> bool:
+    m = int(istate[I_MODE])
     return m == Mode.JOINT or m == Mode.TASK
 
 
 @njit_inline
-def venting(s: ControllerState) -> bool:
+def venting(istate: NDArray[np.int64]) -> bool:
     """Whether this tick releases: the vent flag set while IDLE or FAULT."""
-    return s.istate[I_VENT] == 1 and not moving(s)
+    return istate[I_VENT] == 1 and not moving(istate)
 
 
 @njit_inline
-def vent_valves(s: ControllerState, p: ControllerParams) -> None:
-    """Release pattern: every exhaust open for the first ``vent_pulse_slots`` slots of its
-    leg's PWM period, one period in ``vent_every_periods``; every intake closed."""
-    tick = s.istate[I_TICK]
+def vent_valves(
+    istate: NDArray[np.int64],
+    valves: NDArray[np.uint8],
+    pwm_phase: NDArray[np.int64],
+    pulse_slots: int,
+    every_periods: int,
+) -> None:
+    """Release pattern: every exhaust open for the first ``pulse_slots`` slots of its leg's
+    PWM period, one period in ``every_periods``; every intake closed."""
+    tick = istate[I_TICK]
     for leg in range(6):
-        since = tick - p.pwm_phase[leg]
+        since = tick - pwm_phase[leg]
         slot = since % pwm.PWM_SLOTS
         period = since // pwm.PWM_SLOTS
-        exhaust = 1 if slot < p.vent_pulse_slots and period % p.vent_every_periods == 0 else 0
+        exhaust = 1 if slot < pulse_slots and period % every_periods == 0 else 0
         for side in range(2):
             c = 2 * leg + side
-            s.valves[2 * c] = 0
-            s.valves[2 * c + 1] = exhaust
+            valves[2 * c] = 0
+            valves[2 * c + 1] = exhaust
 
 
 @njit_inline
-def duty_update(s: ControllerState, p: ControllerParams) -> None:
-    if venting(s):
-        vent_valves(s, p)
+def duty_update(
+    istate: NDArray[np.int64],
+    slots: NDArray[np.int64],
+    valves: NDArray[np.uint8],
+    pwm_phase: NDArray[np.int64],
+    pulse_slots: int,
+    every_periods: int,
+) -> None:
+    if venting(istate):
+        vent_valves(istate, valves, pwm_phase, pulse_slots, every_periods)
         return
-    tick = s.istate[I_TICK]
-    go = moving(s)
+    tick = istate[I_TICK]
+    go = moving(istate)
     for leg in range(6):
-        slot = (tick - p.pwm_phase[leg]) % pwm.PWM_SLOTS
+        slot = (tick - pwm_phase[leg]) % pwm.PWM_SLOTS
         for side in range(2):
             c = 2 * leg + side
-            intake, exhaust = pwm.valve_states(s.slots[c] if go else 0, slot)
-            s.valves[2 * c] = intake
-            s.valves[2 * c + 1] = exhaust
+            intake, exhaust = pwm.valve_states(slots[c] if go else 0, slot)
+            valves[2 * c] = intake
+            valves[2 * c + 1] = exhaust
 
 
 @njit_inline
@@ -605,7 +624,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         return
     # Sensor faults are judged on the raw readings (the leg targets move into their frame).
     fault, channel = supervision.check_reading(
-        s.monitor, s.counters, sensors, p.sup, moving(s), s.leg_target, p.sensor_zero
+        s.monitor, s.counters, sensors, p.sup, moving(s.istate), s.leg_target, p.sensor_zero
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)
@@ -613,7 +632,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
     for k in range(25):
         s.sensors[k] = sensors[k] - p.sensor_zero[k]
     code = safety.check_sensors(s.sensors, p.stroke, p.limits)
-    if code != Trip.NONE and moving(s):
+    if code != Trip.NONE and moving(s.istate):
         trip(s, code)
         return
     for c in range(12):
@@ -624,7 +643,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         rate = 0.0 if first else (x - s.leg_x[i]) / p.dt_sensor
         s.leg_rate[i] += p.leg_alpha * (rate - s.leg_rate[i])
         s.leg_x[i] = x
-    if moving(s):
+    if moving(s.istate):
         code = safety.check_leg_speed(s.leg_rate, p.limits)
         if code != Trip.NONE:
             trip(s, code)
@@ -643,7 +662,7 @@ def ask_service(s: ControllerState, c: int) -> None:
 @njit_inline
 def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     lo, up = 2 * leg, 2 * leg + 1
-    if not moving(s):
+    if not moving(s.istate):
         s.slots[lo] = 0
         s.slots[up] = 0
         s.integral[lo] = 0.0
@@ -734,7 +753,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.valve_gain, p.valve_extra,
         ):  # fmt: skip
             ask_service(s, c)
-    if not moving(s):
+    if not moving(s.istate):
         return  # the supply, by the air of two legs: tripped
     dose_lo = dose_up = 0
     if rests:
@@ -778,7 +797,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
         ):
             ask_service(s, c)
-        if not moving(s):
+        if not moving(s.istate):
             return
 
 
@@ -875,7 +894,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     n = forward_kinematics(lengths, p.base, p.plat, s.pose, FK_MAX_ITERATIONS, FK_TOLERANCE)
     if n < 0:
         s.istate[I_FK_FAIL] += 1
-        if moving(s):
+        if moving(s.istate):
             trip(s, Trip.KINEMATICS)
         return
     for k in range(6):
@@ -1008,7 +1027,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # judge, and the check waits for the platform to be back on command.
             supervision.disarm_following(s.counters)
 
-    if moving(s):
+    if moving(s.istate):
         rel = s.pose.copy()
         for k in range(6):
             rel[k] -= p.home_pose[k]
@@ -1037,7 +1056,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     if leg_forces_for_wrench(J, W, f):
         for i in range(6):
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
-        if moving(s) and p.load_compensation:
+        if moving(s.istate) and p.load_compensation:
             # Each leg's measured pneumatic force against the force that holds the load.
             residuals = np.empty(6)
             leg = -1
@@ -1072,7 +1091,9 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         if task < 0:
             break
         if task == TASK_DUTY:
-            duty_update(s, p)
+            duty_update(
+                s.istate, s.slots, s.valves, p.pwm_phase, p.vent_pulse_slots, p.vent_every_periods
+            )
         elif task == TASK_SENSORS:
             sensor_task(s, p, sensors)
         elif task == TASK_POSE:
@@ -1080,10 +1101,10 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         else:
             cylinder_task(s, p, task - TASK_CYLINDER0)
     if s.istate[I_MODE] == Mode.FAULT or s.istate[I_MODE] == Mode.IDLE:
-        if venting(s):
+        if venting(s.istate):
             # Also after a trip earlier in this tick (which closed everything): exactly the
             # exhaust pulses, never an intake.
-            vent_valves(s, p)
+            vent_valves(s.istate, s.valves, p.pwm_phase, p.vent_pulse_slots, p.vent_every_periods)
         else:
             for v in range(24):
                 s.valves[v] = 0
@@ -1091,9 +1112,9 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
 
 
 @njit_inline
-def sensors_due(s: ControllerState, p: ControllerParams) -> bool:
+def sensors_due(istate: NDArray[np.int64], schedule: NDArray[np.int64]) -> bool:
     """Whether the coming tick reads the sensors (the loop samples the hardware first)."""
-    row = p.schedule[s.istate[I_TICK] % p.schedule.shape[0]]
+    row = schedule[istate[I_TICK] % schedule.shape[0]]
     for j in range(row.shape[0]):
         if row[j] == TASK_SENSORS:
             return True

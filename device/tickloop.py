@@ -85,7 +85,7 @@ def run_sim(
     sensors = np.zeros(N_SENSORS)
     rows = 0
     for n in range(n_ticks):
-        if ctl.sensors_due(cs, cp):
+        if ctl.sensors_due(cs.istate, cp.schedule):
             model.read_sensors(ps, pp, sensors)
         ctl.controller_tick(cs, cp, sensors)
         model.write_valves(ps, pp, cs.valves)
@@ -102,7 +102,7 @@ def run_hardware(
     """The same loop for any hardware, in Python (one tick per call of each method)."""
     sensors = np.zeros(N_SENSORS)
     for _ in range(n_ticks):
-        if ctl.sensors_due(cs, cp):
+        if ctl.sensors_due(cs.istate, cp.schedule):
             hw.read_sensors(sensors)
         ctl.controller_tick(cs, cp, sensors)
         hw.write_valves(cs.valves)
