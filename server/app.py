@@ -6,6 +6,7 @@ in the lifespan, so two apps with different settings (tests, the demo) never sha
 
 from __future__ import annotations
 
+import gc
 import re
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -41,6 +42,29 @@ N·m·s/rad, times seconds, timestamps UTC.
 """
 
 
+GC_YOUNG_THRESHOLD = 20_000
+"""Allocations between two collections of the youngest generation (CPython's default is
+700). Every third-or-so of these promotions used to end in a full collection."""
+
+
+def settle_garbage_collector() -> None:
+    """Once the server has started: collect, then freeze what is left (modules, routes, the
+    ORM's tables, the hub) into the permanent generation, which no collection walks again,
+    and collect the young generation less often (:data:`GC_YOUNG_THRESHOLD`).
+
+    Measured with ``ankle bench server --stations 150`` on one process (10 s windows): without
+    it, full collections that found 0-25 objects to free stopped the event loop for 95-145 ms,
+    1-3 times a window, and alone set telemetry p99 to 82-133 ms and K/B p99 to 146-174 ms
+    at 64-70 % of a core. Frozen: p99 4.8-9.1 ms; with the young threshold too, 2.7-5.5 ms
+    and one full collection a window instead of three. Memory: the start-up's objects are
+    never freed, which they never were anyway; what is made later is collected as before.
+    """
+    gc.collect()
+    gc.freeze()
+    _, middle, old = gc.get_threshold()
+    gc.set_threshold(GC_YOUNG_THRESHOLD, middle, old)
+
+
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
@@ -58,6 +82,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.login_throttle = LoginThrottle(settings)
         # Here, not in the dashboard, so that whatever ends a user's access can end theirs.
         app.state.view_tickets = hub.tickets = ViewTickets(settings.view_ticket_ttl_s)
+        if settings.gc_freeze:
+            settle_garbage_collector()
         yield
     finally:
         await hub.close()

@@ -81,6 +81,14 @@ class Settings(BaseSettings):
         "process changed none (a change made in the database directly, or by another server "
         "process), seconds. Changes made through this server close the links at once.",
     )
+    gc_freeze: bool = Field(
+        default=True,
+        description="Once started, move everything made so far out of the garbage "
+        "collector's reach and collect the young generation less often "
+        "(server.app.settle_garbage_collector): full collections that walked the whole "
+        "start-up stopped the live relay for 90-145 ms. Off only where many servers start "
+        "in one long-lived process (the tests).",
+    )
     relay_url: str = Field(
         default="",
         description="Where server processes share live links: empty for one process alone "

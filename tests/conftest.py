@@ -1,6 +1,7 @@
 """Shared test settings, and the store fixtures every directory that serves the API uses
 (SQLite by default, PostgreSQL too for tests marked ``both_stores``)."""
 
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -12,6 +13,10 @@ from tests.server.live_server import parametrize_stores, seeded_store, seeds, st
 from tests.server.postgres import pg_cluster, pg_url
 
 __all__ = ["pg_cluster", "pg_url", "seeded_store", "seeds", "store"]
+
+# Hundreds of apps start in this one process: none freezes the collector (server/app.py);
+# the servers the system tests start as processes inherit this too.
+os.environ.setdefault("ANKLE_GC_FREEZE", "false")
 
 # Hypothesis keeps no example database in the tree; CI runs are reproducible from seeds.
 settings.register_profile("project", database=None, deadline=None)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -51,3 +53,39 @@ async def test_openapi_documents_every_operation(empty: Live) -> None:
     stiffness = schemas["AxisPrescription"]["properties"]["stiffness"]
     assert "N·m/rad" in stiffness["description"] and "maximum" in stiffness
     assert {"UserToken", "StationToken"} <= set(spec["components"]["securitySchemes"])
+
+
+GC_PROBE = """
+import asyncio, gc, sys
+from server.app import GC_YOUNG_THRESHOLD, create_app
+from server.config import Settings
+from tests.server.live_server import running
+
+async def main() -> None:
+    async with running(Settings(data_dir=sys.argv[1], gc_freeze=sys.argv[2] == "on")):
+        print(gc.get_freeze_count(), gc.get_threshold()[0], GC_YOUNG_THRESHOLD)
+
+asyncio.run(main())
+"""
+
+
+@pytest.mark.parametrize("freeze", ["on", "off"])
+def test_a_started_server_freezes_its_start_up_out_of_the_collectors_reach(
+    tmp_path: Path, freeze: str
+) -> None:
+    """In a process of its own: the freeze is for the whole interpreter, and this one runs
+    hundreds of servers (tests/conftest.py turns it off here)."""
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, "-c", GC_PROBE, str(tmp_path), freeze],
+        capture_output=True,
+        text=True,
+        cwd=root,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    frozen, young, wanted = (int(v) for v in done.stdout.split())
+    if freeze == "on":
+        assert frozen > 10_000 and young == wanted  # modules, routes, tables, the hub
+    else:
+        assert frozen == 0 and young == 700  # CPython's own
