@@ -192,13 +192,16 @@ def stack(request: pytest.FixtureRequest) -> Stack:
 
 def _server_env(stack: Stack, request: pytest.FixtureRequest) -> dict[str, str]:
     """What every server process of ``stack`` is given: a new PostgreSQL database and an
-    emptied Redis database of this test's own, or nothing (SQLite, in-process relay)."""
+    emptied Redis database of this test's own, or nothing (SQLite, in-process relay). Each
+    freezes its start-up out of the garbage collector's reach, as a deployed server does
+    (the test process itself does not: tests/conftest.py)."""
+    production = {"ANKLE_GC_FREEZE": "true"}
     if stack == "sqlite-local":
-        return {}
+        return production
     cluster: Cluster = request.getfixturevalue("pg_cluster")
     name = cluster.create_database()
     request.addfinalizer(lambda: cluster.drop_database(name))
-    return {
+    return production | {
         "ANKLE_DATABASE_URL": cluster.url(name),
         "ANKLE_RELAY_URL": request.getfixturevalue("relay_url"),
         "ANKLE_RELAY_LEASE_S": f"{RELAY_LEASE_S:g}",
