@@ -250,6 +250,11 @@ class DeviceService:
             return
         if isinstance(command, msg.Hello):
             if command.nonce != self._nonce:
+                if self._nonce is not None:
+                    # Another connection: a host that restarted faster than the watchdog.
+                    # The motion under way was commanded over the old one, and nobody on
+                    # this one asked for it: held, as if the old link had gone silent.
+                    self.modes.hold(EventKind.WATCHDOG, "a new host connection (a new HELLO)")
                 self._nonce = command.nonce
                 self._replies.clear()
             self._send(self.hello())

@@ -77,7 +77,8 @@ class Capability(IntFlag):
 class EventKind(IntEnum):
     MODE_CHANGE = 1
     WATCHDOG = 2
-    """No valid frame from the host for the watchdog time: ACTIVE went to HOLD."""
+    """No valid frame from the host for the watchdog time, or a HELLO from a new connection
+    (a restarted host) while moving: ACTIVE went to HOLD."""
     LIMIT = 3
     """A safety limit tripped (code = trip code); the device is in FAULT."""
     FAULT = 4

@@ -339,6 +339,36 @@ def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
     drive(device, body)
 
 
+def test_a_new_host_connection_holds_a_moving_platform_and_a_repeated_hello_does_not(
+    device: Running,
+) -> None:
+    """A station that crashed and restarted faster than the watchdog must not find the
+    platform still running a segment nobody on its connection commanded."""
+
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev)
+        assert dev.hello is not None
+        await dev.handshake()  # the same client again: a new nonce, as a new process sends
+        await dev.wait_for_mode(DeviceMode.HOLD, timeout=2.0)
+        assert device.service.events[-1].kind == EventKind.WATCHDOG
+        assert "new host connection" in device.service.events[-1].text
+        await dev.resume()
+        await dev.wait_for_mode(DeviceMode.ACTIVE)
+        # A HELLO repeated with its nonce (unanswered, sent again) changes nothing.
+        dev._write(m.Hello(host="test", nonce=dev_nonce(device)), 60000)
+        await asyncio.sleep(0.3)
+        assert device.service.mode == DeviceMode.ACTIVE
+
+    drive(device, body)
+
+
+def dev_nonce(device: Running) -> int:
+    nonce = device.service._nonce
+    assert nonce is not None
+    return nonce
+
+
 def test_a_duplicated_command_runs_once(device: Running) -> None:
     async def body(dev: DeviceClient) -> None:
         await home(dev)
