@@ -8,8 +8,8 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
+import queue
 import re
-import selectors
 import signal
 import subprocess
 import sys
@@ -39,49 +39,50 @@ class ServiceProcess:
             bufsize=1,
         )
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES)
-        self._reader: threading.Thread | None = None
-        self.link = self._wait_for_link(start_timeout)
-        # Read on for as long as it lives: a pipe nobody reads fills up (64 KiB) and the
-        # service would block on its next log line, control loop and all.
-        self._reader = threading.Thread(target=self._read_on, name="device-output", daemon=True)
+        # One thread reads every line for as long as the service lives (a pipe nobody reads
+        # fills up, 64 KiB, and the service would block on its next log line, control loop
+        # and all) and hands over the link it serves on. Waiting on the pipe with select()
+        # and then reading lines does not work: the reader buffers what came in one chunk,
+        # and a "serving on" line that arrived with the one before it sat in that buffer,
+        # unseen, until the start deadline (600 s in the system tests).
+        self._serving: queue.Queue[str | None] = queue.Queue()
+        self._reader: threading.Thread | None = threading.Thread(
+            target=self._read_on, name="device-output", daemon=True
+        )
         self._reader.start()
+        self.link = self._wait_for_link(start_timeout)
 
     def _read_on(self) -> None:
         assert self.proc.stdout is not None
+        served = False
         for line in self.proc.stdout:
             self.output.append(line.rstrip("\n"))
+            found = None if served else SERVING.search(line)
+            if found:
+                served = True
+                self._serving.put(found.group(1))
+        self._serving.put(None)  # its output closed: it has exited
 
     def _wait_for_link(self, timeout: float) -> str:
-        assert self.proc.stdout is not None
-        sel = selectors.DefaultSelector()
-        sel.register(self.proc.stdout, selectors.EVENT_READ)
         start = time.monotonic()
-        deadline = start + timeout
         try:
-            while time.monotonic() < deadline:
-                if not sel.select(timeout=0.5):
-                    if self.proc.poll() is not None:
-                        break
-                    continue
-                line = self.proc.stdout.readline()
-                if not line:  # its output closed: it is exiting
-                    with contextlib.suppress(subprocess.TimeoutExpired):
-                        self.proc.wait(5.0)
-                    break
-                self.output.append(line.rstrip("\n"))
-                found = SERVING.search(line)
-                if found:
-                    return found.group(1)
-        finally:
-            sel.close()
+            link = self._serving.get(timeout=timeout)
+        except queue.Empty:
+            link = None
+        if link is not None:
+            return link
         waited = time.monotonic() - start
+        if self.proc.poll() is None:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(5.0)  # its output has closed: it is exiting
         if self.proc.poll() is None:
             # Hung: its faulthandler prints every thread's stack on SIGABRT.
             how = f"still not serving after {waited:.0f} s; its stack when stopped:"
             self.proc.send_signal(signal.SIGABRT)
             with contextlib.suppress(subprocess.TimeoutExpired):
-                rest, _ = self.proc.communicate(timeout=10.0)
-                self.output.extend(rest.splitlines())
+                self.proc.wait(10.0)
+            if self._reader is not None:
+                self._reader.join(10.0)  # the stack, to the end of its output
         elif self.proc.returncode < 0:
             name = signal.Signals(-self.proc.returncode).name
             oom = " (out of memory?)" if name == "SIGKILL" else ""

@@ -326,7 +326,9 @@ def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
             late_ms = max(list(device.service.pacing.lags_ms)[-400:], default=0.0)
             assert e.mode_from == DeviceMode.ACTIVE and e.mode_to == DeviceMode.HOLD
             assert 200.0 <= e.value <= 204.0 + max(0.0, late_ms)
-            assert host_ms <= 204.0 + max(0.0, late_ms) + 5.0  # plus the trip over the pty
+            # The host's own measure adds the trip over the pty and this test's own wait for a
+            # core: 221 ms was seen with two whole test suites running on two cores.
+            assert host_ms <= 204.0 + max(0.0, late_ms) + 50.0
             assert valves_closed(device.service)
             dev.heartbeats = True
             await asyncio.sleep(0.5)  # the link is back: still holding
