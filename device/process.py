@@ -67,14 +67,14 @@ class ServiceProcess:
         start = time.monotonic()
         try:
             link = self._serving.get(timeout=timeout)
-        except queue.Empty:
-            link = None
-        if link is not None:
-            return link
-        waited = time.monotonic() - start
-        if self.proc.poll() is None:
+        except queue.Empty:  # still running, not serving
+            pass
+        else:
+            if link is not None:
+                return link
             with contextlib.suppress(subprocess.TimeoutExpired):
                 self.proc.wait(5.0)  # its output has closed: it is exiting
+        waited = time.monotonic() - start
         if self.proc.poll() is None:
             # Hung: its faulthandler prints every thread's stack on SIGABRT.
             how = f"still not serving after {waited:.0f} s; its stack when stopped:"

@@ -14,8 +14,8 @@ from tests.server.postgres import pg_cluster, pg_url
 
 __all__ = ["pg_cluster", "pg_url", "seeded_store", "seeds", "store"]
 
-# Hundreds of apps start in this one process: none freezes the collector (server/app.py);
-# the servers the system tests start as processes inherit this too.
+# Hundreds of apps start in this one process: none freezes the collector (server/app.py).
+# The servers the system tests start as processes freeze it, as deployed (tests/system).
 os.environ.setdefault("ANKLE_GC_FREEZE", "false")
 
 # Hypothesis keeps no example database in the tree; CI runs are reproducible from seeds.
