@@ -1,9 +1,9 @@
 """``ankle bench server``: the live relay under many stations and viewers, on a real server.
 
 The server runs as its own process (``python -m ankle server`` on a fresh data directory and
-a free port), so its CPU time is its own (read from ``/proc``). Before it starts, the
-database is given N therapists, each with a patient, a station and a login token, written
-directly (no Argon2 logins to wait for). The load comes from two more processes:
+a free port), so its CPU time is its own (its CPU-time clock, :func:`cpu_seconds`). Before it
+starts, the database is given N therapists, each with a patient, a station and a login token,
+written directly (no Argon2 logins to wait for). The load comes from two more processes:
 
 - ``stations``: N simulated home stations, no device. Each connects to ``/ws/station``,
   says hello, then sends telemetry as the real station does: a
@@ -37,7 +37,7 @@ its viewers on the next, so every sample a viewer gets crossed processes
 (``cross_process_latency_ms_p99``); the processes share one database. ``capacity`` adds the
 capacity plan's sweeps (:data:`CAPACITY`): one server process pinned to one core with the
 load generator on another, on each relay, and two processes. redis-server's CPU is read
-from ``/proc`` like the servers'. A window that lost a connection, left a command
+from its clock like the servers'. A window that lost a connection, left a command
 unanswered or could not send at rate reports those figures as None, with why
 (:func:`problems`).
 """
@@ -248,7 +248,15 @@ async def provision(data_dir: Path, count: int, database_url: str = "") -> list[
 
 # -- processes ---------------------------------------------------------------------------
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process, all its threads (Linux ``/proc``)."""
+    """User + system CPU time of a process, all its threads.
+
+    Read from the process's own CPU-time clock (Linux: the clock id ``clock_getcpuclockid``
+    returns, ``(~pid << 3) | 2``), which counts nanoseconds; ``/proc/<pid>/stat`` counts
+    10 ms ticks, and a short run of a few stations gave redis-server 0 ticks (a CPU per
+    message of 0.0). ``/proc`` is the fallback where the clock cannot be read.
+    """
+    with contextlib.suppress(OSError, OverflowError):
+        return time.clock_gettime((~pid << 3) | 2)
     with open(f"/proc/{pid}/stat") as fh:
         fields = fh.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
