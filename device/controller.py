@@ -263,13 +263,19 @@ class ControllerConfig:
     impedance_lag_window: float = 2.0
     """Time constant (s) over which the lag is learnt: a period of the slowest exercise
     (0.5 Hz) a foot moves at; at 1 s a fit over half a period of it was poor."""
-    virtual_frequency_max: float = 12.0
+    virtual_frequency_max: float = 9.0
     """On an axis with a virtual inertia, the inertia grows with the stiffness so that the
     virtual natural frequency ``sqrt(K/J)`` stays at or below this (Hz): ``J = max(J_axis,
     K / (2 pi f)^2)``; 0 keeps J at ``virtual_inertia``. With a fixed 0.03 kg m2 the virtual
     resonance reaches 17-20 Hz at K = 350-500, where the position loop lags and the
     resisting foot oscillates at 21-26 Hz unless B >= 0.5; capped at 12 Hz (J = 0.088 kg
-    m2 at K = 500) no foot needed more than B = 0, no empty plate more than 0.1."""
+    m2 at K = 500) no foot needed more than B = 0, no empty plate more than 0.1 on the
+    wave-1 plant. On the plant with delays and leaks, 12 Hz left yaw with a resisting foot
+    in a 13 Hz limit cycle (0.2-0.7 deg peak to peak after a push) at K = 170-200 and B =
+    0.2-0.5, inside the envelope, on half the seeds: the virtual resonance sat on the yaw
+    loop's own bump near 12 Hz. At 9 Hz (J = 0.156 kg m2 at K = 500; unchanged below
+    K = 96) 936 points (every rotational axis, K 20-500, B at and twice the envelope's
+    edge, three patients, four seeds) were all stable, against 9 unstable at 12 Hz."""
     vent_pulse_slots: int = 11
     """Release (``I_VENT``): slots (of 28) that every exhaust valve is energised in a venting
     PWM period, intakes shut. The pulse must open the slowest valve a real build may have:

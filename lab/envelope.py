@@ -318,7 +318,7 @@ ENVELOPE: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
         "pitch": ((0, 2.0), (100, 1.0), (200, 0.1)),
         "yaw": ((0, 1.0), (50, 0.6), (100, 0.1)),
     },
-    "virtual_inertia": {  # the device default: J = max(0.03, K / (2 pi 12 Hz)^2)
+    "virtual_inertia": {  # measured with J = max(0.03, K / (2 pi 12 Hz)^2); now 9 Hz
         "roll": ((0, 1.0), (5, 0.6), (50, 0.2)),
         "pitch": ((0, 1.0), (5, 0.6), (50, 0.2)),
         "yaw": ((0, 0.6), (50, 0.2)),

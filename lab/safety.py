@@ -517,7 +517,7 @@ TARGETS: tuple[Target, ...] = (
     Target("false_trips", "false trips over the healthy runs", 0, "eq"),
     Target("service_deaths", "service deaths in the boundary run", 0, "eq"),
     Target("boundary_mismatches", "boundary answers unlike the check module", 0, "eq"),
-    Target("kb_grid_unstable", "unstable points on the envelope's edge", 0, "eq"),
+    Target("kb_grid_unstable", "unstable points on and inside the envelope's edge", 0, "eq"),
 )
 
 ROWS: tuple[tuple[str, str], ...] = (
@@ -537,31 +537,39 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
     ("service_deaths", "service deaths in the boundary run"),
-    ("kb_grid_points", "K-B points on the envelope's edge"),
-    ("kb_grid_unstable", "unstable points on the envelope's edge"),
+    ("kb_grid_points", "K-B points on the envelope's edge and at twice its B"),
+    ("kb_grid_unstable", "unstable points on and inside the envelope's edge"),
 )
 
-KB_STIFFNESS = (0.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 350.0, 500.0)
+KB_STIFFNESS = (0.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 170.0, 200.0, 250.0, 350.0, 500.0)
+"""Every band edge of the envelope, its ends, and K = 150-250 closely: there yaw with a
+resisting foot rang at 13 Hz inside the envelope (B 0.2-0.5) while the virtual frequency
+was capped at 12 Hz, between grid points 100 and 200 of the first grid."""
+
+KB_DAMPING_FACTORS = (1.0, 2.0)
+"""Each K at the envelope's least B and at twice it: on the edge and inside."""
 
 
 def kb_grid(
     patients: tuple[str, ...] = ("relaxed", "resisting", "absent"),
     progress: Callable[[str], None] | None = None,
 ) -> list[tuple[str, float, float, str, bool, float]]:
-    """Every rotational axis, every grid K, at the least damping the envelope allows."""
+    """Every rotational axis, every grid K, at the least damping the envelope allows and at
+    twice it (:data:`KB_DAMPING_FACTORS`)."""
     from device.limits import SafetyLimits
 
     lim = SafetyLimits().published()
     out = []
-    total = 3 * len(KB_STIFFNESS) * len(patients)
+    total = 3 * len(KB_STIFFNESS) * len(KB_DAMPING_FACTORS) * len(patients)
     for axis in (3, 4, 5):
         for k in KB_STIFFNESS:
-            b = lim.damping_min_at(axis, k)
-            for patient in patients:
-                stable, pp = kb_point(axis, k, b, patient)
-                out.append((AXES[axis], k, b, patient, stable, pp))
-                if progress is not None:
-                    progress(f"K-B edge {len(out)}/{total}: {AXES[axis]} K {k:g} B {b:g}")
+            for factor in KB_DAMPING_FACTORS:
+                b = factor * lim.damping_min_at(axis, k)
+                for patient in patients:
+                    stable, pp = kb_point(axis, k, b, patient)
+                    out.append((AXES[axis], k, b, patient, stable, pp))
+                    if progress is not None:
+                        progress(f"K-B grid {len(out)}/{total}: {AXES[axis]} K {k:g} B {b:g}")
     return out
 
 

@@ -124,7 +124,9 @@ def test_the_prescription_refuses_a_compliant_axis_below_the_envelope() -> None:
         PrescriptionBody.model_validate(template.defaults.model_dump())
 
 
-EDGE = [0.0, 2.0, 10.0, 50.0, 200.0, 500.0]
+EDGE = [0.0, 2.0, 10.0, 50.0, 170.0, 200.0, 500.0]
+"""Grid stiffnesses, and K = 170, where yaw with a resisting foot rang at 13 Hz inside the
+envelope while the virtual frequency was capped at 12 Hz."""
 
 
 @pytest.mark.parametrize("patient", ["relaxed", "resisting"])
