@@ -747,8 +747,12 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     volume_lo = p.dead_volume[lo] + p.area_cap * x
     volume_up = p.dead_volume[up] + p.area_annulus * (p.stroke - x)
     for c in (lo, up):
-        # Driven: a pulse at least as long as the valve's response time, so it moved air.
+        # Driven: a pulse at least as long as the valve's response time, where air can flow.
         driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
+        if s.slots[c] > 0:
+            driven = driven and supply - p.p_atm - s.pressure[c] > p.sup.pressure_frozen_headroom
+        elif s.slots[c] < 0:
+            driven = driven and s.pressure[c] > p.sup.pressure_frozen_headroom
         if supervision.check_frozen(s.monitor, s.counters, c, s.sensors[c], driven, p.sup):
             trip(s, Trip.PRESSURE_SENSOR, c)
             return

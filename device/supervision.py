@@ -212,6 +212,13 @@ class SupervisionConfig:
     eq. 1) is frozen (40 ms). Such a pulse moves a chamber by about 0.06 bar or 25
     transducer counts; a shorter one may pass no air at all (without dead-band compensation
     most pulses at rest are that short)."""
+    pressure_frozen_headroom: float = 0.5e5
+    """...and only where that pulse can move air: an intake counts while the chamber is more
+    than this (Pa) below the supply, an exhaust while it is more than this above the
+    atmosphere. Through 0.5 bar an ISO 6358 valve still passes about half its choked flow,
+    12 counts a pulse; at the supply nothing flows in, whatever the transducer. A rod side
+    pumped to 0.2 bar under the supply, next to a cap whose exhaust had stuck shut, read
+    the same ten periods running and was named as a frozen transducer in place of the cap."""
     valve_window_periods: int = 5
     """PWM periods (4 ms each) in which a chamber must answer its valves (20 ms)."""
     valve_duty_fraction: float = 0.5
@@ -395,6 +402,7 @@ class SupervisionParams(NamedTuple):
     leg_stuck_target_move: float
     leg_stuck_reads: int
     pressure_frozen_periods: int
+    pressure_frozen_headroom: float
     air_window: int
     air_per_slot: float
     air_one_sided: float
@@ -466,6 +474,7 @@ def build(
         leg_stuck_target_move=config.leg_stuck_target_move,
         leg_stuck_reads=config.leg_stuck_reads,
         pressure_frozen_periods=config.pressure_frozen_periods,
+        pressure_frozen_headroom=config.pressure_frozen_headroom,
         air_window=config.air_window_periods,
         air_per_slot=config.air_per_slot,
         air_one_sided=config.air_one_sided,
