@@ -52,7 +52,7 @@ RESPONSE_HZ_MAX = 40.0
 loop's output still fit, and 40 Hz is above every mode the plant has shown (25-30 Hz)."""
 
 AMPLITUDE: dict[str, float] = {
-    "x": 2.0,
+    "x": 1.5,
     "y": 1.2,
     "z": 0.3,
     "roll": 0.25,
@@ -65,8 +65,10 @@ flow limit), and the most-moved leg moves at least :data:`lab.experiments.MIN_SI
 sensor counts (smallest: x 0.64 mm, y 0.56, z 0.27, roll 0.15 deg, pitch 0.16, yaw 0.32).
 Measured on the nominal plant: the next larger amplitudes tried saturated the valves
 (x 3 mm at 30-40 Hz, y 2 mm at 35-40, z 0.4 mm at 30, roll 0.35 deg at 30-35, pitch
-0.3 deg at 30, yaw 1 deg at 30-40). The response depends on the amplitude (dead band,
-friction, flow): these are small-signal numbers."""
+0.3 deg at 30, yaw 1 deg at 30-40). Since the position loop's rate observer
+(``ControllerConfig.rate_observer``) x at 2 mm saturated at 35-40 Hz, so x sweeps 1.5 mm.
+The response depends on the amplitude (dead band, friction, flow): these are small-signal
+numbers."""
 
 
 @dataclass(frozen=True)

@@ -451,14 +451,18 @@ def test_a_sideways_force_sensor_offset_is_stopped_by_the_following_check(scenar
 @pytest.mark.xfail(
     strict=True,
     reason="open (issue 11): a 30 N offset on Fx or Fy (under the jump rule and the wrench "
-    "cross-check) moves a held platform 1.8-3.6 mm before the following check trips "
-    "(98-130 ms): 30 N of phantom load accelerates platform and foot faster than a bound "
-    "above the healthy following error (2.1 mm) can stop",
+    "cross-check) moves a held platform 1.6-3.9 mm before the following check trips "
+    "(90-158 ms, seeds 1-4; 1.8-3.6 mm on seed 1 before the position loop's rate observer): "
+    "30 N of phantom load accelerates platform and foot faster than a bound above the "
+    "healthy following error (2.1 mm) can stop",
 )
 def test_a_sideways_force_sensor_offset_moves_the_platform_at_most_3_mm() -> None:
-    for channel in (0, 1):
-        run = safety.run_fault(FaultKind.FT_OFFSET, "holding", channel=channel, after=1.0)
-        assert run.excursion_mm <= 3.0, run
+    for seed in (1, 2, 3, 4):
+        for channel in (0, 1):
+            run = safety.run_fault(
+                FaultKind.FT_OFFSET, "holding", seed=seed, channel=channel, after=1.0
+            )
+            assert run.excursion_mm <= 3.0, run
 
 
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:

@@ -82,8 +82,8 @@ def test_vent_pulse_must_fit_the_pwm_period() -> None:
 @pytest.mark.parametrize(("patient", "seed"), [("relaxed", 2), ("relaxed", 7), ("resisting", 1)])
 def test_venting_from_a_hold_lowers_every_chamber_gently(patient: str, seed: int) -> None:
     r = held_at_home(patient, seed)
-    # At working pressure (resting on their trapped air the chambers hold 3.7-4.7 bar).
-    assert np.all(r.state.pressure > 3.5e5)
+    # At working pressure (resting on their trapped air the chambers hold 3.4-4.9 bar).
+    assert np.all(r.state.pressure > 3.0e5)
     r.state.istate[ctl.I_VENT] = 1
     log = r.run(6.0, log_hz=1000)
     t_vent, speed = vent_time_and_speed(log)
