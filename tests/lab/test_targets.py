@@ -89,3 +89,12 @@ def test_an_invalid_benchmark_row_shows_no_number_and_is_not_met() -> None:
     target = Target("x", "x (ms)", 10.0, "max")
     text = table({"x": None}, (("x", "x (ms)"),), (target,), {"x": "step: tripped LEG_SPEED"})
     assert "| x (ms) | INVALID (step: tripped LEG_SPEED) | <= 10 | NO |" in text
+
+
+def test_a_measurement_with_no_number_says_so_instead_of_nan() -> None:
+    from lab.targets import Target, table
+
+    target = Target("settle", "settling (ms)", 100.0, "max")
+    text = table({"settle": math.nan}, (("settle", "settling (ms)"),), (target,))
+    assert "| settling (ms) | no number | <= 100 | NO |" in text
+    assert "nan" not in text
