@@ -396,7 +396,7 @@ class ControllerState(NamedTuple):
     sensors: NDArray[np.float64]  # (25,) last sensor vector
     leg_x: NDArray[np.float64]  # (6,) measured piston displacement (m)
     leg_rate: NDArray[np.float64]  # (6,) filtered (m/s)
-    leg_vel: NDArray[np.float64]  # (6,) the position loop's rate: leg_rate + the force's
+    leg_vel: NDArray[np.float64]  # (6,) the rate observer's estimate (m/s; see sensor_task)
     leg_bias: NDArray[np.float64]  # (6,) the rate observer's learnt acceleration error
     leg_accel: NDArray[np.float64]  # (6, 6) leg accelerations per unbalanced leg force
     pressure: NDArray[np.float64]  # (12,) gauge (Pa)
@@ -445,6 +445,12 @@ def build_params(
         raise ValueError("virtual_inertia needs 6 finite values >= 0")
     if not (math.isfinite(config.virtual_frequency_max) and config.virtual_frequency_max >= 0.0):
         raise ValueError("virtual_frequency_max must be a finite value >= 0")
+    if not 0.0 <= config.rate_observer <= 1.0:
+        raise ValueError("rate_observer must be 0..1 (the share of the modelled acceleration)")
+    if not (math.isfinite(config.rate_observer_hz) and 0.0 < config.rate_observer_hz <= 100.0):
+        raise ValueError("rate_observer_hz must be above 0 and at most 100 Hz")
+    if not (math.isfinite(config.rate_observer_friction) and config.rate_observer_friction >= 0):
+        raise ValueError("rate_observer_friction must be a finite force >= 0 (N)")
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0
@@ -1182,7 +1188,7 @@ def leg_inertia(
                 for m in range(3):
                     Io[a, b] += R[a, k] * inertia[k, m] * R[b, m]
     cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
-    M = np.zeros((6, 7))
+    M = np.zeros((6, 6))
     for a in range(3):
         M[a, a] = mass
         for b in range(3):

@@ -251,3 +251,22 @@ def test_the_rate_observer_follows_the_legs_true_rate_closer_than_the_filter() -
 def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
     a = _leg_rates_in_a_step(0.0)
     assert np.array_equal(a[:, 1], a[:, 2])
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("rate_observer", -0.1),
+        ("rate_observer", 1.5),
+        ("rate_observer_hz", 0.0),
+        ("rate_observer_hz", math.inf),
+        ("rate_observer_friction", -1.0),
+        ("rate_observer_friction", math.nan),
+    ],
+)
+def test_a_rate_observer_setting_out_of_its_range_is_refused_by_name(
+    field: str, value: float
+) -> None:
+    config = ctl.ControllerConfig(**{field: value})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=field):
+        ctl.build_params(config)
