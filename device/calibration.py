@@ -32,6 +32,10 @@ for 0.3-1 m of 4 mm tube with its port) but a kinked, blocked or wrongly fitted 
 VALVE_EXTRA_MAX = 1.0e-3
 """A valve whose pulse passes more than this (s) beyond or short of its length is not a
 build's spread of delays (closing less opening: -0.6 to +0.8 ms at the extremes)."""
+LEG_FRICTION_MAX = 15.0
+"""A leg whose seals hold back more than this (N) moving slowly is not a build's spread
+(glass/graphite pistons about 1 N, light elastomer seals up to 5 N, breakaway 2 times that)
+but a bent rod, a misaligned joint or a seal run dry."""
 
 
 class IdentificationError(RuntimeError):
@@ -58,6 +62,10 @@ class Calibration:
     dead_volume: tuple[float, ...] = ()
     """Per chamber: its volume with the piston at that chamber's end, tube included (m3),
     from the same test pulses. Empty: the design's."""
+    leg_friction: tuple[float, ...] = ()
+    """Per leg: the force (N) its seals hold back at a slow, steady speed, from a slow heave
+    of the empty platform up and down (device.identify.identify_friction). Empty: not
+    identified, and the controller feeds no friction forward."""
     identified_at: str = ""
     """When (ISO 8601, UTC); empty for the uncalibrated default."""
     notes: tuple[str, ...] = field(default=())
@@ -88,6 +96,10 @@ class Calibration:
         """Per valve (s), for the controller: 0 where not identified."""
         return np.array(self.valve_extra) if self.valves_identified else np.zeros(24)
 
+    def leg_frictions(self) -> NDArray[np.float64]:
+        """Per leg (N), for the controller: 0 where not identified."""
+        return np.array(self.leg_friction) if len(self.leg_friction) == 6 else np.zeros(6)
+
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
 
@@ -102,6 +114,7 @@ class Calibration:
                 valve_gain=_floats(data.get("valve_gain", []), 24, "valve_gain", True),
                 valve_extra=_floats(data.get("valve_extra", []), 24, "valve_extra", True),
                 dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
+                leg_friction=_floats(data.get("leg_friction", []), 6, "leg_friction", True),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
             )
@@ -138,6 +151,18 @@ class Calibration:
                     f"{PRESSURE_ZERO_MAX / 1e5:g} bar): check the transducer and its valves"
                 )
         self.check_valves()
+        self.check_friction()
+
+    def check_friction(self) -> None:
+        """Refuse leg frictions no healthy unit has."""
+        if len(self.leg_friction) not in (0, 6):
+            raise IdentificationError("leg_friction needs 6 numbers, or none")
+        for i, f in enumerate(self.leg_friction):
+            if not 0.0 <= f <= LEG_FRICTION_MAX:
+                raise IdentificationError(
+                    f"leg {i + 1} holds back {f:.1f} N moving slowly (healthy: 0-"
+                    f"{LEG_FRICTION_MAX:g} N): check its rod, its joints and its seals"
+                )
 
     def check_valves(self) -> None:
         """Refuse valve figures and dead volumes no healthy unit has."""

@@ -28,12 +28,19 @@ same routine on the simulation and on an I/O board.
    pulse, against the air observer's model, so that the observer (device.supervision)
    judges a held chamber against this build's valves rather than the type's range.
 
+5. **Heave slowly** (:func:`identify_friction`): the controller, with the zeros just
+   found, moves every leg up and down its mid-stroke at two slow, steady speeds. A leg's
+   chambers push with the load plus its seals' friction going up and the load less it
+   going down, so the difference is twice the friction: what the position loop feeds
+   forward while an axis renders an impedance (``ControllerConfig.friction_compensation``).
+
 What it does not identify (yet): the platform's mass and centre of mass (the outer loop's
 integral takes up their static part), the sensors' span errors.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime
@@ -43,10 +50,11 @@ from numpy.typing import NDArray
 
 from device import signals, supervision
 from device.calibration import Calibration, IdentificationError
-from device.controller import CONTROL_PERIOD, ControllerConfig, build_params
+from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
 from device.plant.params import TICK_HZ
+from device.rig import Rig
 
 READS = 200
 """Readings averaged at rest (0.2 s at 1 kHz): the noise of the mean is 1/14 of one
@@ -136,8 +144,13 @@ def identify(
         # The pulse test is an estimate (its flow falls during a pulse): figures outside a
         # healthy valve's range are not used, and the air observer keeps the whole type's
         # tolerance, rather than a healthy unit being refused or judged on a wrong figure.
-        return replace(cal, notes=(f"valve identification not used: {exc}",))
-    return identified
+        identified = replace(cal, notes=(f"valve identification not used: {exc}",))
+    if progress:
+        progress("identification: a slow heave up and down for the legs' friction")
+    friction = identify_friction(hardware, identified, atmosphere)
+    with_friction = replace(identified, leg_friction=friction)
+    with_friction.check_friction()  # a leg no healthy unit has: refused, look at it
+    return with_friction
 
 
 # -- each valve's air per pulse (start-up, after the zeros) ------------------------------
@@ -287,3 +300,178 @@ def identify_valves(
         tuple(float(e) for e in extras),
         tuple(float(d) for d in dead),
     )
+
+
+# -- each leg's seal friction (start-up, last) -------------------------------------------
+
+FRICTION_SPEEDS = (8.0e-3, 20.0e-3)
+"""Steady leg speeds of the heave (m/s): about the seals' Stribeck speed (2-10 mm/s) and
+above it, near the legs' speeds when a foot turns the plate at an exercise's pace."""
+FRICTION_SPAN = (0.4, 0.6)
+"""Share of the stroke each leg travels between, up and down, at each speed."""
+FRICTION_SKIP = 0.2
+"""Share of each travel left out at either end: the legs speed up and slow down there."""
+FRICTION_PASSES = 2
+"""Up-and-down passes at each speed."""
+SETTLE_S = 1.5
+"""Time (s) the legs are given to reach the span's lower end before the heave."""
+
+
+def identify_friction(
+    hardware: Hardware,
+    calibration: Calibration,
+    atmosphere: float = 1.01325e5,
+    config: ControllerConfig | None = None,
+    geometry: Geometry = DEFAULT_GEOMETRY,
+) -> tuple[float, ...]:
+    """Each leg's seal friction (N, 6): the controller, calibrated with ``calibration``,
+    moves every leg together up and down :data:`FRICTION_SPAN` of the stroke at each of
+    :data:`FRICTION_SPEEDS` (the empty platform heaving), and each leg's chamber force
+    (cap side times its area less rod side times the annulus) is fitted by least squares as
+    ``a + b x + f d``, ``d`` the direction commanded (+1 up, -1 down): the load and its slope
+    with the pose, and ``f`` what the seals hold back, the mean over both speeds (the
+    direction, not the measured rate: a 24 um sensor differentiated at 1 kHz is too noisy
+    to split Coulomb from viscous friction at these speeds). Returns ``f``, floored at 0.
+    Nobody may stand on the plate. Leaves every leg on its stop and every chamber vented
+    (IdentificationError if the controller tripped)."""
+    cfg = replace(config if config is not None else ControllerConfig(), calibration=calibration)
+    rig = Rig(hardware, cfg, geometry)
+    params = rig.params
+    dt = params.dt_control
+    low, high = (share * geometry.stroke for share in FRICTION_SPAN)
+    rows: list[NDArray[np.float64]] = []
+    try:
+        _lift_off_stops(hardware, calibration, LIFT_TO * geometry.stroke, atmosphere)
+        rig.run(dt, log_hz=0)  # at rest, valves closed: the controller reads where it is
+        start = rig.state.leg_x.copy()
+        # Like homing: every leg at a steady speed from where it rests to the span's end.
+        periods = math.ceil(float(np.max(np.abs(low - start))) / (FRICTION_SPEEDS[0] * dt))
+        for k in range(1, periods + 1):
+            share = k / periods
+            rate = (low - start) / (periods * dt)
+            rig.apply_leg_targets(start + share * (low - start), rate)
+            rig.run(dt, log_hz=0)
+            _check(rig)
+        rig.apply_leg_targets(np.full(6, low))
+        rig.run(SETTLE_S, log_hz=0)
+        _check(rig)
+        x = low
+        for speed in FRICTION_SPEEDS:
+            for _ in range(FRICTION_PASSES):
+                for direction in (1.0, -1.0):
+                    periods = round((high - low) / (speed * dt))
+                    skip = round(FRICTION_SKIP * periods)
+                    for k in range(periods):
+                        x += direction * speed * dt
+                        rig.apply_leg_targets(np.full(6, x), np.full(6, direction * speed))
+                        rig.run(dt, log_hz=0)
+                        _check(rig)
+                        if skip <= k < periods - skip:
+                            s = rig.state
+                            force = (
+                                s.pressure[0::2] * params.area_cap
+                                - s.pressure[1::2] * params.area_annulus
+                            )
+                            rows.append(np.concatenate((s.leg_x, force, [direction])))
+                    x = high if direction > 0 else low
+    finally:
+        rig.close_valves_now()
+        _lower_and_vent(hardware)
+    data = np.array(rows)
+    friction = np.zeros(6)
+    commanded = data[:, 12]
+    for leg in range(6):
+        x_m, f_m = data[:, leg], data[:, 6 + leg]
+        design = np.column_stack((np.ones_like(x_m), x_m, commanded))
+        coef, *_ = np.linalg.lstsq(design, f_m, rcond=None)
+        friction[leg] = max(0.0, float(coef[2]))
+    return tuple(float(f) for f in friction)
+
+
+LIFT_TO = 0.38
+"""Each leg is lifted open loop off its lower stop to this share of its stroke before the
+controller takes it: on the stops the platform is below its range of motion and within the
+stroke margin (device.limits), where the controller trips."""
+LIFT_TIMEOUT_S = 5.0
+LIFT_ROD_PRESSURE = 2.5e5
+"""Gauge pressure (Pa) each rod side is filled to before its leg is lifted."""
+LIFT_SETTLE_S = 0.5
+"""Time (s) the lifted platform is left with every valve closed before the controller
+takes it: it bobs on its trapped air, and a controller taking a moving platform rang."""
+
+
+def _lift_off_stops(
+    hardware: Hardware, calibration: Calibration, lift: float, atmosphere: float
+) -> None:
+    """Fill each rod side to :data:`LIFT_ROD_PRESSURE` (the legs held on their stops), then
+    pulse each cap-side intake in the release pattern until its leg's reading passes
+    ``lift`` (m), and close every valve: each leg comes up against the air of its rod side
+    and stops on its own, and the controller then takes chambers near the pressures it
+    holds a leg with (from vented chambers its pressure loop filled both sides at once and
+    launched an empty, light platform into its speed limit)."""
+    zero = np.array(calibration.leg_zero)
+    pressure_zero = np.array(calibration.pressure_zero)
+    sensors = np.zeros(signals.N_SENSORS)
+    pattern = np.zeros(signals.N_VALVES, dtype=np.uint8)
+    closed = np.zeros(signals.N_VALVES, dtype=np.uint8)
+    pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
+    filling = np.ones(6, dtype=bool)
+    up = np.ones(6, dtype=bool)
+    try:
+        for tick in range(int(LIFT_TIMEOUT_S * TICK_HZ)):
+            if tick % SENSOR_PERIOD_TICKS == 0:
+                hardware.read_sensors(sensors)
+                rod = sensors[1:12:2] - pressure_zero[1::2] - atmosphere
+                filling &= rod < LIFT_ROD_PRESSURE
+                if not filling.any():
+                    legs = sensors[signals.SENSOR_LEG : signals.SENSOR_LEG + 6] - zero
+                    up &= legs < lift
+                if not up.any():
+                    hardware.write_valves(closed)
+                    for _ in range(int(LIFT_SETTLE_S * TICK_HZ)):  # it rests on its air
+                        hardware.wait_tick()
+                    return
+            slot, period = tick % 28, tick // 28
+            on = slot < pulse and period % every == 0
+            pattern[2::4] = filling  # rod intake
+            pattern[0::4] = up & ~filling.any() & on  # cap intake
+            hardware.write_valves(pattern)
+            hardware.wait_tick()
+        stuck = [i + 1 for i in range(6) if up[i]]
+        raise IdentificationError(
+            f"leg(s) {stuck} did not lift {lift * 1e3:.0f} mm off the stop in "
+            f"{LIFT_TIMEOUT_S:g} s: check the supply and the cap-side valves"
+        )
+    finally:
+        hardware.write_valves(closed)
+
+
+def _check(rig: Rig) -> None:
+    if rig.mode == Mode.FAULT:
+        raise IdentificationError(
+            f"the controller tripped ({rig.trip.name}) while the empty platform heaved "
+            "slowly: is something on the plate?"
+        )
+
+
+def _lower_and_vent(hardware: Hardware) -> None:
+    """Bring the legs down onto their stops in the release pattern, then vent every chamber,
+    and close every valve: where the identification found the unit."""
+    down = np.zeros(signals.N_VALVES, dtype=np.uint8)
+    down[1::4] = 1
+    down[2::4] = 1
+    closed = np.zeros(signals.N_VALVES, dtype=np.uint8)
+    vent = closed.copy()
+    vent[1::2] = 1
+    pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
+    try:
+        for tick in range(int(DOWN_PULSE_S * TICK_HZ)):
+            slot, period = tick % 28, tick // 28
+            hardware.write_valves(down if slot < pulse and period % every == 0 else closed)
+            hardware.wait_tick()
+        for pattern, seconds in ((down, DOWN_OPEN_S), (vent, VENT_OPEN_S)):
+            for _ in range(int(seconds * TICK_HZ)):
+                hardware.write_valves(pattern)
+                hardware.wait_tick()
+    finally:
+        hardware.write_valves(closed)

@@ -262,6 +262,14 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("rate_observer_hz", math.inf),
         ("rate_observer_friction", -1.0),
         ("rate_observer_friction", math.nan),
+        ("friction_compensation", -0.1),
+        ("friction_compensation", 1.5),
+        ("friction_compensation", math.nan),
+        ("friction_compensation_speed", 0.0),
+        ("friction_compensation_speed", math.inf),
+        ("friction_compensation_keep", -1.0),
+        ("impedance_lag_extra", -1e-3),
+        ("impedance_lag_extra", 1.0),
     ],
 )
 def test_a_rate_observer_setting_out_of_its_range_is_refused_by_name(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig
 from device.hardware import SimulatedHardware
-from device.identify import identify
+from device.identify import FRICTION_SPEEDS, identify
 from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
 
@@ -140,6 +141,51 @@ def test_a_calibration_without_valves_still_loads_and_bad_valves_are_refused(
         ({"valve_extra": [0.0] * 5 + [3e-3] + [0.0] * 18}, "exhaust of chamber 2"),
         ({"valve_gain": [0.1] + [1.0] * 23}, "intake of chamber 0"),
         ({"dead_volume": [7e-6] * 11 + [60e-6]}, "chamber 11 holds 60.0 cm3"),
+    ):
+        path.write_text(json.dumps(json.loads(cal.to_json()) | change))
+        with pytest.raises(IdentificationError, match=match):
+            Calibration.load(path)
+
+
+@pytest.mark.parametrize("coulomb", [0.5, 2.5, 5.0])
+def test_identification_measures_each_legs_seal_friction(coulomb: float) -> None:
+    """A slow heave up and down: what each leg's seals hold back at the heave's speeds,
+    from the lightest glass/graphite piston to the stiffest elastomer seal the plant has."""
+    cfg = PlantConfig(patient="absent", overrides=(("friction_coulomb", coulomb),))
+    hw = SimulatedHardware(cfg, seed=6)
+    cal = identify(hw)
+    p = hw.params
+
+    def sliding(v: float) -> float:  # the plant's steady friction at speed v (LuGre)
+        stribeck = (p.f_static - p.f_coulomb) * math.exp(-((v / p.v_stribeck) ** 2))
+        return p.f_coulomb + stribeck + p.f_viscous * v
+
+    expected = float(np.mean([sliding(v) for v in FRICTION_SPEEDS]))
+    friction = np.array(cal.leg_friction)
+    assert friction.shape == (6,)
+    # Measured through the chambers' pressures at the valve end of each tube: what the
+    # air's flow down the tube and the pressure loop add reads as up to 0.35 N more.
+    low, high = 0.9 * expected, 1.1 * expected + 0.35
+    assert np.all((friction > low) & (friction < high)), (friction, expected)
+    assert not hw.state.valve_cmd.any()  # every valve closed at the end
+    assert np.abs(hw.state.pose[3:]).max() < 1e-3  # and the platform back down, level
+
+
+def test_a_calibration_carries_the_legs_friction_and_refuses_what_no_seal_has(
+    tmp_path: Path,
+) -> None:
+    cal = Calibration(leg_friction=(1.2,) * 6, identified_at="x")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    loaded = Calibration.load(path)
+    assert loaded == cal and np.all(loaded.leg_frictions() == 1.2)
+    older = {k: v for k, v in json.loads(cal.to_json()).items() if k != "leg_friction"}
+    path.write_text(json.dumps(older))
+    assert np.all(Calibration.load(path).leg_frictions() == 0.0)  # feeds nothing forward
+    for change, match in (
+        ({"leg_friction": [1.0] * 5}, "leg_friction needs 6"),
+        ({"leg_friction": [1.0] * 5 + [40.0]}, "leg 6 holds back 40.0 N"),
+        ({"leg_friction": [-1.0] + [1.0] * 5}, "leg 1 holds back"),
     ):
         path.write_text(json.dumps(json.loads(cal.to_json()) | change))
         with pytest.raises(IdentificationError, match=match):

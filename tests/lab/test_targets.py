@@ -5,6 +5,7 @@ behaviour, not speed (the real-time factor is measured by the benchmark, not ass
 """
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -69,6 +70,30 @@ def test_dynamic_impedance_recovers_k_and_b_on_pitch() -> None:
     # The plate measures the device's impedance; the patient's muscles also work against
     # the relaxed ankle's own 15 N m/rad in parallel.
     assert 12.0 <= j.patient_stiffness - j.stiffness <= 18.0, j
+
+
+def test_a_stiff_sealed_unit_renders_its_damping_with_its_friction_fed_forward(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Seals holding back 4 N per leg (the plant's range reaches 5) add to the damping a foot
+    feels: the unit's identified friction, fed forward in the direction the admittance law
+    moves each leg, takes it out."""
+    choice = ex.PlantChoice(changes=(("friction_coulomb", 4.0),))
+    cal = ex.calibration_of(choice.config("relaxed"))
+    assert all(3.6 <= f <= 5.0 for f in cal.leg_friction), cal.leg_friction
+
+    def dynamic() -> ex.DynamicImpedanceResult:
+        with ex.on_plant(choice):
+            r = ex.impedance_dynamic("pitch", k=50.0, b=1.0, torque=5.0, hz=(0.5, 1.0, 2.0))
+        assert r.valid and not r.tripped
+        return r
+
+    fed = dynamic()
+    monkeypatch.setattr(ex, "calibration_of", lambda cfg: replace(cal, leg_friction=()))
+    unfed = dynamic()  # the same unit calibrated without the heave: no friction fed forward
+    assert fed.damping_error_pct <= 10.0, fed.joint
+    assert unfed.joint.damping >= 1.25, unfed.joint
+    assert fed.stiffness_error_pct <= 5.0, fed.joint
 
 
 FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0))
