@@ -287,14 +287,17 @@ class ControllerConfig:
     the correction off."""
     friction_compensation: float = 1.0
     """Share (0-1) of each leg's identified seal friction (``Calibration.leg_friction``,
-    less ``friction_compensation_keep``) that the position loop feeds forward while an axis
-    renders an impedance, in the direction the admittance law moves the leg (``tanh`` of
-    its commanded rate over ``friction_compensation_speed``). The law's lag fit takes out
-    what a nominal unit's seals add to the damping a foot feels, but not what stiff seals
-    add: it is a force, not a lag, and it turns the platform late at every reversal.
-    Fifty drawn builds (B = 1 at K = 50): rendered B 18.7 % off at the median and 73 % at
-    the worst without it (stiff seals, 3-5 N), 1.8 % and 4.4 % with it. 0 feeds none; an
-    uncalibrated unit, or one calibrated before the heave was identified, feeds none."""
+    less ``friction_compensation_keep``) that the position loop feeds forward in the
+    direction its target moves (``tanh`` of the target's rate over
+    ``friction_compensation_speed``; none at rest): the admittance law's command while an
+    axis renders, the exercise's trajectory otherwise. The law's lag fit takes out what a
+    nominal unit's seals add to the damping a foot feels, but not what stiff seals add: it
+    is a force, not a lag, and it turns the platform late at every reversal. Fifty drawn
+    builds, B = 1 at K = 50: rendered B 18.7 % off at the median and 73 % at the worst
+    without it (stiff seals, 3-5 N), 1.8 % and 4.4 % with it; a 2 deg pitch sine: the
+    stiff-sealed builds 33 and 48 fell 3 dB at 3.9 and 6.3 Hz without it, above 8 Hz with
+    it. A step's target jumps (no rate) and gets none. 0 feeds none; an uncalibrated unit,
+    or one calibrated before the heave was identified, feeds none."""
     friction_compensation_keep: float = 1.2
     """Friction (N) each leg keeps: the feed-forward is what was identified beyond this.
     The nominal unit's legs identify at 1.1-1.3 N, and that is the friction the stiffness-
@@ -848,9 +851,9 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.compensation[leg] + s.integral[12 + leg],
         p.max_error,
     )
-    if rendering:  # the seals' friction, in the direction the law moves the leg
-        rate = s.leg_target_rate[leg] / p.friction_speed
-        dP += p.friction_ff[leg] / p.area_cap * math.tanh(rate)
+    # The seals' friction, in the direction the target moves the leg (none at rest).
+    rate = s.leg_target_rate[leg] / p.friction_speed
+    dP += p.friction_ff[leg] / p.area_cap * math.tanh(rate)
     s.monitor[supervision.M_PUSH + leg] = (dP - s.compensation[leg]) * p.area_cap
     if not rests and not rendering:
         rests = quiet.enter(

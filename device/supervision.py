@@ -71,7 +71,9 @@ M_LEG_TARGET_SEEN = 179  # 6: a leg's target when its reading last changed (cali
 M_FOLLOW_SPEED = 185  # 6: commanded speed per axis, held and decaying with the loop's lag
 M_FOLLOW_TURN = 191  # 3: commanded rotation rates, low-passed with the loop's lag (rad/s)
 M_FOLLOW_SWERVE = 194  # 1: how far the rotation rates left that, held and decaying (rad/s)
-N_MONITOR = 195
+M_P_MOVED = 195  # 12: 1 if a chamber's raw reading changed between two reads since the last
+# control period (a live transducer's noise flickers it; a frozen one never changes)
+N_MONITOR = 207
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -536,6 +538,8 @@ def check_reading(
         if not first and abs(sensors[c] - monitor[M_P_READ + c]) > q.pressure_jump:
             return Trip.PRESSURE_SENSOR, c
     for c in range(13):
+        if c < 12 and not first and sensors[c] != monitor[M_P_READ + c]:
+            monitor[M_P_MOVED + c] = 1.0
         monitor[M_P_READ + c] = sensors[c]
     # The supply.
     supply = sensors[12] - q.atm
@@ -711,8 +715,13 @@ def check_frozen(
     q: SupervisionParams,
 ) -> bool:
     """Chamber ``c``'s raw reading at a control period, and whether its valves were driven in
-    the period before. True when it stayed frozen through enough driven periods."""
-    same = reading == monitor[M_P_LAST + c]
+    the period before. True when it stayed frozen through enough driven periods: the same
+    at every read (1 kHz) in between, not only at the periods' ends. A live transducer on a
+    chamber whose pressure does not move (an exhaust stuck shut, driven) still flickers by
+    a count at 1 kHz with its noise; compared only every fourth read, one read the same
+    ten periods running and was named as the frozen transducer."""
+    same = reading == monitor[M_P_LAST + c] and monitor[M_P_MOVED + c] == 0.0
+    monitor[M_P_MOVED + c] = 0.0
     monitor[M_P_LAST + c] = reading
     if not same:
         counters[C_P_SAME + c] = 0

@@ -96,6 +96,23 @@ def test_a_stiff_sealed_unit_renders_its_damping_with_its_friction_fed_forward(
     assert fed.stiffness_error_pct <= 5.0, fed.joint
 
 
+def test_a_stiff_sealed_unit_follows_7_hz_with_its_friction_fed_forward(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Seals holding back 5 N per leg (the top of the plant's range): a 2 deg pitch sine
+    at 7 Hz within 3 dB with the identified friction fed forward along the trajectory, and
+    the same unit without it below (measured: -1.0 against -3.2 dB)."""
+    choice = ex.PlantChoice(changes=(("friction_coulomb", 5.0),))
+    cal = ex.calibration_of(choice.config("relaxed"))
+    with ex.on_plant(choice):
+        fed = ex.sine("pitch", 2.0, 7.0)
+    monkeypatch.setattr(ex, "calibration_of", lambda cfg: replace(cal, leg_friction=()))
+    with ex.on_plant(choice):
+        unfed = ex.sine("pitch", 2.0, 7.0)
+    assert fed.valid and unfed.valid
+    assert fed.gain_db >= -3.0 > unfed.gain_db, (fed.gain_db, unfed.gain_db)
+
+
 FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0))
 """A lab rig that accepts targets faster than the device does (its own limit is 0.1 m/s)."""
 
