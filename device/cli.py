@@ -278,14 +278,20 @@ def _device(args: argparse.Namespace) -> int:
 
 
 def describe(calibration: Calibration) -> str:
-    """One line for the technician: when the unit was identified and its largest zeros."""
+    """One line for the technician: when the unit was identified, its largest zeros and its
+    legs' friction."""
     legs = max(abs(z) for z in calibration.leg_zero) * 1e3
     bar = max(abs(z) for z in calibration.pressure_zero) / 1e5
     valves = "valves identified" if calibration.valves_identified else "valves not identified"
+    friction = (
+        f"leg friction {min(calibration.leg_friction):.1f}-{max(calibration.leg_friction):.1f} N"
+        if calibration.leg_friction
+        else "leg friction not identified (none fed forward)"
+    )
     when = calibration.identified_at or "an unknown date"
     return (
         f"calibration of {when}: leg zeros up to {legs:.3f} mm, transducer zeros up to "
-        f"{bar:.3f} bar, {valves}"
+        f"{bar:.3f} bar, {valves}, {friction}"
     )
 
 

@@ -276,6 +276,7 @@ def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
     cal = Calibration.load(path)
     assert cal.valves_identified and cal.identified_at
     assert max(abs(z) for z in cal.leg_zero) > 50e-6  # draw 4's zeros, not the default's
+    assert len(cal.leg_friction) == 6 and "leg friction " in r.stdout
 
     async def capabilities(*args: str) -> tuple[Capability, list[str]]:
         proc = ServiceProcess("--link", "tcp://127.0.0.1:0", "--plant-draw", "4", *args)
