@@ -407,8 +407,7 @@ def _lift_off_stops(
     pulse each cap-side intake in the release pattern until its leg's reading passes
     ``lift`` (m), and close every valve: each leg comes up against the air of its rod side
     and stops on its own, and the controller then takes chambers near the pressures it
-    holds a leg with (from vented chambers its pressure loop filled both sides at once and
-    launched an empty, light platform into its speed limit)."""
+    holds a leg with."""
     zero = np.array(calibration.leg_zero)
     pressure_zero = np.array(calibration.pressure_zero)
     sensors = np.zeros(signals.N_SENSORS)

@@ -47,6 +47,25 @@ def distribute(
 
 
 @njit
+def ramp_common(
+    P_l: float, P_u: float, dP: float, P_lm: float, P_um: float, r: float, step: float
+) -> tuple[float, float]:
+    """Desired pressures with their common level (``P_l + r P_u``) rising at most ``step``
+    (Pa) above the measured one: eq. (10)-(12) keep the measured sum, and only the clamp
+    to ``p_min`` raises it, as when a vented leg starts. Filled at once from vented, the
+    cap side (a few cm3 at its stop) reached its target long before the rod side (the
+    whole stroke's annulus), and the differential that made launched an empty, light
+    platform into its leg-speed limit; ramped, both sides rise with the differential
+    kept."""
+    now = P_lm + r * P_um
+    if P_l + r * P_u > now + step:
+        common = now + step
+        P_l = 0.5 * (common + dP)
+        P_u = 0.5 * (common - dP) / r
+    return P_l, P_u
+
+
+@njit
 def pi_step(
     error: float, integral: float, kp: float, ki: float, dt: float, integrate: bool = True
 ) -> tuple[float, float]:

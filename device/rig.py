@@ -134,10 +134,21 @@ class Rig:
         self.apply_impedance(stiffness, damping, on)
 
     # -- applying checked values (never refuses) -----------------------------------------
-    def _start_motion(self) -> None:
+    def _start_motion(self, joint: bool) -> None:
         s = self.state
         if self.mode == Mode.IDLE:
             supervision.reset_motion(s.monitor, s.counters)
+            s.istate[ctl.I_OUTSIDE] = (
+                safety.outside_at_start(
+                    s.sensors[13:19],
+                    s.pose,
+                    self.geometry.home_pose,
+                    self.geometry.stroke,
+                    self.params.limits,
+                )
+                if joint
+                else 0
+            )
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
             s.v_m[:] = 0.0
@@ -148,7 +159,7 @@ class Rig:
         """Joint mode at piston targets ``x`` (m) moving at ``rate`` (m/s); no-op if tripped."""
         if self.mode == Mode.FAULT:
             return
-        self._start_motion()
+        self._start_motion(joint=True)
         s = self.state
         bound = self.params.sup.following_translation
         if self.mode != Mode.JOINT or np.max(np.abs(np.asarray(x) - s.leg_x)) > bound:
@@ -175,7 +186,8 @@ class Rig:
                 home[k] + tgt.frequency if ramp else tgt.frequency,
                 t0,
             )
-        self._start_motion()
+        self._start_motion(joint=False)
+        self.state.istate[ctl.I_OUTSIDE] = 0  # an exercise is judged whole, from any mode
         self.state.trajectory[:] = traj
         if self.mode != Mode.TASK:
             # A new exercise starts from the foot's resting wrench (its weight, the shank's

@@ -48,6 +48,7 @@ __all__ = [  # the limits' rows and types, for the compiled controller that read
     "check_sensors",
     "damping_min",
     "slew",
+    "still_outside",
 ]
 
 
@@ -59,15 +60,25 @@ def all_finite(values: NDArray[np.float64]) -> bool:
     return True
 
 
+OUTSIDE_POSE = 1 << 6
+"""Bit of :func:`outside_at_start`'s mask for the pose (bits 0-5 are the legs)."""
+ARM_DEPTH = 1.0e-3
+"""A leg that started outside its stroke's margin is judged once it stands this far (m)
+inside it: a platform leaving its stops dips back a few tenths of a millimetre."""
+
+
 @njit
-def check_sensors(sensors: NDArray[np.float64], stroke: float, limits: NDArray[np.float64]) -> int:
-    """Trip code for a fresh sensor vector (0 if fine)."""
+def check_sensors(
+    sensors: NDArray[np.float64], stroke: float, limits: NDArray[np.float64], exempt: int
+) -> int:
+    """Trip code for a fresh sensor vector (0 if fine). A leg whose bit is set in ``exempt``
+    started its motion outside its stroke's margin and is not judged until it is inside."""
     if not all_finite(sensors):
         return Trip.SENSOR_INVALID
     margin = limits[ROW_SCALARS, 3]
     for i in range(6):
         x = sensors[13 + i]
-        if x < margin or x > stroke - margin:
+        if (x < margin or x > stroke - margin) and not exempt & (1 << i):
             return Trip.STROKE_END
     f2 = sensors[19] ** 2 + sensors[20] ** 2 + sensors[21] ** 2
     if f2 > limits[ROW_SCALARS, 0] ** 2:
@@ -93,6 +104,60 @@ def check_pose(pose: NDArray[np.float64], limits: NDArray[np.float64]) -> int:
         if pose[k] < limits[ROW_ROM_LOW, k] - m or pose[k] > limits[ROW_ROM_HIGH, k] + m:
             return Trip.RANGE_OF_MOTION
     return Trip.NONE
+
+
+@njit
+def still_outside(
+    sensors: NDArray[np.float64],
+    pose: NDArray[np.float64],
+    home: NDArray[np.float64],
+    stroke: float,
+    limits: NDArray[np.float64],
+    mask: int,
+) -> int:
+    """``mask`` less the legs now :data:`ARM_DEPTH` inside their stroke's margin and, for
+    :data:`OUTSIDE_POSE`, less the pose once inside its range of motion (the trip's margin
+    beyond it is the hysteresis): from then on each is judged as any other
+    (:func:`check_sensors`, :func:`check_pose`)."""
+    margin = limits[ROW_SCALARS, 3] + ARM_DEPTH
+    for i in range(6):
+        x = sensors[13 + i]
+        if mask & (1 << i) and margin <= x <= stroke - margin:
+            mask &= ~(1 << i)
+    if mask & OUTSIDE_POSE:
+        inside = True
+        for k in range(6):
+            rel = pose[k] - home[k]
+            if rel < limits[ROW_ROM_LOW, k] or rel > limits[ROW_ROM_HIGH, k]:
+                inside = False
+        if inside:
+            mask &= ~OUTSIDE_POSE
+    return mask
+
+
+def outside_at_start(
+    legs: NDArray[np.float64],
+    pose: NDArray[np.float64],
+    home: NDArray[np.float64],
+    stroke: float,
+    limits: NDArray[np.float64],
+) -> int:
+    """At the start of a joint-mode motion (homing): which legs stand outside their stroke's
+    margin and whether the pose is outside its range (bit :data:`OUTSIDE_POSE`). A platform
+    resting on its end stops (vented, as the start-up identification and every power-off
+    leave it) is below its range of motion with its legs within the margin: judged as a
+    moving one, it tripped STROKE_END the moment homing began. Those limits are there to
+    stop motion leaving the allowed region; what starts outside may move into it (the
+    homing's slow joint move, whose timeout catches a leg that never arrives), and each is
+    judged from the moment it is inside."""
+    margin = limits[ROW_SCALARS, 3]
+    mask = 0
+    for i in range(6):
+        if not margin <= legs[i] <= stroke - margin:
+            mask |= 1 << i
+    if check_pose(pose - home, limits) != Trip.NONE:
+        mask |= OUTSIDE_POSE
+    return mask
 
 
 @njit

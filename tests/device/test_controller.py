@@ -268,6 +268,8 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("friction_compensation_speed", 0.0),
         ("friction_compensation_speed", math.inf),
         ("friction_compensation_keep", -1.0),
+        ("fill_rate", 0.0),
+        ("fill_rate", math.nan),
         ("impedance_lag_extra", -1e-3),
         ("impedance_lag_extra", 1.0),
     ],

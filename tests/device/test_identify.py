@@ -16,6 +16,7 @@ from device.hardware import SimulatedHardware
 from device.identify import FRICTION_SPEEDS, identify
 from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
+from device.trips import Trip
 
 
 @pytest.mark.parametrize("unit", [0, 5])
@@ -190,3 +191,60 @@ def test_a_calibration_carries_the_legs_friction_and_refuses_what_no_seal_has(
         path.write_text(json.dumps(json.loads(cal.to_json()) | change))
         with pytest.raises(IdentificationError, match=match):
             Calibration.load(path)
+
+
+@pytest.mark.parametrize("patient", ["absent", "resisting"])
+def test_a_platform_resting_on_its_stops_homes(patient: str) -> None:
+    """Where the identification leaves a unit (and a power-off): legs on their stops, vented,
+    the platform below its range of motion. Homing takes it from there to home without a
+    trip: a leg or a pose that starts outside its limit is judged once inside it, and the
+    pressure loop fills both sides of each leg together. Before, STROKE_END tripped the
+    moment homing began, and with that waived an empty platform was launched 4.6 mm in
+    20 ms into its speed limit."""
+    from device.identify import _lower_and_vent
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode
+
+    hw = SimulatedHardware(PlantConfig(patient=patient), seed=1)
+    _lower_and_vent(hw)
+    rig = Rig(hw)
+    rig.run(1.0, log_hz=0)
+    start = rig.state.leg_x.copy()
+    assert start.min() < 0.040  # down (on the stops when the plate is empty)
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.arm_home()
+    for _ in range(1000):
+        rig.run(0.01, log_hz=0)
+        machine.step()
+        if machine.mode in (DeviceMode.READY, DeviceMode.FAULT):
+            break
+    assert machine.mode == DeviceMode.READY and rig.trip == Trip.NONE, events[-2:]
+    assert np.abs(rig.state.leg_x - 0.05).max() < 0.5e-3
+
+
+def test_a_leg_or_pose_outside_its_limit_is_judged_once_it_is_inside() -> None:
+    from device import safety
+    from device.limits import SafetyLimits
+
+    lim = SafetyLimits().published().as_array()
+    stroke, home = 0.1, np.zeros(6)
+    sensors = np.zeros(25)
+    sensors[13:19] = 0.05
+    sensors[13] = 0.0005  # leg 1 on its stop
+    pose = np.zeros(6)
+    pose[2] = -0.04  # below the range of motion
+    mask = safety.outside_at_start(sensors[13:19], pose, home, stroke, lim)
+    assert mask == (1 | safety.OUTSIDE_POSE)
+    assert safety.check_sensors(sensors, stroke, lim, mask) == 0  # waived while outside
+    assert safety.check_sensors(sensors, stroke, lim, 0) == int(Trip.STROKE_END)
+    sensors[13] = 0.0025  # inside the 2 mm margin, not yet 1 mm beyond it: still waived
+    assert safety.still_outside(sensors, pose, home, stroke, lim, mask) == mask
+    sensors[13] = 0.0035
+    pose[2] = -0.028  # inside the trip's margin, not yet the range itself
+    mask = safety.still_outside(sensors, pose, home, stroke, lim, mask)
+    assert mask == safety.OUTSIDE_POSE
+    pose[2] = -0.02
+    assert safety.still_outside(sensors, pose, home, stroke, lim, mask) == 0
+    sensors[13] = 0.0015  # judged from now on
+    assert safety.check_sensors(sensors, stroke, lim, 0) == int(Trip.STROKE_END)

@@ -36,6 +36,21 @@ def test_distribution_respects_bounds(dP: float, pl: float, pu: float) -> None:
     assert P_MIN - 1e-6 <= P_u <= P_MAX + 1e-6
 
 
+@given(st.floats(-0.5e5, 0.5e5), st.floats(0.0, 5.8e5), st.floats(0.0, 5.8e5))
+def test_the_common_level_rises_at_most_a_step_and_keeps_the_differential(
+    dP: float, pl: float, pu: float
+) -> None:
+    step = 0.04e5
+    P_l, P_u = pressure_loop.distribute(dP, pl, pu, R, P_MIN, P_MAX)
+    Q_l, Q_u = pressure_loop.ramp_common(P_l, P_u, dP, pl, pu, R, step)
+    now, wanted = pl + R * pu, P_l + R * P_u
+    if wanted > now + step:  # a vented leg's start: both sides rise, the force stays right
+        assert Q_l + R * Q_u == pytest.approx(now + step, abs=1e-6)
+        assert Q_l - R * Q_u == pytest.approx(dP, abs=1e-6)
+    else:  # everything else (the sum kept, or falling) is eq. (10)-(12) untouched
+        assert (Q_l, Q_u) == (P_l, P_u)
+
+
 def test_pi_is_p_plus_i_and_stops_winding_up() -> None:
     u, integ = pressure_loop.pi_step(1000.0, 0.0, 1e-3, 0.01, 0.004)
     assert u == pytest.approx(1.0 + 0.01 * 4.0)
