@@ -238,9 +238,9 @@ def test_a_leg_or_pose_outside_its_limit_is_judged_once_it_is_inside() -> None:
     assert mask == (1 | safety.OUTSIDE_POSE)
     assert safety.check_sensors(sensors, stroke, lim, mask) == 0  # waived while outside
     assert safety.check_sensors(sensors, stroke, lim, 0) == int(Trip.STROKE_END)
-    sensors[13] = 0.0025  # inside the 2 mm margin, not yet 1 mm beyond it: still waived
+    sensors[13] = 0.0035  # inside the 2 mm margin, not yet 2 mm beyond it: still waived
     assert safety.still_outside(sensors, pose, home, stroke, lim, mask) == mask
-    sensors[13] = 0.0035
+    sensors[13] = 0.0045
     pose[2] = -0.028  # inside the trip's margin, not yet the range itself
     mask = safety.still_outside(sensors, pose, home, stroke, lim, mask)
     assert mask == safety.OUTSIDE_POSE
