@@ -416,7 +416,7 @@ class ControllerParams(NamedTuple):
     virtual_omega2: float
     lag_max: float
     lag_forget: float
-    friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg while rendering
+    friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg along its moving target
     friction_speed: float  # m/s
     fill_step: float  # Pa per control period
     lag_extra: float  # s

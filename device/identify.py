@@ -32,7 +32,7 @@ same routine on the simulation and on an I/O board.
    found, moves every leg up and down its mid-stroke at two slow, steady speeds. A leg's
    chambers push with the load plus its seals' friction going up and the load less it
    going down, so the difference is twice the friction: what the position loop feeds
-   forward while an axis renders an impedance (``ControllerConfig.friction_compensation``).
+   forward along the leg's moving target (``ControllerConfig.friction_compensation``).
 
 What it does not identify (yet): the platform's mass and centre of mass (the outer loop's
 integral takes up their static part), the sensors' span errors.
@@ -48,7 +48,7 @@ from datetime import UTC, datetime
 import numpy as np
 from numpy.typing import NDArray
 
-from device import signals, supervision
+from device import pwm, signals, supervision
 from device.calibration import Calibration, IdentificationError
 from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
@@ -81,10 +81,8 @@ def identify(
     """Vent the unit and read its zeros (see the module docstring). Nobody may stand on
     the plate: the platform sinks to its stops. Leaves every valve closed."""
     sensors = np.zeros(signals.N_SENSORS)
-    valves = np.zeros(signals.N_VALVES, dtype=np.uint8)
     history: list[NDArray[np.float64]] = []
     tick = 0
-    slots = 28
 
     def step(pattern: NDArray[np.uint8]) -> None:
         nonlocal tick
@@ -95,21 +93,10 @@ def identify(
         hardware.wait_tick()
         tick += 1
 
-    down = np.zeros(signals.N_VALVES, dtype=np.uint8)
-    down[1::4] = 1  # each cap side's exhaust (chamber 2i: valves 4i, 4i + 1)
-    down[2::4] = 1  # each rod side's intake (chamber 2i + 1: valves 4i + 2, 4i + 3)
     if progress:
         progress("identification: legs down to their end stops")
     try:
-        pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
-        for _ in range(int(DOWN_PULSE_S * TICK_HZ)):
-            slot, period = tick % slots, tick // slots
-            step(down if slot < pulse and period % every == 0 else valves)
-        for _ in range(int(DOWN_OPEN_S * TICK_HZ)):
-            step(down)
-        valves[1::2] = 1
-        for _ in range(int(VENT_OPEN_S * TICK_HZ)):
-            step(valves)
+        valves = _down_and_vent(step)
         legs = np.array([h[signals.SENSOR_LEG : signals.SENSOR_LEG + 6] for h in history[-101:]])
         speed = np.abs(legs[-1] - legs[0]) / 0.1
         if np.any(speed > SETTLED_SPEED):
@@ -376,7 +363,7 @@ def identify_friction(
                     x = high if direction > 0 else low
     finally:
         rig.close_valves_now()
-        _lower_and_vent(hardware)
+        lower_and_vent(hardware)
     data = np.array(rows)
     friction = np.zeros(6)
     commanded = data[:, 12]
@@ -413,7 +400,6 @@ def _lift_off_stops(
     sensors = np.zeros(signals.N_SENSORS)
     pattern = np.zeros(signals.N_VALVES, dtype=np.uint8)
     closed = np.zeros(signals.N_VALVES, dtype=np.uint8)
-    pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
     filling = np.ones(6, dtype=bool)
     up = np.ones(6, dtype=bool)
     try:
@@ -430,10 +416,8 @@ def _lift_off_stops(
                     for _ in range(int(LIFT_SETTLE_S * TICK_HZ)):  # it rests on its air
                         hardware.wait_tick()
                     return
-            slot, period = tick % 28, tick // 28
-            on = slot < pulse and period % every == 0
             pattern[2::4] = filling  # rod intake
-            pattern[0::4] = up & ~filling.any() & on  # cap intake
+            pattern[0::4] = up & ~filling.any() & _release_pulse(tick)  # cap intake
             hardware.write_valves(pattern)
             hardware.wait_tick()
         stuck = [i + 1 for i in range(6) if up[i]]
@@ -453,24 +437,41 @@ def _check(rig: Rig) -> None:
         )
 
 
-def _lower_and_vent(hardware: Hardware) -> None:
-    """Bring the legs down onto their stops in the release pattern, then vent every chamber,
-    and close every valve: where the identification found the unit."""
-    down = np.zeros(signals.N_VALVES, dtype=np.uint8)
-    down[1::4] = 1
-    down[2::4] = 1
+def _release_pulse(tick: int) -> bool:
+    """Whether the release pattern (``ControllerConfig.vent_pulse_slots`` of each PWM
+    period, once every ``vent_every_periods``) has its valves open at ``tick``."""
+    slot, period = tick % pwm.PWM_SLOTS, tick // pwm.PWM_SLOTS
+    every = ControllerConfig.vent_every_periods
+    return slot < ControllerConfig.vent_pulse_slots and period % every == 0
+
+
+def _down_and_vent(step: Callable[[NDArray[np.uint8]], None]) -> NDArray[np.uint8]:
+    """Bring the legs down onto their stops (each cap side's exhaust and rod side's intake,
+    in the release pattern first, then open), then vent every chamber, ``step`` writing one
+    tick's valve pattern. Returns the vent pattern (every exhaust open) it ends on."""
     closed = np.zeros(signals.N_VALVES, dtype=np.uint8)
+    down = closed.copy()
+    down[1::4] = 1  # each cap side's exhaust (chamber 2i: valves 4i, 4i + 1)
+    down[2::4] = 1  # each rod side's intake (chamber 2i + 1: valves 4i + 2, 4i + 3)
     vent = closed.copy()
     vent[1::2] = 1
-    pulse, every = ControllerConfig.vent_pulse_slots, ControllerConfig.vent_every_periods
+    for tick in range(int(DOWN_PULSE_S * TICK_HZ)):
+        step(down if _release_pulse(tick) else closed)
+    for pattern, seconds in ((down, DOWN_OPEN_S), (vent, VENT_OPEN_S)):
+        for _ in range(int(seconds * TICK_HZ)):
+            step(pattern)
+    return vent
+
+
+def lower_and_vent(hardware: Hardware) -> None:
+    """Where the identification leaves a unit: every leg down on its stop, every chamber
+    vented, every valve closed."""
+
+    def step(pattern: NDArray[np.uint8]) -> None:
+        hardware.write_valves(pattern)
+        hardware.wait_tick()
+
     try:
-        for tick in range(int(DOWN_PULSE_S * TICK_HZ)):
-            slot, period = tick % 28, tick // 28
-            hardware.write_valves(down if slot < pulse and period % every == 0 else closed)
-            hardware.wait_tick()
-        for pattern, seconds in ((down, DOWN_OPEN_S), (vent, VENT_OPEN_S)):
-            for _ in range(int(seconds * TICK_HZ)):
-                hardware.write_valves(pattern)
-                hardware.wait_tick()
+        _down_and_vent(step)
     finally:
-        hardware.write_valves(closed)
+        hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))

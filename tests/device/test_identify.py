@@ -201,12 +201,12 @@ def test_a_platform_resting_on_its_stops_homes(patient: str) -> None:
     pressure loop fills both sides of each leg together. Before, STROKE_END tripped the
     moment homing began, and with that waived an empty platform was launched 4.6 mm in
     20 ms into its speed limit."""
-    from device.identify import _lower_and_vent
+    from device.identify import lower_and_vent
     from device.modes import ModeMachine
     from device.protocol.messages import DeviceMode
 
     hw = SimulatedHardware(PlantConfig(patient=patient), seed=1)
-    _lower_and_vent(hw)
+    lower_and_vent(hw)
     rig = Rig(hw)
     rig.run(1.0, log_hz=0)
     start = rig.state.leg_x.copy()
