@@ -166,6 +166,17 @@ class ControllerConfig:
     """...and slower than this (m/s), relative to its target's rate: while a step's approach
     runs into the zone the error is still one-sided and large, and integrating it winds up
     an overshoot that takes the slow integral a second to unwind."""
+    position_integral_moving: float = 0.1
+    """Share of ``position_ki`` the outer integral runs at while its leg's target moves
+    (faster than ``rest_target_rate``) and no axis renders. At its full rate (40 ms) it
+    wound up against the seals at each reversal of a small sine and threw the leg past
+    it: the nominal unit followed a 1.2 mm, 2 Hz sine in y at +3.6 dB over its 0.5 Hz
+    gain (x +3.3). Stopped altogether (0), stiff-sealed builds lagged the start-up
+    identification's slow heave into a FOLLOWING trip. At a tenth (400 ms) it still learns
+    a slow move's load; what friction it no longer throws the leg through is fed forward
+    (``friction_compensation``, all of it along a trajectory): y then rises +0.5 dB over
+    its 0.5 Hz gain, and the largest rise over the six axes is 2.4 dB (roll, 2 Hz). A
+    step's target jumps (no rate): its integral runs at the full rate."""
     position_integral_max: float = 0.3e5
     """Bound of the outer integral (Pa of differential, about 15 N on a leg): above what any
     drawn plant needed (a kilogram of platform mass is under 2 N a leg, the stiffest seal's
@@ -296,11 +307,12 @@ class ControllerConfig:
     empty platform homing from its stops was launched 4.6 mm in 20 ms and tripped; at 10
     bar/s both chambers reach the 2.2 bar floor in about 0.2 s."""
     friction_compensation: float = 1.0
-    """Share (0-1) of each leg's identified seal friction (``Calibration.leg_friction``,
-    less ``friction_compensation_keep``) that the position loop feeds forward in the
-    direction its target moves (``tanh`` of the target's rate over
+    """Share (0-1) of each leg's identified seal friction (``Calibration.leg_friction``;
+    while an axis renders, less ``friction_compensation_keep``) that the position loop
+    feeds forward in the direction its target moves (``tanh`` of the target's rate over
     ``friction_compensation_speed``; none at rest): the admittance law's command while an
-    axis renders, the exercise's trajectory otherwise. The law's lag fit takes out what a
+    axis renders, the exercise's trajectory otherwise (lagged:
+    ``friction_compensation_lag``). The law's lag fit takes out what a
     nominal unit's seals add to the damping a foot feels, but not what stiff seals add: it
     is a force, not a lag, and it turns the platform late at every reversal. Fifty drawn
     builds, B = 1 at K = 50: rendered B 18.7 % off at the median and 73 % at the worst
@@ -309,7 +321,8 @@ class ControllerConfig:
     it. A step's target jumps (no rate) and gets none. 0 feeds none; an uncalibrated unit,
     or one calibrated before the heave was identified, feeds none."""
     friction_compensation_keep: float = 1.2
-    """Friction (N) each leg keeps: the feed-forward is what was identified beyond this.
+    """Friction (N) each leg keeps while an axis renders: the feed-forward is what was
+    identified beyond this.
     The nominal unit's legs identify at 1.1-1.3 N, and that is the friction the stiffness-
     damping envelope was measured with (device.limits): a unit fed forward to less is less
     damped than the one measured. On the nominal unit a feed-forward of 2.0 N, more than its
@@ -320,6 +333,15 @@ class ControllerConfig:
     """Commanded leg rate (m/s) over which the friction feed-forward turns from one
     direction to the other (the ``tanh``'s scale): below the seals' Stribeck speed, where
     their friction too turns over."""
+    friction_compensation_lag: float = 0.023
+    """Along a trajectory (no axis rendering) the feed-forward is all of each leg's
+    identified friction, nothing kept (the envelope's margin concerns rendering only), and
+    it turns with this lag (s, a first-order low-pass): the leg follows its target about
+    ``position_kd / position_kp`` late, and its seals turn over when it does, not when the
+    target does. Unlagged, a 0.3 mm heave sine met the feed-forward's square wave ahead of
+    the platform's light mode and rose +4.4 dB over its 0.5 Hz gain at 22 Hz (+1.9 with
+    the lag). Kept at 1.2 N instead of all of it, the nominal unit fed nothing forward and
+    followed a 1.2 mm y sine 3.5 dB below its 0.5 Hz gain at 2 Hz. 0: no lag."""
     impedance_lag_extra: float = 1.0e-3
     """Lag (s) the admittance law adds to the learnt one (``learn_lag``) when it takes the
     platform's lag out of the damping. The fit compares the command sent a period ago with
@@ -392,6 +414,8 @@ class ControllerParams(NamedTuple):
     pos_i_band: float
     pos_i_deadband: float
     pos_i_max: float
+    pos_i_moving: float  # share of ki_pos while the target moves
+    still_rate: float  # m/s: a target slower than this is still
     kp_p: float
     ki_p: float
     i_zone: float
@@ -418,6 +442,8 @@ class ControllerParams(NamedTuple):
     lag_forget: float
     friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg along its moving target
     friction_speed: float  # m/s
+    friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
+    friction_track_alpha: float  # its low-pass per control period
     fill_step: float  # Pa per control period
     lag_extra: float  # s
     vent_pulse_slots: int
@@ -465,6 +491,7 @@ class ControllerState(NamedTuple):
     compensation: NDArray[np.float64]  # (6,) G_p (Pa)
     p_desired: NDArray[np.float64]  # (12,)
     integral: NDArray[np.float64]  # (18,) per chamber (inner PI), then per leg (outer, Pa)
+    friction_track: NDArray[np.float64]  # (6,) friction fed forward along a trajectory (N)
     u: NDArray[np.float64]  # (12,) control input (percent)
     slots: NDArray[np.int64]  # (12,) signed PWM slots
     valves: NDArray[np.uint8]  # (24,)
@@ -512,6 +539,12 @@ def build_params(
     ):
         raise ValueError("friction_compensation_keep must be a finite force >= 0 (N)")
     if not (
+        math.isfinite(config.friction_compensation_lag) and config.friction_compensation_lag >= 0
+    ):
+        raise ValueError("friction_compensation_lag must be a finite time >= 0 (s)")
+    if not 0.0 <= config.position_integral_moving <= 1.0:
+        raise ValueError("position_integral_moving must be 0..1 (a share of position_ki)")
+    if not (
         math.isfinite(config.impedance_lag_extra)
         and 0.0 <= config.impedance_lag_extra <= config.impedance_lag_max
     ):
@@ -550,6 +583,8 @@ def build_params(
         pos_i_band=config.position_integral_band,
         pos_i_deadband=config.position_integral_deadband,
         pos_i_max=config.position_integral_max,
+        pos_i_moving=config.position_integral_moving,
+        still_rate=config.rest_target_rate,
         kp_p=config.pressure_kp,
         ki_p=config.pressure_ki,
         i_zone=config.pressure_integral_zone,
@@ -580,6 +615,12 @@ def build_params(
         * np.maximum(0.0, config.calibration.leg_frictions() - config.friction_compensation_keep),
         lag_extra=config.impedance_lag_extra,
         friction_speed=config.friction_compensation_speed,
+        friction_track=config.friction_compensation * config.calibration.leg_frictions(),
+        friction_track_alpha=(
+            1.0 - math.exp(-CONTROL_PERIOD * dt_tick / config.friction_compensation_lag)
+            if config.friction_compensation_lag > 0
+            else 1.0
+        ),
         fill_step=config.fill_rate * CONTROL_PERIOD * dt_tick,
         vent_pulse_slots=int(config.vent_pulse_slots),
         vent_every_periods=int(config.vent_every_periods),
@@ -647,6 +688,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         compensation=np.zeros(6),
         p_desired=np.zeros(12),
         integral=np.zeros(18),
+        friction_track=np.zeros(6),
         u=np.zeros(12),
         slots=np.zeros(12, dtype=np.int64),
         valves=np.zeros(24, dtype=np.uint8),
@@ -818,6 +860,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.integral[lo] = 0.0
         s.integral[up] = 0.0
         s.integral[12 + leg] = 0.0
+        s.friction_track[leg] = 0.0
         s.monitor[supervision.M_PUSH + leg] = 0.0
         s.counters[supervision.C_WINDOW + lo] = 0
         s.counters[supervision.C_WINDOW + up] = 0
@@ -844,12 +887,14 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     # sensor can resolve.
     band = p.pos_i_band if rendering else p.pos_i_deadband
     error = math.copysign(max(0.0, abs(error) - band), error)
+    # Slower while the target moves (not rendering): see ControllerConfig.position_integral_moving.
+    moving_target = abs(s.leg_target_rate[leg]) > p.still_rate and not rendering
     if not rests:
         s.integral[12 + leg] = position_loop.integrate(
             s.integral[12 + leg],
             error,
             s.leg_target_rate[leg] - s.leg_rate[leg],
-            p.ki_pos,
+            p.ki_pos * (p.pos_i_moving if moving_target else 1.0),
             p.dt_control,
             p.pos_i_zone,
             p.pos_i_speed,
@@ -865,9 +910,18 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.compensation[leg] + s.integral[12 + leg],
         p.max_error,
     )
-    # The seals' friction, in the direction the target moves the leg (none at rest).
-    rate = s.leg_target_rate[leg] / p.friction_speed
-    dP += p.friction_ff[leg] / p.area_cap * math.tanh(rate)
+    # The seals' friction, in the direction the target moves the leg (none at rest): what
+    # is beyond the nominal unit's while rendering, all of it turning with the loop's lag
+    # along a trajectory.
+    rate = math.tanh(s.leg_target_rate[leg] / p.friction_speed)
+    if rendering:
+        s.friction_track[leg] = 0.0
+        dP += p.friction_ff[leg] / p.area_cap * rate
+    else:
+        s.friction_track[leg] += p.friction_track_alpha * (
+            p.friction_track[leg] * rate - s.friction_track[leg]
+        )
+        dP += s.friction_track[leg] / p.area_cap
     s.monitor[supervision.M_PUSH + leg] = (dP - s.compensation[leg]) * p.area_cap
     if not rests and not rendering:
         rests = quiet.enter(

@@ -7,6 +7,7 @@ import pytest
 from numpy.typing import NDArray
 
 from device import controller as ctl
+from device.calibration import Calibration
 from device.controller import Mode, Waveform
 from device.geometry import DEFAULT_GEOMETRY
 from device.hardware import HardwareError, SimulatedHardware, open_hardware
@@ -217,6 +218,36 @@ def test_the_position_loops_lag_is_learnt_from_the_command_and_the_measured_pose
     assert row[ctl.L_TAU] == p.lag_max
 
 
+def test_along_a_trajectory_the_friction_fed_forward_turns_with_the_loops_lag() -> None:
+    """All of a leg's identified friction is fed forward in the direction its target
+    moves, turning about ``friction_compensation_lag`` after the target does (the leg
+    follows its target that late); while an axis renders, nothing of it."""
+    cal = Calibration(leg_friction=(3.0,) * 6, identified_at="test")
+    r = Rig(
+        SimulatedHardware(PlantConfig(patient="relaxed"), seed=2),
+        config=ctl.ControllerConfig(calibration=cal),
+    )
+    r.move_legs(np.full(6, 0.5 * r.geometry.stroke))
+    r.run(0.5, log_hz=0)
+    r.track({"pitch": AxisTarget(Waveform.SINE, 0.0, math.radians(8.0), 1.0)})
+    rows = []
+    for _ in range(500):  # 2 s, one control period (4 ms) at a time
+        r.run(0.004, log_hz=0)
+        rows.append((r.state.leg_target_rate[0], r.state.friction_track[0]))
+    a = np.array(rows)[100:]  # the sine's fade-in is over
+    direction, fed = np.sign(a[:, 0]), a[:, 1]
+    assert 2.5 < np.abs(fed).max() <= 3.0
+    n = len(fed)
+    lag = max(range(25), key=lambda k: float(np.dot(direction[: n - k], fed[k:])))
+    assert 3 <= lag <= 9, lag  # periods: 12-36 ms, about the loop's 23 ms
+    K, B = np.zeros(6), np.zeros(6)
+    K[4], B[4] = 50.0, 1.0
+    r.set_impedance(K, B, [k == 4 for k in range(6)])
+    r.run(0.2, log_hz=0)
+    assert not r.state.friction_track.any()
+    assert r.trip == Trip.NONE
+
+
 def _leg_rates_in_a_step(rate_observer: float) -> NDArray[np.float64]:
     """(true, filtered, observed) rate of leg 3 every millisecond of an 8 mm joint step."""
     r = Rig(
@@ -268,6 +299,10 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("friction_compensation_speed", 0.0),
         ("friction_compensation_speed", math.inf),
         ("friction_compensation_keep", -1.0),
+        ("friction_compensation_lag", -1e-3),
+        ("friction_compensation_lag", math.inf),
+        ("position_integral_moving", -0.1),
+        ("position_integral_moving", 1.5),
         ("fill_rate", 0.0),
         ("fill_rate", math.nan),
         ("impedance_lag_extra", -1e-3),

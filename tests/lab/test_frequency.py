@@ -29,14 +29,11 @@ def test_the_lab_limits_are_the_labs_alone() -> None:
             assert "LAB_LIMITS" not in text and "lab.frequency" not in text, source
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open: the nominal plant peaks above +3 dB at 2 Hz in small-signal sweeps (lab "
-    "mode: y +3.6 dB, x +3.3; friction and the dead band with the outer integral). The "
-    "light modes' 22-30 Hz peaks (z +8.1 dB, pitch +6.8, roll +6.1 before) are gone since "
-    "the position loop's rate observer (z +0.6, the largest)",
-)
 def test_no_axis_peaks_more_than_3_db_on_the_nominal_plant() -> None:
+    """Above its 0.5 Hz gain, at the small amplitudes of the sweep. It was the outer
+    integral winding up against the seals at each reversal of a small sine (y +3.6 dB at
+    2 Hz) before it slowed while the target moves; the light modes' 22-30 Hz peaks (z +8.1
+    dB, pitch +6.8, roll +6.1) before the position loop's rate observer."""
     axis, peak_db, hz = fr.largest_peak(fr.all_axes())
     assert peak_db <= 3.0, (axis, peak_db, hz)
 
