@@ -141,10 +141,12 @@ def _run(
     seed: int,
     channel: int | None = None,
     after: float = AFTER_S,
-) -> tuple[Rig, np.ndarray, float, float]:
+) -> tuple[Rig, np.ndarray, float, float, float]:
     """One scenario with ``kind`` injected (or none): (rig, true pose log, detection s,
-    onset s), both from the injection; the onset is when the fault became one (a drooping
-    regulator's output crossing the low mark), 0 for any other."""
+    onset s, stop s), all from the injection; the onset is when the fault became one (a
+    drooping regulator's output crossing the low mark), 0 for any other; the stop is when
+    the loop let go of the platform (a trip) or held it (a low supply), NaN if it never
+    did (a service warning leaves the loop running)."""
     rig = _rig("relaxed", seed)
     _start(rig, scenario)
     rig.run(0.5 if scenario != "holding" else 0.1, log_hz=0)
@@ -157,7 +159,7 @@ def _run(
         channel = default if channel is None else channel
         duration = 0.3 if kind == FaultKind.LEG_NOISE else math.inf
         hw.inject(Fault(kind, float(hw.state.time[0]), channel, value, duration))
-    detect = onset = math.nan
+    detect = onset = stop = math.nan
     step = 0.001
     low_mark = supervision.SupervisionConfig().supply_low + rig.config.atmosphere
     for _ in range(round(after / step)):
@@ -174,21 +176,24 @@ def _run(
         noticed = rig.mode == Mode.FAULT or rig.supply_low or rig.service_chamber >= 0
         if math.isnan(detect) and noticed:
             detect = rig.time - t0
+        if math.isnan(stop) and (rig.mode == Mode.FAULT or rig.supply_low):
+            stop = rig.time - t0
     pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
-    return rig, pose, detect, onset
+    return rig, pose, detect, onset, stop
 
 
-def excursion(faulty: np.ndarray, healthy: np.ndarray, detect_row: int | None) -> np.ndarray:
+def excursion(faulty: np.ndarray, healthy: np.ndarray, stop_row: int | None) -> np.ndarray:
     """Largest motion the fault caused, per axis: the departure from the same run without
-    the fault up to the detection, then any drift from where the platform was at the
-    detection (after it the valves are closed and the healthy run goes on moving)."""
+    the fault while the loop runs, then, once it let go of the platform (a trip closes the
+    valves) or held it (a low supply), the departure from where the run without the fault
+    was at that moment (which goes on moving with the exercise)."""
     n = min(len(faulty), len(healthy))
-    end = n if detect_row is None else min(detect_row + 1, n)
+    end = n if stop_row is None else min(stop_row + 1, n)
     before = np.abs(faulty[:end] - healthy[:end]).max(axis=0)
-    if detect_row is None or detect_row >= n:
+    if stop_row is None or stop_row >= n:
         whole: np.ndarray = before
         return whole
-    after = np.abs(faulty[detect_row:] - faulty[detect_row]).max(axis=0)
+    after = np.abs(faulty[stop_row:] - healthy[stop_row]).max(axis=0)
     result: np.ndarray = np.maximum(before, after)
     return result
 
@@ -197,7 +202,7 @@ def excursion(faulty: np.ndarray, healthy: np.ndarray, detect_row: int | None) -
 def _healthy_pose(scenario: str, seed: int, after: float) -> np.ndarray:
     """The twin run without the fault: the same for every fault kind and channel (the plant
     and the controller are deterministic for a seed), so simulated once."""
-    _, pose, _, _ = _run(None, scenario, seed, after=after)
+    _, pose, _, _, _ = _run(None, scenario, seed, after=after)
     pose.flags.writeable = False
     return pose
 
@@ -213,10 +218,10 @@ def run_fault(
     for ``after`` seconds."""
     healthy = _healthy_pose(scenario, seed, after)
     channel = FAULTS[kind][0] if channel is None else channel
-    rig, pose, detect, onset = _run(kind, scenario, seed, channel, after)
-    row = None if math.isnan(detect) else round(detect * 1000.0)
-    if rig.mode != Mode.FAULT and not rig.supply_low:
-        row = None  # nothing stopped it (a service warning): compare the whole run
+    rig, pose, detect, onset, stop = _run(kind, scenario, seed, channel, after)
+    # Against the healthy twin while the loop runs (a service warning leaves it running),
+    # then any drift from where the platform was when the loop let go or held it.
+    row = None if math.isnan(stop) else round(stop * 1000.0)
     moved = excursion(pose, healthy, row)
     trip = rig.trip
     held = rig.supply_low and trip == Trip.NONE

@@ -51,3 +51,22 @@ def test_a_wrong_kind_or_watch_time_is_one_line_and_exit_2(
     done = _bench(*args)
     assert done.returncode == 2 and done.stdout == ""
     assert says in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_the_excursion_counts_from_the_fault_free_twin_until_the_loop_lets_go() -> None:
+    """While the loop runs (a service warning leaves it running) the fault's platform is
+    compared with the twin's at the same moment; once a trip lets go of it, with where
+    the twin was then. The twin goes on exercising; its motion is not the fault's."""
+    import numpy as np
+
+    from lab.safety import excursion
+
+    t = np.arange(10.0)[:, None]
+    twin = np.hstack([t, np.zeros((10, 5))])  # x runs on with the exercise, 1 a step
+    faulty = twin.copy()
+    faulty[3:, 1] = 0.5  # y pushed 0.5 off at row 3, the loop still running
+    faulty[6:, 0] = 6.0  # a trip at row 6: x stops where the twin was...
+    faulty[8:, 1] = 2.0  # ...and then y drifts on to 2
+    assert list(excursion(faulty, twin, 6)[:2]) == [0.0, 2.0]
+    # Never stopped: against the twin throughout (x stood still while the twin ran on).
+    assert list(excursion(faulty, twin, None)[:2]) == [3.0, 2.0]
