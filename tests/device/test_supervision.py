@@ -449,10 +449,9 @@ def test_a_sideways_force_sensor_offset_is_stopped_by_the_following_check(scenar
     Before the following check it walked 7.5-8.9 mm in 0.5 s, undetected mid-exercise and
     on. Now caught in 46-114 ms at 3.5-8.2 mm (from where the run without the fault was at
     the trip; 7.6 mm counted from the pose at the trip): the false Fx also reads as a pitch
-    torque
-    (the sensor sits below the ankle), which turns the compliant pitch as a patient's would
-    and so widens the sideways bound (``SupervisionConfig.following_turn``); the more so
-    since the law renders the loop's lag out of the damping (86 ms before)."""
+    torque (the sensor sits below the ankle), which turns the compliant pitch as a
+    patient's would and so widens the sideways bound (``SupervisionConfig.following_turn``);
+    the more so since the law renders the loop's lag out of the damping (86 ms before)."""
     for channel in (0, 1):
         run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=channel)
         assert run.detected and run.trip == Trip.FOLLOWING.name, run
