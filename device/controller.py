@@ -171,7 +171,7 @@ class ControllerConfig:
     (faster than ``rest_target_rate``) and no axis renders. At its full rate (40 ms) it
     wound up against the seals at each reversal of a small sine and threw the leg past
     it: the nominal unit followed a 1.2 mm, 2 Hz sine in y at +3.6 dB over its 0.5 Hz
-    gain (x +3.3). Stopped altogether (0), stiff-sealed builds lagged the start-up
+    gain (x +3.3). Stopped altogether (0), drawn build 37 (4.5 N seals) lagged the start-up
     identification's slow heave into a FOLLOWING trip. At a tenth (400 ms) it still learns
     a slow move's load; what friction it no longer throws the leg through is fed forward
     (``friction_compensation``, all of it along a trajectory): y then rises +0.5 dB over
