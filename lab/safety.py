@@ -220,7 +220,7 @@ def run_fault(
     channel = FAULTS[kind][0] if channel is None else channel
     rig, pose, detect, onset, stop = _run(kind, scenario, seed, channel, after)
     # Against the healthy twin while the loop runs (a service warning leaves it running),
-    # then any drift from where the platform was when the loop let go or held it.
+    # then against where the twin was when the loop let go of the platform or held it.
     row = None if math.isnan(stop) else round(stop * 1000.0)
     moved = excursion(pose, healthy, row)
     trip = rig.trip
