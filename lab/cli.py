@@ -117,6 +117,14 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         seed_default=0,
         seed_help="the ensemble's first plant: draws SEED .. SEED+N-1 (default 0)",
     )
+    p.add_argument(
+        "--noise-seed",
+        type=ranged(int, 0, 99999),
+        default=None,
+        metavar="S",
+        help="seed of every unit's sensor noise and valve jitter in every experiment (default: "
+        "each experiment's own, 1); a plant's figures are one draw of it",
+    )
     p = bs.add_parser("link", help="serial link: ACK round trip, telemetry, pacing, watchdog")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
@@ -386,12 +394,14 @@ def _bench(args: argparse.Namespace) -> int:
     from lab import controlbench
     from lab import experiments as ex
 
-    choice = ex.PlantChoice(args.plant_draw, tuple(args.plant), None)
+    choice = ex.PlantChoice(args.plant_draw, tuple(args.plant), args.noise_seed)
     try:
         choice.config("relaxed")
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    result = controlbench.run(args.plots, choice, args.ensemble, args.seed, _progress)
+    result = controlbench.run(
+        args.plots, choice, args.ensemble, args.seed, _progress, noise_seed=args.noise_seed
+    )
     print(file=sys.stderr)
     print(json.dumps(_jsonable(result), indent=2) if args.json else controlbench.table(result))
     if not result["valid"] and not args.json:

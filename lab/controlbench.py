@@ -173,6 +173,7 @@ def run(
     ensemble_n: int = 0,
     ensemble_seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    noise_seed: int | None = None,
 ) -> dict[str, Any]:
     """Run every experiment of the benchmark; returns the JSON-able result.
 
@@ -180,7 +181,8 @@ def run(
     whose experiment was invalid to the reason (its value is then None and its target not
     met); ``valid`` is whether every experiment was. ``plant`` runs the benchmark on a
     changed plant; ``ensemble_n`` plants drawn from ``ensemble_seed`` on are measured too
-    (lab.ensemble).
+    (lab.ensemble), each with ``noise_seed`` for its sensor noise and valve jitter (None:
+    each experiment's own, as ``plant`` says for the nominal one).
     """
     choice = plant if plant is not None else experiments.PlantChoice()
     with experiments.on_plant(choice):
@@ -192,7 +194,7 @@ def run(
         if progress:
             progress("ensemble: the nominal plant")
         nominal = ensemble.measure(choice)
-        result = ensemble.run(ensemble_n, ensemble_seed, nominal, progress)
+        result = ensemble.run(ensemble_n, ensemble_seed, nominal, progress, noise_seed=noise_seed)
         out.update(result)
         out["targets_met"].update(
             {t.key: out[t.key] is not None and t.met(float(out[t.key])) for t in ensemble.TARGETS}

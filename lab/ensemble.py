@@ -13,6 +13,7 @@ met), never the number of a run that was not one.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -119,8 +120,8 @@ def _health(h: experiments.Health) -> dict[str, Any]:
     return {"valid": h.valid, "trip": h.trip, "reason": h.reason, "saturated": list(h.saturated)}
 
 
-def _measure_draw(draw: int) -> dict[str, Any]:
-    return measure(experiments.PlantChoice(draw=draw))
+def _measure_draw(draw: int, noise_seed: int | None = None) -> dict[str, Any]:
+    return measure(experiments.PlantChoice(draw=draw, seed=noise_seed))
 
 
 def run(
@@ -129,35 +130,48 @@ def run(
     nominal: dict[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
     workers: int | None = None,
+    noise_seed: int | None = None,
 ) -> dict[str, Any]:
     """Draw plants ``seed`` .. ``seed + n - 1`` and measure each; summarise every metric.
 
     ``nominal`` is the nominal plant's :func:`measure` (measured here if not given).
+    ``noise_seed`` seeds every unit's sensor noise and valve jitter (None: each
+    experiment's own): a plant's figures are one draw of that noise, and the worst over the
+    fifty moves with it (README).
     """
     if n < 1:
         raise ValueError("an ensemble needs at least one plant")
-    nominal = nominal if nominal is not None else measure(experiments.PlantChoice())
+    if nominal is None:
+        nominal = measure(experiments.PlantChoice(seed=noise_seed))
     draws = list(range(seed, seed + n))
+    measure_draw = functools.partial(_measure_draw, noise_seed=noise_seed)
     jobs = workers if workers is not None else min(2, os.cpu_count() or 1)
     plants: list[dict[str, Any]] = []
     if jobs > 1 and n > 1:
         with ProcessPoolExecutor(jobs) as pool:
-            for r in pool.map(_measure_draw, draws):
+            for r in pool.map(measure_draw, draws):
                 plants.append(r)
                 if progress:
                     progress(f"ensemble: plant {len(plants)}/{n} measured")
     else:
         for d in draws:
-            plants.append(_measure_draw(d))
+            plants.append(measure_draw(d))
             if progress:
                 progress(f"ensemble: plant {len(plants)}/{n} measured")
-    return summarise(plants, nominal, seed)
+    return summarise(plants, nominal, seed, noise_seed)
 
 
 def summarise(
-    plants: list[dict[str, Any]], nominal: dict[str, Any], seed: int = 0
+    plants: list[dict[str, Any]],
+    nominal: dict[str, Any],
+    seed: int = 0,
+    noise_seed: int | None = None,
 ) -> dict[str, Any]:
-    out: dict[str, Any] = {"ensemble_n": len(plants), "ensemble_seed": seed}
+    out: dict[str, Any] = {
+        "ensemble_n": len(plants),
+        "ensemble_seed": seed,
+        "ensemble_noise_seed": noise_seed,
+    }
     summary: dict[str, Any] = {}
     for m in METRICS:
         values = [(p[m.key], p["draw"]) for p in plants if p[m.key] is not None]
@@ -177,7 +191,7 @@ def summarise(
         worst_plant: int | None = missing[0] if missing else worst[1]
         row["worst_plant"] = worst_plant
         if worst_plant is not None:
-            row["again"] = _again(m.experiment, worst_plant)
+            row["again"] = _again(m.experiment, worst_plant, noise_seed)
         summary[m.key] = row
         out[f"ensemble_worst_{m.key}"] = row["worst"]
     trips = [(p["draw"], t) for p in plants for t in p["trips"]]
@@ -188,7 +202,7 @@ def summarise(
     return out
 
 
-def _again(experiment: str, draw: int) -> str:
+def _again(experiment: str, draw: int, noise_seed: int | None = None) -> str:
     command = {
         "step": "ankle sim step --leg 1 --mm 10",
         "staircase": "ankle sim staircase --leg 1 --mm 0.3",
@@ -196,14 +210,18 @@ def _again(experiment: str, draw: int) -> str:
         "impedance": "ankle sim impedance --axis pitch --k 50 --b 1",
         "impedance_dynamic": "ankle sim impedance --axis pitch --k 50 --b 1 --mode dynamic",
     }[experiment]
-    return f"{command} --plant-draw {draw}"
+    again = f"{command} --plant-draw {draw}"
+    return again if noise_seed is None else f"{again} --seed {noise_seed}"
 
 
 def table(result: dict[str, Any]) -> str:
     """Nominal, median and worst side by side (what the README shows)."""
+    noise = result.get("ensemble_noise_seed")
     lines = [
         f"Ensemble of {result['ensemble_n']} plants (draws {result['ensemble_seed']}.."
-        f"{result['ensemble_seed'] + result['ensemble_n'] - 1}); trips: {result['ensemble_trips']}",
+        f"{result['ensemble_seed'] + result['ensemble_n'] - 1}"
+        + ("" if noise is None else f", noise seed {noise}")
+        + f"); trips: {result['ensemble_trips']}",
         "",
         "| metric | nominal | median | worst | worst plant | target | met |",
         "|---|---:|---:|---:|---:|---|---|",
