@@ -415,7 +415,6 @@ class ControllerParams(NamedTuple):
     pos_i_deadband: float
     pos_i_max: float
     pos_i_moving: float  # share of ki_pos while the target moves
-    still_rate: float  # m/s: a target slower than this is still
     kp_p: float
     ki_p: float
     i_zone: float
@@ -584,7 +583,6 @@ def build_params(
         pos_i_deadband=config.position_integral_deadband,
         pos_i_max=config.position_integral_max,
         pos_i_moving=config.position_integral_moving,
-        still_rate=config.rest_target_rate,
         kp_p=config.pressure_kp,
         ki_p=config.pressure_ki,
         i_zone=config.pressure_integral_zone,
@@ -888,7 +886,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     band = p.pos_i_band if rendering else p.pos_i_deadband
     error = math.copysign(max(0.0, abs(error) - band), error)
     # Slower while the target moves (not rendering): see ControllerConfig.position_integral_moving.
-    moving_target = abs(s.leg_target_rate[leg]) > p.still_rate and not rendering
+    moving_target = abs(s.leg_target_rate[leg]) > p.quiet.rate and not rendering
     if not rests:
         s.integral[12 + leg] = position_loop.integrate(
             s.integral[12 + leg],
