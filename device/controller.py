@@ -249,9 +249,14 @@ class ControllerConfig:
     lag at the legs' light modes (22-30 Hz) is what set them ringing: +9 dB in heave on the
     nominal unit, and on light, slow-sensored builds a 25-30 Hz mode grew until a leg
     tripped its speed limit; with the observer neither (docs and figures in the README).
-    Only while no axis renders an impedance: the envelope was measured on the filtered rate,
-    and with a resisting foot the observer's load term moved points on its edge. 0 is the
-    filter alone. The speed limit and supervision always watch the filtered sensor."""
+    Rendering an impedance too: on the filtered rate, light, long-tubed, low-friction builds
+    (drawn build 15: 2.07 kg, 0.72 m of tube, 0.57 N seals) rang at 32 Hz on an empty plate
+    whatever the damping (a LEG_SPEED trip at B = 2), and their ensemble damping experiment
+    tripped; with the observer every drawn build renders the empty plate. A resisting foot
+    needs more damping with it (docs/envelope.md, section 6): the envelope
+    (``SafetyLimits.damping_min``) was measured with it over the nominal unit and twenty
+    drawn builds. 0 is the filter alone. The speed limit and supervision always watch the
+    filtered sensor."""
     rate_observer_hz: float = 20.0
     """Bandwidth of the observer's correction from the leg sensor (Hz, damping 0.7). Measured
     over fifty drawn builds: at 40 Hz the sensor's latency still set the light builds
@@ -902,7 +907,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.leg_target[leg],
         s.leg_x[leg],
         s.leg_target_rate[leg],
-        s.leg_rate[leg] if rendering else s.leg_vel[leg],
+        s.leg_vel[leg],
         p.kp_pos,
         p.kd_pos,
         s.compensation[leg] + s.integral[12 + leg],

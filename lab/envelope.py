@@ -29,6 +29,7 @@ Usage:
     python -m lab.envelope --stiffness [--J 0]     # experiments.impedance under this J
     python -m lab.envelope --verify [--json ...]   # run the recommended envelopes
     python -m lab.envelope --markdown map.json     # the B_min tables of a saved map
+    python -m lab.envelope --builds 20 [--json ...] # least damping, nominal + 20 drawn builds
 """
 
 from __future__ import annotations
@@ -366,6 +367,115 @@ def verify(kind: str, seeds: tuple[int, ...] = (1, 2), heavy: bool = False) -> l
         _plant_config = original
 
 
+BUILD_K = (0.0, 5.0, 20.0, 50.0, 200.0, 500.0)
+"""Stiffnesses of the over-builds map: the lower edge and inside of each band of K."""
+BUILD_B = (0.2, 0.4, 0.6, 0.8, 1.0, 1.5, 2.0, 3.0, 5.0)
+"""Dampings tried in turn at each K, from the lightest: the first stable one is kept."""
+BUILD_MARGIN = 1.25
+"""The published least damping is this times the worst least damping over the builds
+(itself an upper bound: the true boundary lies up to one rung of ``BUILD_B`` below), and
+never less than before the builds were mapped."""
+
+
+def least_damping_over_builds(
+    draws: tuple[int, ...],
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, list[float | None]]:
+    """Per build (None: the nominal unit, else drawn build ``d``), axis and patient: at each
+    :data:`BUILD_K`, the least damping of :data:`BUILD_B` that renders stably (strict
+    criterion) with the device's floor at that same damping, as the device would if it
+    published it: the law then renders that damping, with no lag taken out below it. Each
+    build is identified first (device.identify) and run with its calibration, as the
+    device runs. None where no rung is stable. Keys ``"<build> <axis> <patient>"``."""
+    global _plant_config, _config
+    from lab import experiments
+
+    original_plant, original_config = _plant_config, _config
+    out: dict[str, list[float | None]] = {}
+    try:
+        for draw in (None, *draws):
+            choice = experiments.PlantChoice(draw=draw)
+            calibration = experiments.calibration_of(choice.config("relaxed"))
+
+            def plant(patient: str, choice: experiments.PlantChoice = choice) -> PlantConfig:
+                return choice.config(patient)
+
+            def config(
+                J: float | None, fmax: float | None = None, cal: Any = calibration
+            ) -> ControllerConfig:
+                return dataclasses.replace(original_config(J, fmax), calibration=cal)
+
+            _plant_config, _config = plant, config
+            for axis in ROT_AXES:
+                for patient in PATIENTS:
+                    row: list[float | None] = []
+                    for K in BUILD_K:
+                        least = None
+                        for B in BUILD_B:
+                            floor = SafetyLimits(damping_min=(0.0,) * 9 + (B,) * 9)
+                            if not run_point(axis, patient, K, B, limits=floor)["marginal"]:
+                                least = B
+                                break
+                        row.append(least)
+                    name = "nominal" if draw is None else str(draw)
+                    out[f"{name} {axis} {patient}"] = row
+                    if progress is not None:
+                        progress(f"{name} {axis} {patient}: {row}")
+    finally:
+        _plant_config, _config = original_plant, original_config
+    return out
+
+
+def builds_table(rows: dict[str, list[float | None]]) -> str:
+    """The worst least damping over the builds per axis and patient, which builds set it,
+    and the least damping per axis and band of K it implies (:data:`BUILD_MARGIN`)."""
+    lines = [
+        "| axis | patient | nominal | worst over the builds | set by |",
+        "|---|---|---|---|---|",
+    ]
+    worst_axis: dict[str, list[float]] = {}
+    for axis in ROT_AXES:
+        axis_worst = [0.0] * len(BUILD_K)
+        for patient in PATIENTS:
+            mine = {k.split()[0]: v for k, v in rows.items() if k.split()[1:] == [axis, patient]}
+            worst: list[float] = []
+            who: list[str] = []
+            for i in range(len(BUILD_K)):
+                values: dict[str, float] = {}
+                for b, v in mine.items():
+                    x = v[i]
+                    values[b] = math.inf if x is None else x
+                w = max(values.values())
+                worst.append(w)
+                if w > BUILD_B[0]:
+                    who += [b for b, x in values.items() if x == w and b not in who]
+                axis_worst[i] = max(axis_worst[i], w)
+            nominal = mine.get("nominal", [])
+            lines.append(
+                f"| {axis} | {patient} | {' / '.join(fmt(x) for x in nominal)} | "
+                f"{' / '.join(fmt(x) for x in worst)} | {', '.join(who[:5]) or '-'} |"
+            )
+        worst_axis[axis] = axis_worst
+    lines += ["", f"K: {' / '.join(fmt(k) for k in BUILD_K)} N m/rad", ""]
+    limits = SafetyLimits()
+    for axis in ROT_AXES:
+        bands = []
+        for band, edge in enumerate(limits.envelope_stiffness):
+            upper = (
+                limits.envelope_stiffness[band + 1]
+                if band + 1 < len(limits.envelope_stiffness)
+                else math.inf
+            )
+            w = max(x for k, x in zip(BUILD_K, worst_axis[axis], strict=True) if edge <= k < upper)
+            now = limits.damping_min_at(AXIS_INDEX[axis], edge)
+            bands.append(
+                f"K >= {edge:g}: worst {fmt(w)}, x{BUILD_MARGIN:g} {BUILD_MARGIN * w:.2f}, "
+                f"published {now:g}"
+            )
+        lines.append(f"{axis}: " + "; ".join(bands))
+    return "\n".join(lines)
+
+
 def fmt(v: float | None) -> str:
     return "-" if v is None else (f"{v:g}")
 
@@ -392,7 +502,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--verify", action="store_true", help="check the recommended envelope")
     ap.add_argument("--markdown", default=None, help="print a saved map (JSON) as tables")
+    ap.add_argument(
+        "--builds",
+        type=int,
+        default=None,
+        help="the least stable damping on the nominal unit and drawn builds 0..N-1",
+    )
     a = ap.parse_args(argv)
+    if a.builds is not None:
+        rows = least_damping_over_builds(
+            tuple(range(a.builds)), None if a.quiet else lambda m: print(m, flush=True)
+        )
+        print(builds_table(rows))
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump(rows, fh, indent=1)
+        return 0
     if a.markdown:
         for key in ("b_min", "b_min_strict"):
             print(f"\n{key}:\n")

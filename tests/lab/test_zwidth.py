@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from device.limits import SafetyLimits
 from lab import zwidth
 
 
@@ -21,7 +22,8 @@ def test_the_table_names_the_least_stable_b_and_any_point_inside_that_failed() -
     bad = {**points[0], "b": 0.5, "stable": False, "unstable_with": ["resisting"]}
     result = {"points": points, "unstable_inside_envelope": [bad]}
     text = zwidth.table(result)
-    assert "| 50 | 0.2 / 0.2 |" in text
+    published = SafetyLimits().damping_min_at(3, 50.0)  # roll
+    assert f"| 50 | 0.2 / {published:g} |" in text
     assert "Unstable points at or above the published envelope: 1" in text
     assert "roll K = 50, B = 0.5: resisting" in text
     assert zwidth.least_b({"points": points}, "roll", 50.0) == 0.2

@@ -131,7 +131,7 @@ def test_each_refusal_names_the_field_as_the_form_labels_it(
         (
             {"stiffness": 400.0, "damping": 0.0},
             "damping",
-            "Damping B on pitch must be at least 0.2 N·m·s/rad (0.00349 N·m·s/°): the least "
+            "Damping B on pitch must be at least 0.5 N·m·s/rad (0.00873 N·m·s/°): the least "
             "the platform renders steadily at a stiffness of 400 N·m/rad.",
         ),
     ],
