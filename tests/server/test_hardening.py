@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from device.limits import SafetyLimits
 from server.config import Settings
 from server.headers import API_CSP
 from tests.server.live_server import STRENGTH, Live, World, bearer, copy_seeded, running
@@ -148,4 +149,5 @@ async def test_integers_are_numbers_and_the_bounds_and_messages_are_kept(
     r = await live.client.post(url, json=_axis(damping=0.0, stiffness=400.0), headers=t1)
     (error,) = r.json()["detail"]
     assert r.status_code == 422 and error["loc"] == ["body", "axes", 0, "damping"]
-    assert error["msg"].startswith("Damping B on pitch must be at least 0.2 N·m·s/rad")
+    least = SafetyLimits().damping_min_at(4, 400.0)  # pitch, as the device publishes it
+    assert error["msg"].startswith(f"Damping B on pitch must be at least {least:g} N·m·s/rad")

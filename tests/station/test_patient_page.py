@@ -400,7 +400,7 @@ def body(**axis: Any) -> PrescriptionBody:
     return PrescriptionBody.model_validate(
         {
             "exercise": axis.pop("exercise", "strength"),
-            "axes": [{"stiffness": 20.0, "damping": 1.0, **axis}],
+            "axes": [{"stiffness": 20.0, "damping": 1.5, **axis}],  # inside every axis's envelope
         }
     )
 
