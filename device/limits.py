@@ -75,7 +75,7 @@ class SafetyLimits:
         0.0, 0.0, 0.0,
         0.0, 0.0, 0.0,
         1.9, 1.3, 1.0,
-        1.0, 0.8, 0.5,
+        1.0, 0.8, 0.4,
         0.6, 0.6, 0.3,
     )  # fmt: skip
     """Least damping B per axis and K band (axis-major, 3 bands each; N s/m, N m s/rad): a

@@ -14,6 +14,7 @@ import pytest
 from annotated_types import Ge, Gt, Le, Lt, MaxLen
 from pydantic import BaseModel, ValidationError
 
+from device.limits import SafetyLimits
 from sessions.prescription import (
     EXERCISE_LIBRARY,
     AxisPrescription,
@@ -24,6 +25,8 @@ from sessions.prescription import (
 from sessions.sentences import FieldError, bound_sentence, number, quantity, sentence, setting_parts
 
 STRENGTH: dict[str, Any] = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+PITCH_FLOOR = SafetyLimits().damping_min_at(4, 400.0)
+"""The least damping the device publishes for pitch at K = 400."""
 PYDANTIC_WORDS = ("Input should", "String should", "List should", "Value error", "Field required")
 
 
@@ -131,7 +134,8 @@ def test_each_refusal_names_the_field_as_the_form_labels_it(
         (
             {"stiffness": 400.0, "damping": 0.0},
             "damping",
-            "Damping B on pitch must be at least 0.5 N·m·s/rad (0.00873 N·m·s/°): the least "
+            f"Damping B on pitch must be at least {PITCH_FLOOR:g} N·m·s/rad "
+            f"({PITCH_FLOOR * math.pi / 180:.3g} N·m·s/°): the least "
             "the platform renders steadily at a stiffness of 400 N·m/rad.",
         ),
     ],
