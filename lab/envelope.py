@@ -55,6 +55,8 @@ from device.plant.params import PlantConfig
 from device.rig import Rig
 from device.safety import Trip
 from device.tickloop import COL
+from lab import experiments
+from lab.experiments import PlantChoice
 
 K_GRID = (0, 2, 5, 10, 20, 50, 100, 200, 350, 500)
 B_GRID = (0, 0.05, 0.1, 0.2, 0.3, 0.5, 1, 2, 5, 10)
@@ -120,10 +122,14 @@ def run_point(
     seed: int = 1,
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
+    unit: PlantChoice | None = None,
 ) -> Point:
     """One point; a push that trips the speed limit at once is retried with a quarter push.
 
     ``limits``: the rig's own (lab.zwidth lifts the published envelope to measure below it).
+    ``unit``: a unit (nominal or drawn) identified first and run with its calibration, as
+    the device runs (unless ``unit.calibrate`` is False); None: the standard plant,
+    uncalibrated, as sections 1-5 of docs/envelope.md were measured.
 
     A LEG_SPEED trip within ``SPEED_TRIP_S`` of the push, with no oscillation before the push
     and a monotonic run-up to it (dominant frequency of the last 0.5 s under
@@ -131,7 +137,7 @@ def run_point(
     to F/B rad/s, or impulse/J with a virtual inertia), not an oscillation: it is reported
     (``speed_trip``, counted as marginal) and the point is classified on the retry.
     """
-    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax, limits)
+    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax, limits, unit)
     r["speed_trip"] = False
     if (
         r["trip"] == "LEG_SPEED"
@@ -139,7 +145,7 @@ def run_point(
         and r["pre_pp_deg"] < PP_LIMIT_DEG
         and r["f_hz"] < SPEED_TRIP_MAX_HZ
     ):
-        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax, limits)
+        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax, limits, unit)
         r2["speed_trip"] = True
         r2["first_trip_t"] = r["trip_t"]
         r2["marginal"] = True
@@ -157,10 +163,19 @@ def _run_point(
     seed: int,
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
+    unit: PlantChoice | None = None,
 ) -> Point:
     ax = AXIS_INDEX[axis]
-    hw = SimulatedHardware(_plant_config(patient), seed=seed)
-    rig = Rig(hw, _config(J, fmax), limits=limits if limits is not None else SafetyLimits())
+    config = _config(J, fmax)
+    if unit is None:
+        plant = _plant_config(patient)
+    else:
+        plant = unit.config(patient)
+        if unit.calibrate:
+            calibration = experiments.calibration_of(unit.config("relaxed"))
+            config = dataclasses.replace(config, calibration=calibration)
+    hw = SimulatedHardware(plant, seed=seed)
+    rig = Rig(hw, config, limits=limits if limits is not None else SafetyLimits())
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE, log_hz=0)
     rig.clear_log()
@@ -381,49 +396,37 @@ def least_damping_over_builds(
     draws: tuple[int, ...],
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, list[float | None]]:
-    """Per build (None: the nominal unit, else drawn build ``d``), axis and patient: at each
+    """Per unit (the nominal one, then drawn builds ``draws``), axis and patient: at each
     :data:`BUILD_K`, the least damping of :data:`BUILD_B` that renders stably (strict
     criterion) with the device's floor at that same damping, as the device would if it
     published it: the law then renders that damping, with no lag taken out below it. Each
-    build is identified first (device.identify) and run with its calibration, as the
-    device runs. None where no rung is stable. Keys ``"<build> <axis> <patient>"``."""
-    global _plant_config, _config
-    from lab import experiments
-
-    original_plant, original_config = _plant_config, _config
+    unit is identified first (device.identify) and run with its calibration, as the
+    device runs. None where no rung is stable. Keys ``"<unit> <axis> <patient>"``, the
+    unit ``nominal`` or the draw."""
     out: dict[str, list[float | None]] = {}
-    try:
-        for draw in (None, *draws):
-            choice = experiments.PlantChoice(draw=draw)
-            calibration = experiments.calibration_of(choice.config("relaxed"))
-
-            def plant(patient: str, choice: experiments.PlantChoice = choice) -> PlantConfig:
-                return choice.config(patient)
-
-            def config(
-                J: float | None, fmax: float | None = None, cal: Any = calibration
-            ) -> ControllerConfig:
-                return dataclasses.replace(original_config(J, fmax), calibration=cal)
-
-            _plant_config, _config = plant, config
-            for axis in ROT_AXES:
-                for patient in PATIENTS:
-                    row: list[float | None] = []
-                    for K in BUILD_K:
-                        least = None
-                        for B in BUILD_B:
-                            floor = SafetyLimits(damping_min=(0.0,) * 9 + (B,) * 9)
-                            if not run_point(axis, patient, K, B, limits=floor)["marginal"]:
-                                least = B
-                                break
-                        row.append(least)
-                    name = "nominal" if draw is None else str(draw)
-                    out[f"{name} {axis} {patient}"] = row
-                    if progress is not None:
-                        progress(f"{name} {axis} {patient}: {row}")
-    finally:
-        _plant_config, _config = original_plant, original_config
+    for draw in (None, *draws):
+        unit = PlantChoice(draw=draw)
+        name = "nominal" if draw is None else str(draw)
+        for axis in ROT_AXES:
+            for patient in PATIENTS:
+                row: list[float | None] = []
+                for K in BUILD_K:
+                    least = None
+                    for B in BUILD_B:
+                        floor = SafetyLimits(damping_min=(0.0,) * 9 + (B,) * 9)
+                        point = run_point(axis, patient, K, B, limits=floor, unit=unit)
+                        if not point["marginal"]:
+                            least = B
+                            break
+                    row.append(least)
+                out[f"{name} {axis} {patient}"] = row
+                if progress is not None:
+                    progress(f"{name} {axis} {patient}: {row}")
     return out
+
+
+def _rung(b: float) -> str:
+    return "none stable" if math.isinf(b) else f"{b:g}"
 
 
 def builds_table(rows: dict[str, list[float | None]]) -> str:
@@ -453,7 +456,7 @@ def builds_table(rows: dict[str, list[float | None]]) -> str:
             nominal = mine.get("nominal", [])
             lines.append(
                 f"| {axis} | {patient} | {' / '.join(fmt(x) for x in nominal)} | "
-                f"{' / '.join(fmt(x) for x in worst)} | {', '.join(who[:5]) or '-'} |"
+                f"{' / '.join(_rung(x) for x in worst)} | {', '.join(who[:5]) or '-'} |"
             )
         worst_axis[axis] = axis_worst
     lines += ["", f"K: {' / '.join(fmt(k) for k in BUILD_K)} N m/rad", ""]
@@ -469,7 +472,7 @@ def builds_table(rows: dict[str, list[float | None]]) -> str:
             w = max(x for k, x in zip(BUILD_K, worst_axis[axis], strict=True) if edge <= k < upper)
             now = limits.damping_min_at(AXIS_INDEX[axis], edge)
             bands.append(
-                f"K >= {edge:g}: worst {fmt(w)}, x{BUILD_MARGIN:g} {BUILD_MARGIN * w:.2f}, "
+                f"K >= {edge:g}: worst {_rung(w)}, x{BUILD_MARGIN:g} {BUILD_MARGIN * w:.2f}, "
                 f"published {now:g}"
             )
         lines.append(f"{axis}: " + "; ".join(bands))

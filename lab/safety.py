@@ -36,6 +36,7 @@ from device.rig import Rig
 from device.tickloop import COL
 from device.trips import Trip
 from device.waveforms import AxisTarget, Waveform
+from lab.experiments import PlantChoice
 from lab.targets import Target
 from lab.targets import table as render
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
@@ -501,14 +502,18 @@ def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
 # -- the stiffness-damping grid --------------------------------------------------------
 
 
-def kb_point(axis: int, k: float, b: float, patient: str, seed: int = 1) -> tuple[bool, float]:
+def kb_point(
+    axis: int, k: float, b: float, patient: str, seed: int = 1, draw: int | None = None
+) -> tuple[bool, float]:
     """Render K, B on one rotational axis and push it (2 N m for 0.1 s), measured as
     ``lab.envelope`` measures its maps: (stable, detrended peak to peak of the last second in
     degrees). Stable by the stricter of its criteria: no trip (a push the legs cannot follow
-    included), at most 0.2 deg, no chattering command, no walk away from it."""
+    included), at most 0.2 deg, no chattering command, no walk away from it. ``draw``: on
+    that drawn build, identified and run with its calibration; None: the standard plant."""
     from lab import envelope
 
-    point = envelope.run_point(AXES[axis], patient, k, b, seed=seed)
+    unit = None if draw is None else PlantChoice(draw=draw)
+    point = envelope.run_point(AXES[axis], patient, k, b, seed=seed, unit=unit)
     return not point["marginal"], float(point["pp_det_deg"])
 
 
@@ -542,7 +547,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
     ("service_deaths", "service deaths in the boundary run"),
-    ("kb_grid_points", "K-B points on the envelope's edge and at twice its B"),
+    ("kb_grid_points", "K-B points on the envelope's edge and at twice its B (nominal, 3 builds)"),
     ("kb_grid_unstable", "unstable points on and inside the envelope's edge"),
 )
 
@@ -555,26 +560,38 @@ KB_DAMPING_FACTORS = (1.0, 2.0)
 """Each K at the envelope's least B and at twice it: on the edge and inside."""
 
 
+KB_DRAWS = (15, 18, 19)
+"""Drawn builds the K-B grid also runs on, each identified and run with its calibration:
+the ones whose boundaries set the published envelope (docs/envelope.md, section 6): a
+light, long-tubed, low-friction platform, and long tubes with a resisting foot in roll."""
+
+
 def kb_grid(
     patients: tuple[str, ...] = ("relaxed", "resisting", "absent"),
     progress: Callable[[str], None] | None = None,
-) -> list[tuple[str, float, float, str, bool, float]]:
+    draws: tuple[int | None, ...] = (None, *KB_DRAWS),
+) -> list[tuple[str, float, float, str, bool, float, str]]:
     """Every rotational axis, every grid K, at the least damping the envelope allows and at
-    twice it (:data:`KB_DAMPING_FACTORS`)."""
+    twice it (:data:`KB_DAMPING_FACTORS`), on the standard plant (None) and on each drawn
+    build of ``draws``. Each row ends with the unit: ``nominal`` or ``build N``."""
     from device.limits import SafetyLimits
 
     lim = SafetyLimits().published()
     out = []
-    total = 3 * len(KB_STIFFNESS) * len(KB_DAMPING_FACTORS) * len(patients)
-    for axis in (3, 4, 5):
-        for k in KB_STIFFNESS:
-            for factor in KB_DAMPING_FACTORS:
-                b = factor * lim.damping_min_at(axis, k)
-                for patient in patients:
-                    stable, pp = kb_point(axis, k, b, patient)
-                    out.append((AXES[axis], k, b, patient, stable, pp))
-                    if progress is not None:
-                        progress(f"K-B grid {len(out)}/{total}: {AXES[axis]} K {k:g} B {b:g}")
+    total = 3 * len(KB_STIFFNESS) * len(KB_DAMPING_FACTORS) * len(patients) * len(draws)
+    for draw in draws:
+        unit = "nominal" if draw is None else f"build {draw}"
+        for axis in (3, 4, 5):
+            for k in KB_STIFFNESS:
+                for factor in KB_DAMPING_FACTORS:
+                    b = factor * lim.damping_min_at(axis, k)
+                    for patient in patients:
+                        stable, pp = kb_point(axis, k, b, patient, draw=draw)
+                        out.append((AXES[axis], k, b, patient, stable, pp, unit))
+                        if progress is not None:
+                            progress(
+                                f"K-B grid {len(out)}/{total}: {unit} {AXES[axis]} K {k:g} B {b:g}"
+                            )
     return out
 
 
@@ -650,9 +667,10 @@ def _the_rest(
             for h in healthy
             if h.trip != Trip.NONE.name or h.supply_low or h.service
         ],
+        "kb_grid_units": sorted({g[6] for g in grid}),
         "kb_grid": [
-            {"axis": a, "k": k, "b": b, "patient": pt, "stable": st, "pp_deg": pp}
-            for a, k, b, pt, st, pp in grid
+            {"axis": a, "k": k, "b": b, "patient": pt, "stable": st, "pp_deg": pp, "unit": u}
+            for a, k, b, pt, st, pp, u in grid
         ],
     }
 

@@ -144,20 +144,38 @@ def test_every_point_on_the_envelopes_edge_is_stable(axis: int, patient: str) ->
 
 
 @pytest.mark.parametrize(("axis", "k"), [("roll", 50.0), ("pitch", 0.0)])
-def test_a_light_long_tubed_build_renders_an_empty_plate_at_the_edge(
-    axis: str, k: float, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_a_light_long_tubed_build_renders_an_empty_plate_at_the_edge(axis: str, k: float) -> None:
     """Drawn build 15 (2.07 kg platform, 0.72 m of tube, 0.57 N seals) rang in its legs'
     light mode on an empty plate and tripped the speed limit while rendering, at any
     damping, when the derivative acted on the filtered leg rate; on the rate observer it
     stays still at the envelope's edge after a push."""
-    from device.plant.params import draw_plant
     from lab import envelope
+    from lab.experiments import PlantChoice
 
-    monkeypatch.setattr(envelope, "_plant_config", lambda patient: draw_plant(15, patient))
+    unit = PlantChoice(draw=15, calibrate=False)  # uncalibrated: no identification to wait for
     from device.geometry import AXIS_INDEX
 
     b = LIMITS.damping_min_at(AXIS_INDEX[axis], k)
-    point = envelope.run_point(axis, "absent", k, b)
+    point = envelope.run_point(axis, "absent", k, b, unit=unit)
     assert point["trip"] == "NONE", point
     assert not point["marginal"], point
+
+
+def test_the_builds_table_names_the_worst_unit_and_the_floor_it_implies() -> None:
+    from lab import envelope
+
+    n = len(envelope.BUILD_K)
+    rows: dict[str, list[float | None]] = {}
+    for unit in ("nominal", "3", "18"):
+        for axis in envelope.ROT_AXES:
+            for patient in envelope.PATIENTS:
+                rows[f"{unit} {axis} {patient}"] = [0.2] * n
+    rows["18 roll resisting"] = [1.5, 1.0, 0.8, 0.8, 0.4, None]  # None: no rung stable
+    rows["3 pitch relaxed"] = [0.6, *([0.2] * (n - 1))]
+    text = envelope.builds_table(rows)
+    nominal = " | " + " / ".join(["0.2"] * n) + " | "
+    assert "| roll | resisting" + nominal + "1.5 / 1 / 0.8 / 0.8 / 0.4 / none stable | 18 |" in text
+    assert "| pitch | relaxed" + nominal + "0.6 / 0.2 / 0.2 / 0.2 / 0.2 / 0.2 | 3 |" in text
+    assert "| yaw | absent" + nominal + " / ".join(["0.2"] * n) + " | - |" in text
+    assert "roll: K >= 0: worst 1.5, x1.25 1.88" in text
+    assert "K >= 50: worst none stable" in text  # a unit no rung holds is never hidden
