@@ -5,8 +5,12 @@ and Brown 1994). Each point of a grid is rendered on one rotational axis with th
 virtual inertia, pushed (2 N m for 0.1 s) and classified as ``lab.envelope`` classifies its
 maps (no trip, at most 0.2 deg of oscillation left, no chattering command, no walk away):
 stable only if stable with a relaxed foot, a resisting one and an empty plate. The rig's
-published envelope (the least B per K band the device accepts) is lifted for the lab, so
-points below it are measured too; the device itself never renders them.
+published envelope (the least B per K band the device accepts) is replaced for each point
+by a floor at that point's own B: points below the envelope are measured too (the device
+itself never renders them), and the admittance law renders the point's B itself, none of
+the loop's lag taken out below it, which is the damping the envelope's floor is about
+(docs/envelope.md, section 6). Without that floor the law took K times the lag out of B,
+and a point read the stability of about none.
 
 ``ankle bench zwidth`` runs the grid (a few minutes) and prints, per axis, the least stable
 B at each K; ``--plots DIR`` draws the figure.
@@ -32,13 +36,16 @@ B_GRID: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 AXES = envelope.ROT_AXES
 PATIENTS = envelope.PATIENTS
 
-LAB_LIMITS = replace(SafetyLimits(), damping_min=(0.0,) * 18)
-"""The device's limits without the published envelope: lab only, to measure below it."""
+
+def floor_at(b: float) -> SafetyLimits:
+    """The device's limits with every rotational axis's least damping at ``b``: lab only,
+    to measure below the published envelope with the law rendering ``b`` itself."""
+    return replace(SafetyLimits(), damping_min=(0.0,) * 9 + (b,) * 9)
 
 
 def point(axis: str, k: float, b: float) -> dict[str, Any]:
     """One grid point over every patient: stable only if stable for each."""
-    runs = [envelope.run_point(axis, p, k, b, limits=LAB_LIMITS) for p in PATIENTS]
+    runs = [envelope.run_point(axis, p, k, b, limits=floor_at(b)) for p in PATIENTS]
     worst = max(runs, key=lambda r: r["pp_det_deg"] if math.isfinite(r["pp_det_deg"]) else 1e9)
     return {
         "axis": axis,
