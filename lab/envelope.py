@@ -56,7 +56,6 @@ from device.rig import Rig
 from device.safety import Trip
 from device.tickloop import COL
 from lab import experiments
-from lab.experiments import PlantChoice
 
 K_GRID = (0, 2, 5, 10, 20, 50, 100, 200, 350, 500)
 B_GRID = (0, 0.05, 0.1, 0.2, 0.3, 0.5, 1, 2, 5, 10)
@@ -122,7 +121,7 @@ def run_point(
     seed: int = 1,
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
-    unit: PlantChoice | None = None,
+    unit: experiments.PlantChoice | None = None,
 ) -> Point:
     """One point; a push that trips the speed limit at once is retried with a quarter push.
 
@@ -163,7 +162,7 @@ def _run_point(
     seed: int,
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
-    unit: PlantChoice | None = None,
+    unit: experiments.PlantChoice | None = None,
 ) -> Point:
     ax = AXIS_INDEX[axis]
     config = _config(J, fmax)
@@ -392,6 +391,13 @@ BUILD_MARGIN = 1.25
 never less than before the builds were mapped."""
 
 
+def floor_at(b: float) -> SafetyLimits:
+    """The device's limits with every rotational axis's least damping at ``b``: lab only,
+    to measure below the published envelope with the law rendering ``b`` itself (none of
+    the loop's lag taken out below it)."""
+    return dataclasses.replace(SafetyLimits(), damping_min=(0.0,) * 9 + (b,) * 9)
+
+
 def least_damping_over_builds(
     draws: tuple[int, ...],
     progress: Callable[[str], None] | None = None,
@@ -405,7 +411,7 @@ def least_damping_over_builds(
     unit ``nominal`` or the draw."""
     out: dict[str, list[float | None]] = {}
     for draw in (None, *draws):
-        unit = PlantChoice(draw=draw)
+        unit = experiments.PlantChoice(draw=draw)
         name = "nominal" if draw is None else str(draw)
         for axis in ROT_AXES:
             for patient in PATIENTS:
@@ -413,8 +419,7 @@ def least_damping_over_builds(
                 for K in BUILD_K:
                     least = None
                     for B in BUILD_B:
-                        floor = SafetyLimits(damping_min=(0.0,) * 9 + (B,) * 9)
-                        point = run_point(axis, patient, K, B, limits=floor, unit=unit)
+                        point = run_point(axis, patient, K, B, limits=floor_at(B), unit=unit)
                         if not point["marginal"]:
                             least = B
                             break

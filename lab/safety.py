@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 import time
 from collections.abc import Callable
@@ -579,19 +580,14 @@ def kb_grid(
     lim = SafetyLimits().published()
     out = []
     total = 3 * len(KB_STIFFNESS) * len(KB_DAMPING_FACTORS) * len(patients) * len(draws)
-    for draw in draws:
+    grid = itertools.product(draws, (3, 4, 5), KB_STIFFNESS, KB_DAMPING_FACTORS, patients)
+    for draw, axis, k, factor, patient in grid:
         unit = "nominal" if draw is None else f"build {draw}"
-        for axis in (3, 4, 5):
-            for k in KB_STIFFNESS:
-                for factor in KB_DAMPING_FACTORS:
-                    b = factor * lim.damping_min_at(axis, k)
-                    for patient in patients:
-                        stable, pp = kb_point(axis, k, b, patient, draw=draw)
-                        out.append((AXES[axis], k, b, patient, stable, pp, unit))
-                        if progress is not None:
-                            progress(
-                                f"K-B grid {len(out)}/{total}: {unit} {AXES[axis]} K {k:g} B {b:g}"
-                            )
+        b = factor * lim.damping_min_at(axis, k)
+        stable, pp = kb_point(axis, k, b, patient, draw=draw)
+        out.append((AXES[axis], k, b, patient, stable, pp, unit))
+        if progress is not None:
+            progress(f"K-B grid {len(out)}/{total}: {unit} {AXES[axis]} K {k:g} B {b:g}")
     return out
 
 

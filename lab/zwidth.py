@@ -22,7 +22,6 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -37,15 +36,9 @@ AXES = envelope.ROT_AXES
 PATIENTS = envelope.PATIENTS
 
 
-def floor_at(b: float) -> SafetyLimits:
-    """The device's limits with every rotational axis's least damping at ``b``: lab only,
-    to measure below the published envelope with the law rendering ``b`` itself."""
-    return replace(SafetyLimits(), damping_min=(0.0,) * 9 + (b,) * 9)
-
-
 def point(axis: str, k: float, b: float) -> dict[str, Any]:
     """One grid point over every patient: stable only if stable for each."""
-    runs = [envelope.run_point(axis, p, k, b, limits=floor_at(b)) for p in PATIENTS]
+    runs = [envelope.run_point(axis, p, k, b, limits=envelope.floor_at(b)) for p in PATIENTS]
     worst = max(runs, key=lambda r: r["pp_det_deg"] if math.isfinite(r["pp_det_deg"]) else 1e9)
     return {
         "axis": axis,
