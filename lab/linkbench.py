@@ -6,7 +6,8 @@ compliant pitch exercise with telemetry at 250 Hz, then for the window:
 
 - changes K every 50 ms and times each command to its ACK (``cmd_ack_rtt_ms_*``);
 - counts telemetry received against the configured rate and gaps in the device's frame
-  numbers (``frames_lost``);
+  numbers (``frames_lost``), and the longest wait between two samples received
+  (``telemetry_gap_ms_max``: a host that stalled shows there, whatever the device did);
 - reads the device's own pacing lag from every telemetry sample and its overrun counter;
 - reads the service's CPU time from ``/proc``.
 
@@ -25,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from device.client import DeviceClient, build_segment
+from device.client import CommandRefused, DeviceClient, build_segment
+from device.commands import SEGMENT_DURATION_MAX
 from device.console import DEMO_PITCH
 from device.process import ServiceProcess
 from device.protocol import messages as msg
@@ -53,6 +55,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("telemetry_hz_configured", "telemetry configured (Hz)"),
     ("telemetry_hz_received", "telemetry received (Hz)"),
     ("frames_lost", "telemetry frames lost"),
+    ("telemetry_gap_ms_max", "longest wait between samples (ms)"),
     ("pacing_lag_ms_p50", "pacing lag p50 (ms)"),
     ("pacing_lag_ms_p99", "pacing lag p99 (ms)"),
     ("pacing_lag_ms_max", "pacing lag max (ms)"),
@@ -76,13 +79,17 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
         await dev.configure(TELEMETRY_HZ, WATCHDOG_MS)
         await dev.arm_home()
         await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
-        window = seconds + 10.0 + watchdog_runs * 2.0
-        await dev.start_segment(build_segment(hello, 1, window, {"pitch": DEMO_PITCH}))
+        # As long as the device allows: the benchmark holds it when done, and a host that
+        # stalls must show as lost frames and a long gap, not as an exercise that ended.
+        await dev.start_segment(
+            build_segment(hello, 1, SEGMENT_DURATION_MAX, {"pitch": DEMO_PITCH})
+        )
         await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=5.0)
         await asyncio.sleep(0.5)
 
         # -- telemetry window with live K changes --------------------------------------
         rtts: list[float] = []
+        refused: list[str] = []
 
         async def change_k() -> None:
             k = 30.0
@@ -90,22 +97,31 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
                 await asyncio.sleep(0.05)
                 k = 40.0 if k == 30.0 else 30.0
                 start = time.perf_counter()
-                await dev.set_impedance((0, 0, 0, 0, k, 0), (0, 0, 0, 0, 1.0, 0))
+                try:
+                    await dev.set_impedance((0, 0, 0, 0, k, 0), (0, 0, 0, 0, 1.0, 0))
+                except CommandRefused as e:
+                    refused.append(str(e))
+                    return
                 rtts.append((time.perf_counter() - start) * 1e3)
 
         lost0 = dev.stats.frames_lost
         lags: list[float] = []
+        gap_ms = 0.0
         overruns0: int | None = None
         last: msg.Telemetry | None = None
         count = 0
         changer = asyncio.create_task(change_k())
         cpu0, t0 = service.cpu_seconds(), time.perf_counter()
+        received = 0.0
         async for sample in dev.telemetry(maxsize=100000):
+            now = time.perf_counter()
             if overruns0 is None:
                 overruns0 = sample.overruns
-                t0 = time.perf_counter()
+                t0 = received = now
                 cpu0 = service.cpu_seconds()
                 continue
+            gap_ms = max(gap_ms, (now - received) * 1e3)
+            received = now
             count += 1
             lags.append(sample.pacing_lag_ms)
             last = sample
@@ -118,8 +134,12 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
             await changer
         lost = dev.stats.frames_lost - lost0
         assert last is not None and overruns0 is not None
-        if last.mode != DeviceMode.ACTIVE:
-            raise RuntimeError(f"the exercise stopped during the benchmark ({last.mode.name})")
+        if last.mode != DeviceMode.ACTIVE or refused:
+            why = f"; K change refused: {refused[0]}" if refused else ""
+            raise RuntimeError(
+                f"the exercise stopped during the benchmark (device {last.mode.name}{why}; "
+                f"window {wall:.1f} s, longest wait between samples {gap_ms:.0f} ms)"
+            )
 
         # -- watchdog: pull the link ------------------------------------------------------
         holds: list[float] = []
@@ -150,6 +170,7 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
         "telemetry_hz_configured": TELEMETRY_HZ,
         "telemetry_hz_received": count / wall,
         "frames_lost": lost,
+        "telemetry_gap_ms_max": gap_ms,
         "pacing_lag_ms_p50": _pct(lags, 50),
         "pacing_lag_ms_p99": _pct(lags, 99),
         "pacing_lag_ms_max": max(lags),

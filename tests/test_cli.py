@@ -170,6 +170,7 @@ def test_bench_link_prints_every_key() -> None:
     assert {t.key for t in LINK_TARGETS} <= set(data)
     assert data["telemetry_hz_configured"] == 250
     assert data["telemetry_hz_received"] > 200
+    assert 0 < data["telemetry_gap_ms_max"] < 1e3 * data["seconds"]
     assert data["commands"] > 20 and data["cmd_ack_rtt_ms_p50"] > 0
     assert data["watchdog_runs"] == 2 and data["watchdog_hold_ms_max"] >= 200.0
     assert 0 < data["service_cpu_pct"] < 100
