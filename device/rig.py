@@ -291,6 +291,7 @@ class Rig:
         s = self.state
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
+        s.istate[ctl.I_BLEED] = -1
         s.counters[supervision.C_SERVICE] = 0
         s.counters[supervision.C_SERVICE_LEGS] = 0
         s.istate[ctl.I_MODE] = Mode.IDLE

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
+from device import controller as ctl
 from device import trips
 from device.hardware import SimulatedHardware
 from device.plant.faults import FaultKind
@@ -184,10 +186,9 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
     caught = 0
     for scenario in safety.SCENARIOS:
         run = safety.run_fault(kind, scenario)
-        # Measured: a stuck-open intake while holding tilts the platform 1.20 deg and moves
-        # it 2.20 mm from where the run without the fault was at its VALVE trip (counted as
-        # the drift from the pose at the trip, 0.86 deg and 1.66 mm): the issue's bound is
-        # 2 deg and 3 mm.
+        # Measured: a stuck-open intake while holding tilts the platform 1.17 deg and moves
+        # it 1.39 mm from where the run without the fault was at its VALVE trip, its exhaust
+        # bleeding it (2.20 mm with every valve closed): the issue's bound is 2 deg and 3 mm.
         assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
         if run.detected:
             caught += 1
@@ -215,6 +216,42 @@ def test_an_exhaust_stuck_open_while_holding_is_held_by_the_loop_not_let_run() -
         assert run.detected and run.trip == "AIR_BALANCE (service)", run
         assert run.channel == valve // 2 and run.detect_ms <= 50.0, run
         assert run.excursion_deg <= 1.5 and run.excursion_mm <= 2.5, run
+
+
+@pytest.mark.parametrize("valve", [0, 12, 20])
+def test_a_stuck_open_intake_is_bled_through_its_exhaust_after_the_trip(valve: int) -> None:
+    """The three intakes that moved the platform most while holding. With every valve
+    closed at the VALVE trip the supply filled the chamber through the stuck intake: 2.44,
+    2.34 and 2.17 deg, 4.27, 4.40 and 3.22 mm. Its exhaust open while the chamber is above
+    its pressure at the trip: 1.45, 1.00 and 1.44 deg, 2.35, 1.90 and 2.58 mm."""
+    rig, _, detect, _, _ = safety._run(FaultKind.VALVE_STUCK_OPEN, "holding", 1, valve)
+    c = valve // 2
+    assert rig.trip == Trip.VALVE and rig.trip_channel == c and detect <= 0.05
+    assert rig.state.istate[ctl.I_BLEED] == c
+    assert rig.state.valves[0::2].sum() == 0, "an intake opened after the trip"
+    others = [v for v in range(1, 24, 2) if v != 2 * c + 1]
+    assert rig.state.valves[others].sum() == 0
+    run = safety.run_fault(FaultKind.VALVE_STUCK_OPEN, "holding", channel=valve)
+    assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
+
+
+def test_the_bleed_opens_only_the_tripped_chambers_exhaust_and_only_above_its_pressure() -> None:
+    istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
+    pressure = np.full(12, 3.0e5)
+    held = np.full(12, 2.9e5)
+    valves = np.zeros(24, dtype=np.uint8)
+    istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.VALVE, 4
+    ctl.bleed(istate, pressure, held, valves)
+    assert list(np.flatnonzero(valves)) == [9]
+    valves[:] = 0
+    pressure[4] = 2.9e5  # at the trip's pressure (a frozen reading stays there): shut
+    ctl.bleed(istate, pressure, held, valves)
+    assert not valves.any()
+    pressure[4] = 3.5e5
+    for trip, chamber in ((Trip.VALVE, -1), (Trip.ESTOP, 4), (Trip.PRESSURE_SENSOR, 4)):
+        istate[ctl.I_TRIP], istate[ctl.I_BLEED] = trip, chamber
+        ctl.bleed(istate, pressure, held, valves)
+        assert not valves.any(), (trip, chamber)
 
 
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
