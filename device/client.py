@@ -36,6 +36,8 @@ from device.transport import open_stream
 from device.waveforms import Waveform
 
 HOST_NAME = "ankle-host 0.1.0"
+CLOSE_TIMEOUT = 2.0
+"""Seconds :meth:`DeviceClient.close` waits for the port to flush before it drops it."""
 
 
 class DeviceError(Exception):
@@ -112,6 +114,8 @@ class DeviceClient:
         self._replay_asked = 0
         self._replay_at = 0.0
         self._closed = asyncio.Event()
+        self.link_error: str | None = None
+        """Why nothing more arrives, once the link has closed or failed."""
         self._tasks: list[asyncio.Task[None]] = [asyncio.create_task(self._read_loop())]
 
     # -- opening and closing -------------------------------------------------------------
@@ -161,8 +165,13 @@ class DeviceClient:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
         self._writer.close()
-        with contextlib.suppress(Exception):
-            await self._writer.wait_closed()
+        try:
+            # Bounded: a port whose far end stopped reading never flushes what is queued.
+            await asyncio.wait_for(self._writer.wait_closed(), CLOSE_TIMEOUT)
+        except TimeoutError:
+            self._writer.transport.abort()
+        except Exception:
+            pass
         self._end_streams()
         for fut in self._pending.values():
             if not fut.done():
@@ -250,6 +259,8 @@ class DeviceClient:
     # -- streams -------------------------------------------------------------------------
     async def telemetry(self, maxsize: int = 1024) -> AsyncGenerator[msg.Telemetry, None]:
         """Every telemetry sample from now on (oldest dropped if the consumer lags)."""
+        if self._closed.is_set():
+            return  # nothing more will arrive
         q: asyncio.Queue[msg.Telemetry | None] = asyncio.Queue(maxsize)
         self._telemetry_subs.append(q)
         try:
@@ -260,6 +271,8 @@ class DeviceClient:
 
     async def events(self) -> AsyncGenerator[msg.Event, None]:
         """Every event from now on, each once, in id order as received."""
+        if self._closed.is_set():
+            return
         q: asyncio.Queue[msg.Event | None] = asyncio.Queue()
         self._event_subs.append(q)
         try:
@@ -289,6 +302,8 @@ class DeviceClient:
     def _end_streams(self) -> None:
         """Let every telemetry and event iterator finish."""
         for q in self._telemetry_subs:
+            if q.full():
+                q.get_nowait()  # the end must get in: a bounded queue drops its oldest
             q.put_nowait(None)
         for eq in self._event_subs:
             eq.put_nowait(None)
@@ -305,14 +320,30 @@ class DeviceClient:
                 await self.command(msg.Heartbeat(), timeout=self.heartbeat_period, retries=0)
 
     async def _read_loop(self) -> None:
-        while True:
-            data = await self._reader.read(4096)
-            if not data:
-                self._closed.set()
-                self._end_streams()
-                return
-            for frame in self.decoder.feed(data):
-                self._on_frame(frame)
+        try:
+            while True:
+                data = await self._reader.read(4096)
+                if not data:
+                    self.link_error = "the device closed the link"
+                    return
+                for frame in self.decoder.feed(data):
+                    self._on_frame(frame)
+        except asyncio.CancelledError:
+            self.link_error = self.link_error or "closed by this host"
+            raise
+        except Exception as exc:  # the port failed: every waiter must hear of it
+            self.link_error = f"the link failed: {type(exc).__name__}: {exc}"
+        finally:
+            self._lost()
+
+    def _lost(self) -> None:
+        """Nothing more will arrive: end every stream and fail every command waiting."""
+        self._closed.set()
+        self._end_streams()
+        why = self.link_error or "link closed"
+        for fut in self._pending.values():
+            if not fut.done():
+                fut.set_exception(LinkClosed(why))
 
     def _on_frame(self, frame: Frame) -> None:
         self.stats.frames += 1

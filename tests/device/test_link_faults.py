@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from device.client import AxisPlan, DeviceClient, build_segment
+from device.client import AxisPlan, DeviceClient, LinkClosed, build_segment
 from device.hardware import SimulatedHardware
 from device.plant.params import PlantConfig
 from device.protocol import messages as m
@@ -147,5 +147,38 @@ def test_a_new_connection_replaces_a_dead_one(tcp_device: DeviceService) -> None
             await second.command(m.Heartbeat(), retries=0, timeout=0.5)
         finally:
             await second.close()
+
+    asyncio.run(main())
+
+
+def test_a_host_whose_link_is_taken_hears_it_at_every_waiter(tcp_device: DeviceService) -> None:
+    """The device drops the older connection for a newer one. Every telemetry stream of
+    the older host ends, a stream asked for afterwards ends at once (it used to wait
+    forever), and a command fails with the reason."""
+
+    async def main() -> None:
+        url = tcp_device.link.name
+        first = await DeviceClient.connect(url, heartbeat=False)
+
+        async def count() -> int:
+            return sum([1 async for _ in first.telemetry()])
+
+        counting = asyncio.create_task(count())
+        await asyncio.sleep(0.3)
+        second = await DeviceClient.connect(url)
+        try:
+            assert await asyncio.wait_for(counting, 5.0) > 0
+            assert first.link_error is not None and "link" in first.link_error
+
+            async def later() -> list[m.Telemetry]:
+                return [s async for s in first.telemetry()]
+
+            assert await asyncio.wait_for(later(), 5.0) == []
+            with pytest.raises(LinkClosed):
+                await asyncio.wait_for(first.command(m.Heartbeat()), 5.0)
+            await second.command(m.Heartbeat(), retries=0, timeout=0.5)
+        finally:
+            await second.close()
+            await first.close()
 
     asyncio.run(main())
