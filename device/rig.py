@@ -10,6 +10,7 @@ controller still enforces its limits on the measured motion (``device.safety``).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -24,6 +25,7 @@ from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware, SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.safety import SafetyLimits, Trip
+from device.signals import N_SENSORS
 from device.waveforms import AxisTarget as AxisTarget
 from device.waveforms import Waveform
 
@@ -74,6 +76,28 @@ class Rig:
             rows = rows[:0]
         self._log.append(rows)
         return rows
+
+    def compile(self) -> None:
+        """Load, or compile, every compiled function this rig's loop and mode changes call,
+        on scratch copies of the state: nothing compiles later, inside the loop.
+
+        Each is compiled at its first call. In a pass of the service that stopped the loop
+        (telemetry, watchdog and all) for as long as the compile took: under a second from
+        a warm cache, tens of seconds where other processes had just rewritten the cache
+        (a test run's parallel workers)."""
+        s = copy.deepcopy(self.state)
+        supervision.reset_motion(s.monitor, s.counters)
+        g = self.geometry
+        safety.outside_at_start(s.sensors[13:19], s.pose, g.home_pose, g.stroke, self.params.limits)
+        supervision.disarm_following(s.counters)
+        ctl.trip(s, int(Trip.NONE))
+        if isinstance(self.hardware, SimulatedHardware):
+            hw = self.hardware
+            plant = copy.deepcopy(hw.state)
+            tickloop.run_sim(s, self.params, plant, hw.params, 0, 0, _NO_LOG)
+        else:  # run_hardware is Python: what it calls, on no hardware
+            ctl.sensors_due(s.istate, self.params.schedule)
+            ctl.controller_tick(s, self.params, np.zeros(N_SENSORS))
 
     def advance(self, ticks: int) -> None:
         """Advance ``ticks`` interrupts without logging (the device service's pacing step)."""

@@ -100,6 +100,7 @@ class DeviceService:
         out: TextIO = sys.stderr,
     ) -> None:
         self.rig = rig
+        rig.compile()  # before it serves: never inside the loop
         self.link = link
         self.clock = clock
         self.out = out
