@@ -81,10 +81,10 @@ class Rig:
         """Load, or compile, every compiled function this rig's loop and mode changes call,
         on scratch copies of the state: nothing compiles later, inside the loop.
 
-        Each is compiled at its first call. In a pass of the service that stopped the loop
-        (telemetry, watchdog and all) for as long as the compile took: under a second from
-        a warm cache, tens of seconds where other processes had just rewritten the cache
-        (a test run's parallel workers)."""
+        Numba compiles each at its first call. Where that call was in a pass of the
+        service, the loop (telemetry, watchdog and all) stood still while it compiled:
+        under a second from a warm cache, tens of seconds where other processes had just
+        rewritten the cache (a test run's parallel workers)."""
         s = copy.deepcopy(self.state)
         supervision.reset_motion(s.monitor, s.counters)
         g = self.geometry
