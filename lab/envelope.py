@@ -167,13 +167,9 @@ def _run_point(
     ax = AXIS_INDEX[axis]
     config = _config(J, fmax)
     if unit is None:
-        plant = _plant_config(patient)
+        hw = SimulatedHardware(_plant_config(patient), seed=seed)
     else:
-        plant = unit.config(patient)
-        if unit.calibrate:
-            calibration = experiments.calibration_of(unit.config("relaxed"))
-            config = dataclasses.replace(config, calibration=calibration)
-    hw = SimulatedHardware(plant, seed=seed)
+        hw, config = experiments.unit_hardware(unit, patient, config, seed)
     rig = Rig(hw, config, limits=limits if limits is not None else SafetyLimits())
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE, log_hz=0)

@@ -280,6 +280,21 @@ def calibration_of(cfg: PlantConfig) -> Calibration:
     return _CALIBRATIONS[key]
 
 
+def unit_hardware(
+    choice: PlantChoice,
+    patient: str,
+    config: ControllerConfig,
+    seed: int,
+    plant: PlantConfig | None = None,
+) -> tuple[SimulatedHardware, ControllerConfig]:
+    """``choice``'s unit with ``patient`` (or ``plant``) on its noise seed (``seed`` unless
+    it names one), and ``config`` with the unit's calibration when it calibrates."""
+    cfg = plant if plant is not None else choice.config(patient)
+    if choice.calibrate:  # first: identifying seeds the plant's random generator itself
+        config = replace(config, calibration=calibration_of(cfg))
+    return SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed), config
+
+
 @contextlib.contextmanager
 def on_plant(choice: PlantChoice) -> Iterator[None]:
     """Run every experiment inside on ``choice``'s plant (and noise seed)."""
@@ -303,12 +318,9 @@ def _rig(
     plant: PlantConfig | None = None,
     limits: SafetyLimits | None = None,
 ) -> Rig:
-    choice = _PLANT[0]
-    cfg = plant if plant is not None else choice.config(patient)
-    config = ControllerConfig(deadband_compensation=compensate)
-    if choice.calibrate:  # first: identifying seeds the plant's random generator itself
-        config = replace(config, calibration=calibration_of(cfg))
-    hw = SimulatedHardware(cfg, seed=seed if choice.seed is None else choice.seed)
+    hw, config = unit_hardware(
+        _PLANT[0], patient, ControllerConfig(deadband_compensation=compensate), seed, plant
+    )
     for fault in _FAULTS:
         hw.inject(fault)
     return Rig(hw, config, limits=limits) if limits is not None else Rig(hw, config)

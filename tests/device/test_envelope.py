@@ -149,12 +149,11 @@ def test_a_light_long_tubed_build_renders_an_empty_plate_at_the_edge(axis: str, 
     light mode on an empty plate and tripped the speed limit while rendering, at any
     damping, when the derivative acted on the filtered leg rate; on the rate observer it
     stays still at the envelope's edge after a push."""
+    from device.geometry import AXIS_INDEX
     from lab import envelope
     from lab.experiments import PlantChoice
 
     unit = PlantChoice(draw=15, calibrate=False)  # uncalibrated: no identification to wait for
-    from device.geometry import AXIS_INDEX
-
     b = LIMITS.damping_min_at(AXIS_INDEX[axis], k)
     point = envelope.run_point(axis, "absent", k, b, unit=unit)
     assert point["trip"] == "NONE", point
