@@ -25,8 +25,18 @@ where it is against the load. The leg is corrected by single doses of air while 
   half of it: one slot more). The widths start at the loop's own minimum pulse, which
   every build opens.
 
+- in the first ``landing`` periods of a rest a dose is lengthened to answer what the
+  valves left as they shut at once (:func:`lengthen`).
+
 The leg wakes (the full loop, its integrals where it left them) when the reading is more
 than ``wake`` from its target or the target has moved ``move`` since the rest began.
+
+A resting leg gets at most ``blind`` doses while its reading does not change. What holds
+it includes the foot's measured wrench, and the foot pushes back on a platform that moves:
+with a leg's reading frozen, each dose that followed the foot's growing push extended that
+leg further unseen (a held platform turned 5.4 deg, 17.5 mm in 2 s). A healthy leg that
+follows a changing load without moving (its seals hold it) stops following after as many;
+the load then moves it on its air, its reading changes, and it follows again.
 
 With the valves shut a leg whose sensor stopped is held by its air as any other (a frozen
 reading asks for no dose), and a chamber that loses air shows it at once: the supervision's
@@ -56,7 +66,13 @@ R_DOSED = 4
 """Valve (0-23) of the dose fired last period, to learn from (-1: none)."""
 R_P_BEFORE = 5
 """Its chamber's pressure before that dose (Pa)."""
-N_REST = 6
+R_LANDING = 6
+"""Control periods left in which a dose may be lengthened (see :func:`lengthen`)."""
+R_BLIND = 7
+"""Doses the leg has had since its reading last changed."""
+R_SEEN = 8
+"""Its measured error (m) when its reading last changed."""
+N_REST = 9
 
 
 class QuietParams(NamedTuple):
@@ -70,6 +86,10 @@ class QuietParams(NamedTuple):
     quantum: float
     rate: float
     polytropic: float
+    share: float
+    extra_max: int
+    landing: int
+    blind: int
 
 
 def new_rest() -> NDArray[np.float64]:
@@ -122,6 +142,9 @@ def enter(
     rest[leg, R_TARGET] = target
     rest[leg, R_WAIT] = 0.0
     rest[leg, R_DOSED] = -1.0
+    rest[leg, R_LANDING] = float(q.landing)
+    rest[leg, R_BLIND] = 0.0
+    rest[leg, R_SEEN] = target - x
     return True
 
 
@@ -156,8 +179,15 @@ def settles_at(
     Closing the valves at an instant of the loop's pulses leaves up to 3-4 N over or under,
     which would move the leg 0.3 mm: the first dose answers that before the leg has moved.
     """
-    stiffness = q.polytropic * (p_lo * a_lo * a_lo / v_lo + p_up * a_up * a_up / v_up)
-    return error - (made - hold) / stiffness
+    return error - (made - hold) / air_stiffness(p_lo, p_up, v_lo, v_up, a_lo, a_up, q)
+
+
+@njit_inline
+def air_stiffness(
+    p_lo: float, p_up: float, v_lo: float, v_up: float, a_lo: float, a_up: float, q: QuietParams
+) -> float:
+    """Stiffness (N/m) of a leg's two closed chambers: ``n p A^2 / V`` each."""
+    return q.polytropic * (p_lo * a_lo * a_lo / v_lo + p_up * a_up * a_up / v_up)
 
 
 @njit_inline
@@ -173,15 +203,38 @@ def dose_slots(
     intake_ok_up: bool,
     q: QuietParams,
     start: int,
+    force: float,
+    areas: tuple[float, float],
+    per_slot: tuple[float, float, float, float],
+    measured: float,
 ) -> tuple[int, int]:
     """Signed slots (cap, rod side) of this period's dose: (0, 0) but for one pulse when the
     resting leg has drifted ``dose`` from its target. ``p_lo``, ``p_up``: the pressures the
-    loop would want (Pa gauge)."""
+    loop would want (Pa gauge). ``force``: what the leg's air should push more to settle on
+    its target (N, + extends); ``areas``: cap and rod side (m2); ``per_slot``: how much one
+    slot more of each valve (cap intake, cap exhaust, rod intake, rod exhaust) changes its
+    chamber's pressure (Pa, from its flow at the present pressures). A dose that has more
+    to answer than one quantum is lengthened by ``share`` of what is left (see
+    :func:`lengthen`), in the first ``landing`` periods of the rest only: what the valves
+    left as they shut. Later, a leg that has further to go gets the shortest dose: what
+    moves it then (a leak, a changed load) builds up slowly, and lengthened doses would
+    follow a force sensor's false load as fast as the full loop. ``measured``: the leg's
+    reading's error from its target (m); after ``blind`` doses without a change of it, none
+    (see the module's docstring)."""
+    if measured != rest[leg, R_SEEN]:
+        rest[leg, R_SEEN] = measured
+        rest[leg, R_BLIND] = 0.0
+    landing = rest[leg, R_LANDING] > 0.5
+    if landing:
+        rest[leg, R_LANDING] -= 1.0
     if rest[leg, R_WAIT] > 0.5:
         rest[leg, R_WAIT] -= 1.0
         return 0, 0
     if abs(error) <= q.dose:
         return 0, 0
+    if rest[leg, R_BLIND] >= q.blind:
+        return 0, 0  # its reading has not moved for the last ``blind``: see the module
+    rest[leg, R_BLIND] += 1.0
     lo, up = 2 * leg, 2 * leg + 1
     if error > 0.0:  # extend: air into the cap, or out of the rod side
         cap_wants = p_lo - pressure[lo] if intake_ok_lo else -np.inf
@@ -193,14 +246,32 @@ def dose_slots(
         rod_wants = p_up - pressure[up] if intake_ok_up else -np.inf
         cap = cap_wants >= rod_wants
         v = 2 * lo + 1 if cap else 2 * up
-    rest[leg, R_DOSED] = float(v)
-    rest[leg, R_P_BEFORE] = pressure[v // 2]
-    rest[leg, R_WAIT] = float(q.settle)
     if dose[v] == 0:
         dose[v] = start
-    n = int(dose[v])
+    extra = 0
+    if landing:
+        extra = lengthen(abs(force) / areas[0 if v // 2 == lo else 1], per_slot[v - 2 * lo], q)
+    # Only a shortest dose teaches its valve's width (learn); a lengthened one does not.
+    rest[leg, R_DOSED] = float(v) if extra == 0 else -1.0
+    rest[leg, R_P_BEFORE] = pressure[v // 2]
+    rest[leg, R_WAIT] = float(q.settle)
+    n = int(dose[v]) + extra
     if v % 2 == 1:
         n = -n
     if v // 2 == lo:
         return n, 0
     return 0, n
+
+
+@njit_inline
+def lengthen(wanted: float, per_slot: float, q: QuietParams) -> int:
+    """Slots (0 to ``extra_max``) to add to a valve's shortest dose, which moves its chamber
+    by about one ``quantum``, when the chamber should move by ``wanted`` (Pa): ``share`` of
+    what is left beyond that quantum, at ``per_slot`` Pa a slot. Closing the valves at an
+    instant of the loop's dither leaves 3-4 N over or under (5 quanta); answered a quantum
+    at a time, the leg ran 0.3 mm on its air spring before the doses caught up, and stiff
+    seals then held it there."""
+    if per_slot <= 0.0 or wanted <= q.quantum:
+        return 0
+    extra = int(q.share * (wanted - q.quantum) / per_slot)
+    return min(max(extra, 0), q.extra_max)

@@ -432,8 +432,10 @@ def test_a_leg_sensor_frozen_while_holding_leaves_the_platform_where_it_was() ->
     """Every leg, watched 2 s. Before the quiet hold the loop drove a leg whose reading had
     stopped on nothing but its air and friction, and some ran off (seed 1, leg 3: 8.3 deg,
     26 mm before the force cross-check tripped at 2.4 s). Resting, the leg is held by its
-    shut chambers' air and gets a dose only when its reading moves: a frozen reading asks
-    for none (measured: at most 0.06 deg, 0.15 mm)."""
+    shut chambers' air. Its doses also follow the load it should carry, and the foot pushes
+    back on a platform that moves: following without limit, leg 3 was dosed out 20 mm
+    unseen (5.4 deg, 17.5 mm in 2 s). Now a leg whose reading does not move gets at most
+    ControllerConfig.rest_blind_doses (measured: at most 0.09 deg, 0.25 mm)."""
     for leg in range(6):
         run = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=leg, after=WATCH_S)
         assert run.excursion_deg <= 0.5 and run.excursion_mm <= 1.0, run
