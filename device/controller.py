@@ -577,6 +577,12 @@ def build_params(
         and 0.0 <= config.impedance_lag_extra <= config.impedance_lag_max
     ):
         raise ValueError("impedance_lag_extra must be 0..impedance_lag_max (s)")
+    if not 0.0 <= config.rest_dose_share <= 1.0:
+        raise ValueError("rest_dose_share must be 0..1 (a share of what a dose has left)")
+    if not 0 <= config.rest_dose_extra_max <= pwm.PWM_SLOTS:
+        raise ValueError(f"rest_dose_extra_max must be 0..{pwm.PWM_SLOTS} slots")
+    if config.rest_landing_periods < 0 or config.rest_blind_doses < 0:
+        raise ValueError("rest_landing_periods and rest_blind_doses must be 0 or more")
     sched = schedule(controller_tasks())
     offsets = np.array(sched.offsets[TASK_CYLINDER0 : TASK_CYLINDER0 + 6], dtype=np.int64)
     area_cap = math.pi * config.bore**2 / 4.0

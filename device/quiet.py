@@ -39,8 +39,9 @@ follows a changing load without moving (its seals hold it) stops following after
 the load then moves it on its air, its reading changes, and it follows again.
 
 With the valves shut a leg whose sensor stopped is held by its air as any other (a frozen
-reading asks for no dose), and a chamber that loses air shows it at once: the supervision's
-valve and air checks see a leak or an exhaust stuck open within 21 ms of holding.
+reading gets at most ``blind`` doses), and a chamber that loses air shows it at once: the
+supervision's valve and air checks see a leak or an exhaust stuck open within 21 ms of
+holding.
 
 State per leg in ``rest`` (slots R_*), learnt widths per valve in ``dose``.
 """

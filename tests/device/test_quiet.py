@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from device import quiet
+from device.controller import ControllerConfig, build_params
 
 Q = quiet.QuietParams(
     on=True,
@@ -108,3 +109,18 @@ def test_a_leg_whose_reading_does_not_move_gets_no_more_than_blind_doses() -> No
         PER_SLOT, 0.044e-3,
     )  # fmt: skip
     assert (cap, rod) != (0, 0)
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"rest_dose_share": 1.5},
+        {"rest_dose_share": -0.1},
+        {"rest_dose_extra_max": 29},
+        {"rest_landing_periods": -1},
+        {"rest_blind_doses": -1},
+    ],
+)
+def test_a_landing_or_blind_bound_no_hold_could_use_is_refused(change: dict[str, float]) -> None:
+    with pytest.raises(ValueError, match="rest_"):
+        build_params(ControllerConfig(**change))  # type: ignore[arg-type]
