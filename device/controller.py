@@ -1011,24 +1011,27 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     if rests:
         quiet.learn(s.rest, s.dose, leg, s.pressure, p.quiet, pwm.PWM_SLOTS)
         pa_lo, pa_up = s.pressure[lo] + p.p_atm, s.pressure[up] + p.p_atm
+        stiffness = quiet.air_stiffness(
+            pa_lo, pa_up, volume_lo, volume_up, p.area_cap, p.area_annulus, p.quiet
+        )
         settles = quiet.settles_at(
             s.leg_target[leg] - s.leg_x[leg],
             s.pressure[lo] * p.area_cap - s.pressure[up] * p.area_annulus,
             (s.compensation[leg] + s.integral[12 + leg]) * p.area_cap,
-            pa_lo, pa_up, volume_lo, volume_up, p.area_cap, p.area_annulus, p.quiet,
-        )  # fmt: skip
-        stiffness = quiet.air_stiffness(
-            pa_lo, pa_up, volume_lo, volume_up, p.area_cap, p.area_annulus, p.quiet
+            stiffness,
         )
-        # Pa that one slot more of each valve moves its chamber by, at these pressures.
-        slot = p.quiet.polytropic * p.sup.slot_time
-        g, flow = p.valve_gain, supervision.valve_flow
-        per_slot = (
-            slot * g[2 * lo] * flow(supply, pa_lo, p.sup) / volume_lo,
-            slot * g[2 * lo + 1] * flow(pa_lo, p.p_atm, p.sup) / volume_lo,
-            slot * g[2 * up] * flow(supply, pa_up, p.sup) / volume_up,
-            slot * g[2 * up + 1] * flow(pa_up, p.p_atm, p.sup) / volume_up,
-        )
+        # Pa that one slot more of each valve moves its chamber by, at these pressures: only
+        # a landing dose is lengthened (device.quiet.lengthen), so only then.
+        per_slot = (0.0, 0.0, 0.0, 0.0)
+        if s.rest[leg, quiet.R_LANDING] > 0.5:
+            slot = p.quiet.polytropic * p.sup.slot_time
+            g, flow = p.valve_gain, supervision.valve_flow
+            per_slot = (
+                slot * g[2 * lo] * flow(supply, pa_lo, p.sup) / volume_lo,
+                slot * g[2 * lo + 1] * flow(pa_lo, p.p_atm, p.sup) / volume_lo,
+                slot * g[2 * up] * flow(supply, pa_up, p.sup) / volume_up,
+                slot * g[2 * up + 1] * flow(pa_up, p.p_atm, p.sup) / volume_up,
+            )
         dose_lo, dose_up = quiet.dose_slots(
             s.rest, s.dose, leg, settles, s.pressure, P_l, P_u,
             supervision.intake_allowed(supply, s.pressure[lo], p.sup),

@@ -167,20 +167,16 @@ def learn(
 
 
 @njit_inline
-def settles_at(
-    error: float, made: float, hold: float, p_lo: float, p_up: float, v_lo: float, v_up: float,
-    a_lo: float, a_up: float, q: QuietParams,
-) -> float:  # fmt: skip
+def settles_at(error: float, made: float, hold: float, stiffness: float) -> float:
     """Where the leg will settle on its trapped air, as its error from the target (m).
 
     ``made``: the force its chambers make (N); ``hold``: what holds it still (the load
-    compensation and what the outer integral learnt; N); pressures absolute (Pa), volumes
-    (m3) and areas (m2) of cap and rod side. Closed, the two chambers are springs of
-    ``n p A^2 / V`` each: a surplus of force moves the leg by surplus over their sum.
+    compensation and what the outer integral learnt; N); ``stiffness``: its shut chambers'
+    (N/m, :func:`air_stiffness`): a surplus of force moves the leg by surplus over it.
     Closing the valves at an instant of the loop's pulses leaves up to 3-4 N over or under,
     which would move the leg 0.3 mm: the first dose answers that before the leg has moved.
     """
-    return error - (made - hold) / air_stiffness(p_lo, p_up, v_lo, v_up, a_lo, a_up, q)
+    return error - (made - hold) / stiffness
 
 
 @njit_inline
@@ -214,12 +210,13 @@ def dose_slots(
     loop would want (Pa gauge). ``force``: what the leg's air should push more to settle on
     its target (N, + extends); ``areas``: cap and rod side (m2); ``per_slot``: how much one
     slot more of each valve (cap intake, cap exhaust, rod intake, rod exhaust) changes its
-    chamber's pressure (Pa, from its flow at the present pressures). A dose that has more
-    to answer than one quantum is lengthened by ``share`` of what is left (see
-    :func:`lengthen`), in the first ``landing`` periods of the rest only: what the valves
-    left as they shut. Later, a leg that has further to go gets the shortest dose: what
-    moves it then (a leak, a changed load) builds up slowly, and lengthened doses would
-    follow a force sensor's false load as fast as the full loop. ``measured``: the leg's
+    chamber's pressure (Pa, from its flow at the present pressures; 0 outside a landing,
+    where nothing is lengthened). A dose that has more to answer than one quantum is
+    lengthened by ``share`` of what is left (see :func:`lengthen`), in the first
+    ``landing`` periods of the rest only: what the valves left as they shut. Later, a leg
+    that has further to go gets the shortest dose: what moves it then (a leak, a changed
+    load) builds up slowly, and lengthened doses would follow a force sensor's false load
+    as fast as the full loop. ``measured``: the leg's
     reading's error from its target (m); after ``blind`` doses without a change of it, none
     (see the module's docstring)."""
     if measured != rest[leg, R_SEEN]:
