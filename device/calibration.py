@@ -32,6 +32,12 @@ for 0.3-1 m of 4 mm tube with its port) but a kinked, blocked or wrongly fitted 
 VALVE_EXTRA_MAX = 1.0e-3
 """A valve whose pulse passes more than this (s) beyond or short of its length is not a
 build's spread of delays (closing less opening: -0.6 to +0.8 ms at the extremes)."""
+MOVING_MASS_RANGE = (2.5, 7.0)
+"""What the legs of an empty platform may move (kg; device.identify.moving_mass): the
+builds' platforms (2.0-3.5 kg) with their pistons (1-1.7 kg along the legs) weigh 3.0-5.2
+kg, and the sway weighs up to 1.1 kg more. Far outside, something is on the plate or
+holding it, or a leg or its sensor is faulty, and the derivative gain it would set is not
+one the loop was measured with."""
 LEG_FRICTION_MAX = 15.0
 """A leg whose seals hold back more than this (N) moving slowly is not a build's spread
 (glass/graphite pistons about 1 N, light elastomer seals up to 5 N, breakaway 2 times that)
@@ -66,6 +72,11 @@ class Calibration:
     """Per leg: the force (N) its seals hold back at a slow, steady speed, from a slow heave
     of the empty platform up and down (device.identify.identify_friction). Empty: not
     identified, and the controller feeds no friction forward."""
+    moving_mass: float = 0.0
+    """The mass (kg) the legs move in a heave of the empty platform, pistons included
+    (device.identify.moving_mass): the position loop's derivative gain grows with it
+    (``ControllerConfig.moving_mass_reference``). 0: not identified, and the gain is the
+    configured one."""
     identified_at: str = ""
     """When (ISO 8601, UTC); empty for the uncalibrated default."""
     notes: tuple[str, ...] = field(default=())
@@ -115,6 +126,7 @@ class Calibration:
                 valve_extra=_floats(data.get("valve_extra", []), 24, "valve_extra", True),
                 dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 leg_friction=_floats(data.get("leg_friction", []), 6, "leg_friction", True),
+                moving_mass=float(data.get("moving_mass", 0.0)),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
             )
@@ -152,6 +164,17 @@ class Calibration:
                 )
         self.check_valves()
         self.check_friction()
+        self.check_mass()
+
+    def check_mass(self) -> None:
+        """Refuse a moving mass no healthy, empty unit has (0: not identified)."""
+        low, high = MOVING_MASS_RANGE
+        if self.moving_mass != 0.0 and not low <= self.moving_mass <= high:
+            raise IdentificationError(
+                f"the legs move {self.moving_mass:.2f} kg heaving the empty platform (healthy: "
+                f"{low:g}-{high:g} kg): check that nothing is on the plate or holding it, "
+                "and the legs' sensors"
+            )
 
     def check_friction(self) -> None:
         """Refuse leg frictions no healthy unit has."""

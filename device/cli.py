@@ -278,8 +278,8 @@ def _device(args: argparse.Namespace) -> int:
 
 
 def describe(calibration: Calibration) -> str:
-    """One line for the technician: when the unit was identified, its largest zeros and its
-    legs' friction."""
+    """One line for the technician: when the unit was identified, its largest zeros, its
+    legs' friction and what they move."""
     legs = max(abs(z) for z in calibration.leg_zero) * 1e3
     bar = max(abs(z) for z in calibration.pressure_zero) / 1e5
     valves = "valves identified" if calibration.valves_identified else "valves not identified"
@@ -288,10 +288,15 @@ def describe(calibration: Calibration) -> str:
         if calibration.leg_friction
         else "leg friction not identified (none fed forward)"
     )
+    mass = (
+        f"the legs move {calibration.moving_mass:.2f} kg"
+        if calibration.moving_mass
+        else "moving mass not identified (the configured derivative gain)"
+    )
     when = calibration.identified_at or "an unknown date"
     return (
         f"calibration of {when}: leg zeros up to {legs:.3f} mm, transducer zeros up to "
-        f"{bar:.3f} bar, {valves}, {friction}"
+        f"{bar:.3f} bar, {valves}, {friction}, {mass}"
     )
 
 

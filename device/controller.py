@@ -125,6 +125,23 @@ class ControllerConfig:
     leg) then oscillate at 25-30 Hz. The wave-1 value, 3.3e5, tripped the leg speed limit
     on legs 4 and 6 of the nominal plant once those delays were modelled; 2.8e5 tripped on
     none of six drawn plants (steps of both signs on legs 1, 4 and 6)."""
+    moving_mass_reference: float = 4.129
+    """What the start-up identification weighs on the unit ``position_kd`` was tuned on
+    (kg): the nominal unit, 2.5 kg of plate and 1.2 kg of pistons along their legs, as the
+    heave's sway weighs them (device.identify.moving_mass). A unit whose legs move more gets
+    proportionally more derivative gain, one that moves less less
+    (``Calibration.moving_mass``; not identified: ``position_kd`` as it is): the braking
+    the derivative gives a leg per unit of its speed, ``Kd / m``, stays the nominal
+    unit's. Fifty drawn builds on three noise
+    seeds (150 steps): with the gain fixed, 11 overshot 5.2-9.5 %, all but one the
+    heaviest, least frictional plates (2.9-3.5 kg), which reached their target at 60 mm/s
+    and coasted on about 3 N of braking; scaled, 6 (4.1-6.5 %, plants 4, 20 and 25). The
+    steady error missed on 2 and then none, the rendered damping on 5 and then on plant 34
+    alone (the envelope's floor), and the rise on 4 either way; but the 0.3 mm staircase on
+    6 against 3 (0.30-0.37 mm: heavy, stiff-sealed plants such as 14 take their small
+    steps more slowly). A gain raised for every unit instead (3.3e5) tripped a light
+    build's step; the proportional gain scaled too slowed the light builds, whose rendered
+    damping then missed by 5-26 %. 0: no scaling."""
     pressure_kp: float = 4.5e-3
     """Inner PI proportional gain (percent of duty per Pa): full duty at 0.22 bar error.
     Much lower and the legs ring after a step; much higher and the loop pushes through the
@@ -531,6 +548,15 @@ class ControllerState(NamedTuple):
     dose: NDArray[np.int64]  # (24,) slots of each valve's dose, learnt (0: not yet)
 
 
+def position_kd(config: ControllerConfig) -> float:
+    """The outer loop's derivative gain for this unit: ``position_kd`` times its identified
+    moving mass over the reference's (``ControllerConfig.moving_mass_reference``)."""
+    mass = config.calibration.moving_mass
+    if config.moving_mass_reference <= 0.0 or mass <= 0.0:
+        return config.position_kd
+    return config.position_kd * mass / config.moving_mass_reference
+
+
 def build_params(
     config: ControllerConfig = ControllerConfig(),
     geometry: Geometry = DEFAULT_GEOMETRY,
@@ -581,6 +607,8 @@ def build_params(
         raise ValueError("rest_dose_share must be 0..1 (a share of what a dose has left)")
     if not 0 <= config.rest_dose_extra_max <= pwm.PWM_SLOTS:
         raise ValueError(f"rest_dose_extra_max must be 0..{pwm.PWM_SLOTS} slots")
+    if not (math.isfinite(config.moving_mass_reference) and config.moving_mass_reference >= 0):
+        raise ValueError("moving_mass_reference must be 0 (no scaling) or a mass in kg")
     if config.rest_landing_periods < 0 or config.rest_blind_doses < 0:
         raise ValueError("rest_landing_periods and rest_blind_doses must be 0 or more")
     sched = schedule(controller_tasks())
@@ -592,6 +620,7 @@ def build_params(
     p_supply_abs = config.supply_pressure + config.atmosphere
     dt_tick = 1.0 / TICK_HZ
     omega_obs = 2.0 * math.pi * config.rate_observer_hz
+    kd_pos = position_kd(config)
 
     def alpha(cutoff: float, dt: float) -> float:
         return 1.0 - math.exp(-2.0 * math.pi * cutoff * dt)
@@ -609,8 +638,8 @@ def build_params(
         p_min=config.critical_ratio * p_supply_abs - config.atmosphere,
         p_max=config.supply_pressure,
         kp_pos=config.position_kp,
-        kd_pos=config.position_kd,
-        max_error=config.position_kd * config.approach_speed / config.position_kp,
+        kd_pos=kd_pos,
+        max_error=kd_pos * config.approach_speed / config.position_kp,
         ki_pos=config.position_ki,
         pos_i_zone=config.position_integral_zone,
         pos_i_speed=config.position_integral_speed,

@@ -33,9 +33,12 @@ same routine on the simulation and on an I/O board.
    chambers push with the load plus its seals' friction going up and the load less it
    going down, so the difference is twice the friction: what the position loop feeds
    forward along the leg's moving target (``ControllerConfig.friction_compensation``).
+   The faster passes sway a little as they go, which weighs what the legs move
+   (:func:`moving_mass`): the position loop's derivative gain grows with it
+   (``ControllerConfig.moving_mass_reference``).
 
-What it does not identify (yet): the platform's mass and centre of mass (the outer loop's
-integral takes up their static part), the sensors' span errors.
+What it does not identify (yet): the platform's centre of mass (the outer loop's integral
+takes up its static part), the sensors' span errors.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from device.calibration import Calibration, IdentificationError
 from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
+from device.kinematics import Kinematics
 from device.plant.params import TICK_HZ
 from device.rig import Rig
 
@@ -134,9 +138,10 @@ def identify(
         identified = replace(cal, notes=(f"valve identification not used: {exc}",))
     if progress:
         progress("identification: a slow heave up and down for the legs' friction")
-    friction = identify_friction(hardware, identified, atmosphere)
-    with_friction = replace(identified, leg_friction=friction)
+    friction, mass = identify_friction(hardware, identified, atmosphere)
+    with_friction = replace(identified, leg_friction=friction, moving_mass=mass)
     with_friction.check_friction()  # a leg no healthy unit has: refused, look at it
+    with_friction.check_mass()
     return with_friction
 
 
@@ -310,15 +315,17 @@ def identify_friction(
     atmosphere: float = 1.01325e5,
     config: ControllerConfig | None = None,
     geometry: Geometry = DEFAULT_GEOMETRY,
-) -> tuple[float, ...]:
-    """Each leg's seal friction (N, 6): the controller, calibrated with ``calibration``,
-    moves every leg together up and down :data:`FRICTION_SPAN` of the stroke at each of
-    :data:`FRICTION_SPEEDS` (the empty platform heaving), and each leg's chamber force
+) -> tuple[tuple[float, ...], float]:
+    """Each leg's seal friction (N, 6) and the mass the legs move (kg). The controller,
+    calibrated with ``calibration``, moves every leg together up and down
+    :data:`FRICTION_SPAN` of the stroke at each of :data:`FRICTION_SPEEDS` (the empty
+    platform heaving), and each leg's chamber force
     (cap side times its area less rod side times the annulus) is fitted by least squares as
     ``a + b x + f d``, ``d`` the direction commanded (+1 up, -1 down): the load and its slope
     with the pose, and ``f`` what the seals hold back, the mean over both speeds (the
     direction, not the measured rate: a 24 um sensor differentiated at 1 kHz is too noisy
-    to split Coulomb from viscous friction at these speeds). Returns ``f``, floored at 0.
+    to split Coulomb from viscous friction at these speeds). ``f`` is floored at 0. The
+    faster passes also sway, which weighs what the legs move (:func:`moving_mass`).
     Nobody may stand on the plate. Leaves every leg on its stop and every chamber vented
     (IdentificationError if the controller tripped)."""
     cfg = replace(config if config is not None else ControllerConfig(), calibration=calibration)
@@ -343,14 +350,22 @@ def identify_friction(
         rig.run(SETTLE_S, log_hz=0)
         _check(rig)
         x = low
+        passes = 0
+        omega = 2.0 * math.pi * SWAY_HZ
         for speed in FRICTION_SPEEDS:
+            sway = SWAY_SHARE * speed / omega if speed == FRICTION_SPEEDS[-1] else 0.0
             for _ in range(FRICTION_PASSES):
                 for direction in (1.0, -1.0):
                     periods = round((high - low) / (speed * dt))
                     skip = round(FRICTION_SKIP * periods)
+                    passes += 1
                     for k in range(periods):
                         x += direction * speed * dt
-                        rig.apply_leg_targets(np.full(6, x), np.full(6, direction * speed))
+                        t = (k + 1) * dt
+                        rig.apply_leg_targets(
+                            np.full(6, x + sway * math.sin(omega * t)),
+                            np.full(6, direction * speed + sway * omega * math.cos(omega * t)),
+                        )
                         rig.run(dt, log_hz=0)
                         _check(rig)
                         if skip <= k < periods - skip:
@@ -359,7 +374,8 @@ def identify_friction(
                                 s.pressure[0::2] * params.area_cap
                                 - s.pressure[1::2] * params.area_annulus
                             )
-                            rows.append(np.concatenate((s.leg_x, force, [direction])))
+                            swaying = passes if sway else 0
+                            rows.append(np.concatenate((s.leg_x, force, [direction, swaying, t])))
                     x = high if direction > 0 else low
     finally:
         rig.close_valves_now()
@@ -372,7 +388,54 @@ def identify_friction(
         design = np.column_stack((np.ones_like(x_m), x_m, commanded))
         coef, *_ = np.linalg.lstsq(design, f_m, rcond=None)
         friction[leg] = max(0.0, float(coef[2]))
-    return tuple(float(f) for f in friction)
+    return tuple(float(f) for f in friction), moving_mass(data, geometry)
+
+
+SWAY_HZ = 15.0
+"""Frequency (Hz) of a small sway added to each leg's target in the heave's faster passes,
+which weighs what the legs move (:func:`moving_mass`)."""
+SWAY_SHARE = 0.6
+"""The sway's peak speed as a share of the pass's: the legs never stop or turn within a
+pass, so their seals slide one way throughout (about 8-32 mm/s at the faster speed). A sway
+that turned them weighed their seals too: the breakaway at each turn comes where the
+acceleration peaks; measured so (a 6-8 Hz shake about mid-stroke), the stiff-sealed builds
+weighed 1-1.5 kg more than the rest."""
+
+
+def moving_mass(data: NDArray[np.float64], geometry: Geometry = DEFAULT_GEOMETRY) -> float:
+    """The mass (kg) the legs move in a heave of the empty platform, from the rows of
+    :func:`identify_friction` (leg displacements, chamber forces, direction, pass, time):
+    the legs' vertical force in phase with the sway's acceleration, per unit of it, the
+    mean over the swaying passes.
+
+    Per pass, both the heave (from the mean leg displacement) and the legs' vertical force
+    are fitted by a slow quadratic plus a sine at :data:`SWAY_HZ`. The seals' friction,
+    one way all pass, and their viscous part and the air's damping, in phase with the
+    speed, are not in phase with the acceleration; nor are the platform's weight and what
+    the transducers' spans get wrong of the large chamber pressures, both slow. (The static
+    load alone is off by up to half a kilogram: a 2 % span error of a 4 bar chamber is 4 N,
+    as much as a leg's share of the platform.) What is weighed is the platform and each
+    piston along its leg (``platform_mass + leg_mass * sum(u_z**2)``), and 0.04-1.09 kg
+    more over fifty drawn builds (median 0.25; the light ones most); the controller
+    compares it with the same figure weighed on the unit its gains were tuned on
+    (``ControllerConfig.moving_mass_reference``)."""
+    omega = 2.0 * math.pi * SWAY_HZ
+    kinematics = Kinematics(geometry)
+    pose = kinematics.forward(geometry.min_length + np.mean(data[:, :6], axis=0))
+    up = kinematics.jacobian(pose)[:, 2]  # each leg's unit vector, vertical part
+    masses = []
+    for index in sorted(set(data[:, 13].tolist()) - {0.0}):
+        rows = data[data[:, 13] == index]
+        t = rows[:, 14]
+        basis = np.column_stack((np.ones_like(t), t, t * t, np.sin(omega * t), np.cos(omega * t)))
+        vertical = rows[:, 6:12] @ up  # the legs' vertical force on the platform (N)
+        heave = rows[:, :6] @ (1.0 / up) / 6.0  # (m)
+        fz, *_ = np.linalg.lstsq(basis, vertical, rcond=None)
+        hz, *_ = np.linalg.lstsq(basis, heave, rcond=None)
+        # The acceleration is -omega^2 times the heave's sine: the force's share along it.
+        amplitude2 = hz[3] ** 2 + hz[4] ** 2
+        masses.append(-(fz[3] * hz[3] + fz[4] * hz[4]) / (omega**2 * amplitude2))
+    return float(np.mean(masses))
 
 
 LIFT_TO = 0.38
