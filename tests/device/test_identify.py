@@ -213,6 +213,10 @@ def test_a_heavier_plate_weighs_more_and_gets_more_derivative_gain() -> None:
         heavy.moving_mass / light.moving_mass
     )
     assert kd > 1.1 * nominal  # a kilogram more of the 4.1 the legs move: about 1.15 times
+    params, _ = build_params(ControllerConfig(calibration=heavy))
+    assert params.kd_pos == kd  # what the loop runs with
+    approach = ControllerConfig().approach_speed  # the same approach speed, at this gain
+    assert params.max_error == pytest.approx(kd * approach / params.kp_pos)
     # Not identified (an older calibration), or the scaling off: the configured gain.
     assert position_kd(ControllerConfig()) == nominal
     off = ControllerConfig(calibration=heavy, moving_mass_reference=0.0)
