@@ -14,7 +14,7 @@ from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig, build_params, position_kd
 from device.geometry import DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
-from device.identify import FRICTION_SPEEDS, identify
+from device.identify import FRICTION_SPEEDS, SWAY_HZ, SWAY_SHARE, identify, moving_mass
 from device.kinematics import Kinematics
 from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
@@ -329,3 +329,24 @@ def test_a_leg_or_pose_outside_its_limit_is_judged_once_it_is_inside() -> None:
 def test_a_moving_mass_reference_no_unit_has_is_refused(reference: float) -> None:
     with pytest.raises(ValueError, match="moving_mass_reference"):
         build_params(ControllerConfig(moving_mass_reference=reference))
+
+
+def test_the_sway_is_weighed_apart_from_friction_weight_and_a_span_error() -> None:
+    """``moving_mass`` on rows made from a known heave: a mass, the plate's weight, seals
+    that hold back 20 N one way each pass plus 300 N s/m, and every force read 2 % high
+    plus a 6 N offset (a transducer's span and zero): only the mass, read 2 % high with the
+    forces, is in phase with the sway's acceleration."""
+    up = Kinematics().jacobian(DEFAULT_GEOMETRY.home_pose)[:, 2]
+    omega = 2.0 * math.pi * SWAY_HZ
+    mass, speed, sway = 4.6, FRICTION_SPEEDS[-1], SWAY_SHARE * FRICTION_SPEEDS[-1] / omega
+    rows = []
+    for index, direction in enumerate((1.0, -1.0, 1.0, -1.0), start=1):
+        for t in np.arange(0.2, 0.8, 0.004):
+            z = direction * speed * (t - 0.5) + sway * math.sin(omega * t)  # about home
+            rate = direction * speed + sway * omega * math.cos(omega * t)
+            accel = -sway * omega**2 * math.sin(omega * t)
+            vertical = mass * (9.81 + accel) + 20.0 * direction + 300.0 * rate
+            force = 1.02 * vertical / (6.0 * up) + 6.0  # each leg's share, read wrong
+            legs = 0.5 * DEFAULT_GEOMETRY.stroke + z * up
+            rows.append(np.concatenate((legs, force, [direction, index, t])))
+    assert moving_mass(np.array(rows)) == pytest.approx(mass * 1.02, rel=1e-3)
