@@ -132,10 +132,10 @@ class ControllerConfig:
     proportionally more derivative gain, one that moves less less
     (``Calibration.moving_mass``; not identified: ``position_kd`` as it is): the braking
     the derivative gives a leg per unit of its speed, ``Kd / m``, stays the nominal
-    unit's. Fifty drawn builds on three noise
-    seeds (150 steps): with the gain fixed, 11 overshot 5.2-9.5 %, all but one the
-    heaviest, least frictional plates (2.9-3.5 kg), which reached their target at 60 mm/s
-    and coasted on about 3 N of braking; scaled, 6 (4.1-6.5 %, plants 4, 20 and 25). The
+    unit's. Fifty drawn builds on three noise seeds (150 steps): with the gain fixed, 11
+    overshot 5.2-9.5 %, all but one the heaviest, least frictional plates (2.9-3.5 kg),
+    which reached their target at 60 mm/s and coasted on about 3 N of braking; scaled, 6
+    (5.3-6.5 %, plants 4, 20 and 25). The
     steady error missed on 2 and then none, the rendered damping on 5 and then on plant 34
     alone (the envelope's floor), and the rise on 4 either way; but the 0.3 mm staircase on
     6 against 3 (0.30-0.37 mm: heavy, stiff-sealed plants such as 14 take their small
