@@ -135,13 +135,13 @@ class ControllerConfig:
     unit's. Fifty drawn builds on three noise seeds (150 steps): with the gain fixed, 11
     overshot 5.2-9.5 %, all but one the heaviest, least frictional plates (2.9-3.5 kg),
     which reached their target at 60 mm/s and coasted on about 3 N of braking; scaled, 6
-    (5.3-6.5 %, plants 4, 20 and 25). The
-    steady error missed on 2 and then none, the rendered damping on 5 and then on plant 34
-    alone (the envelope's floor), and the rise on 4 either way; but the 0.3 mm staircase on
-    6 against 3 (0.30-0.37 mm: heavy, stiff-sealed plants such as 14 take their small
-    steps more slowly). A gain raised for every unit instead (3.3e5) tripped a light
-    build's step; the proportional gain scaled too slowed the light builds, whose rendered
-    damping then missed by 5-26 %. 0: no scaling."""
+    (5.3-6.5 %, plants 4, 20 and 25). The steady error missed on 2 and then none, the
+    rendered damping on 5 and then on plant 34 alone (the envelope's floor), and the rise
+    on 4 either way; but the 0.3 mm staircase on 6 against 3 (0.30-0.37 mm: heavy,
+    stiff-sealed plants such as 14 take their small steps more slowly). A gain raised for
+    every unit instead (3.3e5) tripped a light build's step; the proportional gain scaled
+    too slowed the light builds, whose rendered damping then missed by 5-26 %. 0: no
+    scaling."""
     pressure_kp: float = 4.5e-3
     """Inner PI proportional gain (percent of duty per Pa): full duty at 0.22 bar error.
     Much lower and the legs ring after a step; much higher and the loop pushes through the
