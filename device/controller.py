@@ -88,8 +88,9 @@ I_OUTSIDE = 8
 """Legs (bits 0-5) and pose (``safety.OUTSIDE_POSE``) that started this joint-mode motion
 outside their limits and have not yet been inside (``safety.outside_at_start``)."""
 I_BLEED = 9
-"""Chamber whose exhaust the latched VALVE trip keeps bleeding (-1: none): see
-:func:`bleed`."""
+"""Chamber the latched trip holds at its trip pressure (-1: none): its exhaust bleeding it
+(0-11), its intake feeding it (``HOLD_FEED`` + chamber), or none since a release
+(``BLEED_RELEASED``); see :func:`bleed`."""
 N_ISTATE = 10
 
 
@@ -113,9 +114,25 @@ class ControllerConfig:
     """
 
     position_kp: float = 1.2e7
-    """Outer-loop proportional gain (Pa of differential per m): 0.12 bar/mm. A higher gain
-    rings the heavy modes of the platform the coupled legs carry (worst overshoot over 40
-    steps 1.5 % at 0.135 bar/mm); below about 0.10 bar/mm the 10-90 % rise passes 90 ms."""
+    """Outer-loop proportional gain (Pa of differential per m): 0.12 bar/mm, in task mode
+    (an exercise, a hold with the foot on the plate, an impedance rendered), along a
+    joint-mode trajectory and wherever a leg holds once it has rested. A higher gain rings
+    the heavy modes of the platform the coupled legs carry (worst overshoot over 40 steps
+    1.5 % at 0.135 bar/mm). While rendering, the loop's lag is damping a foot feels (K times
+    the lag), which the admittance law takes out of what it renders, never below the
+    envelope's least damping (``SafetyLimits.damping_min``, measured with this gain): at
+    0.10 bar/mm 24 of fifty drawn builds rendered B = 1 at K = 50 more than 5 % too high (15
+    % at the worst). At 0.14 the lag of plant 34 (on that floor at 0.12, 7.5-10.4 % high) no
+    longer was (1-2 %), but others' errors grew (plant 8: 0.2 to 5.0 %), and the envelope
+    would need measuring again; not changed."""
+    position_kp_joint: float = 1.2e7
+    """...and from a joint target's jump until the leg rests on it (a leg step's approach,
+    ``joint_approach_time`` at most). Off by default (the same gain); with the seals'
+    friction fed forward toward the target (``friction_compensation_joint``) 1.0e7 (0.10
+    bar/mm) was measured: 0.12 bar/mm was then faster than the 10-90 % rise needs, over
+    fifty drawn builds (one noise seed) the worst rise 68 ms but 8 steps overshooting
+    5.3-6.7 %; at 0.10 bar/mm, 150 runs (three noise seeds), the worst rise 83 ms and 2
+    overshooting (plant 20, 5.7-5.9 %; 6 with this off)."""
     position_kd: float = 2.8e5
     """Outer-loop derivative gain (Pa per m/s). The approach is nearly first order with
     time constant Kd/Kp (23 ms; 10-90 % rise about 2.2 Kd/Kp). The plant's delays decide
@@ -364,8 +381,36 @@ class ControllerConfig:
     builds, B = 1 at K = 50: rendered B 18.7 % off at the median and 73 % at the worst
     without it (stiff seals, 3-5 N), 1.8 % and 4.4 % with it; a 2 deg pitch sine: the
     stiff-sealed builds 33 and 48 fell 3 dB at 3.9 and 6.3 Hz without it, above 8 Hz with
-    it. A step's target jumps (no rate) and gets none. 0 feeds none; an uncalibrated unit,
-    or one calibrated before the heave was identified, feeds none."""
+    it. A step's target jumps (no rate) and gets none of this (it gets
+    ``friction_compensation_joint``). 0 feeds none; an uncalibrated unit, or one
+    calibrated before the heave was identified, feeds none."""
+    friction_compensation_joint: float = 0.0
+    """Share (0-1) of each leg's identified seal friction the position loop feeds forward
+    toward a joint target that jumped, until the leg rests on it (a leg step's approach):
+    ``tanh`` of the leg's error over ``friction_compensation_error``. Off by default. A
+    stiff-sealed leg's step crawls its last millimetre: there the proportional term alone no
+    longer breaks its seals free, and the integral waits for it to slow down. Fifty drawn
+    builds on three noise seeds (150 steps and staircases): off, the rise missed 90 ms on 4
+    (plant 42, 4 N seals: 92-137 ms) and the 0.3 mm staircase on 6; at 1.0 with
+    ``position_kp_joint`` at 1.0e7, the rise on none (83 ms at the worst) and the staircase
+    on 1 (plant 34, 0.31 mm); the nominal unit's 10 mm step rose in 63 ms (61) and overshot
+    1.8 % (0.22). Not on by default because the approach changes where the legs' chambers
+    rest after it, and the safety bench then found three of its own checks at their edges:
+    one false service warning in 168 healthy runs (build 8, passive range of motion, a
+    resisting foot, seed 8: an intake's minimum pulses counted as air a leaking chamber
+    should have gained), an exhaust stuck open while holding (valve 15) not caught within
+    0.5 s, and one (valve 3) that beat the air checks to a FOLLOWING trip (now held after
+    the trip, ``bleed``). Not in task mode, where nothing was measured to need it."""
+    friction_compensation_error: float = 0.3e-3
+    """Error (m) over which the joint target's feed-forward turns from one direction to the
+    other (the ``tanh``'s scale): a staircase's step. At 1 mm the overshoots and the
+    staircase were no better (fifty drawn builds, one noise seed, both on 0.12 bar/mm: 7
+    overshoots against 8, a staircase at 0.32 mm against none)."""
+    joint_approach_time: float = 1.0
+    """How long (s) a leg step may run on ``position_kp_joint`` and
+    ``friction_compensation_joint`` at most: from its target's jump until the leg rests on
+    its target (device.quiet), or this long if it does not rest. A hold is held on
+    ``position_kp`` (0: never on the joint gain)."""
     friction_compensation_keep: float = 1.2
     """Friction (N) each leg keeps while an axis renders: the feed-forward is what was
     identified beyond this.
@@ -454,6 +499,8 @@ class ControllerParams(NamedTuple):
     kp_pos: float
     kd_pos: float
     max_error: float
+    kp_joint: float  # kp_pos on a joint step's approach
+    max_error_joint: float
     ki_pos: float
     pos_i_zone: float
     pos_i_speed: float
@@ -489,6 +536,9 @@ class ControllerParams(NamedTuple):
     friction_speed: float  # m/s
     friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
     friction_track_alpha: float  # its low-pass per control period
+    friction_joint: NDArray[np.float64]  # (6,) N per leg on a joint step's approach
+    friction_error: float  # m
+    approach_periods: float  # control periods a joint approach lasts at most
     fill_step: float  # Pa per control period
     lag_extra: float  # s
     vent_pulse_slots: int
@@ -546,6 +596,9 @@ class ControllerState(NamedTuple):
     counters: NDArray[np.int64]  # supervision's counters (device.supervision C_*)
     rest: NDArray[np.float64]  # (6, quiet.N_REST) the quiet hold per leg (device.quiet R_*)
     dose: NDArray[np.int64]  # (24,) slots of each valve's dose, learnt (0: not yet)
+    approach: NDArray[np.float64]  # (12,) per leg: control periods of its joint approach
+    # left (0: none), then the joint target it last saw
+    trip_air: NDArray[np.float64]  # (12,) each chamber's air at the trip (p V, Pa m3; NaN)
 
 
 def position_kd(config: ControllerConfig) -> float:
@@ -587,6 +640,20 @@ def build_params(
         raise ValueError("friction_compensation_speed must be a finite speed above 0 (m/s)")
     if not (math.isfinite(config.fill_rate) and config.fill_rate > 0.0):
         raise ValueError("fill_rate must be a finite pressure rate above 0 (Pa/s)")
+    if not 0.0 <= config.friction_compensation_joint <= 1.0:
+        raise ValueError(
+            "friction_compensation_joint must be 0..1 (a share of the identified friction)"
+        )
+    if not (math.isfinite(config.joint_approach_time) and config.joint_approach_time >= 0.0):
+        raise ValueError("joint_approach_time must be a finite time >= 0 (s)")
+    if not (
+        math.isfinite(config.friction_compensation_error)
+        and config.friction_compensation_error > 0.0
+    ):
+        raise ValueError("friction_compensation_error must be a finite error above 0 (m)")
+    for name in ("position_kp", "position_kp_joint"):
+        if not (math.isfinite(getattr(config, name)) and getattr(config, name) > 0.0):
+            raise ValueError(f"{name} must be a finite gain above 0 (Pa/m)")
     if not (
         math.isfinite(config.friction_compensation_keep)
         and config.friction_compensation_keep >= 0.0
@@ -640,6 +707,8 @@ def build_params(
         kp_pos=config.position_kp,
         kd_pos=kd_pos,
         max_error=kd_pos * config.approach_speed / config.position_kp,
+        kp_joint=config.position_kp_joint,
+        max_error_joint=kd_pos * config.approach_speed / config.position_kp_joint,
         ki_pos=config.position_ki,
         pos_i_zone=config.position_integral_zone,
         pos_i_speed=config.position_integral_speed,
@@ -683,6 +752,9 @@ def build_params(
             if config.friction_compensation_lag > 0
             else 1.0
         ),
+        friction_joint=config.friction_compensation_joint * config.calibration.leg_frictions(),
+        friction_error=config.friction_compensation_error,
+        approach_periods=float(round(config.joint_approach_time / (CONTROL_PERIOD * dt_tick))),
         fill_step=config.fill_rate * CONTROL_PERIOD * dt_tick,
         vent_pulse_slots=int(config.vent_pulse_slots),
         vent_every_periods=int(config.vent_every_periods),
@@ -764,6 +836,8 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         counters=np.zeros(supervision.N_COUNTERS, dtype=np.int64),
         rest=quiet.new_rest(),
         dose=np.zeros(24, dtype=np.int64),
+        approach=np.zeros(12),
+        trip_air=np.full(12, np.nan),
     )
     state.trajectory[:, 1] = home
     state.istate[I_TRIP_CHANNEL] = -1
@@ -967,15 +1041,26 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.pos_i_speed,
             p.pos_i_max,
         )
+    # A joint target that jumped (a leg step) is approached on the softer gain, with the
+    # seals' friction fed forward toward it (below), until the leg rests there.
+    still = s.istate[I_MODE] == Mode.JOINT and s.leg_target_rate[leg] == 0.0
+    if still and s.leg_target[leg] != s.approach[6 + leg]:
+        s.approach[leg] = p.approach_periods
+    s.approach[6 + leg] = s.leg_target[leg]
+    if rests or not still:
+        s.approach[leg] = 0.0
+    elif s.approach[leg] > 0.0:
+        s.approach[leg] -= 1.0
+    still = s.approach[leg] > 0.0
     dP = position_loop.pd(
         s.leg_target[leg],
         s.leg_x[leg],
         s.leg_target_rate[leg],
         s.leg_vel[leg],
-        p.kp_pos,
+        p.kp_joint if still else p.kp_pos,
         p.kd_pos,
         s.compensation[leg] + s.integral[12 + leg],
-        p.max_error,
+        p.max_error_joint if still else p.max_error,
     )
     # The seals' friction, in the direction the target moves the leg (none at rest): what
     # is beyond the nominal unit's while rendering, all of it turning with the loop's lag
@@ -989,6 +1074,10 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.friction_track[leg] * rate - s.friction_track[leg]
         )
         dP += s.friction_track[leg] / p.area_cap
+        if still:
+            # The seals would hold the leg short of its target.
+            toward = math.tanh((s.leg_target[leg] - s.leg_x[leg]) / p.friction_error)
+            dP += p.friction_joint[leg] / p.area_cap * toward
     s.monitor[supervision.M_PUSH + leg] = (dP - s.compensation[leg]) * p.area_cap
     if not rests and not rendering:
         rests = quiet.enter(
@@ -1479,12 +1568,33 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
             # Also after a trip earlier in this tick (which closed everything): exactly the
             # exhaust pulses, never an intake.
             vent_valves(s.istate, s.valves, p.pwm_phase, p.vent_pulse_slots, p.vent_every_periods)
+            if s.istate[I_MODE] == Mode.FAULT:
+                s.istate[I_BLEED] = BLEED_RELEASED
         else:
             for v in range(24):
                 s.valves[v] = 0
         if s.istate[I_MODE] == Mode.FAULT:
-            bleed(s.istate, s.pressure, s.p_desired, s.valves)
+            bleed(
+                s.istate, s.pressure, s.p_desired, s.valves, s.trip_air, s.leg_x,
+                p.dead_volume, p.area_cap, p.area_annulus, p.stroke, p.p_atm, s.sensors[12],
+                p.sup.intake_margin,
+            )  # fmt: skip
     s.istate[I_TICK] = tick + 1
+
+
+BLEED_RISE = 0.1e5
+"""Pa a chamber must move away from its pressure at the trip, with every valve shut, before
+a valve of its own holds it there (40 transducer counts: a frozen reading never does)..."""
+BLEED_AIR = 0.1
+"""...while its air (p V, V from its measured piston) changed by this share the same way:
+air only a stuck valve moves. A leg that sinks onto its air after the trip compresses one
+chamber and expands the other without changing either's air, and the leaks past a piston
+move about 1 % of a chamber's air a second."""
+HOLD_FEED = 12
+"""``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_FEED`` is fed, not bled."""
+BLEED_RELEASED = -2
+"""``I_BLEED`` once the platform was released (vented) after the trip: its chambers are
+emptied on purpose, and nothing holds them at their trip pressures any more."""
 
 
 @njit_inline
@@ -1493,23 +1603,58 @@ def bleed(
     pressure: NDArray[np.float64],
     p_desired: NDArray[np.float64],
     valves: NDArray[np.uint8],
+    trip_air: NDArray[np.float64],
+    leg_x: NDArray[np.float64],
+    dead_volume: NDArray[np.float64],
+    area_cap: float,
+    area_annulus: float,
+    stroke: float,
+    p_atm: float,
+    supply_abs: float,
+    intake_margin: float,
 ) -> None:
-    """After a VALVE trip on a chamber that did not answer its exhaust, that exhaust stays open
-    while the chamber is above its pressure at the trip (kept in ``p_desired``).
+    """After a trip, a chamber whose air changes with every valve shut has a valve stuck open,
+    and a valve of its own holds it at its pressure at the trip (kept in ``p_desired``):
+    its exhaust while a stuck intake fills it, its intake while a stuck exhaust empties it.
 
-    A chamber that holds its pressure against its open exhaust has its intake stuck open (or
-    its exhaust stuck shut, where this does nothing). With every valve closed the supply
-    fills it through the stuck intake and drives its leg: measured while holding, 2.44 deg
-    and 4.40 mm. Bleeding it takes about 40 % off (1.45 deg and 2.58 mm, the worst over
-    every intake in the three situations of the safety bench). Filling the leg's other
-    chamber to balance the force was tried and moved the platform more (up to 7.5 deg), so
-    the other valves stay closed. Only above the trip's pressure: a frozen reading never
-    opens it, and nothing vents a chamber below where it carried its leg. An e-stop after
-    the trip does not close it either: de-energising the coils would not stop the supply's
-    air."""
+    With every valve closed the stuck valve alone drives the leg: measured while holding,
+    an intake stuck open 2.44 deg and 4.40 mm after its VALVE trip, and an exhaust stuck
+    open (valve 3) 9.6 deg and 15.5 mm after a FOLLOWING trip that came before the air
+    checks had named its chamber (they name it within about 21 ms, and the loop then holds
+    the leg, see supervision.C_SERVICE). A VALVE trip on a chamber that did not answer its
+    exhaust names it at once; any other trip finds it by its pressure and its air moving
+    the same way (``BLEED_RISE``, ``BLEED_AIR``) from the first tick after the trip. Bleeding
+    a stuck intake took its VALVE trip's case to 1.45 deg and 2.58 mm. Filling the leg's
+    other chamber to balance the force was tried and moved the platform more (up to 7.5
+    deg), so the other valves stay closed. Never past the trip's pressure: a frozen reading
+    never opens a valve, nothing vents a chamber below where it carried its leg or fills it
+    above, and a transducer named by the trip is never taken for a moving chamber. An
+    intake feeds only while the supply is above the chamber. An e-stop after the trip does
+    not close them either: de-energising the coils would not stop the stuck valve's air."""
     c = istate[I_BLEED]
-    if istate[I_TRIP] == Trip.VALVE and 0 <= c < 12 and pressure[c] > p_desired[c]:
+    if c == BLEED_RELEASED:
+        return
+    record = math.isnan(trip_air[0])
+    for k in range(12):
+        x = leg_x[k // 2]
+        volume = dead_volume[k] + (area_cap * x if k % 2 == 0 else area_annulus * (stroke - x))
+        air = (pressure[k] + p_atm) * volume
+        if record:
+            trip_air[k] = air
+            if k != c:
+                p_desired[k] = pressure[k]
+        elif c < 0 and not (istate[I_TRIP] == Trip.PRESSURE_SENSOR and istate[I_TRIP_CHANNEL] == k):
+            if pressure[k] > p_desired[k] + BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]:
+                c = k
+            elif pressure[k] < p_desired[k] - BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:
+                c = HOLD_FEED + k
+            istate[I_BLEED] = c
+    if 0 <= c < HOLD_FEED and pressure[c] > p_desired[c]:
         valves[2 * c + 1] = 1
+    elif c >= HOLD_FEED:
+        k = c - HOLD_FEED
+        if pressure[k] < p_desired[k] and supply_abs - p_atm - pressure[k] > intake_margin:
+            valves[2 * k] = 1
 
 
 @njit_inline

@@ -316,6 +316,7 @@ class Rig:
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
         s.istate[ctl.I_BLEED] = -1
+        s.trip_air[:] = np.nan
         s.counters[supervision.C_SERVICE] = 0
         s.counters[supervision.C_SERVICE_LEGS] = 0
         s.istate[ctl.I_MODE] = Mode.IDLE

@@ -1,6 +1,7 @@
 """The controller on the simulated plant: modes, latching trips, command validation."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,8 +12,9 @@ from device.calibration import Calibration
 from device.controller import Mode, Waveform
 from device.geometry import DEFAULT_GEOMETRY
 from device.hardware import HardwareError, SimulatedHardware, open_hardware
+from device.identify import identify
 from device.kinematics import Kinematics
-from device.plant.params import PlantConfig
+from device.plant.params import PlantConfig, draw_plant
 from device.rig import AxisTarget, CommandError, Rig
 from device.safety import Trip
 from device.tickloop import COL, run_hardware
@@ -248,6 +250,48 @@ def test_along_a_trajectory_the_friction_fed_forward_turns_with_the_loops_lag() 
     assert r.trip == Trip.NONE
 
 
+def _drawn_build_42_step(on: bool) -> NDArray[np.float64]:
+    """Leg 1's displacement (m) every millisecond of a 10 mm joint step on drawn build 42
+    (2.1 kg plate, 4 N seals), calibrated by its start-up identification: the approach as
+    the device does it (off) or with the seals' friction fed forward on the softer gain."""
+    plant = draw_plant(42, "absent")
+    calibration = identify(SimulatedHardware(plant, seed=0))
+    config = ctl.ControllerConfig(calibration=calibration)
+    if on:
+        config = replace(config, friction_compensation_joint=1.0, position_kp_joint=1.0e7)
+    r = Rig(SimulatedHardware(plant, seed=2), config)
+    r.move_legs(np.full(6, 0.5 * r.geometry.stroke))
+    r.run(0.5, log_hz=0)
+    start = float(r.state.leg_x[0])
+    target = r.state.leg_target.copy()
+    target[0] += 0.010
+    r.move_legs(target)
+    x = []
+    for _ in range(400):
+        r.run(1e-3, log_hz=0)
+        x.append(float(r.state.leg_x[0]) - start)
+    assert r.trip == Trip.NONE
+    return np.array(x)
+
+
+def test_a_steps_approach_can_feed_the_seals_friction_forward() -> None:
+    """Off, build 42's leg crawls its step's last millimetre: the proportional term alone
+    no longer breaks its seals free there (rise 92-137 ms over three noise seeds)."""
+    fed, unfed = _drawn_build_42_step(True), _drawn_build_42_step(False)
+    t_fed = int(np.argmax(fed >= 0.009))
+    t_unfed = int(np.argmax(unfed >= 0.009))
+    assert fed.max() >= 0.009 and t_fed < t_unfed - 20, (t_fed, t_unfed)
+    assert fed.max() < 0.0105, fed.max()  # no more than 5 % past the target
+    assert abs(fed[-50:].mean() - 0.010) < 0.3e-3
+
+
+def test_a_still_target_is_approached_on_its_own_proportional_gain() -> None:
+    p, _ = ctl.build_params(ctl.ControllerConfig(position_kp=1.3e7, position_kp_joint=1.0e7))
+    assert (p.kp_pos, p.kp_joint) == (1.3e7, 1.0e7)
+    # The approach clamp keeps the approach speed on both.
+    assert p.max_error * p.kp_pos == pytest.approx(p.max_error_joint * p.kp_joint)
+
+
 def _leg_rates_in_a_step(rate_observer: float) -> NDArray[np.float64]:
     """(true, filtered, observed) rate of leg 3 every millisecond of an 8 mm joint step."""
     r = Rig(
@@ -301,6 +345,15 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("friction_compensation_keep", -1.0),
         ("friction_compensation_lag", -1e-3),
         ("friction_compensation_lag", math.inf),
+        ("friction_compensation_joint", -0.1),
+        ("friction_compensation_joint", 1.5),
+        ("friction_compensation_joint", math.nan),
+        ("friction_compensation_error", 0.0),
+        ("friction_compensation_error", math.inf),
+        ("position_kp", 0.0),
+        ("position_kp", math.nan),
+        ("position_kp_joint", -1.0),
+        ("position_kp_joint", math.inf),
         ("position_integral_moving", -0.1),
         ("position_integral_moving", 1.5),
         ("fill_rate", 0.0),
