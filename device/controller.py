@@ -1630,7 +1630,8 @@ def bleed(
     never opens a valve, nothing vents a chamber below where it carried its leg or fills it
     above, and a transducer named by the trip is never taken for a moving chamber. An
     intake feeds only while the supply is above the chamber. An e-stop after the trip does
-    not close them either: de-energising the coils would not stop the stuck valve's air."""
+    not close them either: de-energising the coils would not stop the stuck valve's air.
+    An e-stop itself starts no hold: it closes every valve, as the protocol promises."""
     c = istate[I_BLEED]
     if c == BLEED_RELEASED:
         return
@@ -1643,7 +1644,11 @@ def bleed(
             trip_air[k] = air
             if k != c:
                 p_desired[k] = pressure[k]
-        elif c < 0 and not (istate[I_TRIP] == Trip.PRESSURE_SENSOR and istate[I_TRIP_CHANNEL] == k):
+        elif (
+            c < 0
+            and istate[I_TRIP] != Trip.ESTOP
+            and not (istate[I_TRIP] == Trip.PRESSURE_SENSOR and istate[I_TRIP_CHANNEL] == k)
+        ):
             if pressure[k] > p_desired[k] + BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]:
                 c = k
             elif pressure[k] < p_desired[k] - BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:

@@ -295,8 +295,9 @@ def test_the_bleed_opens_only_the_tripped_chambers_exhaust_and_only_above_its_pr
 def test_after_any_trip_a_chamber_whose_air_moves_with_every_valve_shut_is_held() -> None:
     """An exhaust stuck open empties its chamber: its intake feeds it back to its pressure
     at the trip. A stuck intake fills it: its exhaust bleeds it. A leg that only sinks onto
-    its air moves no air, and a transducer named by the trip is never followed."""
-    for trip in (Trip.FOLLOWING, Trip.ESTOP):
+    its air moves no air, a transducer named by the trip is never followed, and an e-stop
+    starts no hold (it closes every valve, as the protocol promises)."""
+    for trip in (Trip.FOLLOWING, Trip.LEG_SPEED):
         istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
         istate[ctl.I_TRIP], istate[ctl.I_BLEED] = trip, -1
         pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
@@ -317,11 +318,18 @@ def test_after_any_trip_a_chamber_whose_air_moves_with_every_valve_shut_is_held(
         emptied[3] = 3.0e5  # back at its pressure at the trip: shut
         assert not _bleed(istate, emptied, held, air, 0.05).any()
     istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
-    istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.ESTOP, -1
+    istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.FOLLOWING, -1
     pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
     _bleed(istate, pressure, held, air, 0.05)
     pressure[8] = 4.5e5
     assert list(np.flatnonzero(_bleed(istate, pressure, held, air, 0.05))) == [17]
+    # An e-stop closes every valve, as the protocol promises: it starts no hold.
+    istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
+    istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.ESTOP, -1
+    pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
+    _bleed(istate, pressure, held, air, 0.05)
+    pressure[8] = 4.5e5
+    assert not _bleed(istate, pressure, held, air, 0.05).any()
     istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
     istate[ctl.I_TRIP], istate[ctl.I_TRIP_CHANNEL], istate[ctl.I_BLEED] = (
         Trip.PRESSURE_SENSOR, 8, -1,
