@@ -993,6 +993,22 @@ def ask_service(s: ControllerState, c: int) -> None:
 
 
 @njit_inline
+def chamber_volume(
+    c: int,
+    x: float,
+    dead_volume: NDArray[np.float64],
+    area_cap: float,
+    area_annulus: float,
+    stroke: float,
+) -> float:
+    """Chamber ``c``'s volume (m3) with its piston at ``x`` (m): cap side (even ``c``) above
+    it, rod side below."""
+    if c % 2 == 0:
+        return float(dead_volume[c] + area_cap * x)
+    return float(dead_volume[c] + area_annulus * (stroke - x))
+
+
+@njit_inline
 def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     lo, up = 2 * leg, 2 * leg + 1
     if not moving(s.istate):
@@ -1051,16 +1067,16 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.approach[leg] = 0.0
     elif s.approach[leg] > 0.0:
         s.approach[leg] -= 1.0
-    still = s.approach[leg] > 0.0
+    approaching = s.approach[leg] > 0.0
     dP = position_loop.pd(
         s.leg_target[leg],
         s.leg_x[leg],
         s.leg_target_rate[leg],
         s.leg_vel[leg],
-        p.kp_joint if still else p.kp_pos,
+        p.kp_joint if approaching else p.kp_pos,
         p.kd_pos,
         s.compensation[leg] + s.integral[12 + leg],
-        p.max_error_joint if still else p.max_error,
+        p.max_error_joint if approaching else p.max_error,
     )
     # The seals' friction, in the direction the target moves the leg (none at rest): what
     # is beyond the nominal unit's while rendering, all of it turning with the loop's lag
@@ -1074,7 +1090,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.friction_track[leg] * rate - s.friction_track[leg]
         )
         dP += s.friction_track[leg] / p.area_cap
-        if still:
+        if approaching:
             # The seals would hold the leg short of its target.
             toward = math.tanh((s.leg_target[leg] - s.leg_x[leg]) / p.friction_error)
             dP += p.friction_joint[leg] / p.area_cap * toward
@@ -1104,8 +1120,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     supply = s.sensors[12]
     x = s.leg_x[leg]
     # Each chamber's volume from the measured piston, for the air checks below.
-    volume_lo = p.dead_volume[lo] + p.area_cap * x
-    volume_up = p.dead_volume[up] + p.area_annulus * (p.stroke - x)
+    volume_lo = chamber_volume(lo, x, p.dead_volume, p.area_cap, p.area_annulus, p.stroke)
+    volume_up = chamber_volume(up, x, p.dead_volume, p.area_cap, p.area_annulus, p.stroke)
     for c in (lo, up):
         # Driven: a pulse at least as long as the valve's response time, where air can flow.
         driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
@@ -1576,8 +1592,7 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         if s.istate[I_MODE] == Mode.FAULT:
             bleed(
                 s.istate, s.pressure, s.p_desired, s.valves, s.trip_air, s.leg_x,
-                p.dead_volume, p.area_cap, p.area_annulus, p.stroke, p.p_atm, s.sensors[12],
-                p.sup.intake_margin,
+                p.dead_volume, p.area_cap, p.area_annulus, p.stroke, s.sensors[12], p.sup,
             )  # fmt: skip
     s.istate[I_TICK] = tick + 1
 
@@ -1590,6 +1605,9 @@ BLEED_AIR = 0.1
 air only a stuck valve moves. A leg that sinks onto its air after the trip compresses one
 chamber and expands the other without changing either's air, and the leaks past a piston
 move about 1 % of a chamber's air a second."""
+SUPPLY_CHANNEL = 12
+"""The supply transducer's channel (sensor 12): named by a PRESSURE_SENSOR trip, no intake
+feeds on its reading."""
 HOLD_FEED = 12
 """``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_FEED`` is fed, not bled."""
 BLEED_RELEASED = -2
@@ -1609,9 +1627,8 @@ def bleed(
     area_cap: float,
     area_annulus: float,
     stroke: float,
-    p_atm: float,
     supply_abs: float,
-    intake_margin: float,
+    sup: supervision.SupervisionParams,
 ) -> None:
     """After a trip, a chamber whose air changes with every valve shut has a valve stuck open,
     and a valve of its own holds it at its pressure at the trip (kept in ``p_desired``):
@@ -1628,37 +1645,46 @@ def bleed(
     other chamber to balance the force was tried and moved the platform more (up to 7.5
     deg), so the other valves stay closed. Never past the trip's pressure: a frozen reading
     never opens a valve, nothing vents a chamber below where it carried its leg or fills it
-    above, and a transducer named by the trip is never taken for a moving chamber. An
-    intake feeds only while the supply is above the chamber. An e-stop after the trip does
-    not close them either: de-energising the coils would not stop the stuck valve's air.
+    above, a transducer named by the trip (a chamber's, or a leg's sensor for both its
+    chambers) is never taken for a moving chamber, and an intake feeds only while the
+    supply is above the chamber, never on a supply transducer the trip named. An e-stop
+    after the trip does not close them either: de-energising the coils would not stop the
+    stuck valve's air.
     An e-stop itself starts no hold: it closes every valve, as the protocol promises."""
     c = istate[I_BLEED]
     if c == BLEED_RELEASED:
         return
+    code, named = istate[I_TRIP], istate[I_TRIP_CHANNEL]
     record = math.isnan(trip_air[0])
-    for k in range(12):
-        x = leg_x[k // 2]
-        volume = dead_volume[k] + (area_cap * x if k % 2 == 0 else area_annulus * (stroke - x))
-        air = (pressure[k] + p_atm) * volume
-        if record:
-            trip_air[k] = air
-            if k != c:
-                p_desired[k] = pressure[k]
-        elif (
-            c < 0
-            and istate[I_TRIP] != Trip.ESTOP
-            and not (istate[I_TRIP] == Trip.PRESSURE_SENSOR and istate[I_TRIP_CHANNEL] == k)
-        ):
-            if pressure[k] > p_desired[k] + BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]:
-                c = k
-            elif pressure[k] < p_desired[k] - BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:
-                c = HOLD_FEED + k
-            istate[I_BLEED] = c
+    if record or (c == -1 and code != Trip.ESTOP):  # once the chamber is found, only hold it
+        for k in range(12):
+            leg = k // 2
+            volume = chamber_volume(k, leg_x[leg], dead_volume, area_cap, area_annulus, stroke)
+            air = (pressure[k] + sup.atm) * volume
+            if record:
+                trip_air[k] = air
+                if k != c:
+                    p_desired[k] = pressure[k]
+            elif c == -1 and not (
+                (code == Trip.PRESSURE_SENSOR and named == k)
+                or (code == Trip.LEG_SENSOR and named == leg)
+            ):
+                rise = pressure[k] - p_desired[k]
+                if rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]:
+                    c = k
+                elif rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:
+                    c = HOLD_FEED + k
+        istate[I_BLEED] = c
     if 0 <= c < HOLD_FEED and pressure[c] > p_desired[c]:
         valves[2 * c + 1] = 1
     elif c >= HOLD_FEED:
         k = c - HOLD_FEED
-        if pressure[k] < p_desired[k] and supply_abs - p_atm - pressure[k] > intake_margin:
+        supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL
+        if (
+            pressure[k] < p_desired[k]
+            and not supply_named
+            and supervision.intake_allowed(supply_abs, pressure[k], sup)
+        ):
             valves[2 * k] = 1
 
 

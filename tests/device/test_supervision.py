@@ -21,6 +21,7 @@ from device.plant.faults import FaultKind
 from device.plant.params import PlantConfig
 from device.rig import Rig
 from device.supervision import SupervisionConfig
+from device.supervision import build as build_supervision
 from device.trips import Trip
 from lab import safety
 
@@ -273,9 +274,10 @@ def _bleed(
     valves = np.zeros(24, dtype=np.uint8)
     dead = np.full(12, 7.3e-6)
     area_cap, area_ann = 5.0e-4, 4.0e-4
+    sup = build_supervision(SupervisionConfig(), 1.01325e5, 0.004)
     ctl.bleed(
         istate, pressure, held, valves, air, np.full(6, x), dead, area_cap, area_ann,
-        0.1, 1.01325e5, 7.0e5 + 1.01325e5, 0.05e5,
+        0.1, 7.0e5 + 1.01325e5, sup,
     )  # fmt: skip
     return valves
 
@@ -323,6 +325,20 @@ def test_after_any_trip_a_chamber_whose_air_moves_with_every_valve_shut_is_held(
     _bleed(istate, pressure, held, air, 0.05)
     pressure[8] = 4.5e5
     assert list(np.flatnonzero(_bleed(istate, pressure, held, air, 0.05))) == [17]
+    # A sensor the trip named is not followed: the leg's (its chambers' volumes are
+    # unknown; leg 4 holds chambers 8 and 9), or the supply's (no intake feeds on it).
+    for trip, channel, chamber, moved in (
+        (Trip.LEG_SENSOR, 4, 8, 4.5e5),
+        (Trip.PRESSURE_SENSOR, 12, 3, 1.5e5),
+    ):
+        istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
+        istate[ctl.I_TRIP], istate[ctl.I_TRIP_CHANNEL], istate[ctl.I_BLEED] = (
+            trip, channel, -1,
+        )  # fmt: skip
+        pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
+        _bleed(istate, pressure, held, air, 0.05)
+        pressure[chamber] = moved
+        assert not _bleed(istate, pressure, held, air, 0.05).any(), (trip, channel)
     # An e-stop closes every valve, as the protocol promises: it starts no hold.
     istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
     istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.ESTOP, -1
