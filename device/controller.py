@@ -1199,10 +1199,11 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         if answer != supervision.VALVES_OK:
             ask_service(s, c)
             quiet.reset(s.rest, leg)  # the full loop holds it from the next period
-        if supervision.check_air(
+        short = supervision.check_air(
             s.monitor, s.counters, c, n, s.pressure[c], volume, supply - p.p_atm, p.sup
-        ):
-            ask_service(s, c)
+        )
+        if short >= 0:
+            ask_service(s, short)
         if not moving(s.istate):
             return
 

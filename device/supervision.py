@@ -73,7 +73,11 @@ M_FOLLOW_TURN = 191  # 3: commanded rotation rates, low-passed with the loop's l
 M_FOLLOW_SWERVE = 194  # 1: how far the rotation rates left that, held and decaying (rad/s)
 M_P_MOVED = 195  # 12: 1 if a chamber's raw reading changed between two reads since the last
 # control period (a live transducer's noise flickers it; a frozen one never changes)
-N_MONITOR = 207
+M_AIR_SHARE = 207  # 12: last ended air window: the share of the air its valves were told to
+# move that the chamber's measured air followed (1 all of it)
+M_AIR_WAY = 219  # 12: ...which way they were told to move it (+1 in, -1 out; 0 both ways)
+M_AIR_JUDGED = 231  # 12: ...1 if that window was judged (where the rough figure holds)
+N_MONITOR = 243
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -257,6 +261,20 @@ class SupervisionConfig:
     changed by at least this share of it, the same way. A leak takes what the intake brings;
     a stuck valve does not pass it; a leg sensor that stopped hides the volume the piston
     really makes."""
+    air_mirror_share: float = 0.5
+    """...unless the other chamber of the leg, told by its own valves to move air the other
+    way in the same window, followed less than this share of it as well. The two chambers
+    of a leg are driven as mirrors (one fills while the other empties); when both fall short,
+    the leg's valves passed less air than the window's rough figure says (valves slower than
+    the type's, whose short pulses pass little), or air crossed the piston from one to the
+    other (a clearance seal leaks by design): neither is a fault of one chamber. Both then
+    still moved the way their valves did, only less; a chamber whose air went against its
+    valves is judged alone (slow valves pass less air, never air the other way). A leak to
+    the room, a valve stuck shut or a stopped leg sensor takes one chamber's air, and its
+    mirror follows its valves. Measured: drawn build 8 (the slowest valves of the ensemble)
+    in a passive range-of-motion exercise with a resisting foot dithered a leg's chambers
+    in turns, cap in 8 slots and out 14 each other period, and both windows fell short
+    (cap 0.16, rod 0.19 of their figures), a false service warning without this rule."""
     valve_conductance: float = 0.30e-8
     """ISO 6358 sonic conductance C of one valve as the air observer assumes it (m3/(s Pa)):
     0.30 dm3/(s bar), the middle of what the Matrix valve's rated 100 NL/min means (0.24 if
@@ -412,6 +430,7 @@ class SupervisionParams(NamedTuple):
     air_open_after: int
     air_min_expected: float
     air_min_fraction: float
+    air_mirror_share: float
     obs_conductance: float
     obs_b: float
     obs_k: float
@@ -484,6 +503,7 @@ def build(
         air_open_after=config.air_open_after_slots,
         air_min_expected=config.air_min_expected,
         air_min_fraction=config.air_min_fraction,
+        air_mirror_share=config.air_mirror_share,
         obs_conductance=config.valve_conductance,
         obs_b=config.valve_critical_ratio,
         obs_k=config.observer_polytropic,
@@ -820,30 +840,57 @@ def check_air(
     volume: float,
     supply: float,
     q: SupervisionParams,
-) -> bool:
+) -> int:
     """Balance chamber ``c``'s air (gauge ``pressure`` and ``supply``, ``volume`` from the
     measured piston) against what its valves were told to move, over a window of control
-    periods. True when
-    the valves moved a lot of air one way, hardly any the other, and the chamber's measured
-    air did not follow (a leak, a stuck valve, a leg sensor that stopped)."""
+    periods. Call it for a leg's cap chamber, then its rod chamber, every period: their
+    windows end together, and the rod's call judges the leg. Returns the chamber whose
+    valves moved a lot of air one way, hardly any the other, while its measured air did
+    not follow (a leak, a stuck valve, a leg sensor that stopped) and its mirror's did
+    (``air_mirror_share``); -1 while all adds up."""
     air = (pressure + q.atm) * volume
     moved = max(0, abs(slots) - q.air_open_after) * q.air_per_slot
     ended, into, out, measured = _window(
         monitor, counters, C_AIR, M_AIR_START, M_AIR_EXPECT, M_AIR_OUT, c, q.air_window,
         air, moved if slots > 0 else 0.0, moved if slots < 0 else 0.0,
     )  # fmt: skip
-    failed = False
-    if ended:
-        expected = into - out
-        one_sided = min(into, out) <= q.air_one_sided * max(into, out)
-        # Only where the flow is near its estimate: an intake far enough below the supply, an
-        # exhaust far enough above the atmosphere (near either the flow dwindles).
-        where_ok = (
-            pressure < supply - q.air_headroom if expected > 0.0 else pressure > q.air_headroom
-        )
-        if one_sided and where_ok and abs(expected) >= q.air_min_expected:
-            failed = measured * math.copysign(1.0, expected) < q.air_min_fraction * abs(expected)
-    return failed
+    if not ended:
+        return -1
+    expected = into - out
+    one_sided = min(into, out) <= q.air_one_sided * max(into, out)
+    # Only where the flow is near its estimate: an intake far enough below the supply, an
+    # exhaust far enough above the atmosphere (near either the flow dwindles).
+    where_ok = pressure < supply - q.air_headroom if expected > 0.0 else pressure > q.air_headroom
+    way = math.copysign(1.0, expected) if one_sided and expected != 0.0 else 0.0
+    monitor[M_AIR_WAY + c] = way
+    monitor[M_AIR_SHARE + c] = measured * way / abs(expected) if way != 0.0 else 1.0
+    judged = way != 0.0 and where_ok and abs(expected) >= q.air_min_expected
+    monitor[M_AIR_JUDGED + c] = 1.0 if judged else 0.0
+    if c % 2 == 0:
+        return -1
+    return air_leg(monitor, c // 2, q)
+
+
+@njit_inline
+def air_leg(monitor: NDArray[np.float64], leg: int, q: SupervisionParams) -> int:
+    """The chamber of ``leg`` whose last air window fell short on its own, -1 if none."""
+    for a in (2 * leg, 2 * leg + 1):
+        share = monitor[M_AIR_SHARE + a]
+        if monitor[M_AIR_JUDGED + a] == 0.0 or share >= q.air_min_fraction:
+            continue
+        # Its mirror is asked only which way its valves moved air and how much of it
+        # followed, wherever it stood: an intake near the supply passes even less than the
+        # rough figure, which says the same about the leg's valves.
+        b = a ^ 1
+        mirror = monitor[M_AIR_SHARE + b]
+        if (
+            share >= 0.0
+            and monitor[M_AIR_WAY + b] == -monitor[M_AIR_WAY + a]
+            and 0.0 <= mirror < q.air_mirror_share
+        ):
+            continue  # both short, as mirrors: the leg's valves, not one chamber's air
+        return a
+    return -1
 
 
 @njit
