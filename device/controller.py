@@ -125,14 +125,14 @@ class ControllerConfig:
     % at the worst). At 0.14 the lag of plant 34 (on that floor at 0.12, 7.5-10.4 % high) no
     longer was (1-2 %), but others' errors grew (plant 8: 0.2 to 5.0 %), and the envelope
     would need measuring again; not changed."""
-    position_kp_joint: float = 1.2e7
+    position_kp_joint: float = 1.0e7
     """...and from a joint target's jump until the leg rests on it (a leg step's approach,
-    ``joint_approach_time`` at most). Off by default (the same gain); with the seals'
-    friction fed forward toward the target (``friction_compensation_joint``) 1.0e7 (0.10
-    bar/mm) was measured: 0.12 bar/mm was then faster than the 10-90 % rise needs, over
-    fifty drawn builds (one noise seed) the worst rise 68 ms but 8 steps overshooting
-    5.3-6.7 %; at 0.10 bar/mm, 150 runs (three noise seeds), the worst rise 83 ms and 2
-    overshooting (plant 20, 5.7-5.9 %; 6 with this off)."""
+    ``joint_approach_time`` at most): 0.10 bar/mm, with the seals' friction fed forward
+    toward the target (``friction_compensation_joint``). On 0.12 bar/mm the fed friction
+    made the approach faster than the 10-90 % rise needs: over fifty drawn builds (one
+    noise seed) the worst rise 68 ms but 8 steps overshooting 5.3-6.7 %; at 0.10 bar/mm, 150
+    runs (three noise seeds), the worst rise 83 ms and 2 overshooting (plant 20, 5.7-5.9 %;
+    6 on 0.12 without the friction)."""
     position_kd: float = 2.8e5
     """Outer-loop derivative gain (Pa per m/s). The approach is nearly first order with
     time constant Kd/Kp (23 ms; 10-90 % rise about 2.2 Kd/Kp). The plant's delays decide
@@ -384,23 +384,25 @@ class ControllerConfig:
     it. A step's target jumps (no rate) and gets none of this (it gets
     ``friction_compensation_joint``). 0 feeds none; an uncalibrated unit, or one
     calibrated before the heave was identified, feeds none."""
-    friction_compensation_joint: float = 0.0
+    friction_compensation_joint: float = 1.0
     """Share (0-1) of each leg's identified seal friction the position loop feeds forward
     toward a joint target that jumped, until the leg rests on it (a leg step's approach):
-    ``tanh`` of the leg's error over ``friction_compensation_error``. Off by default. A
-    stiff-sealed leg's step crawls its last millimetre: there the proportional term alone no
-    longer breaks its seals free, and the integral waits for it to slow down. Fifty drawn
-    builds on three noise seeds (150 steps and staircases): off, the rise missed 90 ms on 4
-    (plant 42, 4 N seals: 92-137 ms) and the 0.3 mm staircase on 6; at 1.0 with
-    ``position_kp_joint`` at 1.0e7, the rise on none (83 ms at the worst) and the staircase
-    on 1 (plant 34, 0.31 mm); the nominal unit's 10 mm step rose in 63 ms (61) and overshot
-    1.8 % (0.22). Not on by default because the approach changes where the legs' chambers
-    rest after it, and the safety bench then found three of its own checks at their edges:
-    one false service warning in 168 healthy runs (build 8, passive range of motion, a
-    resisting foot, seed 8: an intake's minimum pulses counted as air a leaking chamber
-    should have gained), an exhaust stuck open while holding (valve 15) not caught within
-    0.5 s, and one (valve 3) that beat the air checks to a FOLLOWING trip (now held after
-    the trip, ``bleed``). Not in task mode, where nothing was measured to need it."""
+    ``tanh`` of the leg's error over ``friction_compensation_error``. A stiff-sealed leg's
+    step crawls its last millimetre: there the proportional term alone no longer breaks its
+    seals free, and the integral waits for it to slow down. Fifty drawn builds on three
+    noise seeds (150 steps and staircases): without it (0, and ``position_kp_joint`` at
+    ``position_kp``), the rise missed 90 ms on 4 (plant 42, 4 N seals: 92-137 ms), the
+    overshoot 5 % on 6 and the 0.3 mm staircase on 6; with it, the rise on none (83 ms at
+    the worst), the overshoot on 2 (plant 20, 5.7-5.9 %) and the staircase on 1 (plant 34,
+    0.31 mm); the nominal unit's 10 mm step rose in 63 ms (61) and overshot 1.8 % (0.22).
+    The approach changes where the legs' chambers rest after it, and the safety bench then
+    found the device's own checks at their edges: a false service warning (build 8's slow
+    valves, which the air balance now judges a leg at a time, ``air_mirror_share``), a
+    stuck-open exhaust (valve 3) beating the air checks to a FOLLOWING trip (held after the
+    trip, ``bleed``), and one (valve 15, while holding) the air observer no longer names
+    within 0.5 s: it woke its resting leg 20 ms in, before the observer's 20 ms, and the
+    loop then holds the leg with pulses the observer cannot tell from the leak (1.0 mm).
+    Not in task mode, where nothing was measured to need it."""
     friction_compensation_error: float = 0.3e-3
     """Error (m) over which the joint target's feed-forward turns from one direction to the
     other (the ``tanh``'s scale): a staircase's step. At 1 mm the overshoots and the

@@ -253,12 +253,15 @@ def test_along_a_trajectory_the_friction_fed_forward_turns_with_the_loops_lag() 
 def _drawn_build_42_step(on: bool) -> NDArray[np.float64]:
     """Leg 1's displacement (m) every millisecond of a 10 mm joint step on drawn build 42
     (2.1 kg plate, 4 N seals), calibrated by its start-up identification: the approach as
-    the device does it (off) or with the seals' friction fed forward on the softer gain."""
+    the device does it (on: the seals' friction fed forward on the softer gain) or on the
+    holding gain with no friction fed."""
     plant = draw_plant(42, "absent")
     calibration = identify(SimulatedHardware(plant, seed=0))
     config = ctl.ControllerConfig(calibration=calibration)
-    if on:
-        config = replace(config, friction_compensation_joint=1.0, position_kp_joint=1.0e7)
+    if not on:
+        config = replace(
+            config, friction_compensation_joint=0.0, position_kp_joint=config.position_kp
+        )
     r = Rig(SimulatedHardware(plant, seed=2), config)
     r.move_legs(np.full(6, 0.5 * r.geometry.stroke))
     r.run(0.5, log_hz=0)
@@ -274,9 +277,10 @@ def _drawn_build_42_step(on: bool) -> NDArray[np.float64]:
     return np.array(x)
 
 
-def test_a_steps_approach_can_feed_the_seals_friction_forward() -> None:
-    """Off, build 42's leg crawls its step's last millimetre: the proportional term alone
-    no longer breaks its seals free there (rise 92-137 ms over three noise seeds)."""
+def test_a_steps_approach_feeds_the_seals_friction_forward() -> None:
+    """Without it, build 42's leg crawls its step's last millimetre: the proportional term
+    alone no longer breaks its seals free there (rise 92-137 ms over three noise seeds)."""
+    assert ctl.ControllerConfig().friction_compensation_joint == 1.0
     fed, unfed = _drawn_build_42_step(True), _drawn_build_42_step(False)
     t_fed = int(np.argmax(fed >= 0.009))
     t_unfed = int(np.argmax(unfed >= 0.009))
