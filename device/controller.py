@@ -1040,6 +1040,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     if rendering:
         quiet.reset(s.rest, leg)
     else:
+        if quiet.drifted(s.rest, leg, s.leg_target[leg], s.leg_x[leg], p.quiet):
+            s.counters[supervision.C_WOKE + leg] = p.sup.obs_wake_window
         rests = quiet.resting(s.rest, leg, s.leg_target[leg], s.leg_x[leg], p.quiet)
     error = s.leg_target[leg] - s.leg_x[leg]
     # Rendering: only what friction holds back beyond the band; otherwise only what the
@@ -1141,6 +1143,9 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
             p.valve_gain, p.valve_extra,
         ):  # fmt: skip
             ask_service(s, c)
+    woke = supervision.woke_short(s.counters, leg, p.sup)
+    if woke >= 0:
+        ask_service(s, woke)
     if not moving(s.istate):
         return  # the supply, by the air of two legs: tripped
     dose_lo = dose_up = 0

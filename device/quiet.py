@@ -109,6 +109,15 @@ def reset(rest: NDArray[np.float64], leg: int) -> None:
 
 
 @njit_inline
+def drifted(rest: NDArray[np.float64], leg: int, target: float, x: float, q: QuietParams) -> bool:
+    """Whether a resting ``leg`` wakes this period because it drifted off a target that did
+    not move (evaluate before :func:`resting`, which forgets the rest)."""
+    if not q.on or rest[leg, R_ON] < 0.5:
+        return False
+    return abs(target - x) > q.wake and abs(target - rest[leg, R_TARGET]) <= q.move
+
+
+@njit_inline
 def resting(rest: NDArray[np.float64], leg: int, target: float, x: float, q: QuietParams) -> bool:
     """Whether a resting ``leg`` goes on resting this control period (else it wakes)."""
     if not q.on or rest[leg, R_ON] < 0.5:

@@ -117,7 +117,8 @@ its leg with nothing to stop it, while the loop holds it. So the running segment
 under control and nothing new starts until a technician re-arms (device.modes)."""
 C_SERVICE_LEGS = 85
 """Bits of the legs (1 << leg) a chamber of which did not add up since the last re-arm."""
-N_COUNTERS = 86
+C_WOKE = 86  # 6: control periods left in which a leg that woke by drifting is watched closer
+N_COUNTERS = 92
 
 
 @dataclass(frozen=True)
@@ -332,6 +333,18 @@ class SupervisionConfig:
     observer_periods: int = 5
     """Control periods (4 ms) in a row over tolerance before the device asks for service
     (20 ms)."""
+    observer_wake_periods: int = 2
+    """...or this many, within ``observer_wake_window`` periods of its leg waking from the
+    quiet hold because it drifted off its target (device.quiet's ``wake``, 0.5 mm) with its
+    valves shut: that drift is a second witness, independent of the air's. A leak that
+    strikes a resting leg wakes it, and the loop then holds the leg with pulses whose timing
+    the observer must forgive (valve 15 stuck open while holding: over its tolerance for
+    the 2 periods before the wake at 20 ms, then 0.8-1.0 of it, named by the 0.2 s air
+    windows only at 1.2 s). A foot that pushes a resting leg off moves its air spring, not
+    its air."""
+    observer_wake_window: int = 3
+    """Control periods (12 ms) after a leg woke by drifting in which the shorter count
+    applies."""
     residual_cutoff_hz: float = 5.0
     """Low-pass on the force-balance residual: a leg's accelerating force in a step or a fast
     sine is brief and alternating, a wrong reading or a leak persists."""
@@ -440,6 +453,8 @@ class SupervisionParams(NamedTuple):
     obs_floor: float
     obs_alpha: float
     obs_periods: int
+    obs_wake_periods: int
+    obs_wake_window: int
     slot_time: float
     valve_window: int
     valve_slots: int
@@ -517,6 +532,8 @@ def build(
         obs_floor=config.observer_floor,
         obs_alpha=1.0 - math.exp(-2.0 * math.pi * config.observer_cutoff_hz * control_dt),
         obs_periods=config.observer_periods,
+        obs_wake_periods=config.observer_wake_periods,
+        obs_wake_window=config.observer_wake_window,
         slot_time=control_dt / 28,
         valve_window=config.valve_window_periods,
         valve_slots=math.ceil(config.valve_duty_fraction * 28 * config.valve_window_periods),
@@ -831,6 +848,20 @@ def check_air_flow(
 
 
 @njit_inline
+def woke_short(counters: NDArray[np.int64], leg: int, q: SupervisionParams) -> int:
+    """The chamber of ``leg`` whose air has been over its tolerance for
+    ``observer_wake_periods`` while the leg is watched after it drifted out of its rest
+    (:data:`C_WOKE`), -1 if none; counts the watch down."""
+    if counters[C_WOKE + leg] <= 0:
+        return -1
+    counters[C_WOKE + leg] -= 1
+    for c in (2 * leg, 2 * leg + 1):
+        if counters[C_OBS_OVER + c] >= q.obs_wake_periods:
+            return c
+    return -1
+
+
+@njit_inline
 def check_air(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -1085,6 +1116,7 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
     for i in range(6):
         counters[C_LEG_SAME + i] = 0
         counters[C_RESIDUAL + i] = 0
+        counters[C_WOKE + i] = 0
         monitor[M_RESIDUAL + i] = 0.0
         monitor[M_PUSH + i] = 0.0
         monitor[M_WRENCH + i] = 0.0
