@@ -335,8 +335,9 @@ class SupervisionConfig:
     (20 ms)."""
     observer_wake_periods: int = 2
     """...or this many, within ``observer_wake_window`` periods of its leg waking from the
-    quiet hold because it drifted off its target (device.quiet's ``wake``, 0.5 mm) with its
-    valves shut: that drift is a second witness, independent of the air's. A leak that
+    quiet hold because it drifted off its target (device.quiet's ``wake``, 0.5 mm) while
+    its valves were shut but for the hold's doses: that drift is a second witness,
+    independent of the air's. A leak that
     strikes a resting leg wakes it, and the loop then holds the leg with pulses whose timing
     the observer must forgive (valve 15 stuck open while holding: over its tolerance for
     the 2 periods before the wake at 20 ms, then 0.8-1.0 of it, named by the 0.2 s air
