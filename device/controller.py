@@ -399,9 +399,10 @@ class ControllerConfig:
     found the device's own checks at their edges: a false service warning (build 8's slow
     valves, which the air balance now judges a leg at a time, ``air_mirror_share``), a
     stuck-open exhaust (valve 3) beating the air checks to a FOLLOWING trip (held after the
-    trip, ``bleed``), and one (valve 15, while holding) the air observer no longer names
-    within 0.5 s: it woke its resting leg 20 ms in, before the observer's 20 ms, and the
-    loop then holds the leg with pulses the observer cannot tell from the leak (1.0 mm).
+    trip, ``bleed``), and one (valve 15, while holding) that woke its resting leg 20 ms in,
+    before the air observer's 20 ms, after which the loop held the leg with pulses the
+    observer cannot tell from the leak (named by the air windows at 1.2 s; now by the
+    drift and the air together in 17 ms, ``SupervisionConfig.observer_wake_periods``).
     Not in task mode, where nothing was measured to need it."""
     friction_compensation_error: float = 0.3e-3
     """Error (m) over which the joint target's feed-forward turns from one direction to the

@@ -337,12 +337,11 @@ class SupervisionConfig:
     """...or this many, within ``observer_wake_window`` periods of its leg waking from the
     quiet hold because it drifted off its target (device.quiet's ``wake``, 0.5 mm) while
     its valves were shut but for the hold's doses: that drift is a second witness,
-    independent of the air's. A leak that
-    strikes a resting leg wakes it, and the loop then holds the leg with pulses whose timing
-    the observer must forgive (valve 15 stuck open while holding: over its tolerance for
-    the 2 periods before the wake at 20 ms, then 0.8-1.0 of it, named by the 0.2 s air
-    windows only at 1.2 s). A foot that pushes a resting leg off moves its air spring, not
-    its air."""
+    independent of the air's. A leak that strikes a resting leg wakes it, and the loop then
+    holds the leg with pulses whose timing the observer must forgive (valve 15 stuck open
+    while holding: over its tolerance for the 2 periods before the wake at 20 ms, then
+    0.8-1.0 of it, named by the 0.2 s air windows only at 1.2 s). A foot that pushes a
+    resting leg off moves its air spring, not its air."""
     observer_wake_window: int = 3
     """Control periods (12 ms) after a leg woke by drifting in which the shorter count
     applies."""
