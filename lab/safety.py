@@ -112,6 +112,11 @@ class FaultRun:
     excursion_deg: float
     excursion_mm: float
     notes: str = ""
+    dormant: bool = False
+    """The faulty part was never called on while watched: a valve stuck shut that the loop
+    never told to open (a leg resting in the quiet hold has every valve shut). Nothing can
+    tell such a valve from a healthy one until it is used; counted as undetected all the
+    same."""
 
 
 def _rig(patient: str, seed: int) -> Rig:
@@ -227,6 +232,10 @@ def run_fault(
     moved = excursion(pose, healthy, row)
     trip = rig.trip
     held = rig.supply_low and trip == Trip.NONE
+    dormant = False
+    if kind == FaultKind.VALVE_STUCK_CLOSED:
+        slots = rig.log[:, COL[f"slots{channel // 2}"]]
+        dormant = not bool((slots > 0).any() if channel % 2 == 0 else (slots < 0).any())
     service = rig.service_chamber >= 0 and trip == Trip.NONE
     name = "SUPPLY_LOW (hold)" if held else trip.name
     if service:
@@ -243,6 +252,7 @@ def run_fault(
         onset_ms=onset * 1e3,
         excursion_deg=float(np.degrees(moved[3:].max())),
         excursion_mm=float(moved[:3].max() * 1e3),
+        dormant=dormant,
     )
 
 
@@ -535,6 +545,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("faults_total", "faults injected (kind x channel x situation)"),
     ("faults_detected", "faults detected"),
     ("faults_undetected", "faults not detected"),
+    ("faults_undetected_dormant", "...of them a valve stuck shut never told to open"),
     ("detect_ms_max", "detection time, worst (ms)"),
     ("detect_ms_p50", "detection time, median (ms)"),
     ("excursion_deg_max", "excursion after injection, worst (deg)"),
@@ -604,6 +615,7 @@ def _fault_summary(faults: list[FaultRun]) -> dict[str, Any]:
         "faults_total": len(faults),
         "faults_detected": len(detected),
         "faults_undetected": len(faults) - len(detected),
+        "faults_undetected_dormant": sum(f.dormant and not f.detected for f in faults),
         "detect_ms_max": max(times) if times else math.nan,
         "detect_ms_p50": float(np.median(times)) if times else math.nan,
         "excursion_deg_max": max(f.excursion_deg for f in faults),
@@ -694,6 +706,9 @@ def _fault_row(kind: str, runs: list[dict[str, Any]]) -> str:
     if len(missed) > 6:  # too many to name: how many in each situation
         named = [f"{sum(r['scenario'] == sc for r in missed)} {sc}" for sc in SCENARIOS]
     where = "missed: " + ", ".join(named) if missed else "all"
+    dormant = sum(r.get("dormant", False) for r in missed)
+    if dormant:
+        where += f"; {dormant} of them never told to open"
     worst = f"{max(r['detect_ms'] for r in found):.0f}" if found else "-"
     deg = max(r["excursion_deg"] for r in runs)
     mm = max(r["excursion_mm"] for r in runs)
