@@ -43,6 +43,10 @@ from lab.targets import table as render
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 
 SCENARIOS = ("holding", "exercise", "pushing")
+DORMANT_COUNTS = 2
+"""A frozen sensor whose true value stayed within this many of its counts (ADC steps) of
+where it froze, while watched, read what a live one would have (within its noise): the
+fault had made no difference yet."""
 AFTER_S = 0.5
 """How long each run goes on after the injection (s), unless told otherwise: long enough for
 every detection the benchmark expects, too short to show what an undetected fault does over
@@ -113,10 +117,11 @@ class FaultRun:
     excursion_mm: float
     notes: str = ""
     dormant: bool = False
-    """The faulty part was never called on while watched: a valve stuck shut that the loop
-    never told to open (a leg resting in the quiet hold has every valve shut). Nothing can
-    tell such a valve from a healthy one until it is used; counted as undetected all the
-    same."""
+    """The fault made no difference yet while watched: a valve stuck shut that the loop never
+    told to open (a leg resting in the quiet hold has every valve shut), or a chamber's
+    transducer or a leg's sensor frozen on a value that stayed true (the chamber's pressure
+    or the leg within :data:`DORMANT_COUNTS` of where it froze). Nothing can tell such a
+    part from a healthy one until it is used; counted as undetected all the same."""
 
 
 def _rig(patient: str, seed: int) -> Rig:
@@ -233,9 +238,16 @@ def run_fault(
     trip = rig.trip
     held = rig.supply_low and trip == Trip.NONE
     dormant = False
+    params = rig.hardware.params if isinstance(rig.hardware, SimulatedHardware) else None
     if kind == FaultKind.VALVE_STUCK_CLOSED:
         slots = rig.log[:, COL[f"slots{channel // 2}"]]
         dormant = not bool((slots > 0).any() if channel % 2 == 0 else (slots < 0).any())
+    elif kind == FaultKind.PRESSURE_STUCK and channel < 12 and params is not None:
+        true = rig.log[:, COL[f"pressure_g{channel}"]]
+        dormant = float(np.ptp(true)) <= DORMANT_COUNTS * params.pressure_lsb
+    elif kind == FaultKind.LEG_STUCK and params is not None:
+        true = rig.log[:, COL[f"leg_x{channel}"]]
+        dormant = float(np.ptp(true)) <= DORMANT_COUNTS * params.leg_lsb
     service = rig.service_chamber >= 0 and trip == Trip.NONE
     name = "SUPPLY_LOW (hold)" if held else trip.name
     if service:
@@ -545,7 +557,10 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("faults_total", "faults injected (kind x channel x situation)"),
     ("faults_detected", "faults detected"),
     ("faults_undetected", "faults not detected"),
-    ("faults_undetected_dormant", "...of them a valve stuck shut never told to open"),
+    (
+        "faults_undetected_dormant",
+        "...of them dormant: a valve never told to open, a frozen reading that stayed true",
+    ),
     ("detect_ms_max", "detection time, worst (ms)"),
     ("detect_ms_p50", "detection time, median (ms)"),
     ("excursion_deg_max", "excursion after injection, worst (deg)"),
@@ -708,7 +723,8 @@ def _fault_row(kind: str, runs: list[dict[str, Any]]) -> str:
     where = "missed: " + ", ".join(named) if missed else "all"
     dormant = sum(r.get("dormant", False) for r in missed)
     if dormant:
-        where += f"; {dormant} of them never told to open"
+        what = "never told to open" if kind == "VALVE_STUCK_CLOSED" else "frozen on a true value"
+        where += f"; {dormant} of them {what}"
     worst = f"{max(r['detect_ms'] for r in found):.0f}" if found else "-"
     deg = max(r["excursion_deg"] for r in runs)
     mm = max(r["excursion_mm"] for r in runs)

@@ -464,13 +464,18 @@ def test_a_valve_stuck_shut_mid_exercise_is_named_by_its_chambers_air(valve: int
     assert not run.dormant and run.excursion_deg <= 1.0 and run.excursion_mm <= 1.0, run
 
 
-def test_a_valve_stuck_shut_that_is_never_used_is_counted_as_dormant() -> None:
+def test_a_fault_that_made_no_difference_yet_is_counted_as_dormant() -> None:
     """Held at home, the legs rest with every valve shut: an intake stuck shut there is
-    never told to open, so nothing can tell it from a healthy one, and the benchmark says
-    so beside counting it as missed."""
+    never told to open, and a leg sensor that freezes on a resting leg reads where the leg
+    is. Nothing can tell either from a healthy part, and the benchmark says so beside
+    counting it as missed; a fault that moved something is never dormant."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "holding", channel=0)
     assert not run.detected and run.dormant, run
     assert run.excursion_deg <= 0.1 and run.excursion_mm <= 0.1, run
+    frozen = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=5)
+    assert not frozen.detected and frozen.dormant, frozen
+    moved = safety.run_fault(FaultKind.LEG_STUCK, "exercise", channel=0)
+    assert not moved.dormant, moved  # its leg moved on under the frozen reading
 
 
 def test_a_stuck_closed_exhaust_is_caught_while_the_patient_pushes() -> None:
