@@ -283,6 +283,7 @@ def _health(h: Any) -> dict[str, Any]:
         "saturated": list(h.saturated),
         "valid": h.valid,
         "invalid_reason": h.reason,
+        "warning": h.warning,
     }
 
 

@@ -107,10 +107,17 @@ class Health:
     valid: bool
     reason: str | None
     """Why the measurement is invalid, in words (None when valid)."""
+    warning: str | None = None
+    """What the device warned of without tripping, in words: it asked for service (a
+    chamber's air did not add up with its valves) or held on a low supply. The loop ran on,
+    but on a device that is not the one the experiment means to measure (an injected fault,
+    or a false alarm): invalid as a trip is."""
 
     def words(self) -> str:
         """What happened, for a person: empty when nothing did."""
         parts = []
+        if self.warning:
+            parts.append(self.warning)
         if self.tripped:
             at = (
                 f" {self.trip_time_s:.3f} s into the measurement"
@@ -205,16 +212,46 @@ def assess(
         saturated.append("valve_duty")
     if trip == Trip.LEG_SPEED:
         saturated.append("leg_speed")
+    warning = device_warning(rig)
     reason = None
     if tripped:
         reason = f"tripped {trip.name}"
+    elif warning is not None:
+        reason = warning
     else:
         bad = [k for k in saturated if k in invalidating]
         if bad:
             reason = "saturated: " + ", ".join(b.replace("_", " ") for b in bad)
     return Health(
-        tripped, trip.name if tripped else None, trip_time, tuple(saturated), reason is None, reason
+        tripped,
+        trip.name if tripped else None,
+        trip_time,
+        tuple(saturated),
+        reason is None,
+        reason,
+        warning,
     )
+
+
+def device_warning(rig: Rig) -> str | None:
+    """What the rig's device warned of without tripping (latched until a re-arm), if any."""
+    if rig.service_chamber >= 0:
+        return (
+            f"the device asked for service: chamber {rig.service_chamber}'s air did not add up "
+            "with its valves"
+        )
+    if rig.supply_low:
+        return "the device held: the air supply is low"
+    return None
+
+
+def with_warning(health: Health, warning: str | None) -> Health:
+    """``health`` of a result put together from several runs, with what the device warned
+    of in any of them: invalid if it did and nothing worse already made it so."""
+    if warning is None or health.warning is not None:
+        return health
+    reason = health.reason if health.reason is not None else warning
+    return replace(health, valid=False, reason=reason, warning=warning)
 
 
 def _sine_min_amplitude(k: int) -> float:
@@ -650,10 +687,9 @@ def sweep(
         if valid_f:
             bw, kind = valid_f[-1], "lower_bound"
     if kind == "measured" and stopped is not None:
-        # The trip came after the gain had fallen: the bandwidth itself was measured.
-        health = Health(
-            health.tripped, health.trip, health.trip_time_s, health.saturated, True, None
-        )
+        # The trip (or the warning) came after the gain had fallen: the bandwidth itself
+        # was measured.
+        health = replace(health, valid=True, reason=None)
     return SweepResult(
         axis,
         amplitude,
@@ -892,5 +928,6 @@ def impedance_dynamic(
         FitResult(None, *joint, pjoint[0], pjoint[1], ljoint[0], ljoint[1], inertia=j_j)
     )
     saturated = sorted({s for w in windows for s in w[5].saturated})
-    health = Health(False, None, None, tuple(saturated), True, None)
+    warned = next((w[5].warning for w in windows if w[5].warning), None)
+    health = with_warning(Health(False, None, None, tuple(saturated), True, None), warned)
     return DynamicImpedanceResult(axis, k, b, torque, tuple(fits), health)

@@ -202,7 +202,8 @@ def response(
         health = stopped
     else:
         sat = tuple(sorted({s for p in points for s in p.health.saturated}))
-        health = ex.Health(False, None, None, sat, True, None)
+        warned = next((p.health.warning for p in points if p.health.warning), None)
+        health = ex.with_warning(ex.Health(False, None, None, sat, True, None), warned)
     return Response(
         axis, amp, tuple(points), health, bw, kind, low_db, peak_db, peak_hz, saturated_hz
     )

@@ -90,6 +90,21 @@ def test_a_fault_injected_into_an_experiment_trips_it_and_is_reported() -> None:
     assert data["valid"] is False and data["rise_ms"] is None
 
 
+def test_a_fault_the_device_warns_of_without_tripping_is_reported_too() -> None:
+    # Cap 0's intake sticks shut 0.5 s into a pitch exercise: the loop runs on, the air
+    # balance names the chamber, and the experiment says so instead of a gain.
+    r = ankle("sim", "sine", "--axis", "pitch", "--amplitude", "8", "--hz", "0.5")
+    assert r.returncode == 0 and "service" not in r.stdout, r.stdout
+    faulty = ("sim", "sine", "--axis", "pitch", "--amplitude", "8", "--hz", "0.5")
+    r = ankle(*faulty, "--fault", "valve_stuck_closed@1.0:0", "--json")
+    assert r.returncode == 1, r.stderr
+    data = json.loads(r.stdout)
+    assert data["tripped"] is False and data["valid"] is False, data
+    assert "service: chamber 0's air" in data["warning"] and data["gain_db"] is None, data
+    r = ankle(*faulty, "--fault", "valve_stuck_closed@1.0:0")
+    assert r.returncode == 1 and r.stdout.startswith("INVALID: the device asked for service")
+
+
 @pytest.mark.parametrize(
     "args",
     [
