@@ -25,6 +25,10 @@ from server.cli import demo_prescription
 from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import STACKS, System
 
+SHOT_MS = 60_000
+"""Screenshots of the live page, whose 3D view is WebGL drawn in software by headless
+chromium: on a busy machine (the whole suite on two cores) one took over the default 15 s."""
+
 
 def sign_in(page: Page, system: System, path: str) -> None:
     page.goto(f"{system.url}{path}")
@@ -118,7 +122,7 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     expect(technical).not_to_have_attribute("open", re.compile(".*"))
     for detail in ("#st-overruns", "#st-frames", "#st-rate", "#chart-pressure"):
         expect(page.locator(detail)).to_be_hidden()
-    page.screenshot(path=shots / "live-technical-closed.png", full_page=True)
+    page.screenshot(path=shots / "live-technical-closed.png", full_page=True, timeout=SHOT_MS)
     technical.locator("summary").click()
     expect(page.locator("#st-overruns")).to_be_visible()
     expect(page.locator("#st-scene")).to_contain_text("through this server")
@@ -147,9 +151,11 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
 
     changes(moved, "the scene's platform did not follow telemetry")
     iframe = page.locator("#scene")
-    pixels = iframe.screenshot()
-    changes(lambda: iframe.screenshot() != pixels, "the 3D view did not change on screen")
-    page.screenshot(path=shots / "live.png", full_page=True)
+    pixels = iframe.screenshot(timeout=SHOT_MS)
+    changes(
+        lambda: iframe.screenshot(timeout=SHOT_MS) != pixels, "the 3D view did not change on screen"
+    )
+    page.screenshot(path=shots / "live.png", full_page=True, timeout=SHOT_MS)
     assert_controls_labelled(page)
 
     # Software WebGL costs a core: with it off, the station, device and server on this
@@ -171,7 +177,7 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     assert page.locator("#scene").get_attribute("src") in (None, "about:blank")
     page.locator("#technical summary").click()  # closed again for the screenshots below
     expect(page.locator("#technical")).not_to_have_attribute("open", re.compile(".*"))
-    page.screenshot(path=shots / "live-3d-off.png", full_page=True)
+    page.screenshot(path=shots / "live-3d-off.png", full_page=True, timeout=SHOT_MS)
 
     # A stiffness beyond the published limit is caught beside the field and never sent.
     k = page.get_by_label("pitch stiffness K, N·m/rad")
@@ -179,7 +185,7 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     page.get_by_role("button", name="Send change").click()
     expect(page.locator('[data-error-for="stiffness.pitch"]')).to_contain_text("from 0 to 500")
     expect(page.locator("#kb-ack")).to_have_text("")
-    page.screenshot(path=shots / "live-k-error.png")
+    page.screenshot(path=shots / "live-k-error.png", timeout=SHOT_MS)
 
     # A K change from 40 to 80: the device's answer, then 80 in force.
     k.fill("80")
@@ -216,7 +222,7 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
     now = page.locator("#kb-now-pitch")
     expect(now).to_contain_text(re.compile(r"→ K 60\.0 · B 2\.00 on Resume$"))
     assert now.inner_text().startswith("80.0 ·"), now.inner_text()
-    page.screenshot(path=shots / "live-hold.png", full_page=True)
+    page.screenshot(path=shots / "live-hold.png", full_page=True, timeout=SHOT_MS)
     page.get_by_role("button", name="Resume").click()
     expect(page.locator("#ack")).to_contain_text("Resume: acknowledged by the device")
     deadline = time.monotonic() + 30.0
@@ -248,10 +254,10 @@ def test_the_3d_view_comes_through_the_api_port(system: System, page: Page, shot
     # and legs darken the middle of an otherwise light frame.
     expect(frame.get_by_text("Connected")).to_be_visible(timeout=60_000)
     deadline = time.monotonic() + 60.0
-    while dark_share(iframe.screenshot()) < 0.02:
+    while dark_share(iframe.screenshot(timeout=SHOT_MS)) < 0.02:
         assert time.monotonic() < deadline, "the 3D view drew no platform"
         page.wait_for_timeout(250)
-    iframe.screenshot(path=shots / "live-3d.png")
+    iframe.screenshot(path=shots / "live-3d.png", timeout=SHOT_MS)
 
     api = f"127.0.0.1:{system.port}"
     elsewhere = [
