@@ -150,6 +150,11 @@ def _start(rig: Rig, scenario: str) -> None:
         hw.script_torque(4, SCRIPT_RAMP, rig.time, 10.0, 8.0)  # up to 8 N m in 0.8 s
 
 
+def _watched_s(kind: FaultKind | None, after: float) -> float:
+    """The longest a run of ``kind`` watched ``after`` seconds from its onset can last."""
+    return after + (DROOP_ONSET_MAX_S if kind == FaultKind.SUPPLY_DROOP else 0.0)
+
+
 def _run(
     kind: FaultKind | None,
     scenario: str,
@@ -177,13 +182,10 @@ def _run(
     detect = onset = stop = math.nan
     step = 0.001
     low_mark = supervision.SupervisionConfig().supply_low + rig.config.atmosphere
-    # A drooping supply is watched for ``after`` from its onset, not from the injection:
-    # the regulator's output sags for 0.4-0.5 s before it is a fault at all.
-    longest = after + (DROOP_ONSET_MAX_S if kind == FaultKind.SUPPLY_DROOP else 0.0)
-    for _ in range(round(longest / step)):
+    # Watched for ``after`` from the onset (the first step for every fault but a drooping
+    # supply, whose output sags for 0.4-0.5 s before it is a fault at all).
+    for _ in range(round(_watched_s(kind, after) / step)):
         if not math.isnan(onset) and rig.time - t0 >= onset + after - step / 2:
-            break
-        if kind != FaultKind.SUPPLY_DROOP and rig.time - t0 >= after - step / 2:
             break
         rig.run(step, log_hz=1000.0)
         # A sagging supply is a fault only from where it can no longer be trusted to carry
@@ -242,8 +244,7 @@ def run_fault(
 ) -> FaultRun:
     """``kind`` injected in ``scenario`` on ``channel`` (default: the one of FAULTS), watched
     for ``after`` seconds."""
-    longest = after + (DROOP_ONSET_MAX_S if kind == FaultKind.SUPPLY_DROOP else 0.0)
-    healthy = _healthy_pose(scenario, seed, longest)
+    healthy = _healthy_pose(scenario, seed, _watched_s(kind, after))
     channel = FAULTS[kind][0] if channel is None else channel
     rig, pose, detect, onset, stop = _run(kind, scenario, seed, channel, after)
     # Against the healthy twin while the loop runs (a service warning leaves it running),
