@@ -268,9 +268,9 @@ class SupervisionConfig:
     relaxed and a resisting foot on the nominal unit (seeds 1, 2, 4-7) and drawn builds
     0-49, 672 runs of 10 s: no window told to move 2 Pa m3 or more one way fell short where
     the headroom and mirror rules judge it (the lowest share 0.60, but for build 8's
-    mirrors). At 1.5 one did (drawn build
-    22, passive range of motion against a resisting foot: a cap told to let out 1.6 Pa m3
-    that the foot was compressing kept 0.8-0.9 of it), a false service warning."""
+    mirrors). At 1.5 one did (drawn build 22, passive range of motion against a resisting
+    foot: a cap told to let out 1.6 Pa m3 that the foot was compressing kept 0.8-0.9 of
+    it), a false service warning."""
     air_min_fraction: float = 0.2
     """...and the chamber's measured air (p V with V from the measured piston) must have
     changed by at least this share of it, the same way. A leak takes what the intake brings;
@@ -918,7 +918,12 @@ def check_air(
 
 @njit_inline
 def air_leg(monitor: NDArray[np.float64], leg: int, q: SupervisionParams) -> int:
-    """The chamber of ``leg`` whose last air window fell short on its own, -1 if none."""
+    """The chamber of ``leg`` whose last air window fell short on its own, -1 if none. When
+    both did, the one whose air followed its valves least (or went furthest against them):
+    a leak on the rod side drags its mirror short too (leak 5 mid-exercise: the cap's
+    exhaust 0.01 of its figure, the leaking rod's intake -0.47), and the cap, asked first,
+    was named."""
+    named = -1
     for a in (2 * leg, 2 * leg + 1):
         share = monitor[M_AIR_SHARE + a]
         if monitor[M_AIR_JUDGED + a] == 0.0 or share >= q.air_min_fraction:
@@ -934,8 +939,9 @@ def air_leg(monitor: NDArray[np.float64], leg: int, q: SupervisionParams) -> int
             and 0.0 <= mirror < q.air_mirror_share
         ):
             continue  # both short, as mirrors: the leg's valves, not one chamber's air
-        return a
-    return -1
+        if named < 0 or share < monitor[M_AIR_SHARE + named]:
+            named = a
+    return named
 
 
 @njit

@@ -17,7 +17,7 @@ import pytest
 from device import controller as ctl
 from device import trips
 from device.hardware import SimulatedHardware
-from device.plant.faults import FaultKind
+from device.plant.faults import Fault, FaultKind
 from device.plant.params import PlantConfig, draw_plant
 from device.rig import Rig
 from device.supervision import SupervisionConfig
@@ -136,7 +136,6 @@ def test_an_offset_on_any_force_sensor_channel_is_caught_by_the_six_legs_togethe
     import dataclasses
 
     from device.controller import ControllerConfig
-    from device.plant.faults import Fault
     from device.rig import Rig
 
     default = ControllerConfig()
@@ -167,7 +166,6 @@ def test_an_offset_on_any_force_sensor_channel_is_caught_by_the_six_legs_togethe
 def test_an_offset_below_the_legs_friction_is_not_mistaken_for_a_fault() -> None:
     """The other side of the threshold: 20 N on Fz is what light seals' friction can hide,
     so it must not trip (it acts like a patient pushing 20 N)."""
-    from device.plant.faults import Fault
 
     rig, _, _, _, _ = safety._run(None, "exercise", seed=5)
     hw = rig.hardware
@@ -238,10 +236,25 @@ def test_the_air_balance_judges_a_legs_two_chambers_together() -> None:
     assert _air_window((20, 0.9), (-20, 0.05)) == 1
     assert _air_window((20, 0.1), (-20, 0.1)) == -1  # mirrors both short: the valves
     assert _air_window((20, -0.2), (-20, 0.1)) == 0  # against its valves: its own fault
+    assert _air_window((20, 0.1), (-20, -0.3)) == 1  # both short: the one further against
     assert _air_window((20, 0.1), (0, 0.0)) == 0  # no mirror to ask
     assert _air_window((20, 0.1), (20, 0.1)) == 0  # both filling: not mirrors
     assert _air_window((7, 0.0), (-7, 1.0)) == -1  # minimum pulses: too little air to judge
     assert _air_window((9, 0.0), (-9, 1.0)) == 0  # 3 Pa m3 figured, none of it came
+
+
+def test_a_leak_that_drags_its_mirror_short_is_named_itself() -> None:
+    """Half a valve's leak from rod chamber 5, injected 0.37 s later in the pitch exercise
+    than the fault matrix does: at the second window's end the cap's exhaust had moved 0.01
+    of its figure and the leaking rod's intake -0.47, and the cap, asked first, was named."""
+    rig = safety._rig("relaxed", 1)
+    safety._start(rig, "exercise")
+    rig.run(0.87, log_hz=0)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.CHAMBER_LEAK, float(hw.state.time[0]), 5, 0.5, math.inf))
+    rig.run(0.5, log_hz=0)
+    assert rig.service_chamber == 5 and rig.trip == Trip.NONE, (rig.service_chamber, rig.trip)
 
 
 def test_a_leg_whose_slow_valves_dither_both_chambers_is_not_taken_for_a_leak() -> None:
@@ -542,7 +555,6 @@ def test_through_the_service_a_fault_event_names_the_part_and_low_air_holds() ->
 
     from device.client import CommandRefused, DeviceClient, build_segment
     from device.hardware import SimulatedHardware
-    from device.plant.faults import Fault
     from device.protocol import messages as m
     from device.protocol.messages import DeviceMode, EventKind, NackCode
     from device.rig import Rig
@@ -676,7 +688,6 @@ def test_a_force_sensor_bias_that_jumps_is_caught_before_the_legs_push_against_i
     """80 N on Fx or Fy at once: before the jump rule, the load compensation pushed a held
     platform 12-16 mm sideways against a load that was not there before the wrench
     cross-check tripped (50-66 ms)."""
-    from device.plant.faults import Fault
 
     for channel in (0, 1, 2):
         rig, _, _, _, _ = safety._run(None, "holding", seed=1)
@@ -800,7 +811,6 @@ def test_a_supply_lost_behind_a_frozen_supply_transducer_is_found_by_the_legs_ai
     """A frozen supply transducer alone reads like a healthy supply and is harmless; if the
     supply then fails, the transducer cannot say so. The chambers' air of two legs can: a
     SUPPLY_LOSS trip on the channel that says the air found it, within 100 ms."""
-    from device.plant.faults import Fault
 
     rig, _, _, _, _ = safety._run(None, scenario, seed=1)
     hw = rig.hardware
