@@ -79,9 +79,11 @@ def changes(done: Callable[[], bool], what: str, timeout: float = 30.0) -> None:
 
 
 def long_prescription(system: System, token: str) -> int:
-    """The demo strength exercise with 10 repetitions: long enough to watch and adjust."""
+    """The demo strength exercise with 30 repetitions (3 min): long enough to watch and
+    adjust. 10 (60 s) ended before the test's HOLD on a busy machine, where software WebGL
+    screenshots and watchdog holds had taken the minute."""
     auth = {"Authorization": f"Bearer {token}"}
-    body = demo_prescription().model_dump(mode="json") | {"repetitions": 10, "title": "Live test"}
+    body = demo_prescription().model_dump(mode="json") | {"repetitions": 30, "title": "Live test"}
     r = httpx.post(
         f"{system.url}/api/v1/patients/{system.creds['patient_id']}/prescriptions",
         json=body,
