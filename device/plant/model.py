@@ -544,7 +544,7 @@ def _quantise(value: float, lsb: float) -> float:
     return lsb * math.floor(value / lsb + 0.5)
 
 
-@njit
+@njit_inline
 def true_readings(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
     """What every sensor would read if it were perfect, now, into ``out``."""
     out[12] = s.supply[0]
@@ -563,7 +563,7 @@ def true_readings(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> No
                 out[c] += rt / max(vol, 0.2 * p.dead_volume) * s.in_flight[c]
     # The force plate carries the foot: the patient's wrench, the foot's weight and the
     # foot's inertia, moved from the ankle to the sensor origin and into the sensor's frame.
-    W = np.empty(6)
+    W = s.scratch[1, :, 6]  # plant_tick's working memory: free between ticks, no allocation
     patient_wrench(s, p, W)
     rf = m3_vec(R, p.foot_com)
     w, alpha = v3(s.twist, 3), v3(s.accel, 3)
@@ -603,7 +603,7 @@ def bracket(history: NDArray[np.float64], head: int, n: int, t: float) -> tuple[
     return newer, newer, 0.0
 
 
-@njit
+@njit_inline
 def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> None:
     """Sample every sensor into ``out`` (see device.signals).
 
@@ -613,6 +613,11 @@ def read_sensors(s: PlantState, p: PlantParams, out: NDArray[np.float64]) -> Non
     acts on the reads, so it is exact for signals slow beside the read rate (1 kHz). Delay
     and filter are the same within each group of channels (pressures, legs, force/torque):
     one search and one exponential per group.
+
+    Inlined into the simulated loop, as :func:`true_readings` is: called, each passed the
+    plant's state and parameter tuples, whose every array's reference count numba raises
+    and lowers again with an atomic instruction per array. Profiled with ``perf``, those
+    instructions were 21 % of the loop's time (numba's ``NRT_incref``/``NRT_decref``).
     """
     true_readings(s, p, out)
     t = s.time[0]
