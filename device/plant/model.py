@@ -71,7 +71,8 @@ class PlantState(NamedTuple):
     bristle: NDArray[np.float64]  # (6,) LuGre z (m)
     leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
     script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
-    scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick, not state (see there)
+    scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick (and of true_readings
+    # between ticks), not state (see there)
     supply: NDArray[np.float64]  # (4,) manifold, regulator output (Pa abs), its set point
     # (Pa abs, sagging only under a SUPPLY_DROOP fault), flow in the supply line (kg/s)
     faults: NDArray[np.float64]  # (MAX_FAULTS, FAULT_COLUMNS) fault table, filled from row 0
