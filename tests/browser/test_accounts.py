@@ -18,6 +18,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect
 
+from tests.browser import rest
 from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import System
 
@@ -28,7 +29,7 @@ BOSS = ("--email", "boss@clinic.test", "--name", "Bo Boss", "--role", "admin")
 
 
 def sign_in_api(system: System, email: str, password: str) -> httpx.Response:
-    return httpx.post(
+    return rest.post(
         f"{system.url}{API}/auth/login", json={"email": email, "password": password}, timeout=30
     )
 
@@ -194,7 +195,7 @@ def test_revoke_a_station_edit_and_archive_from_the_patients_page(
     )
     (listed,) = therapist.get("/stations", params={"patient_id": patient}).json()
     assert listed["revoked"] is True
-    r = httpx.get(
+    r = rest.get(
         f"{system.url}{API}/station/me",
         headers={"Authorization": f"Bearer {system.creds['station_token']}"},
         timeout=30,

@@ -16,12 +16,12 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import httpx
 import pytest
 from PIL import Image
 from playwright.sync_api import Page, expect
 
 from server.cli import demo_prescription
+from tests.browser import rest
 from tests.browser.a11y import assert_controls_labelled
 from tests.system.harness import STACKS, System
 
@@ -39,7 +39,7 @@ def sign_in(page: Page, system: System, path: str) -> None:
 
 
 def therapist_token(system: System) -> str:
-    r = httpx.post(
+    r = rest.post(
         f"{system.url}/api/v1/auth/login",
         json={
             "email": system.creds["therapist_email"],
@@ -51,7 +51,7 @@ def therapist_token(system: System) -> str:
 
 
 def scene(system: System, token: str) -> dict[str, object]:
-    r = httpx.get(
+    r = rest.get(
         f"{system.url}/api/v1/stations/{system.station_id}/scene",
         headers={"Authorization": f"Bearer {token}"},
     )
@@ -84,7 +84,7 @@ def long_prescription(system: System, token: str) -> int:
     screenshots and watchdog holds had taken the minute."""
     auth = {"Authorization": f"Bearer {token}"}
     body = demo_prescription().model_dump(mode="json") | {"repetitions": 30, "title": "Live test"}
-    r = httpx.post(
+    r = rest.post(
         f"{system.url}/api/v1/patients/{system.creds['patient_id']}/prescriptions",
         json=body,
         headers=auth,
@@ -268,5 +268,5 @@ def test_the_3d_view_comes_through_the_api_port(system: System, page: Page, shot
     assert not elsewhere, elsewhere
     assert f"ws://{api}{src.rstrip('/')}" in sockets
     # The same address without the ticket's rights is refused.
-    r = httpx.get(f"{system.url}/scene/{'A' * 43}/")
+    r = rest.get(f"{system.url}/scene/{'A' * 43}/")
     assert r.status_code == 403 and "ticket" in r.json()["detail"]

@@ -22,6 +22,7 @@ from playwright.sync_api import Locator, Page, expect
 from device.limits import SafetyLimits
 from sessions import wire
 from sessions.recording import End, EndReason, SessionEvent
+from tests.browser import rest
 from tests.browser.a11y import assert_controls_labelled
 from tests.server.live_server import STRENGTH
 from tests.server.test_attention import recording
@@ -131,7 +132,7 @@ def test_patient_list_and_adding_a_patient(
     token = page.get_by_label("Station token").input_value()
     (station,) = get(client, "/stations", patient_id=new["id"])
     assert station["name"] == "Home, kitchen"
-    me = httpx.get(f"{system.url}{API}/station/me", headers={"Authorization": f"Bearer {token}"})
+    me = rest.get(f"{system.url}{API}/station/me", headers={"Authorization": f"Bearer {token}"})
     assert me.status_code == 200, me.text
     assert (me.json()["id"], me.json()["patient_id"]) == (station["id"], new["id"])
     expect(page.locator(f'li[data-station-id="{station["id"]}"]')).to_contain_text("Offline")
@@ -412,7 +413,7 @@ def patient_with_station(client: httpx.Client, name: str, side: str) -> tuple[in
 def _upload(system: System, token: str, data: bytes, sid: str) -> int:
     """File a recording as a station does, with the station's own token."""
     station = {"Authorization": f"Bearer {token}"}
-    r = httpx.patch(
+    r = rest.patch(
         f"{system.url}{API}/uploads/{sid}",
         content=data,
         headers={**station, "Upload-Offset": "0"},
@@ -420,7 +421,7 @@ def _upload(system: System, token: str, data: bytes, sid: str) -> int:
     )
     assert r.status_code == 204, r.text
     body = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    r = httpx.post(
+    r = rest.post(
         f"{system.url}{API}/uploads/{sid}/complete", json=body, headers=station, timeout=30.0
     )
     assert r.status_code == 201, r.text

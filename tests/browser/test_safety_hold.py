@@ -11,6 +11,7 @@ from typing import Any
 import httpx
 from playwright.sync_api import BrowserContext, Page, expect
 
+from tests.browser import rest
 from tests.browser.test_live import sign_in, therapist_token
 from tests.browser.test_patient_page import uploaded_session, wait_for_page
 from tests.system.harness import System
@@ -37,7 +38,7 @@ def test_a_safety_hold_is_told_apart_from_a_pause_and_ends_by_itself(
 ) -> None:
     token = therapist_token(system)
     auth = {"Authorization": f"Bearer {token}"}
-    r = httpx.patch(
+    r = rest.patch(
         f"{system.url}/api/v1/prescriptions/{system.creds['prescription_id']}",
         json=BODY,
         headers=auth,

@@ -27,6 +27,7 @@ from playwright.sync_api import BrowserContext, Page, Route, expect
 from sessions.anatomy import label
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import decode
+from tests.browser import rest
 from tests.browser.a11y import assert_controls_labelled
 from tests.server.test_progress_route import assessment_rows
 from tests.server.test_series import recording_bytes
@@ -82,7 +83,7 @@ def run_one_session(system: System) -> dict[str, Any]:
 def server_names(system: System, sid: int) -> dict[str, str]:
     """The file name the server suggests for each download, read from its Content-Disposition
     by the standard library's MIME parser (RFC 2231 included), not by the page's code."""
-    token = httpx.post(
+    token = rest.post(
         f"{system.url}/api/v1/auth/login",
         json={
             "email": system.creds["therapist_email"],
@@ -91,7 +92,7 @@ def server_names(system: System, sid: int) -> dict[str, str]:
     ).json()["access_token"]
     names: dict[str, str] = {}
     for fmt in FORMATS:
-        r = httpx.get(
+        r = rest.get(
             f"{system.url}/api/v1/sessions/{sid}/download/{fmt}",
             headers={"Authorization": f"Bearer {token}"},
             timeout=60.0,

@@ -4,18 +4,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import httpx
 from playwright.sync_api import Page, expect
 
+from tests.browser import rest
 from tests.system.harness import System
 
 
 def test_vendor_libraries_are_installed_and_served(system: System) -> None:
     for name in ("uPlot.iife.min.js", "uPlot.min.css", "chart.umd.min.js"):
-        r = httpx.get(f"{system.url}/vendor/{name}")
+        r = rest.get(f"{system.url}/vendor/{name}")
         assert r.status_code == 200, (name, r.text)
         assert len(r.content) > 1_000
-    assert httpx.get(f"{system.url}/vendor/nothing.js").status_code == 404
+    assert rest.get(f"{system.url}/vendor/nothing.js").status_code == 404
 
 
 def test_sign_in_wrong_then_right(system: System, page: Page, shots: Path) -> None:

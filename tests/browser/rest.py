@@ -1,0 +1,16 @@
+"""The browser tests' own requests to the server under test (setting up, reading back).
+
+httpx gives up after 5 s by default. With the whole suite on two cores, a sign-in (its
+password hash) behind a page drawing WebGL in software took longer, and a test failed on
+a server that had answered correctly. These wait as long as the pages' own actions can.
+"""
+
+import functools
+
+import httpx
+
+TIMEOUT_S = 60.0
+
+get = functools.partial(httpx.get, timeout=TIMEOUT_S)
+post = functools.partial(httpx.post, timeout=TIMEOUT_S)
+patch = functools.partial(httpx.patch, timeout=TIMEOUT_S)
