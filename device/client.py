@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 import random
 import time
 from collections.abc import AsyncGenerator
@@ -37,6 +38,10 @@ from device.waveforms import Waveform
 
 HOST_NAME = "ankle-host 0.1.0"
 CLOSE_TIMEOUT = 2.0
+STALL_S = 0.1
+"""A heartbeat this much later than due is a stall of this host: half the device's default
+watchdog (``ankle device --watchdog-ms``, 200 ms)."""
+log = logging.getLogger("ankle.host")
 """Seconds :meth:`DeviceClient.close` waits for the port to flush before it drops it."""
 
 
@@ -74,6 +79,13 @@ class ClientStats:
     retries: int = 0
     rtt_ms: list[float] = field(default_factory=list)
     """Command to ACK/NACK round trips (the last 10000)."""
+    stalls: int = 0
+    """Heartbeats that left more than :data:`STALL_S` late: this host stood still (its event
+    loop blocked, or the process got no core) and the device heard nothing meanwhile."""
+    stall_ms_max: float = 0.0
+    """The longest such stall (ms)."""
+    last_stall: tuple[float, float] | None = None
+    """(host clock ``time.perf_counter`` when it ended, its length in ms) of the newest."""
 
 
 class DeviceClient:
@@ -313,11 +325,29 @@ class DeviceClient:
 
     async def _heartbeat_loop(self) -> None:
         while not self._closed.is_set():
+            due = time.perf_counter() + self.heartbeat_period
             await asyncio.sleep(self.heartbeat_period)
+            late = time.perf_counter() - due
+            if late > STALL_S:
+                self._stalled(late)
             if not self.heartbeats:
                 continue
             with contextlib.suppress(DeviceError):
                 await self.command(msg.Heartbeat(), timeout=self.heartbeat_period, retries=0)
+
+    def _stalled(self, late: float) -> None:
+        """This host stood still ``late`` s past a heartbeat's time: count it and say so, so
+        that a hold by the device's watchdog can be told from a broken cable."""
+        ms = late * 1e3
+        self.stats.stalls += 1
+        self.stats.stall_ms_max = max(self.stats.stall_ms_max, ms)
+        self.stats.last_stall = (time.perf_counter(), ms)
+        log.warning(
+            "this computer stood still for %.0f ms and sent the device nothing meanwhile "
+            "(the device's watchdog holds the platform after its set silence): the event "
+            "loop was blocked, or the computer had no free core",
+            ms,
+        )
 
     async def _read_loop(self) -> None:
         try:

@@ -67,6 +67,7 @@ class Station:
         self.session_id: str | None = None
         self.message = ""
         self.reasons = Reasons()
+        self._stall_heard: tuple[float, float] | None = None
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
@@ -453,6 +454,11 @@ class Station:
         """Why the device or the exercise is held now, and when the exercise ends if it stays
         held; None when nothing holds."""
         dev, run = self.dev, self.run_
+        stall = dev.stats.last_stall if dev is not None else None
+        if stall is not None and stall != self._stall_heard:  # this computer stood still
+            self._stall_heard = stall
+            ended, ms = stall
+            self.reasons.host_stalled(ms, time.time() - (time.perf_counter() - ended))
         latest = dev.latest if dev is not None else None
         paused = run is not None and run.phase == "paused" and not run.ending
         hold = self.reasons.hold(latest.mode if latest is not None else None, paused)

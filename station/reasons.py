@@ -42,6 +42,10 @@ _ASKED: dict[HoldCode, str] = {
     "station": "the station held the platform",
 }
 _STOPPED = (DeviceMode.FAULT, DeviceMode.ESTOP)
+STALL_NEAR_S = 2.0
+"""A stall of this computer that ended this close to a watchdog hold's start explains it..."""
+STALL_SHARE = 0.5
+"""...when it lasted at least this share of the silence the device measured."""
 
 
 def asked_code(by: str) -> HoldCode:
@@ -76,6 +80,8 @@ class Reasons:
         self._hold: HoldInfo | None = None
         self._fault = ""
         self._unheard_since: float | None = None
+        self._stall: tuple[float, float] | None = None
+        self._silence_ms = 0.0
 
     # -- what the station asked --------------------------------------------------------
     def asked(self, by: str, now: float | None = None) -> None:
@@ -104,19 +110,33 @@ class Reasons:
             self._fault = ""
         if event.mode_to == DeviceMode.HOLD and event.mode_from != DeviceMode.HOLD:
             if event.kind == EventKind.WATCHDOG:
-                self._set(
-                    "watchdog",
-                    f"the device's watchdog held the platform: no frame from the station for "
-                    f"{event.value:.0f} ms (the station or its cable stalled)",
-                    "device",
-                    at,
-                )
+                self._silence_ms = event.value
+                self._set("watchdog", self._watchdog_text(at), "device", at)
             elif event.kind == EventKind.SUPPLY_LOW:
                 self._set("supply_low", f"the device held the platform: {event.text}", "device", at)
             elif self._hold is None:
                 self._set("device", f"the device held the platform ({event.text})", "device", at)
         elif event.mode_from == DeviceMode.HOLD and event.mode_to != DeviceMode.HOLD:
             self._hold = None
+
+    def host_stalled(self, ms: float, at: float) -> None:
+        """This computer stood still for ``ms``, until ``at`` (Unix s): heartbeats to the
+        device left that late. If it explains a watchdog hold, the hold says so."""
+        self._stall = (at, ms)
+        hold = self._hold
+        if hold is not None and hold.code == "watchdog":
+            self._hold = hold.model_copy(update={"text": self._watchdog_text(hold.since)})
+
+    def _watchdog_text(self, since: float) -> str:
+        why = "the station or its cable stalled"
+        if self._stall is not None:
+            end, ms = self._stall
+            if abs(end - since) <= STALL_NEAR_S and ms >= STALL_SHARE * self._silence_ms:
+                why = f"this computer stood still for {ms:.0f} ms: too busy, or its program blocked"
+        return (
+            f"the device's watchdog held the platform: no frame from the station for "
+            f"{self._silence_ms:.0f} ms ({why})"
+        )
 
     # -- what the status shows -------------------------------------------------------------
     def hold(

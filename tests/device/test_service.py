@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from device import controller as ctl
-from device.client import AxisPlan, CommandRefused, DeviceClient, build_segment
+from device.client import AxisPlan, ClientStats, CommandRefused, DeviceClient, build_segment
 from device.controller import Mode, Waveform
 from device.hardware import SimulatedHardware
 from device.plant.model import SCRIPT_SINE
@@ -438,3 +438,27 @@ def test_release_vents_and_needs_homing_again(device: Running) -> None:
         assert t.mode == DeviceMode.READY and t.trip == Trip.NONE
 
     drive(device, body)
+
+
+def test_a_host_that_stands_still_counts_the_stall_and_says_so(
+    device: Running, caplog: pytest.LogCaptureFixture
+) -> None:
+    async def body(dev: DeviceClient) -> None:
+        await asyncio.sleep(0.2)  # heartbeats running
+        time.sleep(0.4)  # the host's event loop blocked: no heartbeat can leave
+        await asyncio.sleep(0.2)  # the heartbeat task wakes, late
+
+    with caplog.at_level("WARNING", logger="ankle.host"):
+        stats: list[object] = []
+
+        async def run(dev: DeviceClient) -> None:
+            await body(dev)
+            stats.append(dev.stats)
+
+        drive(device, run)
+    (s,) = stats
+    assert isinstance(s, ClientStats)
+    assert s.stalls >= 1 and s.last_stall is not None
+    # Blocked 400 ms, a heartbeat due within the next 100 ms (its period and ACK wait).
+    assert 290.0 <= s.stall_ms_max <= 1000.0, s
+    assert any("this computer stood still for" in r.getMessage() for r in caplog.records)

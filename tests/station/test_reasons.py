@@ -126,3 +126,30 @@ def test_the_limit_counts_from_the_hold_but_never_from_before_the_exercise() -> 
     # A hold older than the exercise (the device held before it started) is timed from
     # the exercise's start.
     assert ends_at(hold, began=150.0, limit_s=180.0) == 330.0
+
+
+def test_a_watchdog_hold_names_this_computers_stall_when_one_explains_it() -> None:
+    # The device heard nothing for 501 ms; the station's own heartbeats left 480 ms late.
+    # Whichever the station learns first, the hold ends up naming the stall.
+    for stall_first in (False, True):
+        reasons = Reasons()
+        if stall_first:
+            reasons.host_stalled(480.0, at=10.3)
+        reasons.device_event(event(EventKind.WATCHDOG, A, H, value=501.0), at=10.2)
+        if not stall_first:
+            hold = reasons.hold(H, paused=False)
+            assert hold is not None and "the station or its cable stalled" in hold.text
+            reasons.host_stalled(480.0, at=10.3)
+        hold = reasons.hold(H, paused=False)
+        assert hold is not None and hold.code == "watchdog" and hold.since == 10.2
+        assert "no frame from the station for 501 ms" in hold.text
+        assert "this computer stood still for 480 ms" in hold.text, hold.text
+
+
+def test_a_short_or_distant_stall_does_not_explain_a_watchdog_hold() -> None:
+    for ms, at in ((150.0, 10.3), (480.0, 4.0)):  # a third of the silence; 6 s before
+        reasons = Reasons()
+        reasons.host_stalled(ms, at=at)
+        reasons.device_event(event(EventKind.WATCHDOG, A, H, value=501.0), at=10.2)
+        hold = reasons.hold(H, paused=False)
+        assert hold is not None and "the station or its cable stalled" in hold.text, hold
