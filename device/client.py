@@ -38,11 +38,11 @@ from device.waveforms import Waveform
 
 HOST_NAME = "ankle-host 0.1.0"
 CLOSE_TIMEOUT = 2.0
-STALL_S = 0.1
-"""A heartbeat this much later than due is a stall of this host: half the device's default
-watchdog (``ankle device --watchdog-ms``, 200 ms)."""
-log = logging.getLogger("ankle.host")
 """Seconds :meth:`DeviceClient.close` waits for the port to flush before it drops it."""
+STALL_S = 0.1
+"""A heartbeat's wait (its period's sleep, or its ACK's) this much past its bound is a stall
+of this host: half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
+log = logging.getLogger("ankle.host")
 
 
 class DeviceError(Exception):
@@ -85,7 +85,7 @@ class ClientStats:
     stall_ms_max: float = 0.0
     """The longest such stall (ms)."""
     last_stall: tuple[float, float] | None = None
-    """(host clock ``time.perf_counter`` when it ended, its length in ms) of the newest."""
+    """(Unix time when it ended, its length in ms) of the newest."""
 
 
 class DeviceClient:
@@ -324,24 +324,30 @@ class DeviceClient:
         self._writer.write(msg.encode(message, seq))
 
     async def _heartbeat_loop(self) -> None:
+        # Each wait is bounded (the sleep by its period, the ACK by its timeout): a wait that
+        # ends later than that is this host standing still, whichever of the two it hit.
+        period = self.heartbeat_period
         while not self._closed.is_set():
-            due = time.perf_counter() + self.heartbeat_period
-            await asyncio.sleep(self.heartbeat_period)
-            late = time.perf_counter() - due
-            if late > STALL_S:
-                self._stalled(late)
+            start = time.perf_counter()
+            await asyncio.sleep(period)
+            self._check_stall(time.perf_counter() - start - period)
             if not self.heartbeats:
                 continue
+            start = time.perf_counter()
             with contextlib.suppress(DeviceError):
-                await self.command(msg.Heartbeat(), timeout=self.heartbeat_period, retries=0)
+                await self.command(msg.Heartbeat(), timeout=period, retries=0)
+            self._check_stall(time.perf_counter() - start - period)
 
-    def _stalled(self, late: float) -> None:
-        """This host stood still ``late`` s past a heartbeat's time: count it and say so, so
-        that a hold by the device's watchdog can be told from a broken cable."""
+    def _check_stall(self, late: float) -> None:
+        """A heartbeat's wait ended ``late`` s past its bound: over :data:`STALL_S`, this host
+        stood still; count it and say so, so that a hold by the device's watchdog can be
+        told from a broken cable."""
+        if late <= STALL_S:
+            return
         ms = late * 1e3
         self.stats.stalls += 1
         self.stats.stall_ms_max = max(self.stats.stall_ms_max, ms)
-        self.stats.last_stall = (time.perf_counter(), ms)
+        self.stats.last_stall = (time.time(), ms)
         log.warning(
             "this computer stood still for %.0f ms and sent the device nothing meanwhile "
             "(the device's watchdog holds the platform after its set silence): the event "

@@ -458,7 +458,7 @@ class Station:
         if stall is not None and stall != self._stall_heard:  # this computer stood still
             self._stall_heard = stall
             ended, ms = stall
-            self.reasons.host_stalled(ms, time.time() - (time.perf_counter() - ended))
+            self.reasons.host_stalled(ms, ended)
         latest = dev.latest if dev is not None else None
         paused = run is not None and run.phase == "paused" and not run.ending
         hold = self.reasons.hold(latest.mode if latest is not None else None, paused)
