@@ -28,9 +28,10 @@ run: setup
 
 # Test files are shared out over TEST_WORKERS processes (pytest-xdist), a whole file to one
 # worker so that a module's server, browser or built wheel is made once. 2 fits CI's 2 cores.
+# Files go out in the order tests/conftest.py sorts them, not by their number of tests.
 TEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 lint: setup
 	$(BIN)/ruff check .

@@ -2,13 +2,19 @@
 (SQLite by default, PostgreSQL too for tests marked ``both_stores``)."""
 
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
+import threading
+import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
 
+from tests.processes import stop
 from tests.server.live_server import parametrize_stores, seeded_store, seeds, store
 from tests.server.postgres import pg_cluster, pg_url
 
@@ -24,26 +30,101 @@ settings.load_profile("project")
 
 
 WARM_TIMEOUT_S = 1800.0
-"""A cold compile takes ~40 s on an idle core; a slow, shared CI machine several times that."""
+"""A cold compile takes ~2 min on an idle core; a slow, shared CI machine several times that."""
+
+NEEDS_NO_LOOP = (
+    *("server/", "sessions/", "station/", "webui/"),
+    *("test_dependencies.py", "test_deploy.py", "test_lock.py", "test_wheel.py"),
+)
+"""Test files and folders (under tests/) that never run the device's compiled loop, in process
+or in a service they start: they run while it compiles. Some compile small helpers of their
+own (kinematics, the pose check) in seconds. All other tests wait for the compile, and so do
+the exceptions in :data:`NEEDS_LOOP`."""
+
+NEEDS_LOOP = ("station/test_patient_page.py",)
+"""Files in :data:`NEEDS_NO_LOOP`'s folders that start a device service."""
+
+_WARM_ENV = "ANKLE_TEST_WARM_DIR"
+_warm: subprocess.Popen[bytes] | None = None
+
+
+def _needs_loop(path: Path) -> bool:
+    name = path.resolve().relative_to(Path(__file__).resolve().parent).as_posix()
+    return name in NEEDS_LOOP or not name.startswith(NEEDS_NO_LOOP)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Compile the device's loops once, before any worker starts (runs ahead of xdist's own
-    hook, which starts the workers). Cold, every worker and every device service a test
-    starts would compile the same code at the same time: on two busy cores that took one
-    service past its start deadline. Warm, each loads the cache in about a second."""
-    if hasattr(session.config, "workerinput"):  # a worker: the controller has warmed it
+    """Start compiling the device's loops once, before any worker starts (this runs ahead of
+    xdist's own hook, which starts the workers, and they inherit the folder's name).
+
+    Cold, every worker and every device service a test starts would compile the same code at
+    the same time: on two busy cores that took one service past its start deadline. So the
+    compile runs once, in the background: the tests that need no compiled loop run meanwhile
+    (they come first: ``pytest_collection_modifyitems``), and each other test waits for it
+    (``pytest_runtest_setup``), then loads the cache in about a second. Waiting instead, as
+    before, left one of two cores idle for the two minutes of a cold compile."""
+    global _warm
+    if _WARM_ENV in os.environ:  # a worker: the controller has started it
         return
+    folder = Path(tempfile.mkdtemp(prefix="ankle-warm-"))
+    os.environ[_WARM_ENV] = str(folder)
     argv = [sys.executable, "-m", "device", "device", "--sim", "--link", "tcp://127.0.0.1:0"]
-    done = subprocess.run(
-        [*argv, "--seconds", "0"], capture_output=True, text=True, timeout=WARM_TIMEOUT_S
-    )
-    if done.returncode != 0:
-        raise pytest.UsageError(
-            f"the device service does not start (exit {done.returncode}):\n"
-            + done.stdout[-4000:]
-            + done.stderr[-4000:]
+    log = (folder / "log").open("wb")
+    _warm = subprocess.Popen([*argv, "--seconds", "0"], stdout=log, stderr=subprocess.STDOUT)
+    log.close()
+
+    def report(proc: subprocess.Popen[bytes]) -> None:
+        code = proc.wait()
+        (folder / "exit.tmp").write_text(str(code))
+        (folder / "exit.tmp").replace(folder / "exit")
+
+    threading.Thread(target=report, args=(_warm,), daemon=True).start()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    if _warm is None:
+        return
+    stop(_warm)
+    shutil.rmtree(os.environ.pop(_WARM_ENV), ignore_errors=True)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files that need no compiled loop first, so both workers have work while it
+    compiles; then the longest files (browser, system, then the command line and the lab),
+    so that none of them is left running alone at the end, and the device's many short files
+    last. xdist hands files out in this order (the Makefile turns off its own reordering by
+    number of tests, which put the few long browser tests last)."""
+
+    def rank(item: pytest.Item) -> int:
+        if not _needs_loop(item.path):
+            return 0
+        if item.path.parent.name in ("browser", "system"):
+            return 1
+        return 2 if item.path.name == "test_cli.py" or item.path.parent.name == "lab" else 3
+
+    items.sort(key=rank)  # stable: a file's tests keep their order
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test that runs the compiled loop waits, before its fixtures, for the compile."""
+    folder = Path(os.environ[_WARM_ENV])
+    if not _needs_loop(item.path) or (folder / "ok").exists():
+        return
+    deadline = time.monotonic() + WARM_TIMEOUT_S
+    while not (folder / "exit").exists():
+        if time.monotonic() > deadline:
+            pytest.fail(f"the device's loops did not compile in {WARM_TIMEOUT_S:.0f} s")
+        time.sleep(0.2)
+    code = (folder / "exit").read_text()
+    if code != "0":
+        pytest.fail(
+            f"the device service does not start (exit {code}):\n"
+            + (folder / "log").read_text(errors="replace")[-8000:],
+            pytrace=False,
         )
+    (folder / "ok").touch()
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
