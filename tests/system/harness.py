@@ -92,7 +92,6 @@ class System:
     data_dir: Path
     port: int
     creds: dict[str, Any]
-    device: ServiceProcess
     station_port: int = 0
     server_env: dict[str, str] = field(default_factory=dict)
     """The store and relay every server process shares (empty: SQLite in data_dir, local)."""
@@ -100,6 +99,8 @@ class System:
     station: subprocess.Popen[bytes] | None = None
     logs: list[Path] = field(default_factory=list)
     page_port: int = 0
+    device: ServiceProcess = field(init=False)
+    """The simulated device, on a pty (the fixture starts it while the servers start)."""
 
     def __post_init__(self) -> None:
         self.station_port = self.station_port or self.port
@@ -221,24 +222,29 @@ def system(tmp_path: Path, stack: Stack, request: pytest.FixtureRequest) -> Iter
     # In a thread: Playwright's sync API keeps an event loop running in this one.
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
         creds = pool.submit(provision_demo, settings).result()
-    # A generous start: the first start compiles, slowly on a loaded machine.
-    device = ServiceProcess(
-        "--link",
-        "pty",
-        "--patient-torque",
-        "3",
-        "--watchdog-ms",
-        str(WATCHDOG_MS),
-        start_timeout=600.0,
-    )
-    sysm = System(tmp_path, port, creds, device, station_port, server_env)
-    try:
-        sysm.start_servers()
-        yield sysm
-    finally:
-        sysm.stop(sysm.station)
-        device.stop()
-        sysm.stop_servers()
+    sysm = System(tmp_path, port, creds, station_port, server_env)
+    # The servers start in a thread while the device starts here (it dies with this
+    # process only if started from the main thread), a few seconds sooner than one by one.
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        servers = pool.submit(sysm.start_servers)
+        try:
+            sysm.device = ServiceProcess(
+                "--link",
+                "pty",
+                "--patient-torque",
+                "3",
+                "--watchdog-ms",
+                str(WATCHDOG_MS),
+                start_timeout=600.0,  # generous: a cold cache compiles, slowly when loaded
+            )
+            servers.result()
+            yield sysm
+        finally:
+            concurrent.futures.wait([servers])
+            sysm.stop(sysm.station)
+            if hasattr(sysm, "device"):
+                sysm.device.stop()
+            sysm.stop_servers()
 
 
 @pytest_asyncio.fixture
