@@ -8,13 +8,16 @@ writes the valve vector of :mod:`device.signals`, so the controller never knows 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from device._jit import typed_entry
 from device.plant import model
 from device.plant.faults import Fault, FaultKind, fault_row
 from device.plant.params import HARDWARE_KINDS, PlantConfig, PlantParams, build_params
+from device.signals import N_SENSORS, N_VALVES
 
 
 class HardwareError(RuntimeError):
@@ -49,15 +52,33 @@ class SimulatedHardware(Hardware):
         self.params: PlantParams = build_params(config)
         self.state = model.new_state(self.params)
         model.seed(seed)
+        # One tick at a time from Python (identification, a board's loop run on the plant):
+        # the plant's functions are resolved once for this state's and these parameters'
+        # types, on buffers of this object's own, so nothing of another type reaches them.
+        self._sensors = np.zeros(N_SENSORS)
+        self._valves = np.zeros(N_VALVES, dtype=np.uint8)
+        self._entries: tuple[Any, Any, Any] | None = None
+
+    def _resolved(self) -> tuple[Any, Any, Any]:
+        if self._entries is None:
+            s, p = self.state, self.params
+            self._entries = (
+                typed_entry(model.read_sensors, s, p, self._sensors),
+                typed_entry(model.write_valves, s, p, self._valves),
+                typed_entry(model.plant_tick, s, p),
+            )
+        return self._entries
 
     def read_sensors(self, out: NDArray[np.float64]) -> None:
-        model.read_sensors(self.state, self.params, out)
+        self._resolved()[0](self.state, self.params, self._sensors)
+        out[:] = self._sensors
 
     def write_valves(self, valves: NDArray[np.uint8]) -> None:
-        model.write_valves(self.state, self.params, valves)
+        self._valves[:] = valves
+        self._resolved()[1](self.state, self.params, self._valves)
 
     def wait_tick(self) -> None:
-        model.plant_tick(self.state, self.params)
+        self._resolved()[2](self.state, self.params)
 
     def script_torque(self, axis: int, kind: int, t0: float, a: float, b: float) -> None:
         """Script the patient's active torque about one rotational axis (3, 4 or 5)."""
