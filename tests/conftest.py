@@ -90,20 +90,35 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The files that need no compiled loop first, so both workers have work while it
-    compiles; then the longest files (browser, system, then the command line and the lab),
-    so that none of them is left running alone at the end, and the device's many short files
-    last. xdist hands files out in this order (the Makefile turns off its own reordering by
-    number of tests, which put the few long browser tests last)."""
+    """Files in the order xdist hands them out (the Makefile turns off its own order, by
+    number of tests, which sent the few long browser files last, together):
 
-    def rank(item: pytest.Item) -> int:
-        if not _needs_loop(item.path):
+    - the files that need no compiled loop, so both workers have work while it compiles;
+    - then the long files first (system, the command line, the lab) and the device's many
+      short ones last, so that no long file is left running alone at the end;
+    - the browser files spread evenly among those. A browser test takes most of two cores
+      (chromium draws the pages and the 3D view in software, beside the whole system), and
+      a page draws for as long as it is open: two at once each took longer, and more CPU."""
+    files: dict[Path, list[pytest.Item]] = {}
+    for item in items:
+        files.setdefault(item.path, []).append(item)  # a file's tests keep their order
+
+    def rank(path: Path) -> int:
+        if path.parent.name == "system":
             return 0
-        if item.path.parent.name in ("browser", "system"):
-            return 1
-        return 2 if item.path.name == "test_cli.py" or item.path.parent.name == "lab" else 3
+        return 1 if path.name == "test_cli.py" or path.parent.name == "lab" else 2
 
-    items.sort(key=rank)  # stable: a file's tests keep their order
+    first = [f for f in files if not _needs_loop(f)]
+    browser = [f for f in files if _needs_loop(f) and f.parent.name == "browser"]
+    rest = sorted((f for f in files if _needs_loop(f) and f not in browser), key=rank)
+    every = max(1, len(rest) // max(1, len(browser)))
+    order = list(first)
+    for i, f in enumerate(rest):
+        if i % every == 0 and browser:
+            order.append(browser.pop(0))
+        order.append(f)
+    order += browser
+    items[:] = [item for f in order for item in files[f]]
 
 
 @pytest.hookimpl(tryfirst=True)
