@@ -25,7 +25,6 @@ from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware, SimulatedHardware
 from device.plant.params import TICK_HZ, PlantConfig
 from device.safety import SafetyLimits, Trip
-from device.signals import N_SENSORS
 from device.waveforms import AxisTarget as AxisTarget
 from device.waveforms import Waveform
 
@@ -55,6 +54,13 @@ class Rig:
         self._limits = self.params.limits.copy()
         self.state = ctl.new_state(geometry)
         self._log: list[NDArray[np.float64]] = []
+        self._hardware_loop: tickloop.HardwareLoop | None = None
+
+    def _on_hardware(self) -> tickloop.HardwareLoop:
+        """The Python loop for hardware that is not the simulation, resolved once."""
+        if self._hardware_loop is None:
+            self._hardware_loop = tickloop.HardwareLoop(self.state, self.params)
+        return self._hardware_loop
 
     # -- running -------------------------------------------------------------------------
     @property
@@ -72,7 +78,7 @@ class Rig:
             k = tickloop.run_sim(self.state, self.params, hw.state, hw.params, n, decimation, rows)
             rows = rows[:k]
         else:
-            tickloop.run_hardware(self.state, self.params, self.hardware, n)
+            self._on_hardware().run(self.hardware, n)
             rows = rows[:0]
         self._log.append(rows)
         return rows
@@ -95,9 +101,8 @@ class Rig:
             hw = self.hardware
             plant = copy.deepcopy(hw.state)
             tickloop.run_sim(s, self.params, plant, hw.params, 0, 0, _NO_LOG)
-        else:  # run_hardware is Python: what it calls, on no hardware
-            ctl.sensors_due(s.istate, self.params.schedule)
-            ctl.controller_tick(s, self.params, np.zeros(N_SENSORS))
+        else:  # the hardware loop is Python: what it calls, resolved without running
+            self._on_hardware()
 
     def advance(self, ticks: int) -> None:
         """Advance ``ticks`` interrupts without logging (the device service's pacing step)."""
@@ -105,7 +110,7 @@ class Rig:
             hw = self.hardware
             tickloop.run_sim(self.state, self.params, hw.state, hw.params, ticks, 0, _NO_LOG)
         else:
-            tickloop.run_hardware(self.state, self.params, self.hardware, ticks)
+            self._on_hardware().run(self.hardware, ticks)
 
     @property
     def log(self) -> NDArray[np.float64]:

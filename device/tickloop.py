@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device import controller as ctl
-from device._jit import njit, unowned
+from device._jit import njit, typed_entry, unowned
 from device.hardware import Hardware
 from device.kinematics import leg_vectors
 from device.plant import model
@@ -99,14 +99,31 @@ def run_sim(
     return rows
 
 
+class HardwareLoop:
+    """:func:`run_hardware` for one controller state and its parameters, with the compiled
+    calls resolved once (:func:`device._jit.typed_entry`). Through numba's dispatcher the
+    controller's tick cost 34 us a call, 25 of them resolving the types of its 39- and
+    71-field tuples: a sixth of a 7 kHz tick (143 us) on a board's loop."""
+
+    def __init__(self, cs: ctl.ControllerState, cp: ctl.ControllerParams) -> None:
+        self.cs, self.cp = cs, cp
+        self.sensors = np.zeros(N_SENSORS)
+        self._due = typed_entry(ctl.sensors_due, cs.istate, cp.schedule)
+        self._tick = typed_entry(ctl.controller_tick, cs, cp, self.sensors)
+
+    def run(self, hw: Hardware, n_ticks: int) -> None:
+        """Run ``n_ticks`` on ``hw``, in Python (one tick per call of each method)."""
+        cs, cp, sensors, due, tick = self.cs, self.cp, self.sensors, self._due, self._tick
+        for _ in range(n_ticks):
+            if due(cs.istate, cp.schedule):
+                hw.read_sensors(sensors)
+            tick(cs, cp, sensors)
+            hw.write_valves(cs.valves)
+            hw.wait_tick()
+
+
 def run_hardware(
     cs: ctl.ControllerState, cp: ctl.ControllerParams, hw: Hardware, n_ticks: int
 ) -> None:
     """The same loop for any hardware, in Python (one tick per call of each method)."""
-    sensors = np.zeros(N_SENSORS)
-    for _ in range(n_ticks):
-        if ctl.sensors_due(cs.istate, cp.schedule):
-            hw.read_sensors(sensors)
-        ctl.controller_tick(cs, cp, sensors)
-        hw.write_valves(cs.valves)
-        hw.wait_tick()
+    HardwareLoop(cs, cp).run(hw, n_ticks)
