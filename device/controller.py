@@ -537,6 +537,7 @@ class ControllerParams(NamedTuple):
     lag_forget: float
     friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg along its moving target
     friction_speed: float  # m/s
+    leg_friction: NDArray[np.float64]  # (6,) identified seal friction per leg (N), 0 if not
     friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
     friction_track_alpha: float  # its low-pass per control period
     friction_joint: NDArray[np.float64]  # (6,) N per leg on a joint step's approach
@@ -749,6 +750,7 @@ def build_params(
         * np.maximum(0.0, config.calibration.leg_frictions() - config.friction_compensation_keep),
         lag_extra=config.impedance_lag_extra,
         friction_speed=config.friction_compensation_speed,
+        leg_friction=config.calibration.leg_frictions(),
         friction_track=config.friction_compensation * config.calibration.leg_frictions(),
         friction_track_alpha=(
             1.0 - math.exp(-CONTROL_PERIOD * dt_tick / config.friction_compensation_lag)
@@ -1479,6 +1481,20 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
         if p.rate_observer > 0.0:
             leg_inertia(J, R, r, p.body_mass, p.body_inertia, p.leg_mass, s.leg_accel)
+        # The task origin's acceleration [a, dw/dt] (velocity products left out), for the
+        # platform's inertial force.
+        twist = np.empty(6)
+        for k in range(3):
+            twist[k] = s.pose_rate[k]
+            twist[3 + k] = (
+                E[k, 0] * s.pose_rate[3] + E[k, 1] * s.pose_rate[4] + E[k, 2] * s.pose_rate[5]
+            )
+        accel = np.empty(6)
+        for k in range(6):
+            accel[k] = (twist[k] - s.monitor[supervision.M_TWIST_PREV + k]) / p.dt_control
+            s.monitor[supervision.M_TWIST_PREV + k] = twist[k]
+        if s.counters[supervision.C_SIDE_ARMED] < supervision.SIDE_ARM_PERIODS:
+            s.counters[supervision.C_SIDE_ARMED] += 1
         if moving(s.istate) and p.load_compensation:
             # Each leg's measured pneumatic force against the force that holds the load.
             residuals = np.empty(6)
@@ -1496,12 +1512,78 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 for i in range(6):
                     W[k] += J[i, k] * residuals[i]
             sensor = supervision.check_wrench(s.monitor, s.counters, W, p.sup)
+            # The same less the platform's own inertial force, sideways: what is left there is
+            # the force sensor's error (a real push is in the legs' residual and the sensor
+            # alike, and what the legs lag behind it accelerates the platform). The residual
+            # goes through the pose rate's low-pass first, so both lag alike.
+            Ms = np.empty((6, 6))
+            spatial_inertia(R, r, p.body_mass, p.body_inertia, Ms)
+            # ...and the pistons', each moving along its leg (J a, velocity products left out).
+            for k in range(2):
+                for col in range(6):
+                    for i in range(6):
+                        Ms[k, col] += p.leg_mass * J[i, k] * J[i, col]
+            # Each leg's identified seal friction, against its measured motion, is no sensor's
+            # error either.
+            seals = np.empty(6)
+            for i in range(6):
+                seals[i] = p.leg_friction[i] * math.tanh(s.leg_rate[i] / p.sup.side_friction_speed)
+            side = np.empty(2)
+            for k in range(2):
+                lagged = s.monitor[supervision.M_SIDE_LAG + k]
+                pushed = W[k]
+                for i in range(6):
+                    pushed -= J[i, k] * seals[i]
+                # The acceleration is a difference of differences: it is that of the
+                # previous period, which the residual is taken at too.
+                s.monitor[supervision.M_SIDE_LAG + k] = lagged + p.pose_alpha * (pushed - lagged)
+                side[k] = lagged
+                for col in range(6):
+                    side[k] -= Ms[k, col] * accel[col]
+            axis = supervision.check_side(s.monitor, s.counters, side[0], side[1], p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return
             if sensor or leg >= 0:
                 trip(s, Trip.FORCE_SENSOR, supervision.wrench_component(s.monitor, p.sup))
                 return
+            if axis >= 0:
+                trip(s, Trip.FORCE_SENSOR, axis)
+                return
+
+
+@njit_inline
+def spatial_inertia(
+    R: NDArray[np.float64],
+    c: NDArray[np.float64],
+    mass: float,
+    inertia: NDArray[np.float64],
+    M: NDArray[np.float64],
+) -> None:
+    """Write ``M`` (6x6): the platform's spatial inertia about the task origin, base frame,
+    for the twist ``[v, w]`` of that origin (centre of mass ``c``, ``inertia`` about it in
+    the platform's frame, rotated by ``R``)."""
+    Io = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            for k in range(3):
+                for m in range(3):
+                    Io[a, b] += R[a, k] * inertia[k, m] * R[b, m]
+    cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+    for a in range(6):
+        for b in range(6):
+            M[a, b] = 0.0
+    for a in range(3):
+        M[a, a] = mass
+        for b in range(3):
+            Io[a, b] += mass * ((cc if a == b else 0.0) - c[a] * c[b])
+            M[3 + a, 3 + b] = Io[a, b]
+    # [c]x: momentum m (v + w x c) = m v - m [c]x w; angular momentum m c x v + Io w.
+    cx = np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
+    for a in range(3):
+        for b in range(3):
+            M[a, 3 + b] = -mass * cx[a, b]
+            M[3 + a, b] = mass * cx[a, b]
 
 
 @njit_inline
@@ -1518,25 +1600,8 @@ def leg_inertia(
     ``G = J M^-1 J^T``, ``M`` the platform's spatial inertia about the task origin (centre of
     mass ``c``, base frame) and ``m_l`` each piston's mass moving along its leg (velocity
     products left out). Unchanged if the pose is singular."""
-    Io = np.zeros((3, 3))
-    for a in range(3):
-        for b in range(3):
-            for k in range(3):
-                for m in range(3):
-                    Io[a, b] += R[a, k] * inertia[k, m] * R[b, m]
-    cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
     M = np.zeros((6, 6))
-    for a in range(3):
-        M[a, a] = mass
-        for b in range(3):
-            Io[a, b] += mass * ((cc if a == b else 0.0) - c[a] * c[b])
-            M[3 + a, 3 + b] = Io[a, b]
-    # [c]x: momentum m (v + w x c) = m v - m [c]x w; angular momentum m c x v + Io w.
-    cx = np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
-    for a in range(3):
-        for b in range(3):
-            M[a, 3 + b] = -mass * cx[a, b]
-            M[3 + a, b] = mass * cx[a, b]
+    spatial_inertia(R, c, mass, inertia, M)
     X = np.empty((6, 6))  # M^-1 J^T
     col = np.empty(6)
     A = np.empty((6, 7))

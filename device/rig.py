@@ -216,6 +216,7 @@ class Rig:
                 t0,
             )
         self._start_motion(joint=False)
+        supervision.settle_side(self.state.counters)
         self.state.istate[ctl.I_OUTSIDE] = 0  # an exercise is judged whole, from any mode
         self.state.trajectory[:] = traj
         if self.mode != Mode.TASK:
@@ -233,6 +234,7 @@ class Rig:
     ) -> None:
         s = self.state
         first = not np.any(s.compliant) and self.mode != Mode.TASK
+        supervision.settle_side(s.counters)
         s.stiffness_target[:] = stiffness
         s.damping_target[:] = damping
         s.compliant[:] = np.asarray(compliant, dtype=np.float64)
@@ -253,6 +255,7 @@ class Rig:
         """Back to task mode on the loaded waveforms, from a hold; no-op if tripped."""
         if self.mode != Mode.FAULT:
             supervision.disarm_following(self.state.counters)
+            supervision.settle_side(self.state.counters)
             self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def set_vent(self, on: bool) -> None:

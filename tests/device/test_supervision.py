@@ -698,38 +698,83 @@ def test_a_force_sensor_bias_that_jumps_is_caught_before_the_legs_push_against_i
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
 
 
-@pytest.mark.parametrize("scenario", ["exercise", "pushing"])
-def test_a_sideways_force_sensor_offset_is_stopped_by_the_following_check(scenario: str) -> None:
+@pytest.mark.parametrize("scenario", safety.SCENARIOS)
+def test_a_sideways_force_sensor_offset_is_caught_by_the_sideways_cross_check(
+    scenario: str,
+) -> None:
     """30 N on Fx or Fy, under the jump rule and the wrench cross-check: the load
-    compensation pushes a held axis with it, and the platform leaves its commanded pose.
-    Before the following check it walked 7.5-8.9 mm in 0.5 s, undetected mid-exercise and
-    on. Now caught in 46-114 ms at 3.5-8.2 mm (from where the run without the fault was at
-    the trip; 7.6 mm counted from the pose at the trip): the false Fx also reads as a pitch
-    torque (the sensor sits below the ankle), which turns the compliant pitch as a
-    patient's would and so widens the sideways bound (``SupervisionConfig.following_turn``);
-    the more so since the law renders the loop's lag out of the damping (86 ms before)."""
+    compensation pushes the platform against a load that is not there. The following check
+    used to stop it at 46-130 ms, 3-8 mm off; the legs' residual less the platform's
+    inertial force and the seals' friction names the sensor within 14-18 ms (the platform
+    then 0.2-4.5 mm off, most of it the momentum it had when the valves shut)."""
     for channel in (0, 1):
         run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=channel)
-        assert run.detected and run.trip == Trip.FOLLOWING.name, run
-        assert run.channel == channel, run  # the axis the false force pushed: x or y
-        assert run.detect_ms <= 130.0 and run.excursion_mm <= 9.0, run
+        assert run.detected and run.trip == Trip.FORCE_SENSOR.name, run
+        assert run.channel == channel, run  # the component the false force is on: x or y
+        assert run.detect_ms <= 25.0 and run.excursion_mm <= 5.0, run
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 11): a 30 N offset on Fx or Fy (under the jump rule and the wrench "
-    "cross-check) moves a held platform 1.6-3.9 mm before the following check trips "
-    "(90-158 ms, seeds 1-4; 1.8-3.6 mm on seed 1 before the position loop's rate observer): "
-    "30 N of phantom load accelerates platform and foot faster than a bound above the "
-    "healthy following error (2.1 mm) can stop",
-)
-def test_a_sideways_force_sensor_offset_moves_the_platform_at_most_3_mm() -> None:
+def test_a_smaller_sideways_force_sensor_offset_is_caught_too() -> None:
+    """20 N mid-exercise: caught within 50 ms (34-38 ms measured), named by its component."""
+    for channel in (0, 1):
+        rig, _, _, _, _ = safety._run(None, "exercise", seed=1)
+        hw = rig.hardware
+        assert isinstance(hw, SimulatedHardware)
+        hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), channel, 20.0))
+        rig.run(0.05, log_hz=0)
+        assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
+
+
+def test_a_sideways_force_sensor_offset_moves_a_held_platform_at_most_3_mm() -> None:
     for seed in (1, 2, 3, 4):
         for channel in (0, 1):
             run = safety.run_fault(
                 FaultKind.FT_OFFSET, "holding", seed=seed, channel=channel, after=1.0
             )
+            assert run.detected and run.excursion_mm <= 3.0, run
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (issue 11): a 30 N offset on Fx or Fy mid-exercise or while the patient "
+    "pushes is caught in 14-18 ms, and the platform's momentum then carries it 2.7-4.5 mm "
+    "off (the false Fx also reads as a pitch torque: the sensor sits below the ankle)",
+)
+def test_a_sideways_force_sensor_offset_moves_an_exercising_platform_at_most_3_mm() -> None:
+    for scenario in ("exercise", "pushing"):
+        for channel in (0, 1):
+            run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=channel)
             assert run.excursion_mm <= 3.0, run
+
+
+def test_a_foot_that_kicks_is_no_force_sensor_fault() -> None:
+    """A real push is in the force sensor and in the platform's motion alike: the sideways
+    cross-check sees neither. A foot kicking each rotational axis rendered at K 20 (a torque
+    ramp of 300 N m per second to 10 N m) on the nominal unit and on drawn build 11, whose
+    seals hold 4.5 N each (identified and taken out): no trip, and the sideways residual
+    stays under half its limit (the worst kick of a wider set read 10.5 N against 18,
+    without the inertial force and the friction 19.5 N)."""
+    from device import supervision
+    from device.plant.model import SCRIPT_RAMP
+
+    limit = SupervisionConfig().side_force_limit
+    for draw in (None, 11):
+        for axis in (3, 4, 5):
+            rig = safety._rig("relaxed", 1) if draw is None else safety._drawn_rig("relaxed", draw)
+            rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+            rig.run(0.5, log_hz=0)
+            K, B = np.zeros(6), np.zeros(6)
+            K[axis], B[axis] = 20.0, 1.5
+            rig.set_impedance(K, B, [i == axis for i in range(6)])
+            rig.track({})
+            hw = rig.hardware
+            assert isinstance(hw, SimulatedHardware)
+            hw.script_torque(axis, SCRIPT_RAMP, rig.time + 0.2, -300.0, 10.0)
+            rig.state.monitor[supervision.M_SIDE_PEAK] = 0.0
+            rig.run(1.5, log_hz=0)
+            assert rig.trip == Trip.NONE, (draw, axis, rig.trip)
+            peak = float(rig.state.monitor[supervision.M_SIDE_PEAK])
+            assert 0.0 < peak < 0.5 * limit, (draw, axis, peak)
 
 
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:
