@@ -229,7 +229,7 @@ def run_system(
         print(f"ankle: starting the server on {url} (data in {data_dir})", file=out)
         children.append(server)
         server.start()
-        print("ankle: starting the simulated device (first start compiles for ~40 s)", file=out)
+        print("ankle: starting the simulated device (first start compiles for ~2 min)", file=out)
         children.append(device)
         device.start()
         children.append(station)

@@ -267,7 +267,7 @@ def _device(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return USAGE_ERROR
     if args.hardware == "sim":
-        print("ankle device: preparing the simulated device (first start compiles for ~40 s)...")
+        print("ankle device: preparing the simulated device (first start compiles for ~2 min)...")
     if args.calibration is not None:
         print(f"ankle device: {describe(calibration)} ({args.calibration})")
     else:

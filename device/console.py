@@ -78,7 +78,7 @@ async def _drive(link: str, seconds: float | None, out: TextIO) -> None:
 
 def run_console(seconds: float | None = None, out: TextIO = sys.stdout) -> int:
     """Start the service, drive it until ``seconds`` pass (forever if None) or Ctrl-C."""
-    print("ankle: starting the device service (first start compiles for ~40 s)...", file=out)
+    print("ankle: starting the device service (first start compiles for ~2 min)...", file=out)
     try:
         service = ServiceProcess("--link", "pty", "--patient-torque", "3")
     except ServiceStartError as exc:
