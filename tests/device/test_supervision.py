@@ -684,17 +684,24 @@ def test_a_leg_sensor_frozen_while_the_patient_pushes_is_caught_on_every_leg() -
         assert run.detected and run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
 
 
+def _force_offset(scenario: str, channel: int, newtons: float, seconds: float) -> Rig:
+    """A rig in ``scenario`` watched ``seconds`` after its force sensor's ``channel`` took an
+    offset of ``newtons``."""
+    rig, _, _, _, _ = safety._run(None, scenario, seed=1)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), channel, newtons))
+    rig.run(seconds, log_hz=0)
+    return rig
+
+
 def test_a_force_sensor_bias_that_jumps_is_caught_before_the_legs_push_against_it() -> None:
     """80 N on Fx or Fy at once: before the jump rule, the load compensation pushed a held
     platform 12-16 mm sideways against a load that was not there before the wrench
     cross-check tripped (50-66 ms)."""
 
     for channel in (0, 1, 2):
-        rig, _, _, _, _ = safety._run(None, "holding", seed=1)
-        hw = rig.hardware
-        assert isinstance(hw, SimulatedHardware)
-        hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), channel, 80.0))
-        rig.run(0.003, log_hz=0)
+        rig = _force_offset("holding", channel, 80.0, 0.003)
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
 
 
@@ -717,11 +724,7 @@ def test_a_sideways_force_sensor_offset_is_caught_by_the_sideways_cross_check(
 def test_a_smaller_sideways_force_sensor_offset_is_caught_too() -> None:
     """20 N mid-exercise: caught within 50 ms (34-38 ms measured), named by its component."""
     for channel in (0, 1):
-        rig, _, _, _, _ = safety._run(None, "exercise", seed=1)
-        hw = rig.hardware
-        assert isinstance(hw, SimulatedHardware)
-        hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), channel, 20.0))
-        rig.run(0.05, log_hz=0)
+        rig = _force_offset("exercise", channel, 20.0, 0.05)
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
 
 
