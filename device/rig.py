@@ -96,6 +96,7 @@ class Rig:
         g = self.geometry
         safety.outside_at_start(s.sensors[13:19], s.pose, g.home_pose, g.stroke, self.params.limits)
         supervision.disarm_following(s.counters)
+        supervision.settle_side(s.counters)
         ctl.trip(s, int(Trip.NONE))
         if isinstance(self.hardware, SimulatedHardware):
             hw = self.hardware
