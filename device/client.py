@@ -112,6 +112,8 @@ class DeviceClient:
         self.latest: msg.Telemetry | None = None
         self.latest_at = 0.0
         """Host clock (``time.perf_counter``) when :attr:`latest` arrived."""
+        self.last_event: msg.Event | None = None
+        """The newest event heard, in order (what a timeout names as the likely cause)."""
         self.mode: DeviceMode | None = None
         """The device's mode as the newest telemetry sample or ACK says. The link keeps
         order, so the last of them heard is the newest state; telemetry alone lags a
@@ -308,7 +310,12 @@ class DeviceClient:
             pass
         now = self.latest.mode.name if self.latest else "unknown"
         names = " or ".join(m.name for m in modes)
-        raise LinkTimeout(f"device did not reach {names} within {timeout:g} s (it is {now})")
+        why = ""
+        if (e := self.last_event) is not None:
+            why = f"; its last event, #{e.event_id}: {e.kind.name}"
+            if e.text:
+                why += f", {e.text}"
+        raise LinkTimeout(f"device did not reach {names} within {timeout:g} s (it is {now}{why})")
 
     # -- internals -----------------------------------------------------------------------
     def _end_streams(self) -> None:
@@ -425,6 +432,7 @@ class DeviceClient:
                 self._ask_replay(message.event_id)
                 return  # wait for the missing ones so the order holds
             self._last_event_id = message.event_id
+            self.last_event = message
             for eq in self._event_subs:
                 eq.put_nowait(message)
         elif isinstance(message, msg.DeviceHello):

@@ -306,6 +306,24 @@ def test_an_accepted_extreme_segment_runs_without_tripping(
     seg = dataclasses.replace(seg, duration=2.5)
     assert verdict(seg, ready()) is None, "the extreme must be one the device accepts"
 
+    async def run_once(dev: DeviceClient) -> bool:
+        """Run ``seg`` to its end; whether the host's stalls held it on the way."""
+        held = False
+        watchdogs = last_watchdog(service)
+        await dev.start_segment(seg)
+        await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=2.0)
+        while True:
+            t = await dev.wait_for_mode(DeviceMode.READY, DeviceMode.HOLD, timeout=20.0)
+            assert t.trip == Trip.NONE, t.trip
+            if t.mode == DeviceMode.READY:
+                return held
+            # Only a host that stood still past the watchdog may hold it (the device did
+            # right); go on from where it held.
+            assert last_watchdog(service) > watchdogs, dev.last_event
+            watchdogs, held = last_watchdog(service), True
+            await dev.resume()
+            await dev.wait_for_mode(DeviceMode.ACTIVE, DeviceMode.READY, timeout=2.0)
+
     async def main() -> None:
         dev = await DeviceClient.connect(service.link.name)
         try:
@@ -314,10 +332,11 @@ def test_an_accepted_extreme_segment_runs_without_tripping(
             if service.mode != DeviceMode.READY:
                 await dev.arm_home()
                 await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
-            await dev.start_segment(seg)
-            await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=2.0)
-            t = await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
-            assert t.trip == Trip.NONE
+            for _attempt in range(3):
+                if not await run_once(dev):
+                    break  # once through without a pause: the claim holds
+            else:
+                pytest.fail("the host stalled past the watchdog in each of three runs")
         finally:
             await dev.close()
 
