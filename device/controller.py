@@ -1479,8 +1479,12 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     if leg_forces_for_wrench(J, W, f):
         for i in range(6):
             s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
+        # The platform's spatial inertia about the task origin, for the legs' observer and
+        # the sideways check alike.
+        Ms = np.empty((6, 6))
+        spatial_inertia(R, r, p.body_mass, p.body_inertia, Ms)
         if p.rate_observer > 0.0:
-            leg_inertia(J, R, r, p.body_mass, p.body_inertia, p.leg_mass, s.leg_accel)
+            leg_inertia(J, Ms, p.leg_mass, s.leg_accel)
         # The task origin's acceleration [a, dw/dt] (velocity products left out), for the
         # platform's inertial force.
         twist = np.empty(6)
@@ -1515,10 +1519,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # The same less the platform's own inertial force, sideways: what is left there is
             # the force sensor's error (a real push is in the legs' residual and the sensor
             # alike, and what the legs lag behind it accelerates the platform). The residual
-            # goes through the pose rate's low-pass first, so both lag alike.
-            Ms = np.empty((6, 6))
-            spatial_inertia(R, r, p.body_mass, p.body_inertia, Ms)
-            # ...and the pistons', each moving along its leg (J a, velocity products left out).
+            # goes through the pose rate's low-pass first, so both lag alike. The inertia is
+            # the platform's (Ms) and the pistons', each moving along its leg (J a, velocity
+            # products left out).
             for k in range(2):
                 for col in range(6):
                     for i in range(6):
@@ -1589,19 +1592,14 @@ def spatial_inertia(
 @njit_inline
 def leg_inertia(
     J: NDArray[np.float64],
-    R: NDArray[np.float64],
-    c: NDArray[np.float64],
-    mass: float,
-    inertia: NDArray[np.float64],
+    M: NDArray[np.float64],
     leg_mass: float,
     out: NDArray[np.float64],
 ) -> None:
     """``out`` = the legs' accelerations per unbalanced leg force: ``(I + m_l G)^-1 G`` with
-    ``G = J M^-1 J^T``, ``M`` the platform's spatial inertia about the task origin (centre of
-    mass ``c``, base frame) and ``m_l`` each piston's mass moving along its leg (velocity
-    products left out). Unchanged if the pose is singular."""
-    M = np.zeros((6, 6))
-    spatial_inertia(R, c, mass, inertia, M)
+    ``G = J M^-1 J^T``, ``M`` the platform's spatial inertia about the task origin (base
+    frame, :func:`spatial_inertia`) and ``m_l`` each piston's mass moving along its leg
+    (velocity products left out). Unchanged if the pose is singular."""
     X = np.empty((6, 6))  # M^-1 J^T
     col = np.empty(6)
     A = np.empty((6, 7))
