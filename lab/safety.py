@@ -71,11 +71,14 @@ FAULTS: dict[FaultKind, tuple[int, float]] = {
     FaultKind.FT_SATURATED: (-1, 0.0),
     # Under both the jump rule (40 N in 1 ms) and the wrench cross-check (45 N): the worst
     # a bias can be and not be seen at once (80 N is now caught in 1 ms).
-    FaultKind.FT_OFFSET: (2, 30.0),
+    FaultKind.FT_OFFSET: (2, 30.0),  # a torque channel takes FT_TORQUE_OFFSET
     FaultKind.VALVE_STUCK_OPEN: (8, 0.0),
     FaultKind.VALVE_STUCK_CLOSED: (9, 0.0),
     FaultKind.CHAMBER_LEAK: (4, 0.5),
 }
+FT_TORQUE_OFFSET = 3.0
+"""The offset (N m) injected on a torque channel: under the jump rule (4 N m in 1 ms) and
+the wrench cross-check (5.5 N m), as 30 N is on a force channel."""
 CHANNELS: dict[FaultKind, tuple[int, ...]] = {
     **{kind: (channel,) for kind, (channel, _) in FAULTS.items()},
     **dict.fromkeys(
@@ -90,7 +93,7 @@ CHANNELS: dict[FaultKind, tuple[int, ...]] = {
     **dict.fromkeys(
         (FaultKind.LEG_STUCK, FaultKind.LEG_OFFSET, FaultKind.LEG_NOISE), tuple(range(6))
     ),
-    FaultKind.FT_OFFSET: (0, 1, 2),  # 30 N on each force channel
+    FaultKind.FT_OFFSET: tuple(range(6)),  # 30 N on each force channel, 3 N m on each torque
     FaultKind.VALVE_STUCK_OPEN: tuple(range(24)),
     FaultKind.VALVE_STUCK_CLOSED: tuple(range(24)),
     FaultKind.CHAMBER_LEAK: tuple(range(12)),
@@ -177,6 +180,8 @@ def _run(
     if kind is not None:
         default, value = FAULTS[kind]
         channel = default if channel is None else channel
+        if kind == FaultKind.FT_OFFSET and channel >= 3:
+            value = FT_TORQUE_OFFSET
         duration = 0.3 if kind == FaultKind.LEG_NOISE else math.inf
         hw.inject(Fault(kind, float(hw.state.time[0]), channel, value, duration))
     detect = onset = stop = math.nan
