@@ -85,7 +85,9 @@ M_SIDE = 249  # 2: filtered sideways (x, y) residual less the platform's inertia
 M_SIDE_PEAK = 251  # 1: largest magnitude of that since the last reset
 M_SIDE_LAG = 252  # 2: sideways residual (N) through the pose rate's own low-pass
 M_LEG_PREV2 = 254  # 6: the leg reading before the last
-N_MONITOR = 260
+M_LEG_LAG = 260  # 6: each leg's residual less its seals' friction (N), through the pose
+# rate's own low-pass (so it lags as the measured acceleration does)
+N_MONITOR = 266
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -1279,6 +1281,8 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
     for k in range(2):
         monitor[M_SIDE + k] = 0.0
         monitor[M_SIDE_LAG + k] = 0.0
+    for i in range(6):
+        monitor[M_LEG_LAG + i] = 0.0
     counters[C_SIDE] = 0
     disarm_following(counters)
     for c in range(12):

@@ -790,15 +790,6 @@ def test_a_foot_that_kicks_is_no_force_sensor_fault() -> None:
             assert 0.0 < peak < 0.5 * limit, (draw, axis, peak)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 11): a foot kicking a compliant axis of drawn builds 1, 2 and 27 "
-    "swings the plate fast (build 2, pitch at K 5: 10 deg in 45 ms), and the platform's own "
-    "inertial torque (and each leg's share of its inertial force) passes the wrench "
-    "cross-check's 5.5 N m (trip "
-    "FORCE_SENSOR naming roll or pitch) or a leg's 30 N balance (FORCE_BALANCE): those two "
-    "checks do not yet take the inertial wrench out, as the sideways check does",
-)
 @pytest.mark.parametrize(
     ("draw", "axis", "k", "b", "sine"),
     [(1, 3, 10.0, 1.5, True), (2, 4, 20.0, 1.0, True), (27, 4, 5.0, 2.0, False)],
@@ -806,10 +797,13 @@ def test_a_foot_that_kicks_is_no_force_sensor_fault() -> None:
 def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     draw: int, axis: int, k: float, b: float, sine: bool
 ) -> None:
-    """Measured: drawn build 1, roll at K 10, an 8 N m sine at 3 Hz: FORCE_SENSOR (roll);
-    build 2, pitch at K 20, the same sine: FORCE_SENSOR (pitch); build 27, pitch at K 5, a
-    torque ramp of -300 N m/s to 15 N m: FORCE_BALANCE on leg 2. A limit of the range of
-    motion or of the legs' speed may stop such a kick; a sensor's cross-check must not."""
+    """The plate swings fast (build 2, pitch at K 5: 10 deg in 45 ms), and before the force
+    balance and the wrench cross-check took each leg's share of the platform's inertial
+    force out, these tripped: drawn build 1, roll at K 10, an 8 N m sine at 3 Hz:
+    FORCE_SENSOR (roll); build 2, pitch at K 20, the same sine: FORCE_SENSOR (pitch); build
+    27, pitch at K 5, a torque ramp of -300 N m/s to 15 N m: FORCE_BALANCE on leg 2. A
+    limit of the range of motion or of the legs' speed may stop such a kick; a sensor's
+    cross-check must not."""
     from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 
     rig = safety._drawn_rig("relaxed", draw)
@@ -827,6 +821,20 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
         hw.script_torque(axis, SCRIPT_RAMP, rig.time + 0.2, -300.0, 15.0)
     rig.run(2.0, log_hz=0)
     assert rig.trip not in (Trip.FORCE_SENSOR, Trip.FORCE_BALANCE), (rig.trip, rig.trip_channel)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (issue 11): on drawn build 27 (seals with 19 N s/m of viscous friction, "
+    "the top of the range, which the sideways check does not take out, and a leg sensor "
+    "0.94 ms late) a foot kicking roll or pitch reads 18.2-18.4 N sideways against the "
+    "18 N limit: FORCE_SENSOR naming x or y",
+)
+@pytest.mark.parametrize(("axis", "k", "b", "sine"), [(3, 10.0, 1.5, True), (4, 50.0, 1.0, False)])
+def test_a_foot_that_kicks_drawn_build_27_is_no_sideways_force_sensor_fault(
+    axis: int, k: float, b: float, sine: bool
+) -> None:
+    test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(27, axis, k, b, sine)
 
 
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:
