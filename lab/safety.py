@@ -99,9 +99,9 @@ CHANNELS: dict[FaultKind, tuple[int, ...]] = {
     FaultKind.CHAMBER_LEAK: tuple(range(12)),
 }
 """Where the matrix injects each kind: on every channel it can strike. Which one changes
-everything for some kinds (a frozen leg 2 is caught mid-exercise in 235 ms; a frozen leg 0
-or 1 lets the platform turn 6-9 deg unnoticed within a second), and one representative
-channel hid that."""
+everything for some kinds (a frozen leg 2 is caught mid-exercise in 179 ms, a frozen leg 0
+or 1 only after 435-459 ms, and while the patient pushes it lets the platform turn 6-7 deg
+unnoticed within a second), and one representative channel hid that."""
 
 
 @dataclass(frozen=True)
