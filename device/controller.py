@@ -1522,10 +1522,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # axis swings the plate at several rad/s; taken for the sensor's error, that force
             # passed the limits below on drawn builds 1, 2 and 27.
             shares = np.zeros(6)
-            if (
-                s.counters[supervision.C_SIDE_ARMED] >= supervision.SIDE_ARM_PERIODS
-                and s.counters[supervision.C_POSE_ROUGH] == 0
-            ):
+            if supervision.accel_trusted(s.counters):
                 inertial = np.zeros(6)
                 for k in range(6):
                     for col in range(6):
@@ -1553,28 +1550,11 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 for i in range(6):
                     W[k] += J[i, k] * corrected[i]
             sensor = supervision.check_wrench(s.monitor, s.counters, W, p.sup)
-            # The raw residuals again (J^T r), for the sideways check below.
-            for k in range(6):
-                W[k] = 0.0
-                for i in range(6):
-                    W[k] += J[i, k] * residuals[i]
-            # The same less the platform's own inertial force, sideways: what is left there is
-            # the force sensor's error (a real push is in the legs' residual and the sensor
-            # alike, and what the legs lag behind it accelerates the platform). The residual
-            # goes through the pose rate's low-pass first, so both lag alike.
-            side = np.empty(2)
-            for k in range(2):
-                lagged = s.monitor[supervision.M_SIDE_LAG + k]
-                pushed = W[k]
-                for i in range(6):
-                    pushed -= J[i, k] * seals[i]
-                # The acceleration is a difference of differences: it is that of the
-                # previous period, which the residual is taken at too.
-                s.monitor[supervision.M_SIDE_LAG + k] = lagged + p.pose_alpha * (pushed - lagged)
-                side[k] = lagged
-                for col in range(6):
-                    side[k] -= Ms[k, col] * accel[col]
-            axis = supervision.check_side(s.monitor, s.counters, side[0], side[1], p.sup)
+            # Sideways, what is left of that wrench is the force sensor's error (a real push is
+            # in the legs' residual and the sensor alike, and what the legs lag behind it
+            # accelerates the platform): judged against a tighter limit (check_side), only
+            # while the inertial force above has been taken out.
+            axis = supervision.check_side(s.monitor, s.counters, W[0], W[1], p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return

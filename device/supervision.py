@@ -83,11 +83,10 @@ M_AIR_JUDGED = 231  # 12: ...1 if that window was judged (where the rough figure
 M_TWIST_PREV = 243  # 6: the task origin's twist [v, w] at the previous pose period
 M_SIDE = 249  # 2: filtered sideways (x, y) residual less the platform's inertial force (N)
 M_SIDE_PEAK = 251  # 1: largest magnitude of that since the last reset
-M_SIDE_LAG = 252  # 2: sideways residual (N) through the pose rate's own low-pass
-M_LEG_PREV2 = 254  # 6: the leg reading before the last
-M_LEG_LAG = 260  # 6: each leg's residual less its seals' friction (N), through the pose
+M_LEG_PREV2 = 252  # 6: the leg reading before the last
+M_LEG_LAG = 258  # 6: each leg's residual less its seals' friction (N), through the pose
 # rate's own low-pass (so it lags as the measured acceleration does)
-N_MONITOR = 266
+N_MONITOR = 264
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -1101,6 +1100,14 @@ def check_wrench(
 
 
 @njit_inline
+def accel_trusted(counters: NDArray[np.int64]) -> bool:
+    """Whether the measured pose's acceleration can be taken as the platform's: not within
+    ``SIDE_ARM_PERIODS`` of start-up or a new command, nor while a leg reading moves as no
+    leg can (``side_leg_rough``)."""
+    return bool(counters[C_SIDE_ARMED] >= SIDE_ARM_PERIODS and counters[C_POSE_ROUGH] == 0)
+
+
+@njit_inline
 def check_side(
     monitor: NDArray[np.float64],
     counters: NDArray[np.int64],
@@ -1110,7 +1117,7 @@ def check_side(
 ) -> int:
     """Filter the sideways residual force at the ankle less the platform's inertial force
     (N, base frame); the component (0 x, 1 y) when it stayed over its limit, else -1."""
-    if counters[C_SIDE_ARMED] < SIDE_ARM_PERIODS or counters[C_POSE_ROUGH] > 0:
+    if not accel_trusted(counters):
         counters[C_SIDE] = 0
         return -1
     rx = monitor[M_SIDE] + q.side_alpha * (fx - monitor[M_SIDE])
@@ -1280,7 +1287,6 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
     counters[C_WRENCH] = 0
     for k in range(2):
         monitor[M_SIDE + k] = 0.0
-        monitor[M_SIDE_LAG + k] = 0.0
     for i in range(6):
         monitor[M_LEG_LAG + i] = 0.0
     counters[C_SIDE] = 0
