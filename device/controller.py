@@ -1522,6 +1522,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # axis swings the plate at several rad/s; taken for the sensor's error, that force
             # passed the limits below on drawn builds 1, 2 and 27.
             shares = np.zeros(6)
+            allowance = 0.0
             if supervision.accel_trusted(s.counters):
                 inertial = np.zeros(6)
                 for k in range(6):
@@ -1529,6 +1530,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         inertial[k] += Ms[k, col] * accel[col]
                 if not leg_forces_for_wrench(J, inertial, shares):
                     shares[:] = 0.0
+                allowance = side_allowance(J, r, accel, p.body_mass, p.sup)
             leg = -1
             corrected = np.empty(6)
             for i in range(6):
@@ -1554,7 +1556,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # in the legs' residual and the sensor alike, and what the legs lag behind it
             # accelerates the platform): judged against a tighter limit (check_side), only
             # while the inertial force above has been taken out.
-            axis = supervision.check_side(s.monitor, s.counters, W[0], W[1], p.sup)
+            axis = supervision.check_side(s.monitor, s.counters, W[0], W[1], allowance, p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return
@@ -1564,6 +1566,41 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             if axis >= 0:
                 trip(s, Trip.FORCE_SENSOR, axis)
                 return
+
+
+@njit_inline
+def side_allowance(
+    J: NDArray[np.float64],
+    r: NDArray[np.float64],
+    accel: NDArray[np.float64],
+    mass: float,
+    q: supervision.SupervisionParams,
+) -> float:
+    """The largest sideways force (N) the platform's inertial model may leave in the legs'
+    residual as the plate turns at ``accel[3:]`` (dw/dt, base frame) about the task origin:
+    a plate ``side_mass_tol`` heavier or lighter than ``mass`` (its centre of mass at ``r``
+    from the origin, base frame), that centre ``side_com_tol`` off, and each piston
+    ``side_leg_mass_tol`` off (rows of ``J``: each leg's unit vector and moment arm), for
+    the part of the angular acceleration above ``side_turn_floor``. Only the turning
+    counts: a foot swings the plate fast about the ankle, but the translations the loop
+    holds move it at their commanded pace, and a sideways sensor offset's phantom push,
+    which this check is for, moves it sideways."""
+    a0, a1, a2 = accel[3], accel[4], accel[5]
+    turn = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if turn <= q.side_turn_floor:
+        return 0.0
+    # Only what stands out of the measured acceleration's noise.
+    share = 1.0 - q.side_turn_floor / turn
+    a0, a1, a2 = share * a0, share * a1, share * a2
+    turn -= q.side_turn_floor
+    ax = a1 * r[2] - a2 * r[1]
+    ay = a2 * r[0] - a0 * r[2]
+    out = q.side_mass_tol * math.sqrt(ax * ax + ay * ay)
+    out += (mass + q.side_mass_tol) * q.side_com_tol * turn
+    for i in range(6):
+        along = J[i, 3] * a0 + J[i, 4] * a1 + J[i, 5] * a2
+        out += q.side_leg_mass_tol * abs(along) * math.sqrt(J[i, 0] ** 2 + J[i, 1] ** 2)
+    return out
 
 
 @njit_inline

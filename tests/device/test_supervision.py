@@ -738,6 +738,20 @@ def test_a_smaller_sideways_force_sensor_offset_is_caught_too() -> None:
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
 
 
+def test_a_15_newton_sideways_offset_at_home_is_caught_through_the_inertia_allowance(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The allowance for the platform's inertial model grows with the measured angular
+    acceleration, and at rest that is noise (up to about 19 rad/s2): with no floor under it
+    the allowance stood at 1-3 N, and 15 N on Fx at home, caught in 254-278 ms otherwise,
+    was not caught within a second."""
+    for newtons in (-15.0, 15.0):
+        monkeypatch.setitem(safety.FAULTS, FaultKind.FT_OFFSET, (0, newtons))
+        run = safety.run_fault(FaultKind.FT_OFFSET, "holding", channel=0, after=1.0)
+        assert run.detected and run.trip == Trip.FORCE_SENSOR.name, (newtons, run)
+        assert run.channel == 0 and run.detect_ms <= 500.0, (newtons, run)
+
+
 def test_a_sideways_force_sensor_offset_moves_a_held_platform_at_most_3_mm() -> None:
     for seed in (1, 2, 3, 4):
         for channel in (0, 1):
@@ -792,7 +806,13 @@ def test_a_foot_that_kicks_is_no_force_sensor_fault() -> None:
 
 @pytest.mark.parametrize(
     ("draw", "axis", "k", "b", "sine"),
-    [(1, 3, 10.0, 1.5, True), (2, 4, 20.0, 1.0, True), (27, 4, 5.0, 2.0, False)],
+    [
+        (1, 3, 10.0, 1.5, True),
+        (2, 4, 20.0, 1.0, True),
+        (27, 4, 5.0, 2.0, False),
+        (27, 3, 10.0, 1.5, True),
+        (27, 4, 50.0, 1.0, False),
+    ],
 )
 def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     draw: int, axis: int, k: float, b: float, sine: bool
@@ -801,9 +821,12 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     balance and the wrench cross-check took each leg's share of the platform's inertial
     force out, these tripped: drawn build 1, roll at K 10, an 8 N m sine at 3 Hz:
     FORCE_SENSOR (roll); build 2, pitch at K 20, the same sine: FORCE_SENSOR (pitch); build
-    27, pitch at K 5, a torque ramp of -300 N m/s to 15 N m: FORCE_BALANCE on leg 2. A
-    limit of the range of motion or of the legs' speed may stop such a kick; a sensor's
-    cross-check must not."""
+    27, pitch at K 5, a torque ramp of -300 N m/s to 15 N m: FORCE_BALANCE on leg 2. Build
+    27's plate weighs 3.39 kg against the model's 2.5: the same kicks in roll (the sine) and
+    pitch (the ramp, K 50) then read 18.1-18.6 N sideways, FORCE_SENSOR naming x or y,
+    until the sideways limit allowed for the inertial model's errors as the plate turns
+    (``side_mass_uncertainty``). A limit of the range of motion or of the legs' speed may
+    stop such a kick; a sensor's cross-check must not."""
     from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 
     rig = safety._drawn_rig("relaxed", draw)
@@ -821,20 +844,6 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
         hw.script_torque(axis, SCRIPT_RAMP, rig.time + 0.2, -300.0, 15.0)
     rig.run(2.0, log_hz=0)
     assert rig.trip not in (Trip.FORCE_SENSOR, Trip.FORCE_BALANCE), (rig.trip, rig.trip_channel)
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 11): on drawn build 27 (seals with 19 N s/m of viscous friction, "
-    "the top of the range, which the sideways check does not take out, and a leg sensor "
-    "0.94 ms late) a foot kicking roll or pitch reads 18.2-18.4 N sideways against the "
-    "18 N limit: FORCE_SENSOR naming x or y",
-)
-@pytest.mark.parametrize(("axis", "k", "b", "sine"), [(3, 10.0, 1.5, True), (4, 50.0, 1.0, False)])
-def test_a_foot_that_kicks_drawn_build_27_is_no_sideways_force_sensor_fault(
-    axis: int, k: float, b: float, sine: bool
-) -> None:
-    test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(27, axis, k, b, sine)
 
 
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:
