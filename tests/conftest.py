@@ -1,6 +1,8 @@
 """Shared test settings, and the store fixtures every directory that serves the API uses
 (SQLite by default, PostgreSQL too for tests marked ``both_stores``)."""
 
+import ast
+import functools
 import os
 import shutil
 import subprocess
@@ -42,15 +44,40 @@ own (kinematics, the pose check) in seconds. All other tests wait for the compil
 the exceptions in :data:`NEEDS_LOOP`."""
 
 NEEDS_LOOP = ("station/test_patient_page.py",)
-"""Files in :data:`NEEDS_NO_LOOP`'s folders that start a device service."""
+"""Files in :data:`NEEDS_NO_LOOP`'s folders that start a device service, besides those that
+import one of :data:`LOOP_MODULES` (found by :func:`_imports_loop`)."""
+
+LOOP_MODULES = (
+    *("device.controller", "device.hardware", "device.process", "device.rig"),
+    *("device.service", "device.tickloop", "tests.device.service_thread"),
+)
+"""Modules that run (or start a service that runs) the compiled loop. A file in
+:data:`NEEDS_NO_LOOP`'s folders that imports one waits for the compile like the rest: cold,
+``station/test_stop.py`` (a service in a thread) compiled the loop itself beside the
+background compile, and took one of three workers for 500 s."""
 
 _WARM_ENV = "ANKLE_TEST_WARM_DIR"
 _warm: subprocess.Popen[bytes] | None = None
 
 
+@functools.cache
+def _imports_loop(path: Path) -> bool:
+    """Whether the test file ``path`` imports one of :data:`LOOP_MODULES` (or from them)."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module is not None:
+            names = [node.module, *(f"{node.module}.{alias.name}" for alias in node.names)]
+        else:
+            continue
+        if any(n == m or n.startswith(m + ".") for n in names for m in LOOP_MODULES):
+            return True
+    return False
+
+
 def _needs_loop(path: Path) -> bool:
     name = path.resolve().relative_to(Path(__file__).resolve().parent).as_posix()
-    return name in NEEDS_LOOP or not name.startswith(NEEDS_NO_LOOP)
+    return name in NEEDS_LOOP or not name.startswith(NEEDS_NO_LOOP) or _imports_loop(path)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -82,7 +82,14 @@ def test_the_service_acts_on_no_damaged_frame_and_the_client_recovers(
                 await asyncio.sleep(0.02)
             # Every command landed exactly once and in order: the last K is the one in force.
             assert service.rig.state.stiffness_target[4] == ks[-1]
-            assert service.mode == DeviceMode.ACTIVE
+            # This process may stall past the device's watchdog on a busy machine (the host
+            # sends nothing meanwhile): the device then holds, as it must. Nothing else may
+            # have stopped the exercise.
+            if service.mode == DeviceMode.HOLD:
+                kinds = [e.kind for e in list(service.events)]
+                assert m.EventKind.WATCHDOG in kinds, list(service.events)[-3:]
+            else:
+                assert service.mode == DeviceMode.ACTIVE, service.mode
             assert service.commands_refused == 0  # no damaged frame was ever decoded
             assert service.decoder.stats.dropped > 0 and dev.decoder.stats.dropped > 0
             assert dev.stats.retries > 0
