@@ -387,9 +387,14 @@ def _bench(args: argparse.Namespace) -> int:
         )
         return 0
     if args.bench == "link":
+        from device.client import DeviceError
         from lab import linkbench
 
-        lresult = linkbench.run(args.seconds, args.watchdog_runs)
+        try:
+            lresult = linkbench.run(args.seconds, args.watchdog_runs)
+        except (RuntimeError, DeviceError) as exc:  # no valid measurement: say why, in one line
+            print(f"ankle bench link: {exc}", file=sys.stderr)
+            return 1
         print(json.dumps(_jsonable(lresult), indent=2) if args.json else linkbench.table(lresult))
         return 0
     from lab import controlbench

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from device.client import CommandRefused, DeviceClient, build_segment
+from device.client import CommandRefused, DeviceClient, DeviceError, build_segment
 from device.commands import SEGMENT_DURATION_MAX
 from device.console import DEMO_PITCH
 from device.process import ServiceProcess
@@ -66,6 +66,12 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("watchdog_hold_ms_p50", "last frame to HOLD, median (ms)"),
     ("watchdog_device_ms_max", "device's own measure, worst (ms)"),
 )
+
+
+SILENCE_S = 10.0
+"""Longest wait (s) for a telemetry sample before the benchmark gives up, naming what it saw
+(the device sends 250 a second): once, in a test run on a busy machine, the benchmark waited
+on the stream until its 300 s timeout killed it, with nothing to say why."""
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -113,7 +119,22 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
         changer = asyncio.create_task(change_k())
         cpu0, t0 = service.cpu_seconds(), time.perf_counter()
         received = 0.0
-        async for sample in dev.telemetry(maxsize=100000):
+        stream = dev.telemetry(maxsize=100000)
+        while True:
+            try:
+                sample = await asyncio.wait_for(anext(stream), SILENCE_S)
+            except (StopAsyncIteration, TimeoutError) as exc:
+                changer.cancel()
+                with contextlib.suppress(asyncio.CancelledError, DeviceError):
+                    await changer
+                if isinstance(exc, StopAsyncIteration):
+                    why = dev.link_error
+                    raise RuntimeError(f"the link closed during the benchmark ({why})") from None
+                mode = dev.latest.mode.name if dev.latest is not None else "unknown"
+                raise RuntimeError(
+                    f"no telemetry from the device for {SILENCE_S:g} s (its last sample said "
+                    f"{mode}); the link is still open"
+                ) from None
             now = time.perf_counter()
             if overruns0 is None:
                 overruns0 = sample.overruns
