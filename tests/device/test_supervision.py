@@ -846,6 +846,43 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     assert rig.trip not in (Trip.FORCE_SENSOR, Trip.FORCE_BALANCE), (rig.trip, rig.trip_channel)
 
 
+def test_the_inertia_allowance_counts_only_turning_above_the_noise_floor() -> None:
+    """``side_allowance`` by itself, at the platform's home pose: nothing for a translation
+    however hard, nor for a turn within the noise floor; above it, what the model's errors
+    would leave, growing with the angular acceleration beyond the floor and never more than
+    the three errors' sum at that acceleration."""
+    from device.kinematics import Kinematics, leg_vectors, twist_jacobian
+
+    rig = Rig(SimulatedHardware())
+    p, q = rig.params, rig.params.sup
+    pose = Kinematics(rig.geometry).forward(
+        rig.geometry.min_length + np.full(6, 0.5 * rig.geometry.stroke)
+    )
+    L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
+    leg_vectors(pose, p.base, p.plat, L, U, A)
+    twist_jacobian(U, A, J)
+    r = p.body_com.copy()
+
+    def allowance(accel: list[float]) -> float:
+        return float(ctl.side_allowance(J, r, np.array(accel), p.body_mass, q))
+
+    assert allowance([50.0, -50.0, 80.0, 0.0, 0.0, 0.0]) == 0.0  # translation only
+    assert allowance([0.0, 0.0, 0.0, 0.9 * q.side_turn_floor, 0.0, 0.0]) == 0.0
+    above = [allowance([0.0, 0.0, 0.0, 0.0, q.side_turn_floor + d, 0.0]) for d in (10, 100, 200)]
+    assert 0.0 < above[0] < above[1] < above[2]
+    assert above[2] == pytest.approx(2.0 * above[1], rel=1e-9)  # linear beyond the floor
+    # A pitch acceleration of 200 rad/s2 beyond the floor: the plate's mass error at its
+    # centre of mass, the centre's error and each piston's, at most.
+    arm = float(np.hypot(r[0], r[2]))
+    legs = sum(abs(J[i, 4]) * math.hypot(J[i, 0], J[i, 1]) for i in range(6))
+    bound = 200.0 * (
+        q.side_mass_tol * arm
+        + (p.body_mass + q.side_mass_tol) * q.side_com_tol
+        + q.side_leg_mass_tol * legs
+    )
+    assert above[2] == pytest.approx(bound, rel=1e-9)
+
+
 def test_the_following_check_waits_for_the_platform_to_be_on_command_and_for_the_air() -> None:
     """The rule by itself: nothing counts until the platform has been within the bound for
     FOLLOW_ARM_PERIODS (a resumed segment starts wherever the hold left it, a stepping leg
