@@ -451,9 +451,10 @@ class SupervisionConfig:
     """How far (kg) the platform's true mass may be from the model the sideways check takes
     its inertial force out with (``ControllerConfig.platform_mass``, 2.5 kg): a build with a
     heavier plate or straps weighs up to 3.5 kg (docs/plant.md). The check's limit grows by
-    this times the measured sideways acceleration of the platform's centre of mass, so a
-    foot that swings a heavy plate fast is not taken for a sensor fault, while a sensor
-    offset, which appears before the plate moves, meets the limit as it is. Measured: drawn
+    this times the sideways acceleration the plate's measured turning gives its centre of
+    mass (``controller.side_allowance``; translations do not count), so a foot that swings
+    a heavy plate fast is not taken for a sensor fault, while a sensor offset, which
+    appears before the plate moves, meets the limit as it is. Measured: drawn
     build 27 (3.39 kg, its centre of mass 12 mm lower than the model's) kicked in roll or
     pitch read 18.1-18.6 N sideways against the 18 N limit; 10.1 N with its plate set to
     2.5 kg and nothing else changed."""

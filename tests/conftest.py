@@ -41,11 +41,7 @@ NEEDS_NO_LOOP = (
 """Test files and folders (under tests/) that never run the device's compiled loop, in process
 or in a service they start: they run while it compiles. Some compile small helpers of their
 own (kinematics, the pose check) in seconds. All other tests wait for the compile, and so do
-the exceptions in :data:`NEEDS_LOOP`."""
-
-NEEDS_LOOP = ("station/test_patient_page.py",)
-"""Files in :data:`NEEDS_NO_LOOP`'s folders that start a device service, besides those that
-import one of :data:`LOOP_MODULES` (found by :func:`_imports_loop`)."""
+the files here that import one of :data:`LOOP_MODULES`."""
 
 LOOP_MODULES = (
     *("device.controller", "device.hardware", "device.process", "device.rig"),
@@ -77,7 +73,7 @@ def _imports_loop(path: Path) -> bool:
 
 def _needs_loop(path: Path) -> bool:
     name = path.resolve().relative_to(Path(__file__).resolve().parent).as_posix()
-    return name in NEEDS_LOOP or not name.startswith(NEEDS_NO_LOOP) or _imports_loop(path)
+    return not name.startswith(NEEDS_NO_LOOP) or _imports_loop(path)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
