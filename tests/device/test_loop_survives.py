@@ -24,7 +24,7 @@ from device.plant.params import PlantConfig
 from device.protocol import messages as m
 from device.protocol.messages import DeviceMode, EventKind, NackCode
 from device.rig import Rig
-from device.service import DeviceService, ServiceConfig
+from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
 from device.transport import PtyLink
 from device.trips import Trip
 from tests.device.test_service import PITCH
@@ -101,7 +101,11 @@ def running(request: pytest.FixtureRequest) -> Iterator[Running]:
         if stage == "sensors"
         else SimulatedHardware(PlantConfig(patient="relaxed"), seed=5)
     )
-    service = DeviceService(Rig(hardware), link, ServiceConfig(telemetry_hz=100))
+    # The longest watchdog the device allows: this test is about errors inside a pass, and
+    # a host stall on a machine shared with other tests must not stop the homing it waits for.
+    service = DeviceService(
+        Rig(hardware), link, ServiceConfig(telemetry_hz=100, watchdog_ms=WATCHDOG_MS_MAX)
+    )
     if stage == "modes":
         step = service.modes.step
 
@@ -167,7 +171,7 @@ def test_an_error_in_any_stage_latches_fault_and_the_service_goes_on(running: Ru
             assert not service.rig.state.valves.any()
 
             # Still serving: commands are answered and telemetry keeps coming.
-            await dev.configure(50, 200)
+            await dev.configure(50, WATCHDOG_MS_MAX)
             before = dev.stats.frames
             await asyncio.sleep(0.3)
             assert dev.stats.frames > before + 5

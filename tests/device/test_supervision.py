@@ -568,13 +568,15 @@ def test_through_the_service_a_fault_event_names_the_part_and_low_air_holds() ->
     from device.protocol import messages as m
     from device.protocol.messages import DeviceMode, EventKind, NackCode
     from device.rig import Rig
-    from device.service import DeviceService, ServiceConfig
+    from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
     from device.transport import PtyLink
     from tests.device.test_service import PITCH
 
     hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=4)
     link = PtyLink()
-    service = DeviceService(Rig(hardware), link, ServiceConfig())
+    # The longest watchdog the device allows: a host stall on a machine shared with other
+    # tests must neither stop the homing nor pass for the supply's hold.
+    service = DeviceService(Rig(hardware), link, ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX))
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
 
