@@ -2,6 +2,7 @@
 
 import csv
 import json
+import os
 import re
 import subprocess
 import sys
@@ -79,6 +80,26 @@ def test_step_prints_metrics_json_and_writes_csv_and_plot(tmp_path: Path) -> Non
     assert rows[0][:2] == ["t_s", "displacement_mm"]
     assert abs(float(rows[-1][1]) - 5.0) < 0.5
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_output_into_a_pipe_nobody_reads_ends_without_a_traceback() -> None:
+    """As ``ankle sim params | head -1`` once ``head`` has gone: the pipe is closed before
+    the command writes at all, so its first write fails."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        r = subprocess.run(
+            [*ANKLE, "sim", "params"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+    assert r.returncode == 1
+    assert "Traceback" not in r.stderr and "BrokenPipe" not in r.stderr, r.stderr
 
 
 def test_a_fault_injected_into_an_experiment_trips_it_and_is_reported() -> None:
