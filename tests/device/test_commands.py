@@ -29,7 +29,7 @@ from device.plant.params import PlantConfig
 from device.protocol import messages as m
 from device.protocol.messages import DeviceMode, EventKind, NackCode
 from device.rig import Rig
-from device.service import DeviceService, ServiceConfig
+from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
 from device.transport import PtyLink
 from device.trips import Trip
 from device.waveforms import Waveform
@@ -153,7 +153,9 @@ def test_modes_are_part_of_the_check() -> None:
 def service() -> Iterator[DeviceService]:
     link = PtyLink()
     svc = DeviceService(
-        Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=11)), link, ServiceConfig()
+        Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=11)),
+        link,
+        ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX),  # a host stall is not what these test
     )
     thread = threading.Thread(target=svc.run, daemon=True)
     thread.start()
