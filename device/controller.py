@@ -1680,7 +1680,7 @@ def leg_inertia(
             out[a, b] = H[a, b]
 
 
-@njit  # not inlined: numba compiled it twice (standalone, then its copied IR in run_sim)
+@njit_inline
 def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     """Run this tick's tasks; ``sensors`` must be fresh when the read-sensors task is due."""
     tick = s.istate[I_TICK]
