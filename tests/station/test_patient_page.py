@@ -28,7 +28,7 @@ from websockets.typing import Origin
 from device.hardware import SimulatedHardware
 from device.plant.model import SCRIPT_SINE
 from device.plant.params import PlantConfig
-from device.service import ServiceConfig
+from device.service import WATCHDOG_MS_MAX, ServiceConfig
 from device.transport import PtyLink
 from sessions import wire
 from sessions.prescription import PrescriptionBody
@@ -68,7 +68,10 @@ def device() -> Iterator[PtyLink]:
     """The simulated device in a thread; the patient's foot pushes in pitch, 4 N·m, 0.5 Hz."""
     hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=9)
     hardware.script_torque(4, SCRIPT_SINE, 0.0, PATIENT_TORQUE_NM, PATIENT_HZ)
-    with service_in_thread(hardware, ServiceConfig(telemetry_hz=100, watchdog_ms=400)) as link:
+    # The longest watchdog the device allows: the test shares its process, and its machine,
+    # with the device; a stall there is not what it tests.
+    config = ServiceConfig(telemetry_hz=100, watchdog_ms=WATCHDOG_MS_MAX)
+    with service_in_thread(hardware, config) as link:
         yield link
 
 
