@@ -88,6 +88,11 @@ def njit_inline(fn: F) -> F:
     A helper run every tick that branches should take the arrays it uses, not the tuples.
     The simulated loop (``device.tickloop.run_sim``) works on :data:`unowned` views of its
     state, where nothing is counted at all.
+
+    It costs compile time: numba compiles such a function by itself to type its call, then
+    copies its IR into each caller. ``controller_tick`` called plainly from ``run_sim``
+    took a cold compile from 153 s to 108 s, and the loop from 68 to 51 simulated seconds
+    per CPU second (best of 30 windows): kept inlined.
     """
     return cast(F, numba.njit(cache=True, nogil=True, inline="always")(fn))
 
