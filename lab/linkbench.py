@@ -74,6 +74,23 @@ SILENCE_S = 10.0
 on the stream until its 300 s timeout killed it, with nothing to say why."""
 
 
+HOLD_WAIT_S = 5.0
+"""Longest wait (s) for the device's watchdog hold once the host has gone silent (it holds
+after 200 ms)."""
+
+
+def _no_hold(dev: DeviceClient, run: int) -> str:
+    """One line on a watchdog run that saw no hold: what the device last said."""
+    mode = dev.latest.mode.name if dev.latest is not None else "unknown"
+    last = dev.last_event
+    event = f"#{last.event_id} {last.kind.name} ({last.text})" if last is not None else "none"
+    return (
+        f"watchdog run {run}: no WATCHDOG event within {HOLD_WAIT_S:g} s of the host's last "
+        f"frame (the device's last sample said {mode}; its last event {event}; "
+        f"{dev.stats.frames_lost} frames lost, {dev.stats.stalls} host stalls)"
+    )
+
+
 def _pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else math.nan
 
@@ -172,7 +189,10 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
             sent = time.perf_counter()
             await dev.command(msg.Heartbeat())  # the last valid frame
             while True:
-                event = await asyncio.wait_for(anext(events), timeout=5.0)
+                try:
+                    event = await asyncio.wait_for(anext(events), timeout=HOLD_WAIT_S)
+                except TimeoutError:
+                    raise RuntimeError(_no_hold(dev, len(holds) + 1)) from None
                 if event.kind == EventKind.WATCHDOG:
                     break
             holds.append((time.perf_counter() - sent) * 1e3)
