@@ -79,9 +79,13 @@ HOLD_WAIT_S = 5.0
 after 200 ms)."""
 
 
+def _last_mode(dev: DeviceClient) -> str:
+    return dev.latest.mode.name if dev.latest is not None else "unknown"
+
+
 def _no_hold(dev: DeviceClient, run: int) -> str:
     """One line on a watchdog run that saw no hold: what the device last said."""
-    mode = dev.latest.mode.name if dev.latest is not None else "unknown"
+    mode = _last_mode(dev)
     last = dev.last_event
     event = f"#{last.event_id} {last.kind.name} ({last.text})" if last is not None else "none"
     return (
@@ -147,10 +151,9 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
                 if isinstance(exc, StopAsyncIteration):
                     why = dev.link_error
                     raise RuntimeError(f"the link closed during the benchmark ({why})") from None
-                mode = dev.latest.mode.name if dev.latest is not None else "unknown"
                 raise RuntimeError(
                     f"no telemetry from the device for {SILENCE_S:g} s (its last sample said "
-                    f"{mode}); the link is still open"
+                    f"{_last_mode(dev)}); the link is still open"
                 ) from None
             now = time.perf_counter()
             if overruns0 is None:

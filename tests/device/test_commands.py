@@ -155,7 +155,7 @@ def service() -> Iterator[DeviceService]:
     svc = DeviceService(
         Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=11)),
         link,
-        ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX),  # a host stall is not what these test
+        ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX),  # host stalls are not what these check
     )
     thread = threading.Thread(target=svc.run, daemon=True)
     thread.start()
