@@ -25,9 +25,9 @@ import itertools
 import logging
 import random
 import time
-from collections.abc import AsyncGenerator
 from dataclasses import dataclass, field
 from types import TracebackType
+from typing import Generic, TypeVar
 
 from device.axes import AXES
 from device.protocol import messages as msg
@@ -43,6 +43,7 @@ STALL_S = 0.1
 """A heartbeat's wait (its period's sleep, or its ACK's) this much past its bound is a stall
 of this host: half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
 log = logging.getLogger("ankle.host")
+T = TypeVar("T")
 
 
 class DeviceError(Exception):
@@ -88,6 +89,41 @@ class ClientStats:
     """(Unix time when it ended, its length in ms) of the newest."""
 
 
+class Subscription(Generic[T]):
+    """An async iterator over what the device sends from its creation on; it ends when the
+    link closes. :meth:`aclose` (or dropping it) stops the delivery."""
+
+    def __init__(self, subs: list[asyncio.Queue[T | None]], maxsize: int, ended: bool) -> None:
+        self._subs = subs
+        self._q: asyncio.Queue[T | None] = asyncio.Queue(maxsize)
+        self._done = ended
+        if not ended:
+            subs.append(self._q)
+
+    def __aiter__(self) -> Subscription[T]:
+        return self
+
+    async def __anext__(self) -> T:
+        if self._done:
+            raise StopAsyncIteration
+        item = await self._q.get()
+        if item is None:
+            self._unsubscribe()
+            raise StopAsyncIteration
+        return item
+
+    async def aclose(self) -> None:
+        self._unsubscribe()
+
+    def _unsubscribe(self) -> None:
+        self._done = True
+        with contextlib.suppress(ValueError):
+            self._subs.remove(self._q)
+
+    def __del__(self) -> None:
+        self._unsubscribe()
+
+
 class DeviceClient:
     """An open, handshaken link to one device."""
 
@@ -123,6 +159,9 @@ class DeviceClient:
         self._hello: asyncio.Future[msg.DeviceHello] | None = None
         self._telemetry_subs: list[asyncio.Queue[msg.Telemetry | None]] = []
         self._event_subs: list[asyncio.Queue[msg.Event | None]] = []
+        # Subscriptions start when asked for, not at their first read: a hold that came
+        # between the two was lost to a caller that asked for events, then stopped the
+        # heartbeats and waited.
         self._last_rx_seq: int | None = None
         self._last_event_id = 0
         self._replay_asked = 0
@@ -165,7 +204,8 @@ class DeviceClient:
             self._write(hello, next(self._seq))
             try:
                 remaining = max(0.0, min(0.25, deadline - loop.time()))
-                self.hello = await asyncio.wait_for(asyncio.shield(self._hello), remaining)
+                async with asyncio.timeout(remaining):
+                    self.hello = await asyncio.shield(self._hello)
                 return self.hello
             except TimeoutError:
                 if loop.time() >= deadline:
@@ -181,7 +221,8 @@ class DeviceClient:
         self._writer.close()
         try:
             # Bounded: a port whose far end stopped reading never flushes what is queued.
-            await asyncio.wait_for(self._writer.wait_closed(), CLOSE_TIMEOUT)
+            async with asyncio.timeout(CLOSE_TIMEOUT):
+                await self._writer.wait_closed()
         except TimeoutError:
             self._writer.transport.abort()
         except Exception:
@@ -223,7 +264,10 @@ class DeviceClient:
                     self.stats.retries += 1
                 self._writer.write(frame)
                 try:
-                    reply = await asyncio.wait_for(asyncio.shield(fut), timeout)
+                    # Not wait_for: on Python 3.11 it drops a cancellation that arrives as
+                    # the ACK does, and a task that sends commands in a loop never stops.
+                    async with asyncio.timeout(timeout):
+                        reply = await asyncio.shield(fut)
                     break
                 except TimeoutError:
                     continue
@@ -271,29 +315,13 @@ class DeviceClient:
         return await self.command(msg.Release())
 
     # -- streams -------------------------------------------------------------------------
-    async def telemetry(self, maxsize: int = 1024) -> AsyncGenerator[msg.Telemetry, None]:
-        """Every telemetry sample from now on (oldest dropped if the consumer lags)."""
-        if self._closed.is_set():
-            return  # nothing more will arrive
-        q: asyncio.Queue[msg.Telemetry | None] = asyncio.Queue(maxsize)
-        self._telemetry_subs.append(q)
-        try:
-            while (item := await q.get()) is not None:
-                yield item
-        finally:
-            self._telemetry_subs.remove(q)
+    def telemetry(self, maxsize: int = 1024) -> Subscription[msg.Telemetry]:
+        """Every telemetry sample from this call on (oldest dropped if the consumer lags)."""
+        return Subscription(self._telemetry_subs, maxsize, self._closed.is_set())
 
-    async def events(self) -> AsyncGenerator[msg.Event, None]:
-        """Every event from now on, each once, in id order as received."""
-        if self._closed.is_set():
-            return
-        q: asyncio.Queue[msg.Event | None] = asyncio.Queue()
-        self._event_subs.append(q)
-        try:
-            while (item := await q.get()) is not None:
-                yield item
-        finally:
-            self._event_subs.remove(q)
+    def events(self) -> Subscription[msg.Event]:
+        """Every event from this call on, each once, in id order as received."""
+        return Subscription(self._event_subs, 0, self._closed.is_set())
 
     async def wait_for_mode(self, *modes: DeviceMode, timeout: float = 5.0) -> msg.Telemetry:
         """The first telemetry sample in one of ``modes``; :class:`LinkTimeout` otherwise.
@@ -302,8 +330,8 @@ class DeviceClient:
         if latest is not None and latest.mode in modes and self.mode == latest.mode:
             return latest
         try:
-            async with asyncio.timeout(timeout):
-                async for sample in self.telemetry():
+            async with asyncio.timeout(timeout), contextlib.aclosing(self.telemetry()) as stream:
+                async for sample in stream:
                     if sample.mode in modes:
                         return sample
         except TimeoutError:

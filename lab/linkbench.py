@@ -118,9 +118,11 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
         rtts: list[float] = []
         refused: list[str] = []
 
+        changing = True  # a stop the task reads itself, as well as the cancel that wakes it
+
         async def change_k() -> None:
             k = 30.0
-            while True:
+            while changing:
                 await asyncio.sleep(0.05)
                 k = 40.0 if k == 30.0 else 30.0
                 start = time.perf_counter()
@@ -143,8 +145,10 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
         stream = dev.telemetry(maxsize=100000)
         while True:
             try:
-                sample = await asyncio.wait_for(anext(stream), SILENCE_S)
+                async with asyncio.timeout(SILENCE_S):
+                    sample = await anext(stream)
             except (StopAsyncIteration, TimeoutError) as exc:
+                changing = False
                 changer.cancel()
                 with contextlib.suppress(asyncio.CancelledError, DeviceError):
                     await changer
@@ -170,6 +174,7 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
                 break
         wall = time.perf_counter() - t0
         cpu = service.cpu_seconds() - cpu0
+        changing = False
         changer.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await changer
@@ -191,13 +196,12 @@ async def _measure(service: ServiceProcess, seconds: float, watchdog_runs: int) 
             await asyncio.sleep(dev.heartbeat_period * 2)  # let a heartbeat in flight land
             sent = time.perf_counter()
             await dev.command(msg.Heartbeat())  # the last valid frame
-            while True:
-                try:
-                    event = await asyncio.wait_for(anext(events), timeout=HOLD_WAIT_S)
-                except TimeoutError:
-                    raise RuntimeError(_no_hold(dev, len(holds) + 1)) from None
-                if event.kind == EventKind.WATCHDOG:
-                    break
+            try:
+                async with asyncio.timeout(HOLD_WAIT_S):  # for the hold, whatever else comes
+                    while (event := await anext(events)).kind != EventKind.WATCHDOG:
+                        pass
+            except (TimeoutError, StopAsyncIteration):
+                raise RuntimeError(_no_hold(dev, len(holds) + 1)) from None
             holds.append((time.perf_counter() - sent) * 1e3)
             device_ms.append(event.value)
             dev.heartbeats = True

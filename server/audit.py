@@ -121,7 +121,8 @@ class AuditWriter:
         task = self._task
         if task is not None and not task.done():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._queue.join(), flush_s)
+                async with asyncio.timeout(flush_s):
+                    await self._queue.join()
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task

@@ -102,7 +102,8 @@ class RedisRelay(Relay):
 
     async def close(self) -> None:
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._out.join(), 2.0)
+            async with asyncio.timeout(2.0):
+                await self._out.join()
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, *self._handling, return_exceptions=True)

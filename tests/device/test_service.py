@@ -462,3 +462,77 @@ def test_a_host_that_stands_still_counts_the_stall_and_says_so(
     # Blocked 400 ms in the sleep (bound 50 ms) or in the ACK's wait (bound 50 ms).
     assert 340.0 <= stats.stall_ms_max <= 1000.0, stats
     assert any("this computer stood still for" in r.getMessage() for r in caplog.records)
+
+
+def test_a_subscription_gets_what_the_device_sent_before_its_first_read(
+    device: Running,
+) -> None:
+    """Events and telemetry are delivered from the moment they are asked for: a caller that
+    asks for events, stops the heartbeats and only then waits must hear of the hold, however
+    late its first read (a benchmark on a busy machine read after the hold, and waited for
+    an event it had missed)."""
+
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await dev.configure(100, 200)
+        await start(dev)
+        events = dev.events()
+        samples = dev.telemetry()
+        dev.heartbeats = False
+        async with asyncio.timeout(5.0):
+            while device.service.mode != DeviceMode.HOLD:  # read nothing meanwhile
+                await asyncio.sleep(0.01)
+            await asyncio.sleep(0.1)  # the event is on its way to this client, or in
+            while (e := await anext(events)).kind != EventKind.WATCHDOG:
+                pass
+            first = await anext(samples)
+        assert e.mode_from == DeviceMode.ACTIVE and e.mode_to == DeviceMode.HOLD
+        assert first.mode == DeviceMode.ACTIVE  # sent before the hold, read after it
+        await events.aclose()
+        await samples.aclose()
+        assert not dev._event_subs and not dev._telemetry_subs  # closed: delivered no more
+        dev.heartbeats = True
+
+    drive(device, body)
+
+
+@pytest.mark.parametrize("passes", [0, 1, 2, 3])
+def test_a_task_that_commands_in_a_loop_stops_when_cancelled_as_an_ack_arrives(
+    device: Running, passes: int
+) -> None:
+    """A cancel that lands in the same turn of the event loop as a command's ACK stops the
+    task: on Python 3.11 ``asyncio.wait_for`` dropped it, and a benchmark waiting for its
+    K-changing task to end waited until its test's timeout killed it. The race is made
+    exact here: the cancel is scheduled ``passes`` turns of the loop after the ACK lands."""
+
+    async def body(dev: DeviceClient) -> None:
+        dev.heartbeats = False  # only the task's commands (the watchdog is 2 s here)
+        loop = asyncio.get_running_loop()
+        sent = 0
+
+        async def commands() -> None:
+            nonlocal sent
+            while True:
+                await dev.command(m.Heartbeat())
+                sent += 1
+
+        for _ in range(20):
+            task = asyncio.create_task(commands())
+            async with asyncio.timeout(5.0):
+                while not dev._pending:
+                    await asyncio.sleep(0)
+            ack = next(iter(dev._pending.values()))
+
+            def cancel_later(_: object, n: int = passes, t: asyncio.Task[None] = task) -> None:
+                if n == 0:
+                    t.cancel()
+                else:
+                    loop.call_soon(cancel_later, None, n - 1, t)
+
+            ack.add_done_callback(cancel_later)
+            done, _ = await asyncio.wait({task}, timeout=5.0)
+            assert task in done, "the cancelled task went on sending commands"
+            assert task.cancelled()
+        dev.heartbeats = True
+
+    drive(device, body)
