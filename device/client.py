@@ -44,6 +44,8 @@ STALL_S = 0.1
 of this host: half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
 log = logging.getLogger("ankle.host")
 T = TypeVar("T")
+EARLY_MAX = 1024
+"""Events held back past a gap at most (the device keeps its latest 64 for replay)."""
 
 
 class DeviceError(Exception):
@@ -76,6 +78,9 @@ class ClientStats:
     frames: int = 0
     frames_lost: int = 0
     """Gaps in the device's frame sequence numbers."""
+    events_lost: int = 0
+    """Events the device no longer keeps when this host asked for them again (a host that
+    connected after more events than the device keeps, or was away that long)."""
     undecodable: int = 0
     retries: int = 0
     rtt_ms: list[float] = field(default_factory=list)
@@ -164,8 +169,12 @@ class DeviceClient:
         # heartbeats and waited.
         self._last_rx_seq: int | None = None
         self._last_event_id = 0
+        self._early: dict[int, msg.Event] = {}
+        """Events received past a gap, until the gap is filled or known to be for good."""
         self._replay_asked = 0
         self._replay_at = 0.0
+        self._replay_seq: int | None = None
+        self._replay_lost = 0
         self._closed = asyncio.Event()
         self.link_error: str | None = None
         """Why nothing more arrives, once the link has closed or failed."""
@@ -448,31 +457,61 @@ class DeviceClient:
             if message.last_event_id > self._last_event_id:
                 self._ask_replay(message.last_event_id)
         elif isinstance(message, msg.Ack | msg.Nack):
+            if message.ack_seq == self._replay_seq:
+                self._replay_answered(isinstance(message, msg.Ack))
+                return
             fut = self._pending.get(message.ack_seq)
             if fut is not None and not fut.done():
                 if isinstance(message, msg.Ack):
                     self.mode = message.mode
                 fut.set_result(message)
         elif isinstance(message, msg.Event):
-            if message.event_id <= self._last_event_id:
+            if message.event_id <= self._last_event_id or message.event_id in self._early:
                 return  # already seen (a replay)
             if message.event_id > self._last_event_id + 1:
+                # Held back until the missing ones come, so that the order holds.
+                if len(self._early) < EARLY_MAX:
+                    self._early[message.event_id] = message
                 self._ask_replay(message.event_id)
-                return  # wait for the missing ones so the order holds
-            self._last_event_id = message.event_id
-            self.last_event = message
-            for eq in self._event_subs:
-                eq.put_nowait(message)
+                return
+            self._deliver(message)
         elif isinstance(message, msg.DeviceHello):
             if self._hello is not None and not self._hello.done():
                 self._hello.set_result(message)
+
+    def _deliver(self, event: msg.Event) -> None:
+        """Hand ``event`` (the next in order) to every subscriber, then those held back
+        that now follow in order."""
+        while True:
+            self._last_event_id = event.event_id
+            self.last_event = event
+            for eq in self._event_subs:
+                eq.put_nowait(event)
+            following = self._early.pop(event.event_id + 1, None)
+            if following is None:
+                return
+            event = following
 
     def _ask_replay(self, newest: int) -> None:
         now = time.perf_counter()
         if self._replay_asked >= newest and now - self._replay_at < 0.2:
             return  # asked already; ask again only if the answer got lost
         self._replay_asked, self._replay_at = newest, now
-        self._write(msg.ReplayEvents(after_id=self._last_event_id), next(self._seq) & 0xFFFF)
+        self._replay_seq = next(self._seq) & 0xFFFF
+        self._replay_lost = self.stats.frames_lost
+        self._write(msg.ReplayEvents(after_id=self._last_event_id), self._replay_seq)
+
+    def _replay_answered(self, acked: bool) -> None:
+        """The device has sent every event it keeps after the one asked from (they come
+        before its ACK, in order). A gap that remains, with no frame lost on the way, is
+        for good: the device no longer keeps those events. Count them lost and go on from
+        the oldest it sent, rather than ask again for ever and deliver nothing more."""
+        self._replay_seq = None
+        if not acked or not self._early or self.stats.frames_lost != self._replay_lost:
+            return  # asked again at the next telemetry sample that names a newer event
+        first = min(self._early)
+        self.stats.events_lost += first - self._last_event_id - 1
+        self._deliver(self._early.pop(first))
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from device.protocol.framing import Frame, encode_frame
 from device.protocol.messages import DeviceMode, EventKind, NackCode
 from device.rig import Rig
 from device.safety import SafetyLimits, Trip
-from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
+from device.service import EVENTS_KEPT, WATCHDOG_MS_MAX, DeviceService, ServiceConfig
 from device.transport import PtyLink
 
 
@@ -551,5 +551,44 @@ def test_a_task_that_commands_in_a_loop_stops_when_cancelled_as_an_ack_arrives(
             assert task in done, "the cancelled task went on sending commands"
             assert task.cancelled()
         dev.heartbeats = True
+
+    drive(device, body)
+
+
+def test_a_host_that_connects_after_more_events_than_the_device_keeps_hears_the_new_ones(
+    device: Running,
+) -> None:
+    """The device keeps its latest EVENTS_KEPT events for replay. A host that connects
+    later (a station restarted after a long session) has heard none: the ones it can no
+    longer get are counted lost, and it goes on from the oldest kept, rather than asking
+    for the missing ones again and again while holding back every event after them."""
+
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev, duration=120.0)
+        for _ in range(EVENTS_KEPT // 2 + 4):
+            await dev.hold()
+            await dev.resume()
+        assert device.service.events[0].event_id > 1  # the oldest are gone
+        await dev.close()
+        other = await DeviceClient.connect(device.link.name, command_timeout=0.3, retries=5)
+        try:
+            events = other.events()
+            await other.wait_for_mode(DeviceMode.HOLD, timeout=5.0)  # a new host: held
+            await other.resume()
+            kept = [e.event_id for e in device.service.events]  # the resume's event included
+            heard: list[m.Event] = []
+            async with asyncio.timeout(5.0):
+                while not heard or heard[-1].event_id < kept[-1]:
+                    heard.append(await anext(events))
+            ids = [e.event_id for e in heard]
+            assert heard[-1].mode_to == DeviceMode.ACTIVE  # the resume, heard
+            # Every event the device kept when this host asked, each once and in order, and
+            # the ones before them counted lost.
+            assert ids == list(range(ids[0], kept[-1] + 1))
+            assert 1 < ids[0] <= kept[0]
+            assert other.stats.events_lost == ids[0] - 1
+        finally:
+            await other.close()
 
     drive(device, body)
