@@ -323,6 +323,13 @@ class DeviceClient:
     async def release(self) -> msg.Ack:
         return await self.command(msg.Release())
 
+    @property
+    def newest_event_id(self) -> int:
+        """The newest event id this host knows the device to have: heard, held back past a
+        gap, or named by telemetry. A newer event happened after this moment."""
+        named = self.latest.last_event_id if self.latest is not None else 0
+        return max(self._last_event_id, named, max(self._early, default=0))
+
     # -- streams -------------------------------------------------------------------------
     def telemetry(self, maxsize: int = 1024) -> Subscription[msg.Telemetry]:
         """Every telemetry sample from this call on (oldest dropped if the consumer lags)."""

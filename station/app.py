@@ -189,8 +189,13 @@ class Station:
             latest = dev.latest
             lag = max(0.0, latest.time - e.time) if latest is not None else 0.0
             self.reasons.device_event(e, time.time() - lag)
-            if self.run_ is not None:
-                self.run_.device_event(e)
+            run = self.run_
+            if run is not None:
+                if not run.follows(e):
+                    # From before this session began (the device's past, replayed to a
+                    # station that has just connected): not this session's record.
+                    continue
+                run.device_event(e)
             self._event(device_event(e, time.time()))
             self._status_dirty.set()
 

@@ -107,6 +107,9 @@ class ExerciseRun:
         self._interrupted = False
         self._homing_note = ""
         self._segment_id = first_segment_id
+        self._after_event: int | None = None
+        """The device's newest event id when this run first heard from it: events up to it
+        (a replay of the device's past to a station that has just connected) are history."""
         self._segment_done = asyncio.Event()
         self._stop = asyncio.Event()
         self._resumed = asyncio.Event()
@@ -114,7 +117,13 @@ class ExerciseRun:
         self._paused = asyncio.Event()
 
     # -- from the station --------------------------------------------------------------
+    def follows(self, event: msg.Event) -> bool:
+        """``event`` happened while this run had the device (not before it began)."""
+        return self._after_event is not None and event.event_id > self._after_event
+
     def device_event(self, event: msg.Event) -> None:
+        if not self.follows(event):
+            return  # an old e-stop or end replayed must not stop this run
         if event.kind == EventKind.SEGMENT_DONE:
             self._segment_done.set()
         elif event.mode_to in STOPPED_MODES:
@@ -213,6 +222,7 @@ class ExerciseRun:
 
     async def _home(self) -> None:
         latest = await self.dev.wait_for_mode(*DeviceMode, timeout=5.0)
+        self._after_event = self.dev.newest_event_id
         mode = latest.mode if self.dev.mode is None else self.dev.mode  # an ACK is newer
         if mode in STOPPED_MODES:
             self.message = f"the device is in {mode.name}; it must be re-armed"
