@@ -28,7 +28,7 @@ from device.cli import (
     finite_float,
     ranged,
 )
-from device.commands import CommandError
+from device.commands import WATCHDOG_MS_MAX, WATCHDOG_MS_MIN, CommandError
 from device.geometry import AXES
 
 
@@ -132,6 +132,13 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     )
     p.add_argument(
         "--watchdog-runs", type=ranged(int, 1, 1000), default=20, help="link pulls to time"
+    )
+    p.add_argument(
+        "--watchdog-ms",
+        type=ranged(int, WATCHDOG_MS_MIN, WATCHDOG_MS_MAX),
+        default=200,
+        help="the device's watchdog for the run (default 200, the device's own): a longer one "
+        "keeps a host that stalls on a busy machine from holding the exercise",
     )
     p = bs.add_parser(
         "safety",
@@ -391,7 +398,7 @@ def _bench(args: argparse.Namespace) -> int:
         from lab import linkbench
 
         try:
-            lresult = linkbench.run(args.seconds, args.watchdog_runs)
+            lresult = linkbench.run(args.seconds, args.watchdog_runs, args.watchdog_ms)
         except (RuntimeError, DeviceError) as exc:  # no valid measurement: say why, in one line
             print(f"ankle bench link: {exc}", file=sys.stderr)
             return 1
