@@ -766,8 +766,9 @@ def test_a_sideways_force_sensor_offset_moves_a_held_platform_at_most_3_mm() -> 
 @pytest.mark.xfail(
     strict=True,
     reason="open (issue 11): a 30 N offset on Fx or Fy mid-exercise or while the patient "
-    "pushes is caught in 14-18 ms, and the platform's momentum then carries it 2.7-4.5 mm "
-    "off (the false Fx also reads as a pitch torque: the sensor sits below the ankle)",
+    "pushes is caught in 14-18 ms with the platform 0.1-0.5 mm off; the chamber pressures the "
+    "load compensation had set against the phantom force, trapped as the valves close, then "
+    "carry it 3.7-4.5 mm off within 60 ms (the false Fx also reads as a pitch torque)",
 )
 def test_a_sideways_force_sensor_offset_moves_an_exercising_platform_at_most_3_mm() -> None:
     for scenario in ("exercise", "pushing"):
