@@ -86,6 +86,13 @@ class SimulatedHardware(Hardware):
             raise ValueError("the patient's torque acts about roll (3), pitch (4) or yaw (5)")
         self.state.script[axis, :] = (kind, t0, a, b)
 
+    def script_force(self, axis: int, kind: int, t0: float, a: float, b: float) -> None:
+        """Script the patient's active force (N, at the ankle, base frame) along x (0),
+        y (1) or z (2): a foot pushing sideways, forward or down."""
+        if axis not in (0, 1, 2):
+            raise ValueError("the patient's force acts along x (0), y (1) or z (2)")
+        self.state.script[axis, :] = (kind, t0, a, b)
+
     def inject(self, fault: Fault) -> None:
         """Add ``fault`` to the plant's fault table; it acts from ``fault.time`` (plant time).
 

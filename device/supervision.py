@@ -87,7 +87,9 @@ M_LEG_PREV2 = 252  # 6: the leg reading before the last
 M_LEG_LAG = 258  # 6: each leg's residual less its seals' friction (N), through the pose
 # rate's own low-pass (so it lags as the measured acceleration does)
 M_SIDE_ALLOW = 264  # 1: filtered allowance for the model's inertia errors (N), check_side
-N_MONITOR = 265
+M_LOAD_SIDE = 265  # 2: the sideways load (x, y; N, base frame) the compensation last took
+M_LOAD_HELD = 267  # 6: each leg's force (N) that holds the load as measured, pistons' weight in
+N_MONITOR = 273
 
 C_FT_SAME = 0
 C_FT_ZERO = 1

@@ -70,7 +70,7 @@ class PlantState(NamedTuple):
     valve_open: NDArray[np.float64]  # (24,) open area fraction 0..1
     bristle: NDArray[np.float64]  # (6,) LuGre z (m)
     leg_force: NDArray[np.float64]  # (6,) net pneumatic force on each piston (N)
-    script: NDArray[np.float64]  # (6, 4) patient torque script per axis: kind, t0, a, b
+    script: NDArray[np.float64]  # (6, 4) patient force/torque script per axis: kind, t0, a, b
     scratch: NDArray[np.float64]  # (2, 6, 7) working memory of plant_tick (and of true_readings
     # between ticks), not state (see there)
     supply: NDArray[np.float64]  # (4,) manifold, regulator output (Pa abs), its set point
@@ -274,8 +274,8 @@ def patient_wrench(s: PlantState, p: PlantParams, W: NDArray[np.float64]) -> Non
     for k in range(6):
         W[k] = -p.patient_k[k] * (s.pose[k] - p.rest_pose[k]) - p.patient_b[k] * s.twist[k]
     W[2] -= p.shank_preload
-    for k in range(3):
-        W[3 + k] += scripted_torque(s.script, 3 + k, s.time[0])
+    for k in range(6):  # the patient's active push (x, y, z) and torque (roll, pitch, yaw)
+        W[k] += scripted_torque(s.script, k, s.time[0])
 
 
 @njit
