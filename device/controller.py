@@ -1495,7 +1495,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             W[k] += F[k]
             W[3 + k] += M[k]
     # The load as measured, for the checks below, and as the legs take it: sideways, on a
-    # held axis, a jump no real foot makes enters slowly (load_side_jump).
+    # held axis, a jump faster than a foot pushes enters slowly (load_side_jump).
     Wm = W.copy()
     for k in range(2):
         last = s.monitor[supervision.M_LOAD_SIDE + k]
