@@ -193,7 +193,9 @@ class Station:
             if run is not None:
                 if not run.follows(e):
                     # From before this session began (the device's past, replayed to a
-                    # station that has just connected): not this session's record.
+                    # station that has just connected): not this session's record, though
+                    # what it says of the device (above) may change the status.
+                    self._status_dirty.set()
                     continue
                 run.device_event(e)
             self._event(device_event(e, time.time()))
