@@ -191,14 +191,12 @@ class Station:
             self.reasons.device_event(e, time.time() - lag)
             run = self.run_
             if run is not None:
-                if not run.follows(e):
-                    # From before this session began (the device's past, replayed to a
-                    # station that has just connected): not this session's record, though
-                    # what it says of the device (above) may change the status.
-                    self._status_dirty.set()
-                    continue
                 run.device_event(e)
-            self._event(device_event(e, time.time()))
+            # One from before this session began (the device's past, replayed to a station
+            # that has just connected) is not this session's record; what it says of the
+            # device (above) may still change the status.
+            if run is None or run.follows(e):
+                self._event(device_event(e, time.time()))
             self._status_dirty.set()
 
     def _event(self, event: SessionEvent) -> None:

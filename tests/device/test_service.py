@@ -525,13 +525,10 @@ def test_a_task_that_commands_in_a_loop_stops_when_cancelled_as_an_ack_arrives(
     async def body(dev: DeviceClient) -> None:
         dev.heartbeats = False  # only the task's commands (the watchdog is 2 s here)
         loop = asyncio.get_running_loop()
-        sent = 0
 
         async def commands() -> None:
-            nonlocal sent
             while True:
                 await dev.command(m.Heartbeat())
-                sent += 1
 
         for _ in range(20):
             task = asyncio.create_task(commands())
