@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from device import impedance, position_loop, pressure_loop, pwm, quiet, safety, supervision
+from device import impedance, position_loop, pressure_loop, pwm, quiet, ring, safety, supervision
 from device._jit import njit, njit_inline
 from device.calibration import Calibration
 from device.geometry import DEFAULT_GEOMETRY, Geometry
@@ -91,7 +91,9 @@ I_BLEED = 9
 """Chamber the latched trip holds at its trip pressure (-1: none): its exhaust bleeding it
 (0-11), its intake feeding it (``HOLD_FEED`` + chamber), or none since a release
 (``BLEED_RELEASED``); see :func:`bleed`."""
-N_ISTATE = 10
+I_RINGS = 10
+"""Rings the guard has seen on compliant axes since start-up (device.ring), all axes."""
+N_ISTATE = 11
 
 
 def controller_tasks() -> tuple[Task, ...]:
@@ -460,6 +462,43 @@ class ControllerConfig:
     derived (the law's output is held over its 4 ms period, which the fit does not see): on
     six builds with the friction fed forward, B = 1 at K = 50 rendered 1.03-1.06 with the
     fit's lag alone, 0.98-1.01 with 1 ms more and 0.93-0.96 with 2 ms more. 0 adds none."""
+    ring_guard: bool = True
+    """Watch each compliant rotational axis for a ring (device.ring) and raise the damping
+    the law renders there when it rings: a resisting foot on a stiff ankle (30 N m/rad in
+    pitch, four times that co-contracted) rang at 9-10 Hz at the envelope's edge, which was
+    measured with softer ankles (docs/envelope.md, section 7). Off: the law as before."""
+    ring_corner: float = 6.0
+    """High-pass corner (Hz) of the law's rate the guard watches: a foot's own motion (below
+    4 Hz) falls away, the 6-11 Hz rings measured pass."""
+    ring_rate: float = 0.05
+    """Least rate (rad/s, high-passed) a half-cycle reaches to count: about 0.05 deg of the
+    commanded angle at 9 Hz. The rings measured reached 0.3-0.7 rad/s and were seen within
+    0.4-0.8 s of a push at 0.05-0.08; a marginal one (build 15, pitch K = 5 with a stiff foot,
+    0.21 deg peak to peak) hovers about 0.065 and was missed there."""
+    ring_half_cycles: int = 12
+    """Half-cycles in a row that make a ring (6 cycles, 0.6 s at 10 Hz): a push or a kick
+    rang down within 8 in every case measured, a ring goes on."""
+    ring_band: tuple[float, float] = (5.0, 25.0)
+    """Frequencies (Hz) a ring's half-cycles lie between: the rings measured were 6-11 Hz."""
+    ring_sustain: float = 0.5
+    """A run of half-cycles is a ring only if the peaks of its second half reach on average
+    this share of those of its first: a ring holds or grows, a push rings down."""
+    ring_own: float = 2.0
+    """...and at least this many times what the law's own damping would leave of it over the
+    run (``exp(-B T / 2J)``): energy the loop puts in, not the law's virtual mode dying."""
+    ring_harmonics: int = 5
+    """A run at a multiple of the axis's own sine, up to this one, is the exercise's motion:
+    a 3 Hz, 2 deg pitch sine against a resisting foot at K = 200 moves the law at 9 Hz (0.015
+    deg on the platform), which counted as a ring. The library's sines (0.1-0.5 Hz) have no
+    such multiple in the 5-25 Hz band. 0: none excepted."""
+    ring_harmonic_share: float = 0.06
+    """...within this share of the run's frequency (its half-cycles are counted in whole
+    control periods)."""
+    ring_step: float = 1.5
+    """Each ring multiplies the damping the law renders on that axis by this: the rings
+    measured stopped at 1.25-1.5 times the law's damping (0.5-0.6 for 0.4, 1.0 for 0.8)."""
+    ring_most: float = 4.0
+    """The guard never multiplies the law's damping by more than this."""
     impedance_lag_window: float = 2.0
     """Time constant (s) over which the lag is learnt: a period of the slowest exercise
     (0.5 Hz) a foot moves at; at 1 s a fit over half a period of it was poor."""
@@ -578,6 +617,7 @@ class ControllerParams(NamedTuple):
     valve_gain: NDArray[np.float64]  # (24,) each valve's air per pulse against the model
     valve_extra: NDArray[np.float64]  # (24,) s each valve's pulse passes beyond its length
     quiet: quiet.QuietParams
+    ring: ring.RingParams
     dose_start: int  # slots of a first dose: the compensated PWM's shortest pulse
 
 
@@ -622,6 +662,7 @@ class ControllerState(NamedTuple):
     approach: NDArray[np.float64]  # (12,) per leg: control periods of its joint approach
     # left (0: none), then the joint target it last saw
     trip_air: NDArray[np.float64]  # (12,) each chamber's air at the trip (p V, Pa m3; NaN)
+    ring: NDArray[np.float64]  # (6, ring.N_RING) the ring guard per axis (device.ring G_*)
 
 
 def position_kd(config: ControllerConfig) -> float:
@@ -693,6 +734,29 @@ def build_params(
         and 0.0 <= config.impedance_lag_extra <= config.impedance_lag_max
     ):
         raise ValueError("impedance_lag_extra must be 0..impedance_lag_max (s)")
+    low, high = config.ring_band
+    if not (
+        math.isfinite(config.ring_corner)
+        and config.ring_corner > 0.0
+        and math.isfinite(config.ring_rate)
+        and config.ring_rate > 0.0
+        and config.ring_half_cycles >= 2
+        and 0.0 < low < high < 0.5 / (CONTROL_PERIOD / TICK_HZ)
+        and 0.0 <= config.ring_sustain <= 1.0
+        and math.isfinite(config.ring_own)
+        and config.ring_own >= 0.0
+        and config.ring_harmonics >= 0
+        and 0.0 <= config.ring_harmonic_share < 0.5
+        and math.isfinite(config.ring_step)
+        and config.ring_step > 1.0
+        and math.isfinite(config.ring_most)
+        and config.ring_most >= 1.0
+    ):
+        raise ValueError(
+            "ring guard: corner and rate above 0, at least 2 half-cycles, a band 0 < low < "
+            "high below half the control rate, a sustain of 0..1, an own share >= 0, harmonics "
+            ">= 0 within a share under 0.5, a step above 1 and a most of at least 1"
+        )
     if not 0.0 <= config.rest_dose_share <= 1.0:
         raise ValueError("rest_dose_share must be 0..1 (a share of what a dose has left)")
     if not 0 <= config.rest_dose_extra_max <= pwm.PWM_SLOTS:
@@ -817,6 +881,20 @@ def build_params(
             landing=config.rest_landing_periods,
             blind=config.rest_blind_doses,
         ),
+        ring=ring.params(
+            (0.0, 0.0, 0.0, *((1.0,) * 3 if config.ring_guard else (0.0,) * 3)),
+            config.ring_corner,
+            config.ring_rate,
+            config.ring_half_cycles,
+            config.ring_band,
+            config.ring_sustain,
+            config.ring_own,
+            config.ring_harmonics,
+            config.ring_harmonic_share,
+            config.ring_step,
+            config.ring_most,
+            CONTROL_PERIOD * dt_tick,
+        ),
         dose_start=abs(pwm.duty_slots(pwm.duty(1e-9, d_dead, True))),
     )
     return params, sched
@@ -864,6 +942,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         dose=np.zeros(24, dtype=np.int64),
         approach=np.zeros(12),
         trip_air=np.full(12, np.nan),
+        ring=ring.new_ring(),
     )
     state.trajectory[:, 1] = home
     state.istate[I_TRIP_CHANNEL] = -1
@@ -1277,6 +1356,9 @@ N_LAG = 8
 LAG_MIN_RATE = 0.01
 """Commanded rate (rad/s, or m/s) whose variance the lag fit needs before it trusts itself:
 a foot at rest teaches nothing about the lag."""
+RING_NO_MODE = 1.0e3
+"""The decay (1/s) the ring guard is told for a law with no virtual inertia: no mode of its
+own to ring on (device.ring.watch)."""
 LAG_B_STEP = 0.005
 """Share of B by which the damping the law renders may differ from the one its kept step
 map was made for before the map is made anew."""
@@ -1390,6 +1472,11 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                     b_k - s.stiffness[k] * (s.lag[k, L_TAU] + p.lag_extra),
                     safety.damping_min(p.limits, k, s.stiffness[k]),
                 )
+            if renders and p.ring.on[k] > 0.5:
+                # A foot that made this axis ring gets more of the law's damping (device.ring).
+                b_k *= ring.factor(s.ring[k], s.stiffness_target[k], s.damping_target[k])
+            elif s.ring[k, ring.G_FACTOR] != 1.0 or s.ring[k, ring.G_RUN] != 0.0:
+                ring.forget(s.ring[k])
             if renders:
                 if j_k > 0.0:
                     z = s.impedance_map[k]
@@ -1416,6 +1503,10 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         b_k,
                         p.dt_control,
                     )
+                own = b_k / (2.0 * j_k) if j_k > 0.0 else RING_NO_MODE
+                drive = s.trajectory[k, 3] if int(s.trajectory[k, 0]) == Waveform.SINE else 0.0
+                if p.ring.on[k] > 0.5 and ring.watch(s.ring[k], v_m, p.ring, own, drive):
+                    s.istate[I_RINGS] += 1
             else:
                 s.x_m[k] = 0.0
                 s.v_m[k] = 0.0

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from device import ring
+from device.axes import AXES
 from device.commands import CheckedImpedance, CheckedSegment
 from device.controller import Mode
 from device.protocol.messages import DeviceMode, EventKind
@@ -88,6 +90,7 @@ class ModeMachine:
         self.homed = False
         self.segment: Segment | None = None
         self._service_reported = False
+        self._rings = np.zeros(6)
         self._homing_start = 0.0
         self._homing_from = np.zeros(6)
         self._home_since: float | None = None
@@ -208,6 +211,7 @@ class ModeMachine:
             )
         elif chamber < 0:
             self._service_reported = False
+        self._report_rings()
         if self.rig.supply_low and self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING):
             supply = float(self.rig.state.sensors[12]) - self.rig.config.atmosphere
             self.hold(
@@ -220,6 +224,26 @@ class ModeMachine:
             self._homing_step()
         elif self.mode == DeviceMode.ACTIVE and self.segment is not None:
             self._segment_step(self.segment)
+
+    def _report_rings(self) -> None:
+        """An event for each ring the guard damped since the last pass (device.ring)."""
+        state = self.rig.state
+        for axis in range(6):
+            rings = float(state.ring[axis, ring.G_RINGS])
+            if rings > self._rings[axis]:
+                factor = float(state.ring[axis, ring.G_FACTOR])
+                hz = float(state.ring[axis, ring.G_HZ])
+                law = float(state.impedance_map[axis, 2])
+                self.on_event(
+                    EventKind.DAMPING_RAISED,
+                    self.mode,
+                    self.mode,
+                    axis,
+                    factor,
+                    f"{AXES[axis]} rang at {hz:.0f} Hz with the foot on it: damping raised "
+                    f"{factor:.2f} times (law {law:.2f}) until its K or B changes",
+                )
+            self._rings[axis] = rings
 
     def segment_time(self) -> float:
         """Time into the running segment, pauses excluded (0 before its run starts)."""

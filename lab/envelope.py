@@ -30,6 +30,7 @@ Usage:
     python -m lab.envelope --verify [--json ...]   # run the recommended envelopes
     python -m lab.envelope --markdown map.json     # the B_min tables of a saved map
     python -m lab.envelope --builds 20 [--json ...] # least damping, nominal + 20 drawn builds
+    python -m lab.envelope --draws 3,15,18 --patients stiff --axes roll,pitch  # those builds
 """
 
 from __future__ import annotations
@@ -46,12 +47,12 @@ from unittest import mock
 
 import numpy as np
 
-from device.controller import ControllerConfig
+from device.controller import I_RINGS, ControllerConfig
 from device.geometry import AXIS_INDEX
 from device.hardware import SimulatedHardware
 from device.limits import SafetyLimits
 from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
-from device.plant.params import PlantConfig
+from device.plant.params import PARAMETERS, PlantConfig
 from device.rig import Rig
 from device.safety import Trip
 from device.tickloop import COL
@@ -60,6 +61,32 @@ from lab import experiments
 K_GRID = (0, 2, 5, 10, 20, 50, 100, 200, 350, 500)
 B_GRID = (0, 0.05, 0.1, 0.2, 0.3, 0.5, 1, 2, 5, 10)
 PATIENTS = ("relaxed", "resisting", "absent")
+STIFF = "stiff"
+"""A fourth patient: one who resists on the stiffest ankle of the plant's plausible range
+(``ankle_stiffness_*`` at the top of their rows in device.plant.params), whatever build it
+stands on. The ankle is the patient's, not the build's: a drawn build's own ankle is one
+draw of it, and the envelope must hold for any patient on any build."""
+ANKLE_AXES = ("roll", "pitch", "yaw")
+
+
+def stiffest_ankle() -> tuple[tuple[str, float], ...]:
+    """Plant changes that put the ankle at the top of its plausible range on every
+    rotational axis (an axis with no range keeps its nominal stiffness)."""
+    out = []
+    for axis in ANKLE_AXES:
+        row = PARAMETERS[f"ankle_stiffness_{axis}"]
+        out.append((row.name, row.high if row.high is not None else row.value))
+    return tuple(out)
+
+
+def plant_patient(patient: str) -> tuple[str, tuple[tuple[str, float], ...]]:
+    """The plant's patient for ``patient`` and the plant changes it brings: ``stiff`` is a
+    resisting patient on :func:`stiffest_ankle`; the plant's own patients bring none."""
+    if patient == STIFF:
+        return "resisting", stiffest_ankle()
+    return patient, ()
+
+
 ROT_AXES = ("roll", "pitch", "yaw")
 
 SETTLE = 0.5
@@ -166,10 +193,12 @@ def _run_point(
 ) -> Point:
     ax = AXIS_INDEX[axis]
     config = _config(J, fmax)
+    foot, changes = plant_patient(patient)
     if unit is None:
-        hw = SimulatedHardware(_plant_config(patient), seed=seed)
+        hw = SimulatedHardware(_plant_config(foot).changed(changes), seed=seed)
     else:
-        hw, config = experiments.unit_hardware(unit, patient, config, seed)
+        unit = dataclasses.replace(unit, changes=(*unit.changes, *changes))
+        hw, config = experiments.unit_hardware(unit, foot, config, seed)
     rig = Rig(hw, config, limits=limits if limits is not None else SafetyLimits())
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE, log_hz=0)
@@ -238,6 +267,7 @@ def _run_point(
         "walk_deg": walk,
         "f_hz": f,
         "peak_deg": float(np.max(np.abs(ang))),
+        "rings": int(rig.state.istate[I_RINGS]),
     }
 
 
@@ -397,8 +427,11 @@ def floor_at(b: float) -> SafetyLimits:
 def least_damping_over_builds(
     draws: tuple[int, ...],
     progress: Callable[[str], None] | None = None,
+    patients: tuple[str, ...] = PATIENTS,
+    axes: tuple[str, ...] = ROT_AXES,
 ) -> dict[str, list[float | None]]:
-    """Per unit (the nominal one, then drawn builds ``draws``), axis and patient: at each
+    """Per unit (the nominal one, then drawn builds ``draws``), axis and patient (of
+    ``axes`` and ``patients``; :data:`STIFF` among them puts the stiffest ankle on each): at each
     :data:`BUILD_K`, the least damping of :data:`BUILD_B` that renders stably (strict
     criterion) with the device's floor at that same damping, as the device would if it
     published it: the law then renders that damping, with no lag taken out below it. Each
@@ -409,8 +442,8 @@ def least_damping_over_builds(
     for draw in (None, *draws):
         unit = experiments.PlantChoice(draw=draw)
         name = "nominal" if draw is None else str(draw)
-        for axis in ROT_AXES:
-            for patient in PATIENTS:
+        for axis in axes:
+            for patient in patients:
                 row: list[float | None] = []
                 for K in BUILD_K:
                     least = None
@@ -438,9 +471,11 @@ def builds_table(rows: dict[str, list[float | None]]) -> str:
         "|---|---|---|---|---|",
     ]
     worst_axis: dict[str, list[float]] = {}
-    for axis in ROT_AXES:
+    axes = [a for a in ROT_AXES if any(k.split()[1] == a for k in rows)]
+    patients = list(dict.fromkeys(k.split()[2] for k in rows))
+    for axis in axes:
         axis_worst = [0.0] * len(BUILD_K)
-        for patient in PATIENTS:
+        for patient in patients:
             mine = {k.split()[0]: v for k, v in rows.items() if k.split()[1:] == [axis, patient]}
             worst: list[float] = []
             who: list[str] = []
@@ -462,7 +497,7 @@ def builds_table(rows: dict[str, list[float | None]]) -> str:
         worst_axis[axis] = axis_worst
     lines += ["", f"K: {' / '.join(fmt(k) for k in BUILD_K)} N m/rad", ""]
     limits = SafetyLimits()
-    for axis in ROT_AXES:
+    for axis in axes:
         bands = []
         for band, edge in enumerate(limits.envelope_stiffness):
             upper = (
@@ -510,12 +545,24 @@ def main(argv: list[str] | None = None) -> int:
         "--builds",
         type=int,
         default=None,
-        help="the least stable damping on the nominal unit and drawn builds 0..N-1",
+        help="the least stable damping on the nominal unit and drawn builds 0..N-1 (of "
+        "--axes, for --patients; stiff: a resisting patient on the stiffest plausible ankle)",
+    )
+    ap.add_argument(
+        "--draws", default=None, help="as --builds, on these drawn builds (comma-separated)"
     )
     a = ap.parse_args(argv)
-    if a.builds is not None:
+    if a.builds is not None or a.draws is not None:
+        draws = (
+            tuple(range(a.builds))
+            if a.draws is None
+            else tuple(int(d) for d in a.draws.split(",") if d)
+        )
         rows = least_damping_over_builds(
-            tuple(range(a.builds)), None if a.quiet else lambda m: print(m, flush=True)
+            draws,
+            None if a.quiet else lambda m: print(m, flush=True),
+            patients=tuple(a.patients.split(",")),
+            axes=tuple(a.axes.split(",")),
         )
         print(builds_table(rows))
         if a.json:

@@ -28,7 +28,7 @@ import numpy as np
 
 from device import supervision
 from device.axes import AXES, AXIS_INDEX
-from device.controller import Mode
+from device.controller import I_RINGS, Mode
 from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
@@ -310,6 +310,8 @@ class HealthyRun:
     """...and torque (N m)."""
     air_flow_max: float = 0.0
     """Largest chamber air residual as a share of its tolerance (1 would ask for service)."""
+    rings: int = 0
+    """Rings the guard saw and damped (device.ring): a foot made the loop ring."""
 
 
 def _library_targets(
@@ -401,6 +403,7 @@ def healthy_runs(
                         float(monitor[supervision.M_WRENCH_PEAK]),
                         float(monitor[supervision.M_WRENCH_PEAK + 1]),
                         float(monitor[supervision.M_OBS_PEAK]),
+                        int(rig.state.istate[I_RINGS]),
                     )
                 )
                 if progress is not None:
@@ -548,15 +551,16 @@ def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
 
 def kb_point(
     axis: int, k: float, b: float, patient: str, seed: int = 1, draw: int | None = None
-) -> tuple[bool, bool, float]:
+) -> tuple[bool, bool, float, int]:
     """Render K, B on one rotational axis and push it (2 N m for 0.1 s), measured as
     ``lab.envelope`` measures its maps: (stable, walked, detrended peak to peak of the last
     second in degrees). Stable as the issue asks: no trip (a push the legs cannot follow
     included), at most 0.2 deg peak to peak, and no chattering command either (the loop
     driven at 60-125 Hz, which the platform filters but the legs and valves do not).
     Walked: the platform came to rest more than 0.5 deg from its command, the envelope's
-    stricter criterion, which is no oscillation: counted apart. ``draw``: on that drawn
-    build, identified and run with its calibration; None: the standard plant."""
+    stricter criterion, which is no oscillation: counted apart. Rings: how many the ring
+    guard saw and damped (device.ring) before the last second was judged. ``draw``: on that
+    drawn build, identified and run with its calibration; None: the standard plant."""
     from lab import envelope
 
     unit = None if draw is None else PlantChoice(draw=draw)
@@ -564,7 +568,7 @@ def kb_point(
     chatter = bool(point["cmd_pp_deg"] > envelope.CMD_PP_LIMIT_DEG)
     stable = not (point["unstable"] or point["speed_trip"] or chatter)
     walked = bool(abs(point["walk_deg"]) > envelope.WALK_LIMIT_DEG)
-    return stable, walked, float(point["pp_det_deg"])
+    return stable, walked, float(point["pp_det_deg"]), int(point["rings"])
 
 
 # -- the benchmark ------------------------------------------------------------------------
@@ -601,9 +605,14 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
     ("service_deaths", "service deaths in the boundary run"),
-    ("kb_grid_points", "K-B points on the envelope's edge and at twice its B (nominal, 3 builds)"),
+    (
+        "kb_grid_points",
+        "K-B points on the envelope's edge and at twice its B (nominal, 3 builds, 4 patients)",
+    ),
     ("kb_grid_unstable", "unstable points on and inside the envelope's edge"),
     ("kb_grid_walked", "...still points that rested over 0.5 deg from their command"),
+    ("kb_grid_guarded", "...points where the ring guard raised the damping"),
+    ("healthy_rings", "rings the guard damped over the healthy runs"),
 )
 
 KB_STIFFNESS = (0.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 170.0, 200.0, 250.0, 350.0, 500.0)
@@ -621,15 +630,22 @@ the ones whose boundaries set the published envelope (docs/envelope.md, section 
 light, long-tubed, low-friction platform, and long tubes with a resisting foot in roll."""
 
 
+KB_PATIENTS = ("relaxed", "resisting", "absent", "stiff")
+"""The plant's three patients on each unit's own drawn ankle, and a patient who resists on
+the stiffest ankle of the plausible range (``lab.envelope.STIFF``): the ankle is the
+patient's, and any patient may stand on any build."""
+
+
 def kb_grid(
-    patients: tuple[str, ...] = ("relaxed", "resisting", "absent"),
+    patients: tuple[str, ...] = KB_PATIENTS,
     progress: Callable[[str], None] | None = None,
     draws: tuple[int | None, ...] = (None, *KB_DRAWS),
-) -> list[tuple[str, float, float, str, bool, float, str, bool]]:
+) -> list[tuple[str, float, float, str, bool, float, str, bool, int]]:
     """Every rotational axis, every grid K, at the least damping the envelope allows and at
     twice it (:data:`KB_DAMPING_FACTORS`), on the standard plant (None) and on each drawn
     build of ``draws``. Each row: axis, K, B, patient, stable, peak to peak, the unit
-    (``nominal`` or ``build N``) and whether it walked (:func:`kb_point`)."""
+    (``nominal`` or ``build N``), whether it walked and the rings the guard damped
+    (:func:`kb_point`)."""
     from device.limits import SafetyLimits
 
     lim = SafetyLimits().published()
@@ -639,8 +655,8 @@ def kb_grid(
     for draw, axis, k, factor, patient in grid:
         unit = "nominal" if draw is None else f"build {draw}"
         b = factor * lim.damping_min_at(axis, k)
-        stable, walked, pp = kb_point(axis, k, b, patient, draw=draw)
-        out.append((AXES[axis], k, b, patient, stable, pp, unit, walked))
+        stable, walked, pp, rings = kb_point(axis, k, b, patient, draw=draw)
+        out.append((AXES[axis], k, b, patient, stable, pp, unit, walked, rings))
         if progress is not None:
             progress(f"K-B grid {len(out)}/{total}: {unit} {AXES[axis]} K {k:g} B {b:g}")
     return out
@@ -714,6 +730,8 @@ def _the_rest(
         "kb_grid_points": len(grid),
         "kb_grid_unstable": sum(not g[4] for g in grid),
         "kb_grid_walked": sum(g[4] and g[7] for g in grid),
+        "kb_grid_guarded": sum(g[8] > 0 for g in grid),
+        "healthy_rings": sum(h.rings for h in healthy),
         "healthy": [dataclasses.asdict(h) for h in healthy],
         "false_trip_runs": [
             dataclasses.asdict(h)
@@ -731,8 +749,9 @@ def _the_rest(
                 "pp_deg": pp,
                 "unit": u,
                 "walked": w,
+                "rings": n,
             }
-            for a, k, b, pt, st, pp, u, w in grid
+            for a, k, b, pt, st, pp, u, w, n in grid
         ],
     }
 

@@ -131,8 +131,9 @@ class SessionEvent(BaseModel):
     t: float | None = Field(default=None, description="Device time, s, when known.")
     kind: str = Field(
         description="rep_done, set_done, rest, mode, limit, fault, watchdog, estop, "
-        "supply_low, impedance, hold, resume, stop, interrupted (held too long), game_score, "
-        "note."
+        "supply_low, damping_raised (an axis rang with the foot on it and the device raised "
+        "its damping), impedance, hold, resume, stop, interrupted (held too long), "
+        "game_score, note."
     )
     by: str = Field(default="station", description="device, station, patient or therapist:<id>.")
     detail: dict[str, Any] = Field(default_factory=dict)

@@ -93,6 +93,10 @@ class EventKind(IntEnum):
     SERVICE = 9
     """A chamber's air does not add up (code AIR_BALANCE, a leak or a stuck valve): the
     running segment finishes under control, nothing new starts until a re-arm."""
+    DAMPING_RAISED = 10
+    """A compliant axis rang with the foot on it and the ring guard raised the damping the
+    law renders there (code: the axis 0-5; value: the factor now on its damping); it holds
+    until that axis's stiffness or damping changes (device.ring)."""
 
 
 class NackCode(IntEnum):
@@ -328,8 +332,12 @@ class Event(Message, type_=3, sender="device"):
     kind: EventKind = wire("B", enum=EventKind)
     mode_from: DeviceMode = wire("B", enum=DeviceMode)
     mode_to: DeviceMode = wire("B", enum=DeviceMode)
-    code: int = wire("B", doc="Trip code for LIMIT/FAULT/ESTOP.")
-    value: float = wire("f", doc="WATCHDOG: ms since the last valid frame.")
+    code: int = wire("B", doc="Trip code for LIMIT/FAULT/ESTOP; the axis (0-5) for DAMPING_RAISED.")
+    value: float = wire(
+        "f",
+        doc="WATCHDOG: ms since the last valid frame; DAMPING_RAISED: the factor on the "
+        "axis's damping.",
+    )
     text: str = wire("120s", doc="For people: what happened, and for a fault why.")
 
 

@@ -139,7 +139,7 @@ envelope while the virtual frequency was capped at 12 Hz."""
 def test_every_point_on_the_envelopes_edge_is_stable(axis: int, patient: str) -> None:
     for k in EDGE:
         b = LIMITS.damping_min_at(axis, k)
-        stable, walked, pp = safety.kb_point(axis, k, b, patient)
+        stable, walked, pp, _rings = safety.kb_point(axis, k, b, patient)
         assert stable and not walked, (axis, k, b, patient, pp)
 
 
@@ -186,5 +186,23 @@ def test_a_free_damper_that_rests_off_its_command_is_still_but_counted_apart() -
     oscillation (0.07 deg peak to peak). Stable as the issue counts it, walked as the
     envelope's stricter criterion does: the safety benchmark reports both."""
     b = LIMITS.damping_min_at(5, 0.0)
-    stable, _walked, pp = safety.kb_point(5, 0.0, b, "absent")
+    stable, _walked, pp, _rings = safety.kb_point(5, 0.0, b, "absent")
     assert stable and pp <= 0.2, pp
+
+
+def test_a_stiff_patient_resists_on_the_stiffest_ankle_of_the_plausible_range() -> None:
+    """The K-B grid's fourth patient: the ankle is the patient's, so any build may carry the
+    stiffest one the plant's table finds plausible (its rows' top), resisting."""
+    from device.plant.params import PARAMETERS
+    from lab import envelope
+
+    foot, changes = envelope.plant_patient(envelope.STIFF)
+    assert foot == "resisting"
+    ankle = dict(changes)
+    assert set(ankle) == {f"ankle_stiffness_{a}" for a in ("roll", "pitch", "yaw")}
+    for name, value in ankle.items():
+        row = PARAMETERS[name]
+        assert value == (row.high if row.high is not None else row.value), name
+        assert value >= row.value, name  # never softer than the nominal ankle
+    assert envelope.plant_patient("resisting") == ("resisting", ())
+    assert envelope.STIFF in safety.KB_PATIENTS
