@@ -1475,8 +1475,8 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             if renders and p.ring.on[k] > 0.5:
                 # A foot that made this axis ring gets more of the law's damping (device.ring).
                 b_k *= ring.factor(s.ring[k], s.stiffness_target[k], s.damping_target[k])
-            elif s.ring[k, ring.G_FACTOR] != 1.0 or s.ring[k, ring.G_RUN] != 0.0:
-                ring.forget(s.ring[k])
+            elif s.ring[k, ring.G_SIGN] != 0.0:
+                ring.pause(s.ring[k])
             if renders:
                 if j_k > 0.0:
                     z = s.impedance_map[k]

@@ -107,6 +107,7 @@ class ModeMachine:
     def arm_home(self) -> None:
         self._end_segment()
         self.rig.set_vent(False)
+        self.rig.forget_rings()  # a new exercise: what the last foot needed is not this one's
         s = self.rig.state
         self._homing_start = self.time
         self._homing_from = s.leg_x.copy()

@@ -16,7 +16,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from device import commands, safety, supervision, tickloop
+from device import commands, ring, safety, supervision, tickloop
 from device import controller as ctl
 from device.axes import AXES
 from device.commands import CommandError as CommandError
@@ -290,6 +290,10 @@ class Rig:
         if self.mode != Mode.FAULT:
             self.state.istate[ctl.I_MODE] = Mode.IDLE
             self.state.valves[:] = 0
+
+    def forget_rings(self) -> None:
+        """A new exercise: the ring guard's factors (device.ring) start again at 1."""
+        self.state.ring[:] = ring.new_ring()
 
     def latch_trip(self, code: Trip) -> None:
         """Latch a fault now: valves close, nothing moves until a re-arm."""

@@ -28,9 +28,11 @@ K = 200 moves the law at 9 Hz (0.015 deg on the platform).
 
 Each ring seen multiplies the damping the law renders on that axis by ``step``, up to
 ``most`` times what it would render without the guard, and starts the count anew. The
-factor stays until the axis stops rendering or its prescribed stiffness or damping changes:
-a foot that rang once rings again when the damping is taken back, and the foot feels a
-little more damping for the rest of the exercise rather than a ring every few seconds.
+factor stays until the axis's prescribed stiffness or damping changes or the device homes
+again (a new exercise; ``forget``), through the pauses between repetitions, each a segment
+of its own: a foot that rang once rings again when the damping is taken back, and the
+foot feels a little more damping for the rest of the exercise rather than a ring at every
+repetition.
 
 State per axis in ``ring`` (slots G_*).
 """
@@ -145,6 +147,18 @@ def forget(row: NDArray[np.float64]) -> None:
     row[G_FACTOR] = 1.0
     row[G_K] = np.nan
     row[G_B] = np.nan
+
+
+@njit_inline
+def pause(row: NDArray[np.float64]) -> None:
+    """The axis stopped rendering (between repetitions: each is a segment of its own): the
+    watch starts anew when it renders again; the factor and what it was found under stay."""
+    for i in range(G_Z, G_Z + 4):
+        row[i] = 0.0
+    row[G_SIGN] = 0.0
+    row[G_HALF] = 0.0
+    row[G_PEAK] = 0.0
+    _restart(row)
 
 
 @njit_inline

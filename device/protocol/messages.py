@@ -96,7 +96,7 @@ class EventKind(IntEnum):
     DAMPING_RAISED = 10
     """A compliant axis rang with the foot on it and the ring guard raised the damping the
     law renders there (code: the axis 0-5; value: the factor now on its damping); it holds
-    until that axis's stiffness or damping changes (device.ring)."""
+    until that axis's stiffness or damping changes or the device homes again (device.ring)."""
 
 
 class NackCode(IntEnum):

@@ -107,6 +107,25 @@ def test_each_ring_multiplies_the_factor_up_to_its_most_and_a_new_prescription_f
     assert row[ring.G_RINGS] == 0
 
 
+def test_a_pause_between_repetitions_keeps_the_factor_and_homing_forgets_it() -> None:
+    """Each repetition is a segment of its own, the axis rendering nothing in between: the
+    factor a ring earned holds through that, the watch starting anew; a new exercise (the
+    device homes again) starts at 1."""
+    from device.rig import Rig
+
+    row, seen = _feed(0.3 * np.sin(2 * math.pi * 9.0 * _t(1.2)))
+    assert len(seen) == 1 and row[ring.G_FACTOR] == P.step
+    assert row[ring.G_RUN] > 0 or row[ring.G_SIGN] != 0.0  # the watch was under way
+    ring.pause(row)
+    assert row[ring.G_FACTOR] == P.step and row[ring.G_RINGS] == 1
+    assert row[ring.G_RUN] == 0 and row[ring.G_SIGN] == 0 and not row[ring.G_Z : ring.G_Z + 4].any()
+    assert ring.factor(row, 50.0, 1.0) == P.step  # the same prescription, next repetition
+    rig = Rig()
+    rig.state.ring[4] = row
+    rig.forget_rings()
+    assert rig.state.ring[4, ring.G_FACTOR] == 1.0 and rig.state.ring[4, ring.G_RINGS] == 0
+
+
 def test_the_guard_is_on_for_the_rotations_only_and_off_when_configured() -> None:
     assert list(P.on) == [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
     off = build_params(ControllerConfig(ring_guard=False))[0].ring
@@ -157,10 +176,14 @@ def test_a_stiff_resisting_ankle_at_the_pitch_edge_rings_without_the_guard_and_n
     assert bare["unstable"] and 6.0 <= bare["f_hz"] <= 12.0, bare
 
 
-def test_through_the_service_a_ring_is_an_event_naming_the_axis_and_the_damping_raised() -> None:
+def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_next_exercise() -> (
+    None
+):
     """The device service on a pty, build 18 with a patient co-contracting on the stiffest
     plausible ankle, pitch at K = 50 and the least damping: after a push, the host hears a
-    DAMPING_RAISED event naming pitch, the factor and the ring's frequency."""
+    DAMPING_RAISED event naming pitch, the factor and the ring's frequency. The next
+    repetition (a segment of its own) keeps the raised damping and does not ring; homing
+    again for a new exercise starts from the law's own."""
     import asyncio
     import threading
 
@@ -180,41 +203,67 @@ def test_through_the_service_a_ring_is_an_event_naming_the_axis_and_the_damping_
     foot, ankle = envelope.plant_patient(envelope.STIFF)
     hardware = SimulatedHardware(draw_plant(18, foot).changed(ankle), seed=1)
     link = PtyLink()
-    service = DeviceService(Rig(hardware), link, ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX))
+    rig = Rig(hardware)
+    service = DeviceService(rig, link, ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX))
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
+    seen: list[m.Event] = []
+    factors: list[float] = []
 
-    async def main() -> m.Event:
+    async def push() -> None:
+        now = float(hardware.state.time[0])
+        hardware.script_torque(4, SCRIPT_CONSTANT, now, envelope.PULSE_NM, 0.0)
+        await asyncio.sleep(0.1)
+        hardware.script_torque(4, SCRIPT_NONE, 0.0, 0.0, 0.0)
+
+    async def main() -> None:
         dev = await DeviceClient.connect(link.name)
         try:
             events = dev.events()
+
+            async def collect() -> None:
+                async for event in events:
+                    if event.kind == EventKind.DAMPING_RAISED:
+                        seen.append(event)
+
+            collector = asyncio.create_task(collect())
             assert dev.hello is not None
             await dev.arm_home()
             await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
             least = SafetyLimits().published().damping_min_at(4, 50.0)  # as HELLO says
             plan = AxisPlan(Waveform.HOLD, stiffness=50.0, damping=least, compliant=True)
-            await dev.start_segment(build_segment(dev.hello, 1, 60.0, {"pitch": plan}))
+            await dev.start_segment(build_segment(dev.hello, 1, 4.0, {"pitch": plan}))
             await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=5.0)
             await asyncio.sleep(0.5)
-            now = float(hardware.state.time[0])
-            hardware.script_torque(4, SCRIPT_CONSTANT, now, envelope.PULSE_NM, 0.0)
-            await asyncio.sleep(0.1)
-            hardware.script_torque(4, SCRIPT_NONE, 0.0, 0.0, 0.0)
+            await push()
             async with asyncio.timeout(30.0):
-                async for event in events:
-                    if event.kind == EventKind.DAMPING_RAISED:
-                        return event
-            raise AssertionError("the events ended")
+                while not seen:
+                    await asyncio.sleep(0.05)
+            await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)  # the repetition ends
+            factors.append(float(rig.state.ring[4, ring.G_FACTOR]))
+            await dev.start_segment(build_segment(dev.hello, 2, 4.0, {"pitch": plan}))
+            await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=5.0)
+            await asyncio.sleep(0.5)
+            await push()
+            await dev.wait_for_mode(DeviceMode.READY, timeout=30.0)
+            factors.append(float(rig.state.ring[4, ring.G_FACTOR]))
+            await dev.arm_home()  # a new exercise
+            await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            factors.append(float(rig.state.ring[4, ring.G_FACTOR]))
+            collector.cancel()
         finally:
             await dev.close()
 
     try:
-        event = asyncio.run(main())
+        asyncio.run(main())
     finally:
         service.stop()
         thread.join(5.0)
         service.shutdown()
     assert not thread.is_alive()
+    assert len(seen) == 1, [e.text for e in seen]  # the second repetition did not ring
+    event = seen[0]
     assert event.code == 4 and event.value == pytest.approx(P.step)
     assert event.text.startswith("pitch rang at ") and "raised 1.50 times" in event.text, event.text
     assert event.text.endswith("until its K or B changes"), event.text  # whole, not cut at 120
+    assert factors == [P.step, P.step, 1.0]
