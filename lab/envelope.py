@@ -149,13 +149,15 @@ def run_point(
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
     unit: experiments.PlantChoice | None = None,
+    ring_guard: bool = True,
 ) -> Point:
     """One point; a push that trips the speed limit at once is retried with a quarter push.
 
     ``limits``: the rig's own (lab.zwidth lifts the published envelope to measure below it).
     ``unit``: a unit (nominal or drawn) identified first and run with its calibration, as
     the device runs (unless ``unit.calibrate`` is False); None: the standard plant,
-    uncalibrated, as sections 1-5 of docs/envelope.md were measured.
+    uncalibrated, as sections 1-5 of docs/envelope.md were measured. ``ring_guard``: False
+    measures the loop alone, without the device's ring guard (device.ring) on top.
 
     A LEG_SPEED trip within ``SPEED_TRIP_S`` of the push, with no oscillation before the push
     and a monotonic run-up to it (dominant frequency of the last 0.5 s under
@@ -163,7 +165,7 @@ def run_point(
     to F/B rad/s, or impulse/J with a virtual inertia), not an oscillation: it is reported
     (``speed_trip``, counted as marginal) and the point is classified on the retry.
     """
-    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax, limits, unit)
+    r = _run_point(axis, patient, K, B, J, pulse, seed, fmax, limits, unit, ring_guard)
     r["speed_trip"] = False
     if (
         r["trip"] == "LEG_SPEED"
@@ -171,7 +173,7 @@ def run_point(
         and r["pre_pp_deg"] < PP_LIMIT_DEG
         and r["f_hz"] < SPEED_TRIP_MAX_HZ
     ):
-        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax, limits, unit)
+        r2 = _run_point(axis, patient, K, B, J, pulse / 4.0, seed, fmax, limits, unit, ring_guard)
         r2["speed_trip"] = True
         r2["first_trip_t"] = r["trip_t"]
         r2["marginal"] = True
@@ -190,9 +192,10 @@ def _run_point(
     fmax: float | None = None,
     limits: SafetyLimits | None = None,
     unit: experiments.PlantChoice | None = None,
+    ring_guard: bool = True,
 ) -> Point:
     ax = AXIS_INDEX[axis]
-    config = _config(J, fmax)
+    config = dataclasses.replace(_config(J, fmax), ring_guard=ring_guard)
     foot, changes = plant_patient(patient)
     if unit is None:
         hw = SimulatedHardware(_plant_config(foot).changed(changes), seed=seed)

@@ -27,3 +27,17 @@ def test_the_table_names_the_least_stable_b_and_any_point_inside_that_failed() -
     assert "Unstable points at or above the published envelope: 1" in text
     assert "roll K = 50, B = 0.5: resisting" in text
     assert zwidth.least_b({"points": points}, "roll", 50.0) == 0.2
+
+
+def test_the_map_is_of_the_loop_alone_without_the_ring_guard() -> None:
+    """Roll at K = 50 with the law at 0.2 (below the published 1.0) rings with a resisting
+    foot: the map marks it unstable, as the loop is; the device's ring guard, on by
+    default, catches that ring and damps it."""
+    from lab import envelope
+
+    assert zwidth.point("roll", 50.0, 0.2)["stable"] is False
+    floor = envelope.floor_at(0.2)
+    bare = envelope.run_point("roll", "resisting", 50.0, 0.2, limits=floor, ring_guard=False)
+    guarded = envelope.run_point("roll", "resisting", 50.0, 0.2, limits=floor)
+    assert bare["marginal"] and bare["rings"] == 0, bare
+    assert not guarded["marginal"] and guarded["rings"] >= 1, guarded
