@@ -13,10 +13,13 @@ from device.transport import PtyLink
 
 
 @contextmanager
-def service_in_thread(hardware: SimulatedHardware, config: ServiceConfig) -> Iterator[PtyLink]:
-    """The service running on ``hardware``; its link. Stopped, joined and shut down after."""
+def service_in_thread(
+    hardware: SimulatedHardware, config: ServiceConfig, rig: Rig | None = None
+) -> Iterator[PtyLink]:
+    """The service running on ``hardware`` (through ``rig``, to look into its controller,
+    or a rig of its own); its link. Stopped, joined and shut down after."""
     link = PtyLink()
-    service = DeviceService(Rig(hardware), link, config)
+    service = DeviceService(rig if rig is not None else Rig(hardware), link, config)
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
     try:

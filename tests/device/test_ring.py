@@ -185,7 +185,6 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
     repetition (a segment of its own) keeps the raised damping and does not ring; homing
     again for a new exercise starts from the law's own."""
     import asyncio
-    import threading
 
     from device.client import AxisPlan, DeviceClient, build_segment
     from device.hardware import SimulatedHardware
@@ -195,18 +194,14 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
     from device.protocol import messages as m
     from device.protocol.messages import DeviceMode, EventKind
     from device.rig import Rig
-    from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
-    from device.transport import PtyLink
+    from device.service import WATCHDOG_MS_MAX, ServiceConfig
     from device.waveforms import Waveform
     from lab import envelope
+    from tests.device.service_thread import service_in_thread
 
     foot, ankle = envelope.plant_patient(envelope.STIFF)
     hardware = SimulatedHardware(draw_plant(18, foot).changed(ankle), seed=1)
-    link = PtyLink()
     rig = Rig(hardware)
-    service = DeviceService(rig, link, ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX))
-    thread = threading.Thread(target=service.run, daemon=True)
-    thread.start()
     seen: list[m.Event] = []
     factors: list[float] = []
 
@@ -216,8 +211,8 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
         await asyncio.sleep(0.1)
         hardware.script_torque(4, SCRIPT_NONE, 0.0, 0.0, 0.0)
 
-    async def main() -> None:
-        dev = await DeviceClient.connect(link.name)
+    async def main(link: str) -> None:
+        dev = await DeviceClient.connect(link)
         try:
             events = dev.events()
 
@@ -254,13 +249,8 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
         finally:
             await dev.close()
 
-    try:
-        asyncio.run(main())
-    finally:
-        service.stop()
-        thread.join(5.0)
-        service.shutdown()
-    assert not thread.is_alive()
+    with service_in_thread(hardware, ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX), rig) as link:
+        asyncio.run(main(link.name))
     assert len(seen) == 1, [e.text for e in seen]  # the second repetition did not ring
     event = seen[0]
     assert event.code == 4 and event.value == pytest.approx(P.step)
