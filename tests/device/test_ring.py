@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from unittest import mock
 
 import numpy as np
 import pytest
@@ -169,9 +168,7 @@ def test_a_stiff_resisting_ankle_at_the_pitch_edge_rings_without_the_guard_and_n
     guarded = envelope.run_point("pitch", envelope.STIFF, 50.0, b, unit=unit)
     assert guarded["rings"] >= 1, guarded
     assert not guarded["unstable"], guarded
-    bare_config = ControllerConfig(ring_guard=False)
-    with mock.patch.object(envelope, "_config", return_value=bare_config):
-        bare = envelope.run_point("pitch", envelope.STIFF, 50.0, b, unit=unit)
+    bare = envelope.run_point("pitch", envelope.STIFF, 50.0, b, unit=unit, ring_guard=False)
     assert bare["rings"] == 0
     assert bare["unstable"] and 6.0 <= bare["f_hz"] <= 12.0, bare
 
