@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from device import pwm
+from device import pwm, ring
 from device.calibration import Calibration
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
@@ -242,6 +242,15 @@ def device_warning(rig: Rig) -> str | None:
         )
     if rig.supply_low:
         return "the device held: the air supply is low"
+    rang = [k for k in range(6) if rig.state.ring[k, ring.G_RINGS] > 0]
+    if rang:
+        k = rang[0]
+        factor = float(rig.state.ring[k, ring.G_FACTOR])
+        hz = float(rig.state.ring[k, ring.G_HZ])
+        return (
+            f"{AXES[k]} rang at {hz:.0f} Hz and the ring guard raised its damping {factor:.2f} "
+            "times: what was measured is the raised damping"
+        )
     return None
 
 

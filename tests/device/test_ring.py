@@ -9,6 +9,7 @@ import pytest
 
 from device import ring
 from device.controller import CONTROL_PERIOD, ControllerConfig, build_params
+from device.hardware import SimulatedHardware
 from device.plant.params import TICK_HZ
 
 DT = CONTROL_PERIOD / TICK_HZ
@@ -254,3 +255,31 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
     assert event.text.startswith("pitch rang at ") and "raised 1.50 times" in event.text, event.text
     assert event.text.endswith("until its K or B changes"), event.text  # whole, not cut at 120
     assert factors == [P.step, P.step, 1.0]
+
+
+def test_an_experiment_during_which_the_guard_acted_says_so_and_is_not_valid() -> None:
+    """A measurement of rendered damping while the guard had raised it measures the guard:
+    the experiment's health names the axis, the ring and the factor, and is not valid."""
+    from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
+    from device.plant.params import draw_plant
+    from device.rig import Rig
+    from lab import envelope, experiments
+
+    foot, ankle = envelope.plant_patient(envelope.STIFF)
+    hardware = SimulatedHardware(draw_plant(18, foot).changed(ankle), seed=1)
+    rig = Rig(hardware)
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(0.5, log_hz=0)
+    stiffness, damping = np.zeros(6), np.zeros(6)
+    stiffness[4], damping[4] = 50.0, 0.4
+    rig.set_impedance(stiffness, damping, [k == 4 for k in range(6)])
+    rig.track({})
+    rig.run(0.5, log_hz=0)
+    assert experiments.assess(rig, rig.run(0.2)).valid  # nothing rang yet
+    hardware.script_torque(4, SCRIPT_CONSTANT, rig.time, envelope.PULSE_NM, 0.0)
+    rig.run(0.1, log_hz=0)
+    hardware.script_torque(4, SCRIPT_NONE, 0.0, 0.0, 0.0)
+    health = experiments.assess(rig, rig.run(3.0))
+    assert not health.valid and not health.tripped
+    assert health.reason is not None and health.reason.startswith("pitch rang at ")
+    assert "ring guard raised its damping 1.50 times" in health.reason, health.reason
