@@ -91,6 +91,7 @@ class ModeMachine:
         self.segment: Segment | None = None
         self._service_reported = False
         self._rings = np.zeros(6)
+        self._factors = np.ones(6)
         self._homing_start = 0.0
         self._homing_from = np.zeros(6)
         self._home_since: float | None = None
@@ -231,10 +232,11 @@ class ModeMachine:
         state = self.rig.state
         for axis in range(6):
             rings = float(state.ring[axis, ring.G_RINGS])
+            factor = float(state.ring[axis, ring.G_FACTOR])
             if rings > self._rings[axis]:
-                factor = float(state.ring[axis, ring.G_FACTOR])
                 hz = float(state.ring[axis, ring.G_HZ])
-                law = float(state.impedance_map[axis, 2])
+                # The law's damping from the next period on: its kept map still has the last.
+                law = float(state.impedance_map[axis, 2]) * factor / self._factors[axis]
                 self.on_event(
                     EventKind.DAMPING_RAISED,
                     self.mode,
@@ -245,6 +247,7 @@ class ModeMachine:
                     f"{factor:.2f} times (law {law:.2f}) until its K or B changes",
                 )
             self._rings[axis] = rings
+            self._factors[axis] = factor
 
     def segment_time(self) -> float:
         """Time into the running segment, pauses excluded (0 before its run starts)."""
