@@ -1503,10 +1503,12 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         b_k,
                         p.dt_control,
                     )
-                own = b_k / (2.0 * j_k) if j_k > 0.0 else RING_NO_MODE
-                drive = s.trajectory[k, 3] if int(s.trajectory[k, 0]) == Waveform.SINE else 0.0
-                if p.ring.on[k] > 0.5 and ring.watch(s.ring[k], v_m, p.ring, own, drive):
-                    s.istate[I_RINGS] += 1
+                if p.ring.on[k] > 0.5:
+                    own = b_k / (2.0 * j_k) if j_k > 0.0 else RING_NO_MODE
+                    sine = int(s.trajectory[k, 0]) == Waveform.SINE
+                    drive = s.trajectory[k, 3] if sine else 0.0
+                    if ring.watch(s.ring[k], v_m, p.ring, own, drive):
+                        s.istate[I_RINGS] += 1
             else:
                 s.x_m[k] = 0.0
                 s.v_m[k] = 0.0

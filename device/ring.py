@@ -131,22 +131,21 @@ def params(
     )
 
 
+FRESH = np.zeros(N_RING)
+"""An axis's slots with nothing seen: a factor of 1 found under no prescription yet."""
+FRESH[G_FACTOR] = 1.0
+FRESH[G_K] = np.nan
+FRESH[G_B] = np.nan
+
+
 def new_ring() -> NDArray[np.float64]:
-    g = np.zeros((6, N_RING))
-    g[:, G_FACTOR] = 1.0
-    g[:, G_K] = np.nan
-    g[:, G_B] = np.nan
-    return g
+    return np.tile(FRESH, (6, 1))
 
 
 @njit_inline
 def forget(row: NDArray[np.float64]) -> None:
     """Nothing seen: the filter, the count and the factor start anew."""
-    for i in range(N_RING):
-        row[i] = 0.0
-    row[G_FACTOR] = 1.0
-    row[G_K] = np.nan
-    row[G_B] = np.nan
+    row[:] = FRESH
 
 
 @njit_inline

@@ -66,14 +66,14 @@ STIFF = "stiff"
 (``ankle_stiffness_*`` at the top of their rows in device.plant.params), whatever build it
 stands on. The ankle is the patient's, not the build's: a drawn build's own ankle is one
 draw of it, and the envelope must hold for any patient on any build."""
-ANKLE_AXES = ("roll", "pitch", "yaw")
+ROT_AXES = ("roll", "pitch", "yaw")
 
 
 def stiffest_ankle() -> tuple[tuple[str, float], ...]:
     """Plant changes that put the ankle at the top of its plausible range on every
     rotational axis (an axis with no range keeps its nominal stiffness)."""
     out = []
-    for axis in ANKLE_AXES:
+    for axis in ROT_AXES:
         row = PARAMETERS[f"ankle_stiffness_{axis}"]
         out.append((row.name, row.high if row.high is not None else row.value))
     return tuple(out)
@@ -86,8 +86,6 @@ def plant_patient(patient: str) -> tuple[str, tuple[tuple[str, float], ...]]:
         return "resisting", stiffest_ankle()
     return patient, ()
 
-
-ROT_AXES = ("roll", "pitch", "yaw")
 
 SETTLE = 0.5
 PRE = 0.5
