@@ -1604,7 +1604,10 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     held = np.empty(6)  # each leg's force that holds the measured load (N)
     if leg_forces_for_wrench(J, Wm, held) and leg_forces_for_wrench(J, W, f):
         for i in range(6):
-            s.compensation[i] = (f[i] + p.leg_mass * p.gravity * U[i, 2]) / p.area_cap
+            # A leg whose reading stands still is not handed a load it is not seen to carry.
+            force = f[i] + p.leg_mass * p.gravity * U[i, 2]
+            s.compensation[i] = supervision.blind_load(s.monitor, s.counters, i, force, p.sup)
+            s.compensation[i] /= p.area_cap
             held[i] += p.leg_mass * p.gravity * U[i, 2]
             s.monitor[supervision.M_LOAD_HELD + i] = held[i]
         # The platform's spatial inertia about the task origin, for the legs' observer and

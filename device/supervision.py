@@ -89,7 +89,9 @@ M_LEG_LAG = 258  # 6: each leg's residual less its seals' friction (N), through 
 M_SIDE_ALLOW = 264  # 1: filtered allowance for the model's inertia errors (N), check_side
 M_LOAD_SIDE = 265  # 2: the sideways load (x, y; N, base frame) the compensation last took
 M_LOAD_HELD = 267  # 6: each leg's force (N) that holds the load as measured, pistons' weight in
-N_MONITOR = 273
+M_BLIND_SEEN = 273  # 6: the load compensation (N) a leg was given while its reading last moved
+M_BLIND = 279  # 6: what the compensation gives a still leg beyond its load (N; - withheld)
+N_MONITOR = 285
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -146,7 +148,8 @@ a loaded machine where segments arrive bunched), under 3 N between."""
 C_POSE_ROUGH = 94
 """Reads left in which the measured pose is no acceleration: a leg reading moved in a way
 no leg can (``side_leg_rough``) within the last ``side_rough_reads``."""
-N_COUNTERS = 95
+C_LEG_STILL = 95  # 6: reads in a row, in motion, a leg's reading stayed bit for bit the same
+N_COUNTERS = 101
 
 
 @dataclass(frozen=True)
@@ -249,6 +252,29 @@ class SupervisionConfig:
     for up to about 30 ms: 25 reads (the wave-1 rule) tripped two of twelve drawn plants in
     a 2 deg pitch sweep, 33 none; each read more lets a frozen reading move the platform
     further before the trip (lab/safety.py measures how far)."""
+    leg_blind_reads: int = 33
+    """A leg whose reading has stayed bit for bit the same for this many reads (33 ms, as
+    long as the stuck rule counts) in motion is blind: the load compensation (eq. 15's G_p)
+    it is given may then move at most ``leg_blind_band`` from what it was given while its
+    reading last moved, until it moves again. The compensation follows the load the force
+    sensor measures, through the pose the legs measure; a leg whose sensor froze has no
+    position feedback left, and its pressure loop holds whatever force it is given, so it
+    goes where that force takes it. A foot resists the tilt this makes, the sensor measures
+    that as load, the compensation hands it to the frozen leg and the leg yields further:
+    with the patient pushing a compliant pitch (K = 50), a frozen leg 0 or 1 was pulled from
+    +22 to -94 N and ran 25-27 mm in 2 s (6.2-6.7 deg; the following bound tripped at 1 s).
+    Bounded, it moves 2.0-2.2 mm (0.66-0.76 deg) and stops. A healthy leg that stands still
+    while its load changes moves a count once the withheld force overcomes its seals, and
+    is followed again. After 10 reads instead the bound also caught healthy legs that rest
+    at the reversals of the lab's 0.3 mm heave sine as the foot settled on them (one
+    period, 0.6 N), and the sine's gain near 2 Hz, which the seals' stick-slip makes
+    sensitive to any such nudge (2.0-3.8 dB on noise seeds 1-5 without the bound), moved
+    by 1.5 dB; at 33 reads the lab's sweeps of z, x and pitch were unchanged but z at
+    1 Hz (+0.2 dB)."""
+    leg_blind_band: float = 5.0
+    """...(N). What the compensation withholds beyond it counts with the loop's push toward
+    ``leg_stuck_force``: a leg left 15 N out of balance that does not move a count is
+    stuck. At 10 N the frozen legs above moved 3.1-3.4 mm."""
     pressure_frozen_periods: int = 10
     """A chamber reading unchanged bit for bit over this many control periods in a row in
     each of which a valve of it was open at least the valve's response time (d_dead of
@@ -563,6 +589,8 @@ class SupervisionParams(NamedTuple):
     leg_stuck_error: float
     leg_stuck_target_move: float
     leg_stuck_reads: int
+    leg_blind_reads: int
+    leg_blind_band: float
     pressure_frozen_periods: int
     pressure_frozen_headroom: float
     air_window: int
@@ -623,6 +651,8 @@ def build(
     """The compiled thresholds; ``identified``: the calibration knows each valve's air per
     pulse (device.identify), and the air observer forgives less; ``lever``: the ankle's
     height above the platform's joint plane (m, see ``following_lag``)."""
+    if config.leg_blind_reads < 1 or not config.leg_blind_band >= 0.0:
+        raise ValueError("leg_blind_reads must be 1 or more and leg_blind_band 0 or more")
     return SupervisionParams(
         atm=atmosphere,
         open_below=config.pressure_open_below,
@@ -648,6 +678,8 @@ def build(
         leg_stuck_error=config.leg_stuck_error,
         leg_stuck_target_move=config.leg_stuck_target_move,
         leg_stuck_reads=config.leg_stuck_reads,
+        leg_blind_reads=config.leg_blind_reads,
+        leg_blind_band=config.leg_blind_band,
         pressure_frozen_periods=config.pressure_frozen_periods,
         pressure_frozen_headroom=config.pressure_frozen_headroom,
         air_window=config.air_window_periods,
@@ -786,8 +818,14 @@ def check_reading(
             counters[C_POSE_ROUGH] = q.side_rough_reads
         if x != prev or not moving:
             monitor[M_LEG_TARGET_SEEN + i] = leg_target[i]
+            counters[C_LEG_STILL + i] = 0
+        else:
+            counters[C_LEG_STILL + i] += 1
         ran_away = abs(leg_target[i] - monitor[M_LEG_TARGET_SEEN + i]) > q.leg_stuck_target_move
-        driven = abs(monitor[M_PUSH + i]) > q.leg_stuck_force or (
+        # The loop's push plus what the compensation withholds from a still leg (blind_load):
+        # the force the leg is left with beyond its load.
+        unbalanced = monitor[M_PUSH + i] + monitor[M_BLIND + i]
+        driven = abs(unbalanced) > q.leg_stuck_force or (
             ran_away and abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
         )
         if moving and x == prev and driven:
@@ -797,6 +835,28 @@ def check_reading(
         else:
             counters[C_LEG_SAME + i] = 0
     return Trip.NONE, -1
+
+
+@njit_inline
+def blind_load(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    leg: int,
+    force: float,
+    q: SupervisionParams,
+) -> float:
+    """The load compensation (N) to give ``leg``, whose compensation would be ``force``: all
+    of it while the leg's reading moves, at most ``leg_blind_band`` from what it was last
+    given then while the reading stands still (``leg_blind_reads``). Records what is
+    withheld (:data:`M_BLIND`) for the stuck rule of :func:`check_reading`."""
+    given = force
+    if counters[C_LEG_STILL + leg] >= q.leg_blind_reads:
+        seen = monitor[M_BLIND_SEEN + leg]
+        given = min(max(force, seen - q.leg_blind_band), seen + q.leg_blind_band)
+    else:
+        monitor[M_BLIND_SEEN + leg] = force
+    monitor[M_BLIND + leg] = given - force
+    return given
 
 
 @njit_inline

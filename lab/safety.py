@@ -100,8 +100,9 @@ CHANNELS: dict[FaultKind, tuple[int, ...]] = {
 }
 """Where the matrix injects each kind: on every channel it can strike. Which one changes
 everything for some kinds (a frozen leg 2 is caught mid-exercise in 179 ms, a frozen leg 0
-or 1 only after 435-459 ms, and while the patient pushes it lets the platform turn 6-7 deg
-unnoticed within a second), and one representative channel hid that."""
+or 1 only after 435-459 ms and not at all while the patient pushes, where it let the
+platform turn 6-7 deg within a second until the compensation's blind bound), and one
+representative channel hid that."""
 
 
 @dataclass(frozen=True)
