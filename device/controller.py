@@ -455,6 +455,20 @@ class ControllerConfig:
     the platform's light mode and rose +4.4 dB over its 0.5 Hz gain at 22 Hz (+1.9 with
     the lag). Kept at 1.2 N instead of all of it, the nominal unit fed nothing forward and
     followed a 1.2 mm y sine 3.5 dB below its 0.5 Hz gain at 2 Hz. 0: no lag."""
+    friction_compensation_lead: float = 100.0e-6
+    """Along a trajectory, the seals' friction fed forward fades out as a leg runs ahead of
+    its target in the direction it is fed, and is gone this far (m, four sensor counts)
+    ahead: it is there to bring a leg to its target against its seals, not to throw it
+    past. At a small sine's reversals the target turns while the lagged feed-forward still
+    pushes the old way, and 1.1-1.3 N against the loop's 5 N/mm threw the leg 0.15-0.2 mm
+    past each one: the lab's 0.3 mm heave sine rose 2.6-3.2 dB over its 0.5 Hz gain at
+    2 Hz on noise seeds 2-6 (1.4 on seed 1), and every axis's largest rise was such a low
+    frequency bump (1-3 Hz), not a resonance. With the fade the largest over the axes is
+    the heave's light mode at 22 Hz, 1.6-1.9 dB on seeds 1, 4 and 6; at 50 um as much, but
+    a resisting foot in passive range of motion on drawn build 0 took a chamber's air
+    observer to 1.38 of its tolerance (1.03 without the fade, 0.56 at 100 um) and a
+    service warning. While an axis renders, the law's command is followed as before. 0:
+    no fade."""
     impedance_lag_extra: float = 1.0e-3
     """Lag (s) the admittance law adds to the learnt one (``learn_lag``) when it takes the
     platform's lag out of the damping. The fit compares the command sent a period ago with
@@ -600,6 +614,7 @@ class ControllerParams(NamedTuple):
     friction_track_alpha: float  # its low-pass per control period
     friction_joint: NDArray[np.float64]  # (6,) N per leg on a joint step's approach
     friction_error: float  # m
+    friction_lead: float  # m
     approach_periods: float  # control periods a joint approach lasts at most
     fill_step: float  # Pa per control period
     lag_extra: float  # s
@@ -844,6 +859,7 @@ def build_params(
         ),
         friction_joint=config.friction_compensation_joint * config.calibration.leg_frictions(),
         friction_error=config.friction_compensation_error,
+        friction_lead=config.friction_compensation_lead,
         approach_periods=float(round(config.joint_approach_time / (CONTROL_PERIOD * dt_tick))),
         fill_step=config.fill_rate * CONTROL_PERIOD * dt_tick,
         vent_pulse_slots=int(config.vent_pulse_slots),
@@ -1196,7 +1212,13 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.friction_track[leg] += p.friction_track_alpha * (
             p.friction_track[leg] * rate - s.friction_track[leg]
         )
-        dP += s.friction_track[leg] / p.area_cap
+        ff = s.friction_track[leg]
+        if p.friction_lead > 0.0:
+            # Not past the target: a leg ahead of it in the feed-forward's direction is
+            # not thrown further (the seals hold it where it is).
+            lead = math.copysign(1.0, ff) * (s.leg_x[leg] - s.leg_target[leg])
+            ff *= min(1.0, max(0.0, 1.0 - lead / p.friction_lead))
+        dP += ff / p.area_cap
         if approaching:
             # The seals would hold the leg short of its target.
             toward = math.tanh((s.leg_target[leg] - s.leg_x[leg]) / p.friction_error)
