@@ -274,7 +274,12 @@ class SupervisionConfig:
     leg_blind_band: float = 5.0
     """...(N). What the compensation withholds beyond it counts with the loop's push toward
     ``leg_stuck_force``: a leg left 15 N out of balance that does not move a count is
-    stuck. At 10 N the frozen legs above moved 3.1-3.4 mm."""
+    stuck; so is one the loop pushes 15 N beyond the load it is given, as before, though
+    what is withheld may balance that push (a leg frozen a few counts short of its target
+    as the legs settle at mid stroke, pushed on by the integral and the foot's growing
+    reaction: before the bound it ran 21-30 mm before a VALVE or LEG_SENSOR trip at
+    247-370 ms, with the bound and the push alone it stops 5-6 mm off, named in
+    223-471 ms). At 10 N the frozen legs above moved 3.1-3.4 mm."""
     pressure_frozen_periods: int = 10
     """A chamber reading unchanged bit for bit over this many control periods in a row in
     each of which a valve of it was open at least the valve's response time (d_dead of
@@ -822,10 +827,11 @@ def check_reading(
         else:
             counters[C_LEG_STILL + i] += 1
         ran_away = abs(leg_target[i] - monitor[M_LEG_TARGET_SEEN + i]) > q.leg_stuck_target_move
-        # The loop's push plus what the compensation withholds from a still leg (blind_load):
-        # the force the leg is left with beyond its load.
-        unbalanced = monitor[M_PUSH + i] + monitor[M_BLIND + i]
-        driven = abs(unbalanced) > q.leg_stuck_force or (
+        # The loop's push beyond the load it is given, or beyond the load as measured (the
+        # push plus what the compensation withholds from a still leg, blind_load).
+        push = monitor[M_PUSH + i]
+        pushed = max(abs(push), abs(push + monitor[M_BLIND + i])) > q.leg_stuck_force
+        driven = pushed or (
             ran_away and abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
         )
         if moving and x == prev and driven:

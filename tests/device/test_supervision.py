@@ -730,6 +730,37 @@ def test_a_leg_sensor_frozen_while_the_patient_pushes_does_not_let_the_leg_run(
     assert unbounded.excursion_deg >= 4.0 and unbounded.excursion_mm >= 15.0, unbounded
 
 
+def _frozen_while_settling(leg: int, config: ctl.ControllerConfig) -> Rig:
+    """A rig whose legs were sent to mid stroke 50 ms before ``leg``'s sensor froze (the
+    step is a fraction of a millimetre from where the platform rests at start-up), watched
+    2 s."""
+    rig = Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=1), config)
+    rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
+    rig.run(0.051, log_hz=0)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.LEG_STUCK, float(hw.state.time[0]), leg, 0.0))
+    rig.run(WATCH_S, log_hz=1000)
+    return rig
+
+
+@pytest.mark.parametrize("leg", [1, 2, 4])
+def test_a_leg_sensor_frozen_while_the_legs_settle_is_caught_before_the_leg_runs(leg: int) -> None:
+    """Frozen a few counts short of its target as the legs settle at mid stroke, the leg is
+    pushed by the loop's integral and its seals' friction fed forward, its target never
+    moves again (the error rule waits for one that runs away) and the foot's reaction to
+    the tilt grows the load the compensation hands it: before the blind bound legs 1, 2
+    and 4 ran 21-30 mm (3.4-5.2 deg) before a VALVE or LEG_SENSOR trip at 247-370 ms. Now
+    the leg stops 5-6 mm off, balanced against the foot by the loop's push, and that push
+    beyond the load it is given (15 N) names it (223-471 ms measured)."""
+    rig = _frozen_while_settling(leg, ctl.ControllerConfig())
+    assert rig.trip == Trip.LEG_SENSOR and rig.trip_channel == leg, (rig.trip, rig.trip_channel)
+    log = rig.log
+    off = np.abs(log[:, COL[f"leg_x{leg}"]] - log[:, COL[f"leg_target{leg}"]]).max()
+    tilt = np.degrees(np.abs(log[:, [COL["pose_roll"], COL["pose_pitch"]]]).max())
+    assert off <= 7.0e-3 and tilt <= 1.5, (off, tilt)
+
+
 def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_counts() -> None:
     """The rule by itself: while a leg's reading moves its compensation is all of the load;
     once it has stood still for leg_blind_reads reads, at most leg_blind_band from what it
@@ -751,7 +782,7 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
     assert supervision.blind_load(monitor, counters, leg, 60.0, q) == 60.0
     assert monitor[supervision.M_BLIND + leg] == 0.0
 
-    def reads(withheld: float) -> tuple[int, int]:
+    def reads(withheld: float, push: float = 0.0) -> tuple[int, int]:
         counters[:] = 0
         monitor[:] = 0.0
         sensors = np.full(25, 3.0e5)  # chambers at 2 bar gauge
@@ -765,6 +796,7 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
             sensors[13 + leg] = 0.05
             sensors[19] += 0.01 * (-1) ** n  # a live force sensor
             monitor[supervision.M_BLIND + leg] = withheld
+            monitor[supervision.M_PUSH + leg] = push
             code, channel = supervision.check_reading(
                 monitor, counters, sensors, q, True, target, zero
             )
@@ -774,6 +806,13 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
 
     assert reads(-(q.leg_stuck_force + 1.0)) == (int(Trip.LEG_SENSOR), leg)
     assert reads(-(q.leg_stuck_force - 1.0)) == (0, -1)
+    # The loop's own push beyond the load it is given counts as before, whatever the
+    # compensation withholds (the leg may be held in balance by a load it has not been
+    # seen to carry).
+    assert reads(-(q.leg_stuck_force + 1.0), push=q.leg_stuck_force + 1.0) == (
+        int(Trip.LEG_SENSOR),
+        leg,
+    )
     for bad in ({"leg_blind_reads": 0}, {"leg_blind_band": -1.0}, {"leg_blind_band": math.nan}):
         with pytest.raises(ValueError, match="leg_blind"):
             build_supervision(SupervisionConfig(**bad), 1.0e5, 0.004)
