@@ -267,10 +267,11 @@ class SupervisionConfig:
     while its load changes moves a count once the withheld force overcomes its seals, and
     is followed again. After 10 reads instead the bound also caught healthy legs that rest
     at the reversals of the lab's 0.3 mm heave sine as the foot settled on them (one
-    period, 0.6 N), and the sine's gain near 2 Hz, which the seals' stick-slip makes
-    sensitive to any such nudge (2.0-3.8 dB on noise seeds 1-5 without the bound), moved
-    by 1.5 dB; at 33 reads the lab's sweeps of z, x and pitch were unchanged but z at
-    1 Hz (+0.2 dB)."""
+    period, 0.6 N), and the sine's gain near 2 Hz, which the friction fed forward then
+    made as sensitive to any such nudge as to the noise seed (2.0-3.8 dB absolute on seeds
+    1-5 without the bound; see ControllerConfig.friction_compensation_lead), moved by
+    1.5 dB; at 33 reads the lab's sweeps of z, x and pitch were unchanged but z at 1 Hz
+    (+0.2 dB)."""
     leg_blind_band: float = 5.0
     """...(N). What the compensation withholds beyond it counts with the loop's push toward
     ``leg_stuck_force``: a leg left 15 N out of balance that does not move a count is
