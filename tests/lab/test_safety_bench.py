@@ -19,15 +19,16 @@ def _bench(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_only_one_kind_runs_its_three_situations_and_reports_the_fault_keys() -> None:
+def test_only_one_kind_runs_its_four_situations_and_reports_the_fault_keys() -> None:
     done = _bench("--only", "FT-saturated", "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert result["only"] == ["FT_SATURATED"] and result["after_s"] == 0.5
-    assert result["faults_total"] == 3
+    assert result["faults_total"] == 4
     assert {f["kind"] for f in result["faults"]} == {"FT_SATURATED"}
-    assert {f["scenario"] for f in result["faults"]} == {"holding", "exercise", "pushing"}
-    assert result["faults_detected"] == 3 and result["detect_ms_max"] <= 5.0
+    situations = {f["scenario"] for f in result["faults"]}
+    assert situations == {"holding", "exercise", "pushing", "settling"}
+    assert result["faults_detected"] == 4 and result["detect_ms_max"] <= 5.0
     # Only the fault matrix ran: no healthy, boundary or K-B keys pretend to a result.
     assert "false_trips" not in result and "kb_grid_points" not in result
     assert set(result["targets_met"]) == {
