@@ -750,6 +750,14 @@ def build_params(
         math.isfinite(config.friction_compensation_lag) and config.friction_compensation_lag >= 0
     ):
         raise ValueError("friction_compensation_lag must be a finite time >= 0 (s)")
+    if not (
+        math.isfinite(config.friction_compensation_lead) and config.friction_compensation_lead >= 0
+    ):
+        raise ValueError("friction_compensation_lead must be a finite distance >= 0 (m)")
+    if not (
+        math.isfinite(config.load_side_slew_unwatched) and config.load_side_slew_unwatched >= 0
+    ):
+        raise ValueError("load_side_slew_unwatched must be a finite force rate >= 0 (N/s)")
     if not 0.0 <= config.position_integral_moving <= 1.0:
         raise ValueError("position_integral_moving must be 0..1 (a share of position_ki)")
     if not (
