@@ -360,12 +360,13 @@ class ControllerConfig:
     load_side_slew: float = 500.0
     """See ``load_side_jump`` (N/s): 2 N a pose period."""
     load_side_slew_unwatched: float = 100.0
-    """...and this (N/s: 0.4 N a pose period) while the sideways check is not yet armed,
-    in the 0.1 s after a new command (``supervision.SIDE_ARM_PERIODS``), when nothing would
-    name a false sideways load: a 30 N offset on Fy 50 ms into the move that starts every
-    session entered at 500 N/s, was named only as the check armed (52 ms) and had moved the
-    platform 4.81 mm (Fx 2.65); now 0.32 and 0.51 mm, named as soon. Healthy readings never
-    jump by that much in a pose period (above), so no healthy figure changed."""
+    """...and this (N/s: 0.4 N a pose period) while the sideways check does not judge
+    (``supervision.accel_trusted``: the 0.1 s after a new command, or a leg reading that
+    moved as no leg can), when nothing would name a false sideways load: a 30 N offset on
+    Fy 50 ms into the move that starts every session entered at 500 N/s, was named only as
+    the check armed (52 ms) and had moved the platform 4.81 mm (Fx 2.65); now 0.32 and
+    0.51 mm, named as soon. Healthy readings never jump by that much in a pose period
+    (above), so no healthy figure changed."""
     virtual_inertia: tuple[float, ...] = (0.0, 0.0, 0.0, 0.03, 0.03, 0.03)
     """Virtual inertia J per axis (kg; kg m2) added to the rendered compliance:
     ``J ddX_m + B dX_m + K X_m = F`` (device.impedance). Chosen by the device, not by the
@@ -1629,9 +1630,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     # The load as measured, for the checks below, and as the legs take it: sideways, on a
     # held axis, a jump faster than a foot pushes enters slowly (load_side_jump).
     Wm = W.copy()
-    # Slower still while the sideways check is not yet armed (after a new command).
-    watched = s.counters[supervision.C_SIDE_ARMED] >= supervision.SIDE_ARM_PERIODS
-    step = p.load_side_step if watched else p.load_side_step_unwatched
+    # Slower still while the sideways check does not judge (after a new command, or while a
+    # leg reading moves as no leg can).
+    step = p.load_side_step if supervision.accel_trusted(s.counters) else p.load_side_step_unwatched
     for k in range(2):
         last = s.monitor[supervision.M_LOAD_SIDE + k]
         taken = W[k]
