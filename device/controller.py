@@ -367,6 +367,20 @@ class ControllerConfig:
     the check armed (52 ms) and had moved the platform 4.81 mm (Fx 2.65); now 0.32 and
     0.51 mm, named as soon. Healthy readings never jump by that much in a pose period
     (above), so no healthy figure changed."""
+    load_turn_slew: float = 50.0
+    """After a torque channel of the force/torque sensor stepped as no foot twists
+    (``SupervisionConfig.ft_torque_step`` between two reads), the moment about a held
+    rotational axis (roll, pitch or yaw, base frame) enters the load compensation at this
+    rate only (N m/s: 0.2 N m a pose period), until it has caught up with the reading. A 3
+    N m offset on the yaw channel was named by the moment cross-check in 14-18 ms, but the
+    pressures it had set in the legs by then, trapped as every valve shut, turned the
+    platform 2.9 deg within 40 ms after (yaw is where the legs' air springs are softest);
+    now 0.7 deg. Judged per read, not per pose period: a real twist of 5 N m at 600 N m/s
+    (faster than a foot) changes 2.4 N m a pose period, as much as the offset, but 0.6 a
+    read; slowed as well, it pushed a held yaw 2.3-2.7 deg off and tripped FOLLOWING."""
+    load_turn_slew_unwatched: float = 10.0
+    """...and this (N m/s) while the moment cross-check does not judge
+    (``supervision.accel_trusted``), as ``load_side_slew_unwatched``."""
     virtual_inertia: tuple[float, ...] = (0.0, 0.0, 0.0, 0.03, 0.03, 0.03)
     """Virtual inertia J per axis (kg; kg m2) added to the rendered compliance:
     ``J ddX_m + B dX_m + K X_m = F`` (device.impedance). Chosen by the device, not by the
@@ -612,6 +626,8 @@ class ControllerParams(NamedTuple):
     load_side_jump: float  # N per pose period
     load_side_step: float  # N per pose period
     load_side_step_unwatched: float  # N per pose period
+    load_turn_step: float  # N m per pose period
+    load_turn_step_unwatched: float  # N m per pose period
     virtual_inertia: NDArray[np.float64]
     virtual_omega2: float
     lag_max: float
@@ -759,6 +775,10 @@ def build_params(
         math.isfinite(config.load_side_slew_unwatched) and config.load_side_slew_unwatched >= 0
     ):
         raise ValueError("load_side_slew_unwatched must be a finite force rate >= 0 (N/s)")
+    for name in ("load_turn_slew", "load_turn_slew_unwatched"):
+        rate = getattr(config, name)
+        if not (math.isfinite(rate) and rate >= 0):
+            raise ValueError(f"{name} must be a finite moment rate >= 0 (N m/s)")
     if not 0.0 <= config.position_integral_moving <= 1.0:
         raise ValueError("position_integral_moving must be 0..1 (a share of position_ki)")
     if not (
@@ -860,6 +880,8 @@ def build_params(
         load_side_jump=config.load_side_jump * CONTROL_PERIOD * dt_tick,
         load_side_step=config.load_side_slew * CONTROL_PERIOD * dt_tick,
         load_side_step_unwatched=config.load_side_slew_unwatched * CONTROL_PERIOD * dt_tick,
+        load_turn_step=config.load_turn_slew * CONTROL_PERIOD * dt_tick,
+        load_turn_step_unwatched=config.load_turn_slew_unwatched * CONTROL_PERIOD * dt_tick,
         virtual_inertia=np.array(config.virtual_inertia, dtype=np.float64),
         virtual_omega2=(2.0 * math.pi * config.virtual_frequency_max) ** 2,
         lag_max=config.impedance_lag_max,
@@ -1632,7 +1654,8 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
     Wm = W.copy()
     # Slower still while the sideways check does not judge (after a new command, or while a
     # leg reading moves as no leg can).
-    step = p.load_side_step if supervision.accel_trusted(s.counters) else p.load_side_step_unwatched
+    watched = supervision.accel_trusted(s.counters)
+    step = p.load_side_step if watched else p.load_side_step_unwatched
     for k in range(2):
         last = s.monitor[supervision.M_LOAD_SIDE + k]
         taken = W[k]
@@ -1640,6 +1663,20 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             taken = last + math.copysign(step, taken - last)
         W[k] = taken
         s.monitor[supervision.M_LOAD_SIDE + k] = taken
+    # About a held rotational axis, slowly after a torque reading stepped (load_turn_slew).
+    step = p.load_turn_step if watched else p.load_turn_step_unwatched
+    stepped = s.counters[supervision.C_FT_STEPPED] > 0
+    behind = False
+    for k in range(3, 6):
+        last = s.monitor[supervision.M_LOAD_TURN + k - 3]
+        taken = W[k]
+        if stepped and p.load_compensation and s.compliant[k] <= 0.5 and abs(taken - last) > step:
+            taken = last + math.copysign(step, taken - last)
+            behind = True
+        W[k] = taken
+        s.monitor[supervision.M_LOAD_TURN + k - 3] = taken
+    if not behind:
+        s.counters[supervision.C_FT_STEPPED] = 0
     for k in range(6):
         W[k] = -W[k]
         Wm[k] = -Wm[k]
@@ -1731,6 +1768,14 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # accelerates the platform): judged against a tighter limit (check_side), only
             # while the inertial force above has been taken out.
             axis = supervision.check_side(s.monitor, s.counters, W[0], W[1], allowance, p.sup)
+            # About the ankle, the same wrench's moment is the torque sensor's error and what
+            # the seals hold beyond their identified friction: judged leg by leg as each
+            # slides or sticks (check_turn).
+            allow = np.empty(3)
+            turn_allowance(
+                J, r, accel, s.leg_rate, p.leg_friction, p.body_mass, p.body_inertia, p.sup, allow
+            )
+            spin = supervision.check_turn(s.monitor, s.counters, W[3:], allow, p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return
@@ -1739,6 +1784,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 return
             if axis >= 0:
                 trip(s, Trip.FORCE_SENSOR, axis)
+                return
+            if spin >= 0:
+                trip(s, Trip.FORCE_SENSOR, spin)
                 return
 
 
@@ -1775,6 +1823,66 @@ def side_allowance(
         along = J[i, 3] * a0 + J[i, 4] * a1 + J[i, 5] * a2
         out += q.side_leg_mass_tol * abs(along) * math.sqrt(J[i, 0] ** 2 + J[i, 1] ** 2)
     return out
+
+
+@njit_inline
+def turn_allowance(
+    J: NDArray[np.float64],
+    r: NDArray[np.float64],
+    accel: NDArray[np.float64],
+    rate: NDArray[np.float64],
+    friction: NDArray[np.float64],
+    mass: float,
+    inertia: NDArray[np.float64],
+    q: supervision.SupervisionParams,
+    out: NDArray[np.float64],
+) -> None:
+    """Write ``out`` (3): the moment about the task origin (N m, roll pitch yaw, base frame)
+    that the legs' residual may hold with no sensor at fault, beside ``turn_floor``. Leg by
+    leg, times its moment arm about each axis (rows of ``J``): its seals' friction beyond
+    what was taken out (``friction``, identified; ``turn_friction_unidentified`` where
+    none), ``turn_stick`` times it for a leg that sticks and ``turn_slip`` for one that
+    slides at ``rate`` (m/s), and ``turn_viscous`` times its rate; and what the platform's
+    inertial model may get wrong as the plate turns at ``accel[3:]`` above
+    ``side_turn_floor`` (the tolerances of :func:`side_allowance`: the plate's mass, its
+    centre of mass at ``r``, its inertia tensor ``inertia`` growing with its mass, and each
+    piston's mass)."""
+    for k in range(3):
+        out[k] = q.turn_floor
+    for i in range(6):
+        f = friction[i] if friction[i] > 0.0 else q.turn_friction_unidentified
+        slide = abs(math.tanh(rate[i] / q.side_friction_speed))
+        held = f * (q.turn_stick * (1.0 - slide) + q.turn_slip * slide)
+        held += q.turn_viscous * abs(rate[i])
+        for k in range(3):
+            out[k] += held * abs(J[i, 3 + k])
+    a0, a1, a2 = accel[3], accel[4], accel[5]
+    turn = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if turn <= q.side_turn_floor:
+        return
+    share = 1.0 - q.side_turn_floor / turn
+    a0, a1, a2 = share * a0, share * a1, share * a2
+    turn -= q.side_turn_floor
+    # A plate side_mass_tol heavier: its extra mass at r, turning (r x (a x r)).
+    ax = a1 * r[2] - a2 * r[1]
+    ay = a2 * r[0] - a0 * r[2]
+    az = a0 * r[1] - a1 * r[0]
+    extra = (
+        r[1] * az - r[2] * ay,
+        r[2] * ax - r[0] * az,
+        r[0] * ay - r[1] * ax,
+    )
+    reach = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    biggest = max(inertia[0, 0], inertia[1, 1], inertia[2, 2])
+    # Its centre of mass side_com_tol off, and its own inertia as much heavier as its mass.
+    spread = (mass + q.side_mass_tol) * q.side_com_tol * (2.0 * reach + q.side_com_tol)
+    spread += biggest * q.side_mass_tol / mass
+    for k in range(3):
+        out[k] += q.side_mass_tol * abs(extra[k]) + spread * turn
+    for i in range(6):
+        along = J[i, 3] * a0 + J[i, 4] * a1 + J[i, 5] * a2
+        for k in range(3):
+            out[k] += q.side_leg_mass_tol * abs(along) * abs(J[i, 3 + k])
 
 
 @njit_inline

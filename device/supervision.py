@@ -35,7 +35,10 @@ What is watched, and how:
   transducer's zero) largely cancel;
 - sideways, the same sum less the platform's own inertial force and the seals' identified
   friction: what is left is the force sensor's error alone, so a phantom sideways load is
-  caught within milliseconds, before the loop has carried the platform far.
+  caught within milliseconds, before the loop has carried the platform far;
+- about the ankle, the same sum's moment, against an allowance for what the seals may hold
+  beyond their identified friction, leg by leg as each slides or sticks: a phantom torque
+  that sets the platform turning is caught as soon as the legs slide under it.
 """
 
 from __future__ import annotations
@@ -91,7 +94,11 @@ M_LOAD_SIDE = 265  # 2: the sideways load (x, y; N, base frame) the compensation
 M_LOAD_HELD = 267  # 6: each leg's force (N) that holds the load as measured, pistons' weight in
 M_BLIND_SEEN = 273  # 6: the load compensation (N) a leg was given while its reading last moved
 M_BLIND = 279  # 6: what the compensation gives a still leg beyond its load (N; - withheld)
-N_MONITOR = 285
+M_TURN = 285  # 3: filtered moment residual at the ankle less the platform's inertia (N m)
+M_TURN_ALLOW = 288  # 3: filtered allowance for what the legs' friction and the model leave there
+M_TURN_PEAK = 291  # 1: largest share of its allowance the moment residual took since the reset
+M_LOAD_TURN = 292  # 3: the moment (roll, pitch, yaw; N m) the compensation last took
+N_MONITOR = 295
 
 C_FT_SAME = 0
 C_FT_ZERO = 1
@@ -149,7 +156,12 @@ C_POSE_ROUGH = 94
 """Reads left in which the measured pose is no acceleration: a leg reading moved in a way
 no leg can (``side_leg_rough``) within the last ``side_rough_reads``."""
 C_LEG_STILL = 95  # 6: reads in a row, in motion, a leg's reading stayed bit for bit the same
-N_COUNTERS = 101
+C_TURN = 101
+"""Control periods in a row with the moment residual (``M_TURN``) over its allowance."""
+C_FT_STEPPED = 102
+"""1 from a torque reading's step (``ft_torque_step``) until the load compensation of the
+held rotational axes has caught up with the readings (``ControllerConfig.load_turn_slew``)."""
+N_COUNTERS = 103
 
 
 @dataclass(frozen=True)
@@ -218,6 +230,12 @@ class SupervisionConfig:
     land harder."""
     ft_torque_jump: float = 4.0
     """...and a torque channel (N m): eight times the healthy runs' largest step (0.53)."""
+    ft_torque_step: float = 1.5
+    """A torque channel that changes more than this between two reads (N m), under the jump
+    rule, is a step no foot twists (0.2-0.5 N m a millisecond: the 2-5 N/ms of
+    ``ft_force_jump`` at the ankle's 0.1 m; three times the healthy runs' largest step) but
+    not yet a fault: what it brings enters the held axes' load compensation slowly
+    (``ControllerConfig.load_turn_slew``) while the moment cross-check judges it."""
     leg_jump: float = 1.0e-3
     """A leg reading that moves more than this between two reads (1 ms) is a sensor fault:
     1 m/s, 2.5 times the leg speed limit, 40 sensor counts."""
@@ -519,6 +537,44 @@ class SupervisionConfig:
     side_rough_reads: int = 30
     """...for this many reads after (30 ms): the pose rate's and the check's low-passes
     have forgotten such a read by then."""
+    turn_floor: float = 1.0
+    """Moment residual about the ankle (N m, each of roll, pitch and yaw, base frame) that
+    the moment cross-check always forgives, beside the legs' friction and the inertia
+    (below): what the model leaves at any speed, the plate's weight off its model (1 kg,
+    its centre of mass 1-2 cm off: 0.3-0.8 N m as it tilts) and each transducer's zero.
+    The check filters and arms as the sideways one does (``side_cutoff_hz``,
+    ``SIDE_ARM_PERIODS``) and takes the platform's inertia out with the same model. A
+    torque offset of the force/torque sensor acts on the loop as a patient's torque would
+    (on a compliant axis it turns the platform; on a held one the load compensation feeds
+    it to the legs), but the legs then carry nothing of it: it stays in their residual,
+    unlike a real torque, which they carry."""
+    turn_stick: float = 2.0
+    """Share of a leg's identified seal friction (``Calibration.leg_friction``) its seals may
+    hold when the leg does not slide (its measured rate well under
+    ``side_friction_speed``): breakaway friction is 1.2-2 times the Coulomb friction
+    (docs/plant.md), and a resting leg holds anything up to it either way. The allowance
+    for each leg, times its moment arm about the axis, shrinks from this to ``turn_slip``
+    as the leg's rate rises (``tanh(rate / side_friction_speed)``)."""
+    turn_slip: float = 1.0
+    """...and how far a sliding leg's friction may be from its identified value, as a share
+    of it: the start-up identification measures it once, in a slow heave with nobody on the
+    plate; the seals' friction grows with the chamber pressures and falls past the Stribeck
+    speed. A whole share: the check is there for a torque that moves the platform, not for
+    the legs' friction."""
+    turn_viscous: float = 35.0
+    """...and per leg, this (N s/m) times its measured rate: the seals' viscous friction
+    (2-20 N s/m, not identified) and what the pressures' latency leaves in a fast swing.
+    Measured: a foot swinging drawn build 27's roll at K 0 with an 8 N m sine at 3 Hz (200
+    deg/s, its legs at 0.35 m/s; viscous seals of 19 N s/m, a 3.39 kg plate) left 4.2 N m
+    at the fastest against 0.5-2 N m at the reversals: about 30 N s/m over the legs' arms.
+    At 25 N s/m that kick took 0.91 of its allowance. A phantom torque is caught before the
+    platform moves that fast: at 0.1 m/s this adds 0.3-1.3 N m."""
+    turn_friction_unidentified: float = 5.0
+    """Without a calibration (no friction identified, nothing taken out), the friction each
+    leg may hold in place of its identified one (N): the top of the plausible range
+    (docs/plant.md). Uncalibrated the check is only a broad one."""
+    turn_periods: int = 1
+    """Control periods over the allowance before the trip, as ``side_periods``."""
     side_periods: int = 1
     """Control periods (4 ms) over the limit before the trip: the filters are the averaging.
     With a second period, a 30 N offset mid-exercise was caught up to 16 ms later (the
@@ -590,6 +646,7 @@ class SupervisionParams(NamedTuple):
     ft_frozen_reads: int
     ft_force_jump: float
     ft_torque_jump: float
+    ft_torque_step: float
     leg_jump: float
     leg_stuck_force: float
     leg_stuck_error: float
@@ -638,6 +695,12 @@ class SupervisionParams(NamedTuple):
     side_turn_floor: float
     side_leg_rough: float
     side_rough_reads: int
+    turn_floor: float
+    turn_stick: float
+    turn_slip: float
+    turn_viscous: float
+    turn_friction_unidentified: float
+    turn_periods: int
     following_translation: float
     following_rotation: float
     following_lag: float
@@ -659,6 +722,16 @@ def build(
     height above the platform's joint plane (m, see ``following_lag``)."""
     if config.leg_blind_reads < 1 or not config.leg_blind_band >= 0.0:
         raise ValueError("leg_blind_reads must be 1 or more and leg_blind_band 0 or more")
+    if not (math.isfinite(config.turn_floor) and config.turn_floor > 0.0):
+        raise ValueError("turn_floor must be a finite moment > 0 (N m)")
+    for name in ("turn_stick", "turn_slip", "turn_viscous", "turn_friction_unidentified"):
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"{name} must be finite and 0 or more")
+    if config.turn_periods < 1:
+        raise ValueError("turn_periods must be 1 or more")
+    if not config.ft_torque_step > 0.0:
+        raise ValueError("ft_torque_step must be a moment > 0 (N m)")
     return SupervisionParams(
         atm=atmosphere,
         open_below=config.pressure_open_below,
@@ -679,6 +752,7 @@ def build(
         ft_frozen_reads=config.ft_frozen_reads,
         ft_force_jump=config.ft_force_jump,
         ft_torque_jump=config.ft_torque_jump,
+        ft_torque_step=config.ft_torque_step,
         leg_jump=config.leg_jump,
         leg_stuck_force=config.leg_stuck_force,
         leg_stuck_error=config.leg_stuck_error,
@@ -731,6 +805,12 @@ def build(
         side_turn_floor=config.side_turn_floor,
         side_leg_rough=config.side_leg_rough,
         side_rough_reads=config.side_rough_reads,
+        turn_floor=config.turn_floor,
+        turn_stick=config.turn_stick,
+        turn_slip=config.turn_slip,
+        turn_viscous=config.turn_viscous,
+        turn_friction_unidentified=config.turn_friction_unidentified,
+        turn_periods=config.turn_periods,
         following_translation=config.following_translation,
         following_rotation=config.following_rotation,
         following_lag=config.following_lag,
@@ -788,6 +868,8 @@ def check_reading(
         jump = q.ft_force_jump if k < 3 else q.ft_torque_jump
         if moving and not first and abs(v - monitor[M_FT_PREV + k]) > jump:
             return Trip.FORCE_SENSOR, k
+        if k >= 3 and not first and abs(v - monitor[M_FT_PREV + k]) > q.ft_torque_step:
+            counters[C_FT_STEPPED] = 1
         limit = q.ft_force_sat if k < 3 else q.ft_torque_sat
         if abs(v) >= limit:
             saturated = True
@@ -1243,6 +1325,40 @@ def check_side(
 
 
 @njit_inline
+def check_turn(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    moment: NDArray[np.float64],
+    allowance: NDArray[np.float64],
+    q: SupervisionParams,
+) -> int:
+    """Filter the moment residual about the ankle less the platform's inertia (``moment``,
+    N m, roll pitch yaw, base frame), and its ``allowance`` (N m, each: the legs' friction
+    and the inertial model's errors, ``turn_floor`` on) as it falls; the wrench component
+    (3-5) that stayed furthest over its allowance, else -1."""
+    if not accel_trusted(counters):
+        counters[C_TURN] = 0
+        return -1
+    worst, share = -1, 0.0
+    for k in range(3):
+        r = monitor[M_TURN + k] + q.side_alpha * (moment[k] - monitor[M_TURN + k])
+        # The allowance rises at once (a leg that sticks holds its friction at once, and the
+        # check arms with nothing filtered yet) and falls as the residual's filter forgets.
+        a = monitor[M_TURN_ALLOW + k]
+        a = allowance[k] if allowance[k] > a else a + q.side_alpha * (allowance[k] - a)
+        monitor[M_TURN + k] = r
+        monitor[M_TURN_ALLOW + k] = a
+        ratio = abs(r) / max(a, q.turn_floor)
+        if ratio > share:
+            worst, share = k, ratio
+    monitor[M_TURN_PEAK] = max(monitor[M_TURN_PEAK], share)
+    counters[C_TURN] = counters[C_TURN] + 1 if share > 1.0 else 0
+    if counters[C_TURN] < q.turn_periods:
+        return -1
+    return 3 + worst
+
+
+@njit_inline
 def wrench_component(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
     """The component (0..5) of the filtered wrench residual furthest over its limit."""
     worst, share = 0, -1.0
@@ -1398,9 +1514,13 @@ def reset_motion(monitor: NDArray[np.float64], counters: NDArray[np.int64]) -> N
     for k in range(2):
         monitor[M_SIDE + k] = 0.0
     monitor[M_SIDE_ALLOW] = 0.0
+    for k in range(3):
+        monitor[M_TURN + k] = 0.0
+        monitor[M_TURN_ALLOW + k] = 0.0
     for i in range(6):
         monitor[M_LEG_LAG + i] = 0.0
     counters[C_SIDE] = 0
+    counters[C_TURN] = 0
     disarm_following(counters)
     for c in range(12):
         counters[C_P_SAME + c] = 0

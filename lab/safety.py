@@ -138,8 +138,18 @@ class FaultRun:
     part from a healthy one until it is used; counted as undetected all the same."""
 
 
-def _rig(patient: str, seed: int) -> Rig:
-    return Rig(SimulatedHardware(PlantConfig(patient=patient), seed=seed))
+def _rig(patient: str, seed: int, calibrated: bool = True) -> Rig:
+    """The nominal unit on noise ``seed``, with its start-up identification as deployed (the
+    systemd unit in deploy/ starts the device with ``--calibration``): the seals' friction
+    the checks take out and allow for is the unit's own. ``calibrated=False``: as the
+    service runs without a calibration."""
+    cfg = PlantConfig(patient=patient)
+    if not calibrated:
+        return Rig(SimulatedHardware(cfg, seed=seed))
+    from device.controller import ControllerConfig
+    from lab.experiments import calibration_of
+
+    return Rig(SimulatedHardware(cfg, seed=seed), ControllerConfig(calibration=calibration_of(cfg)))
 
 
 def _start(rig: Rig, scenario: str) -> None:
@@ -175,13 +185,14 @@ def _run(
     seed: int,
     channel: int | None = None,
     after: float = AFTER_S,
+    calibrated: bool = True,
 ) -> tuple[Rig, np.ndarray, float, float, float]:
     """One scenario with ``kind`` injected (or none): (rig, true pose log, detection s,
     onset s, stop s), all from the injection; the onset is when the fault became one (a
     drooping regulator's output crossing the low mark), 0 for any other; the stop is when
     the loop let go of the platform (a trip) or held it (a low supply), NaN if it never
     did (a service warning leaves the loop running)."""
-    rig = _rig("relaxed", seed)
+    rig = _rig("relaxed", seed, calibrated)
     _start(rig, scenario)
     rig.run({"holding": 0.1, "settling": 0.05}.get(scenario, 0.5), log_hz=0)
     rig.clear_log()
@@ -243,10 +254,10 @@ def excursion(faulty: np.ndarray, healthy: np.ndarray, stop_row: int | None) -> 
 
 
 @functools.cache
-def _healthy_pose(scenario: str, seed: int, after: float) -> np.ndarray:
+def _healthy_pose(scenario: str, seed: int, after: float, calibrated: bool = True) -> np.ndarray:
     """The twin run without the fault: the same for every fault kind and channel (the plant
     and the controller are deterministic for a seed), so simulated once."""
-    _, pose, _, _, _ = _run(None, scenario, seed, after=after)
+    _, pose, _, _, _ = _run(None, scenario, seed, after=after, calibrated=calibrated)
     pose.flags.writeable = False
     return pose
 
@@ -257,12 +268,13 @@ def run_fault(
     seed: int = 1,
     channel: int | None = None,
     after: float = AFTER_S,
+    calibrated: bool = True,
 ) -> FaultRun:
     """``kind`` injected in ``scenario`` on ``channel`` (default: the one of FAULTS), watched
-    for ``after`` seconds."""
-    healthy = _healthy_pose(scenario, seed, _watched_s(kind, after))
+    for ``after`` seconds, on the nominal unit with its calibration (or without)."""
+    healthy = _healthy_pose(scenario, seed, _watched_s(kind, after), calibrated)
     channel = FAULTS[kind][0] if channel is None else channel
-    rig, pose, detect, onset, stop = _run(kind, scenario, seed, channel, after)
+    rig, pose, detect, onset, stop = _run(kind, scenario, seed, channel, after, calibrated)
     # Against the healthy twin while the loop runs (a service warning leaves it running),
     # then against where the twin was when the loop let go of the platform or held it.
     row = None if math.isnan(stop) else round(stop * 1000.0)

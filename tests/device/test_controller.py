@@ -353,6 +353,8 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("friction_compensation_lead", math.nan),
         ("load_side_slew_unwatched", -1.0),
         ("load_side_slew_unwatched", math.inf),
+        ("load_turn_slew", -1.0),
+        ("load_turn_slew_unwatched", math.inf),
         ("friction_compensation_joint", -0.1),
         ("friction_compensation_joint", 1.5),
         ("friction_compensation_joint", math.nan),
