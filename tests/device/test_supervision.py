@@ -575,6 +575,7 @@ def test_healthy_exercises_do_not_trip_the_supervision() -> None:
         assert r.trip not in supervision_trips and not r.supply_low and not r.service, r
         assert r.residual_max_n < 0.7 * 30.0, r
         assert r.wrench_force_max_n < 45.0 and r.wrench_torque_max_nm < 5.5, r
+        assert 0.0 < r.turn_share_max < 1.0, r
         assert 0.0 < r.air_flow_max < 1.0, r
     assert all(math.isfinite(r.residual_max_n) for r in runs)
 
