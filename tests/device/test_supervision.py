@@ -1016,7 +1016,7 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     until the sideways limit allowed for the inertial model's errors as the plate turns
     (``side_mass_uncertainty``). The moment cross-check's hardest: an 8 N m sine at 3 Hz
     swinging build 27's roll or build 26's pitch at K 0 (200 deg/s; viscous seals of 19-20
-    N s/m), 0.75 and 0.73 of its allowance. A limit of the range of motion or of the legs'
+    N s/m), 0.75 and 0.72 of its allowance. A limit of the range of motion or of the legs'
     speed may stop such a kick; a sensor's cross-check must not."""
     from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 
