@@ -1037,22 +1037,29 @@ def test_a_foot_that_kicks_a_drawn_build_trips_no_cross_check(
     assert rig.trip not in (Trip.FORCE_SENSOR, Trip.FORCE_BALANCE), (rig.trip, rig.trip_channel)
 
 
-def test_the_inertia_allowance_counts_only_turning_above_the_noise_floor() -> None:
-    """``side_allowance`` by itself, at the platform's home pose: nothing for a translation
-    however hard, nor for a turn within the noise floor; above it, what the model's errors
-    would leave, growing with the angular acceleration beyond the floor and never more than
-    the three errors' sum at that acceleration."""
+def _at_mid_stroke() -> tuple[ctl.ControllerParams, np.ndarray, np.ndarray]:
+    """The nominal controller's parameters, its Jacobian with every leg at mid stroke (rows:
+    each leg's unit vector and moment arm) and the plate's centre of mass there."""
     from device.kinematics import Kinematics, leg_vectors, twist_jacobian
 
     rig = Rig(SimulatedHardware())
-    p, q = rig.params, rig.params.sup
+    p = rig.params
     pose = Kinematics(rig.geometry).forward(
         rig.geometry.min_length + np.full(6, 0.5 * rig.geometry.stroke)
     )
     L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
     leg_vectors(pose, p.base, p.plat, L, U, A)
     twist_jacobian(U, A, J)
-    r = p.body_com.copy()
+    return p, J, p.body_com.copy()
+
+
+def test_the_inertia_allowance_counts_only_turning_above_the_noise_floor() -> None:
+    """``side_allowance`` by itself, at the platform's home pose: nothing for a translation
+    however hard, nor for a turn within the noise floor; above it, what the model's errors
+    would leave, growing with the angular acceleration beyond the floor and never more than
+    the three errors' sum at that acceleration."""
+    p, J, r = _at_mid_stroke()
+    q = p.sup
 
     def allowance(accel: list[float]) -> float:
         return float(ctl.side_allowance(J, r, np.array(accel), p.body_mass, q))
@@ -1079,17 +1086,8 @@ def test_the_moment_allowance_follows_each_legs_seals_and_the_turning() -> None:
     ``turn_stick`` times their identified friction, sliding legs ``turn_slip`` times it and
     their viscous share, each times its moment arm; a leg with no identified friction counts
     the plausible top; the inertial model's share grows with the turning beyond the floor."""
-    from device.kinematics import Kinematics, leg_vectors, twist_jacobian
-
-    rig = Rig(SimulatedHardware())
-    p, q = rig.params, rig.params.sup
-    pose = Kinematics(rig.geometry).forward(
-        rig.geometry.min_length + np.full(6, 0.5 * rig.geometry.stroke)
-    )
-    L, U, A, J = np.empty(6), np.empty((6, 3)), np.empty((6, 3)), np.empty((6, 6))
-    leg_vectors(pose, p.base, p.plat, L, U, A)
-    twist_jacobian(U, A, J)
-    r = p.body_com.copy()
+    p, J, r = _at_mid_stroke()
+    q = p.sup
     arms = np.abs(J[:, 3:6])  # leg x axis
     friction = np.array([1.0, 1.2, 0.8, 1.5, 1.0, 0.9])
 
