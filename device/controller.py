@@ -1094,7 +1094,14 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         return
     # Sensor faults are judged on the raw readings (the leg targets move into their frame).
     fault, channel = supervision.check_reading(
-        s.monitor, s.counters, sensors, p.sup, moving(s.istate), s.leg_target, p.sensor_zero
+        s.monitor,
+        s.counters,
+        sensors,
+        p.sup,
+        moving(s.istate),
+        s.leg_target,
+        p.sensor_zero,
+        p.leg_friction,
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)

@@ -241,6 +241,17 @@ class SupervisionConfig:
     1 m/s, 2.5 times the leg speed limit, 40 sensor counts."""
     leg_stuck_force: float = 15.0
     """A leg the position loop pushes this hard (N) beyond its load, or..."""
+    leg_stuck_floor: float = 5.0
+    """...on a unit whose seals' friction was identified (``Calibration.leg_friction``),
+    this (N) plus ``leg_stuck_seals`` times the leg's own, if less: what a healthy leg
+    sticks against is its breakaway friction (1.2-2 times its Coulomb friction), and 15 N
+    is half as much again as the largest breakaway of a plausible build (5 N seals). The
+    floor covers what the load model leaves to each leg (a plate a kilogram off its model:
+    about 1.6 N a leg). Measured on the calibrated nominal unit (seals of 1.1-1.3 N, so
+    8.3-8.9 N): leg sensors 3 and 4 frozen as the legs settle at mid stroke were named in
+    284-356 ms, the leg 2.7-3.2 mm off, where 15 N took 596-724 ms and 4.1-4.7 mm."""
+    leg_stuck_seals: float = 3.0
+    """See ``leg_stuck_floor``: 1.5 times a breakaway of twice the Coulomb friction."""
     leg_stuck_error: float = 0.7e-3
     """...whose reading is this far (m) from its target, ... The smaller, the sooner a
     target that runs away from a frozen reading is seen: over the fault matrix's frozen leg
@@ -649,6 +660,8 @@ class SupervisionParams(NamedTuple):
     ft_torque_step: float
     leg_jump: float
     leg_stuck_force: float
+    leg_stuck_floor: float
+    leg_stuck_seals: float
     leg_stuck_error: float
     leg_stuck_target_move: float
     leg_stuck_reads: int
@@ -720,6 +733,8 @@ def build(
     """The compiled thresholds; ``identified``: the calibration knows each valve's air per
     pulse (device.identify), and the air observer forgives less; ``lever``: the ankle's
     height above the platform's joint plane (m, see ``following_lag``)."""
+    if not (config.leg_stuck_floor >= 0.0 and config.leg_stuck_seals >= 0.0):
+        raise ValueError("leg_stuck_floor and leg_stuck_seals must be 0 or more")
     if config.leg_blind_reads < 1 or not config.leg_blind_band >= 0.0:
         raise ValueError("leg_blind_reads must be 1 or more and leg_blind_band 0 or more")
     if not (math.isfinite(config.turn_floor) and config.turn_floor > 0.0):
@@ -755,6 +770,8 @@ def build(
         ft_torque_step=config.ft_torque_step,
         leg_jump=config.leg_jump,
         leg_stuck_force=config.leg_stuck_force,
+        leg_stuck_floor=config.leg_stuck_floor,
+        leg_stuck_seals=config.leg_stuck_seals,
         leg_stuck_error=config.leg_stuck_error,
         leg_stuck_target_move=config.leg_stuck_target_move,
         leg_stuck_reads=config.leg_stuck_reads,
@@ -830,9 +847,11 @@ def check_reading(
     moving: bool,
     leg_target: NDArray[np.float64],
     sensor_zero: NDArray[np.float64],
+    leg_friction: NDArray[np.float64],
 ) -> tuple[int, int]:
     """Checks of one fresh raw sensor vector (1 kHz): (trip code, channel), (0, -1) if fine.
-    ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros."""
+    ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros,
+    ``leg_friction`` each leg's identified seal friction (N, 0 where none)."""
     counters[C_READS] += 1
     first = counters[C_READS] == 1
     # Pressure transducers: open wire, short or a jump no air makes, whatever the mode.
@@ -913,7 +932,10 @@ def check_reading(
         # The loop's push beyond the load it is given, or beyond the load as measured (the
         # push plus what the compensation withholds from a still leg, blind_load).
         push = monitor[M_PUSH + i]
-        pushed = max(abs(push), abs(push + monitor[M_BLIND + i])) > q.leg_stuck_force
+        force = q.leg_stuck_force
+        if leg_friction[i] > 0.0:
+            force = min(force, q.leg_stuck_floor + q.leg_stuck_seals * leg_friction[i])
+        pushed = max(abs(push), abs(push + monitor[M_BLIND + i])) > force
         driven = pushed or (
             ran_away and abs(leg_target[i] + sensor_zero[13 + i] - x) > q.leg_stuck_error
         )

@@ -801,7 +801,8 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
     assert supervision.blind_load(monitor, counters, leg, 60.0, q) == 60.0
     assert monitor[supervision.M_BLIND + leg] == 0.0
 
-    def reads(withheld: float, push: float = 0.0) -> tuple[int, int]:
+    def reads(withheld: float, push: float = 0.0, friction: float = 0.0) -> tuple[int, int]:
+        seals = np.full(6, friction)
         counters[:] = 0
         monitor[:] = 0.0
         sensors = np.full(25, 3.0e5)  # chambers at 2 bar gauge
@@ -817,7 +818,7 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
             monitor[supervision.M_BLIND + leg] = withheld
             monitor[supervision.M_PUSH + leg] = push
             code, channel = supervision.check_reading(
-                monitor, counters, sensors, q, True, target, zero
+                monitor, counters, sensors, q, True, target, zero, seals
             )
             if code != 0:
                 return int(code), int(channel)
@@ -832,6 +833,12 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
         int(Trip.LEG_SENSOR),
         leg,
     )
+    # A unit whose seals were identified: 1.5 times their breakaway, above a floor, if less.
+    lighter = q.leg_stuck_floor + q.leg_stuck_seals * 1.2
+    assert lighter < q.leg_stuck_force
+    assert reads(0.0, push=lighter + 0.5, friction=1.2) == (int(Trip.LEG_SENSOR), leg)
+    assert reads(0.0, push=lighter - 0.5, friction=1.2) == (0, -1)
+    assert reads(0.0, push=q.leg_stuck_force - 0.5, friction=5.0) == (0, -1)  # at most 15 N
     for bad in ({"leg_blind_reads": 0}, {"leg_blind_band": -1.0}, {"leg_blind_band": math.nan}):
         with pytest.raises(ValueError, match="leg_blind"):
             build_supervision(SupervisionConfig(**bad), 1.0e5, 0.004)
