@@ -250,7 +250,9 @@ class SupervisionConfig:
     about 1.6 N a leg). Measured on the calibrated nominal unit (seals of 1.1-1.3 N, so
     8.3-8.9 N): leg sensors 3 and 4 frozen as the legs settle at mid stroke were named in
     308-380 ms, the platform 2.8-3.2 mm off, where 15 N took 596-724 ms and 4.1-4.7 mm.
-    The library on drawn builds 0-39, relaxed and resisting, never met it."""
+    The library on drawn builds 0-39, relaxed and resisting, never met it; with a floor of
+    3 N it tripped four healthy runs on build 32 (seals of 1.1-1.2 N identified, so 6.4 N),
+    with 4 N none (2.9 mm in 276 ms at 3 N: the margin was kept instead)."""
     leg_stuck_seals: float = 3.0
     """See ``leg_stuck_floor``: 1.5 times a breakaway of twice the Coulomb friction."""
     leg_stuck_error: float = 0.7e-3
