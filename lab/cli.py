@@ -160,6 +160,12 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         metavar="S",
         help="watch each injected run this many seconds (default 0.5)",
     )
+    p.add_argument(
+        "--uncalibrated",
+        action="store_true",
+        help="run the nominal unit without its start-up identification, as the device runs "
+        "without --calibration (the checks then allow for the heaviest plausible seals)",
+    )
     p = bs.add_parser(
         "zwidth", help="the stiffness and damping rendered stably per rotational axis (Z-width)"
     )
@@ -332,7 +338,9 @@ def _bench(args: argparse.Namespace) -> int:
         from lab import safety
 
         only = tuple(dict.fromkeys(args.only))
-        sfresult = safety.run(progress=_progress, only=only, after=args.after)
+        sfresult = safety.run(
+            progress=_progress, only=only, after=args.after, calibrated=not args.uncalibrated
+        )
         print(file=sys.stderr)
         print(json.dumps(_jsonable(sfresult), indent=2) if args.json else safety.table(sfresult))
         return 0

@@ -391,17 +391,22 @@ def healthy_runs(
     seconds: float = 10.0,
     progress: Callable[[str], None] | None = None,
     draws: tuple[int, ...] = (),
+    calibrated: bool = True,
 ) -> list[HealthyRun]:
     """Every exercise of the library, a relaxed and a resisting patient who also pushes
     (a 0.3 Hz torque on each prescribed axis), on a healthy plant: any trip is false. The
-    nominal plant with each of ``seeds``, then each drawn build of ``draws``."""
+    nominal plant with each of ``seeds`` (with its calibration, or without), then each
+    drawn build of ``draws`` (always with its own)."""
     runs = []
     plants = [("nominal", seed) for seed in seeds] + [(f"draw {d}", d) for d in draws]
     total = len(EXERCISE_LIBRARY) * 2 * len(plants)
     for kind in EXERCISE_LIBRARY:
         for patient in ("relaxed", "resisting"):
             for plant, seed in plants:
-                rig = _rig(patient, seed) if plant == "nominal" else _drawn_rig(patient, seed)
+                if plant == "nominal":
+                    rig = _rig(patient, seed, calibrated)
+                else:
+                    rig = _drawn_rig(patient, seed)
                 start_exercise(rig, kind)
                 worst = 0.0
                 monitor = rig.state.monitor
@@ -443,16 +448,17 @@ def fault_matrix(
     progress: Callable[[str], None] | None = None,
     kinds: tuple[FaultKind, ...] = tuple(FAULTS),
     after: float = AFTER_S,
+    calibrated: bool = True,
 ) -> list[FaultRun]:
     """Each of ``kinds`` on each of its :data:`CHANNELS` in every situation, each watched for
-    ``after`` seconds."""
+    ``after`` seconds, on the nominal unit with its calibration (or without)."""
     runs = []
     total = sum(len(CHANNELS[k]) for k in kinds) * len(MATRIX_SCENARIOS) * len(seeds)
     for kind in kinds:
         for channel in CHANNELS[kind]:
             for scenario in MATRIX_SCENARIOS:
                 for seed in seeds:
-                    r = run_fault(kind, scenario, seed, channel, after=after)
+                    r = run_fault(kind, scenario, seed, channel, after, calibrated)
                     runs.append(r)
                     if progress is not None:
                         progress(
@@ -477,7 +483,9 @@ def _near(bound: float, rng: np.random.Generator) -> float:
     return float(np.float32(bound * (1.0 + rng.uniform(-0.05, 0.05))))
 
 
-def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
+def boundary_run(
+    count: int = 200, seed: int = 1, calibrated: bool = True
+) -> tuple[int, int, int, int]:
     """Segments, impedance changes and configurations at and around every published bound,
     sent to the real service over a pty. Returns (sent, mismatched with the check module,
     service deaths, trips the accepted commands caused)."""
@@ -492,7 +500,7 @@ def boundary_run(count: int = 200, seed: int = 1) -> tuple[int, int, int, int]:
     from device.transport import PtyLink
 
     link = PtyLink()
-    service = DeviceService(_rig("relaxed", seed), link, ServiceConfig())
+    service = DeviceService(_rig("relaxed", seed, calibrated), link, ServiceConfig())
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
     rng = np.random.default_rng(seed)
@@ -718,30 +726,38 @@ def run(
     draws: tuple[int, ...] = HEALTHY_DRAWS,
     only: tuple[FaultKind, ...] = (),
     after: float = AFTER_S,
+    calibrated: bool = True,
 ) -> dict[str, Any]:
     """Everything ``ankle bench safety`` measures, as one JSON-able object. With ``only``,
     just the fault matrix of those kinds (to reproduce one fault quickly); ``after`` is how
-    long each injected run is watched."""
+    long each injected run is watched; ``calibrated=False``: the nominal unit without its
+    start-up identification (the drawn builds and the K-B grid are as always)."""
     started = time.perf_counter()
-    faults = fault_matrix(seeds=(1,), progress=progress, kinds=only or tuple(FAULTS), after=after)
-    out: dict[str, Any] = {**_fault_summary(faults), "after_s": after}
+    kinds = only or tuple(FAULTS)
+    faults = fault_matrix(
+        seeds=(1,), progress=progress, kinds=kinds, after=after, calibrated=calibrated
+    )
+    out: dict[str, Any] = {**_fault_summary(faults), "after_s": after, "calibrated": calibrated}
     if only:
         out["only"] = [k.name for k in only]
     else:
-        out.update(_the_rest(progress, seeds, draws))
+        out.update(_the_rest(progress, seeds, draws, calibrated))
     out["wall_s"] = time.perf_counter() - started
     out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS if t.key in out}
     return out
 
 
 def _the_rest(
-    progress: Callable[[str], None] | None, seeds: tuple[int, ...], draws: tuple[int, ...]
+    progress: Callable[[str], None] | None,
+    seeds: tuple[int, ...],
+    draws: tuple[int, ...],
+    calibrated: bool,
 ) -> dict[str, Any]:
     """The healthy runs, the boundary commands and the K-B grid."""
-    healthy = healthy_runs(seeds=seeds, progress=progress, draws=draws)
+    healthy = healthy_runs(seeds=seeds, progress=progress, draws=draws, calibrated=calibrated)
     if progress is not None:
         progress("boundary commands through the service")
-    sent, mismatched, deaths, boundary_trips = boundary_run()
+    sent, mismatched, deaths, boundary_trips = boundary_run(calibrated=calibrated)
     grid = kb_grid(progress=progress)
     return {
         "healthy_seconds": sum(h.seconds for h in healthy),
