@@ -1741,6 +1741,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # passed the limits below on drawn builds 1, 2 and 27.
             shares = np.zeros(6)
             allowance = 0.0
+            allow = np.zeros(3)  # the moment check's (turn_allowance), judged only then too
             if supervision.accel_trusted(s.counters):
                 inertial = np.zeros(6)
                 for k in range(6):
@@ -1749,6 +1750,17 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 if not leg_forces_for_wrench(J, inertial, shares):
                     shares[:] = 0.0
                 allowance = side_allowance(J, r, accel, p.body_mass, p.sup)
+                turn_allowance(
+                    J,
+                    r,
+                    accel,
+                    s.leg_rate,
+                    p.leg_friction,
+                    p.body_mass,
+                    p.body_inertia,
+                    p.sup,
+                    allow,
+                )
             leg = -1
             corrected = np.empty(6)
             for i in range(6):
@@ -1778,10 +1790,6 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # About the ankle, the same wrench's moment is the torque sensor's error and what
             # the seals hold beyond their identified friction: judged leg by leg as each
             # slides or sticks (check_turn).
-            allow = np.empty(3)
-            turn_allowance(
-                J, r, accel, s.leg_rate, p.leg_friction, p.body_mass, p.body_inertia, p.sup, allow
-            )
             spin = supervision.check_turn(s.monitor, s.counters, W[3:], allow, p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)

@@ -1373,7 +1373,7 @@ def check_turn(
         a = allowance[k] if allowance[k] > a else a + q.side_alpha * (allowance[k] - a)
         monitor[M_TURN + k] = r
         monitor[M_TURN_ALLOW + k] = a
-        ratio = abs(r) / max(a, q.turn_floor)
+        ratio = abs(r) / a  # a >= turn_floor > 0: the allowance starts there
         if ratio > share:
             worst, share = k, ratio
     monitor[M_TURN_PEAK] = max(monitor[M_TURN_PEAK], share)

@@ -28,7 +28,7 @@ import numpy as np
 
 from device import supervision
 from device.axes import AXES, AXIS_INDEX
-from device.controller import I_RINGS, Mode
+from device.controller import I_RINGS, ControllerConfig, Mode
 from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
@@ -138,18 +138,21 @@ class FaultRun:
     part from a healthy one until it is used; counted as undetected all the same."""
 
 
-def _rig(patient: str, seed: int, calibrated: bool = True) -> Rig:
+def _rig(
+    patient: str, seed: int, calibrated: bool = True, config: ControllerConfig | None = None
+) -> Rig:
     """The nominal unit on noise ``seed``, with its start-up identification as deployed (the
     systemd unit in deploy/ starts the device with ``--calibration``): the seals' friction
     the checks take out and allow for is the unit's own. ``calibrated=False``: as the
-    service runs without a calibration."""
-    cfg = PlantConfig(patient=patient)
-    if not calibrated:
-        return Rig(SimulatedHardware(cfg, seed=seed))
-    from device.controller import ControllerConfig
+    service runs without a calibration. ``config``: the controller's settings (their
+    calibration replaced by the unit's when calibrated)."""
     from lab.experiments import calibration_of
 
-    return Rig(SimulatedHardware(cfg, seed=seed), ControllerConfig(calibration=calibration_of(cfg)))
+    cfg = PlantConfig(patient=patient)
+    config = ControllerConfig() if config is None else config
+    if calibrated:  # first: identifying seeds the plant's random generator itself
+        config = dataclasses.replace(config, calibration=calibration_of(cfg))
+    return Rig(SimulatedHardware(cfg, seed=seed), config)
 
 
 def _start(rig: Rig, scenario: str) -> None:
@@ -362,7 +365,6 @@ def _library_targets(
 
 def _drawn_rig(patient: str, draw: int) -> Rig:
     """Drawn build ``draw``, calibrated by its start-up identification as the device is."""
-    from device.controller import ControllerConfig
     from device.plant.params import draw_plant
     from lab.experiments import calibration_of
 

@@ -308,26 +308,16 @@ def test_an_exhaust_stuck_open_while_holding_is_held_not_let_run() -> None:
         assert run.excursion_deg <= 1.5 and run.excursion_mm <= 2.5, run
 
 
-def _unit(patient: str, seed: int, calibrated: bool, config: ctl.ControllerConfig) -> Rig:
-    """lab.safety's nominal unit (with its calibration, or without) on ``config``."""
-    import dataclasses
-
-    from lab.experiments import calibration_of
-
-    plant = PlantConfig(patient=patient)
-    if calibrated:
-        config = dataclasses.replace(config, calibration=calibration_of(plant))
-    return Rig(SimulatedHardware(plant, seed=seed), config)
-
-
 def _holding_with(
     supervision: SupervisionConfig, valve: int, calibrated: bool = True
 ) -> tuple[Rig, safety.FaultRun]:
     """Valve ``valve`` stuck open while holding, on a device with these thresholds: the rig
     0.5 s after the fault, and the run watched for 2 s."""
 
+    unit, config = safety._rig, ctl.ControllerConfig(supervision=supervision)
+
     def rig(patient: str, seed: int, calibrated: bool = True) -> Rig:
-        return _unit(patient, seed, calibrated, ctl.ControllerConfig(supervision=supervision))
+        return unit(patient, seed, calibrated, config)
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(safety, "_rig", rig)
@@ -725,10 +715,11 @@ def _blind_bound_off(monkeypatch: pytest.MonkeyPatch) -> None:
     from device.controller import ControllerConfig
 
     config = ControllerConfig(supervision=SupervisionConfig(leg_blind_reads=10**9))
+    unit = safety._rig
     monkeypatch.setattr(
         safety,
         "_rig",
-        lambda patient, seed, calibrated=True: _unit(patient, seed, calibrated, config),
+        lambda patient, seed, calibrated=True: unit(patient, seed, calibrated, config),
     )
 
 
