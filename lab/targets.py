@@ -55,8 +55,10 @@ def table(
             continue
         value = result[key]
         text = f"{value:.3g}" if isinstance(value, float) else str(value)
-        if isinstance(value, float) and math.isnan(value):
-            text = "no number"  # e.g. a step that never settles into its band
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            # e.g. a step that never settles into its band (NaN, written null in the JSON)
+            text = "no number"
+            value = math.nan
         if isinstance(value, float) and abs(value) >= 1000:
             text = f"{value:,.0f}"
         if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):

@@ -166,3 +166,6 @@ def test_a_measurement_with_no_number_says_so_instead_of_nan() -> None:
     text = table({"settle": math.nan}, (("settle", "settling (ms)"),), (target,))
     assert "| settling (ms) | no number | <= 100 | NO |" in text
     assert "nan" not in text
+    # The same read back from the benchmark's JSON, which writes NaN as null.
+    text = table({"settle": None}, (("settle", "settling (ms)"),), (target,))
+    assert "| settling (ms) | no number | <= 100 | NO |" in text and "None" not in text
