@@ -32,6 +32,10 @@ for 0.3-1 m of 4 mm tube with its port) but a kinked, blocked or wrongly fitted 
 VALVE_EXTRA_MAX = 1.0e-3
 """A valve whose pulse passes more than this (s) beyond or short of its length is not a
 build's spread of delays (closing less opening: -0.6 to +0.8 ms at the extremes)."""
+PULSE_OPENS_MAX = 1.75e-3
+"""A valve that some pulse of this length (s) still did not open is not a build's spread of
+opening delays (0.47-1.21 ms, and 0.3 ms for three times the jitter) but a weak coil, a low
+driver voltage or a sticking armature."""
 MOVING_MASS_RANGE = (2.5, 7.0)
 """What the legs of an empty platform may move (kg; device.identify.moving_mass): the
 builds' platforms (2.0-3.5 kg) with their pistons (1-1.7 kg along the legs) weigh 3.0-5.2
@@ -65,6 +69,14 @@ class Calibration:
     valve_extra: tuple[float, ...] = ()
     """Per valve: the time (s) of full flow a pulse passes beyond its length (closing
     delay less opening delay)."""
+    pulse_shut: tuple[float, ...] = ()
+    """Per valve: the longest test pulse (s) that never opened it. A coil released before
+    its armature starts to move leaves the valve shut: a pulse shorter than the valve's
+    opening delay passes nothing, one just longer passes its whole closing delay's worth.
+    Empty: not identified (the observer reads every pulse by ``valve_extra``)."""
+    pulse_opens: tuple[float, ...] = ()
+    """Per valve: the shortest test pulse (s) from which on every one opened it. Between the
+    two, the delay's jitter decides."""
     dead_volume: tuple[float, ...] = ()
     """Per chamber: its volume with the piston at that chamber's end, tube included (m3),
     from the same test pulses. Empty: the design's."""
@@ -91,7 +103,20 @@ class Calibration:
 
     @property
     def valves_identified(self) -> bool:
-        return len(self.valve_gain) == 24 and len(self.valve_extra) == 24
+        """Every valve's pulse measured: its gain, extra time and where it starts to open. A
+        file with only the first two (older) reads a pulse near a slow valve's opening delay
+        as passing its line's worth, which it may not: the observer keeps the type's range."""
+        return all(
+            len(figures) == 24
+            for figures in (self.valve_gain, self.valve_extra, self.pulse_shut, self.pulse_opens)
+        )
+
+    def pulse_edges(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Per valve (s), for the controller: (longest pulse that left it shut, shortest that
+        opened it); zeros where not identified."""
+        if not self.valves_identified:
+            return np.zeros(24), np.zeros(24)
+        return np.array(self.pulse_shut), np.array(self.pulse_opens)
 
     def dead_volumes(self, design: float) -> NDArray[np.float64]:
         """Per chamber (m3), for the controller: the design's where not identified."""
@@ -124,6 +149,8 @@ class Calibration:
                 ft_zero=_floats(data["ft_zero"], 6, "ft_zero"),
                 valve_gain=_floats(data.get("valve_gain", []), 24, "valve_gain", True),
                 valve_extra=_floats(data.get("valve_extra", []), 24, "valve_extra", True),
+                pulse_shut=_floats(data.get("pulse_shut", []), 24, "pulse_shut", True),
+                pulse_opens=_floats(data.get("pulse_opens", []), 24, "pulse_opens", True),
                 dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 leg_friction=_floats(data.get("leg_friction", []), 6, "leg_friction", True),
                 moving_mass=float(data.get("moving_mass", 0.0)),
@@ -191,6 +218,16 @@ class Calibration:
         """Refuse valve figures and dead volumes no healthy unit has."""
         if len(self.valve_gain) != len(self.valve_extra) or len(self.valve_gain) not in (0, 24):
             raise IdentificationError("valve_gain and valve_extra need 24 numbers each, or none")
+        if len(self.pulse_shut) != len(self.pulse_opens) or len(self.pulse_shut) not in (0, 24):
+            raise IdentificationError("pulse_shut and pulse_opens need 24 numbers each, or none")
+        for v, (shut, opens) in enumerate(zip(self.pulse_shut, self.pulse_opens, strict=True)):
+            if not 0.0 <= shut < opens <= PULSE_OPENS_MAX:
+                which = "intake" if v % 2 == 0 else "exhaust"
+                raise IdentificationError(
+                    f"the {which} of chamber {v // 2} stayed shut up to a {shut * 1e3:.2f} ms "
+                    f"pulse and opened on every one from {opens * 1e3:.2f} ms (healthy: opened "
+                    f"by {PULSE_OPENS_MAX * 1e3:g} ms): check the valve, its coil and its driver"
+                )
         low, high = DEAD_VOLUME_RANGE
         for c, vol in enumerate(self.dead_volume):
             if not low <= vol <= high:

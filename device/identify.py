@@ -120,7 +120,7 @@ def identify(
     pressure_zero = mean[:12] - atmosphere
     if progress:
         progress("identification: test pulses through every valve")
-    gains, extras, dead = identify_valves(hardware, pressure_zero, atmosphere)
+    gains, extras, dead, shut, opens = identify_valves(hardware, pressure_zero, atmosphere)
     cal = Calibration(
         leg_zero=tuple(float(v) for v in mean[signals.SENSOR_LEG : signals.SENSOR_LEG + 6]),
         pressure_zero=tuple(float(v) for v in pressure_zero),
@@ -128,7 +128,14 @@ def identify(
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
     )
     cal.check()  # zeros no healthy unit has: refused, the unit needs looking at
-    identified = replace(cal, valve_gain=gains, valve_extra=extras, dead_volume=dead)
+    identified = replace(
+        cal,
+        valve_gain=gains,
+        valve_extra=extras,
+        dead_volume=dead,
+        pulse_shut=shut,
+        pulse_opens=opens,
+    )
     try:
         identified.check_valves()
     except IdentificationError as exc:
@@ -152,9 +159,25 @@ PULSE_TICKS = (12, 24)
 valve a build may have takes to open fully (1.21 ms of delay and 0.3 ms of travel)."""
 PULSE_CYCLES = 6
 """Intake-then-exhaust cycles per pulse length and chamber."""
+SWEEP_TICKS = tuple(range(3, 12))
+"""Shorter test pulses (0.43-1.57 ms), past the fastest valve's opening delay (0.47 ms) and
+the slowest's with three times the largest jitter (1.21 + 0.3 ms): which of them opens each
+valve (``Calibration.pulse_shut``, ``pulse_opens``). A valve either stays shut or opens for
+at least its closing delay (0.5-1.2 ms), so each pulse's answer is plain."""
+SWEEP_CYCLES = 3
+"""Cycles per short pulse length: the jitter decides near the opening delay, and three tries
+at each length show the band where it does."""
+OPENED = 0.15e-3
+"""A test pulse whose air took at least this long at the model's flow (s) opened its valve:
+an opened valve passes its closing delay's worth less half its travel (at least 0.35 ms), a
+shut one only its seat's leak (microseconds' worth)."""
 PULSE_WAIT_READS = 15
 """Reads (1 ms) after each pulse before its air is read: the valve has closed (at most
 1.5 ms after its coil) and the air in the tube has settled."""
+DRIFT_READS = 20
+"""Reads (1 ms) with every valve shut before each cycle's pulses, through which a straight
+line gives each chamber's drift and where it stands (the noise of that figure 22 ms later:
+about 0.02 ms of a pulse's air in a rod side, the largest chamber)."""
 PULSE_READS = 5
 """Readings averaged before and after each pulse (the noise of the mean: 0.1 % of a pulse)."""
 FILL_INDEX = 1.4
@@ -174,13 +197,46 @@ supply passes at least 90 % of choked flow, and a cap side pulsed from 3 bar lif
 less than the rod side, held at the supply, presses it down."""
 
 
+Figures = tuple[float, ...]
+
+OPEN_TIME_POINTS = 17
+"""Pressures at which :func:`open_time` samples the model's flow across a pulse."""
+
+
+def open_time(
+    before: float,
+    after: float,
+    volume: float,
+    supply: float,
+    intake: bool,
+    q: supervision.SupervisionParams,
+) -> float:
+    """The time (s) a valve at the air observer's ISO 6358 flow would have been open to take
+    a chamber of ``volume`` (m3) from ``before`` to ``after`` (Pa abs; ``supply`` Pa abs for
+    an intake, else an exhaust to the atmosphere): the air each pressure step took (``V dp``
+    over the polytropic index) divided by the flow at that pressure, summed over the pulse.
+    A pulse into a small chamber moves its pressure far (a cap side at its stop, 3 to 4.5
+    bar in 3.4 ms), and the flow falls as it does: the flow at the pulse's mean pressure
+    took that fall for the valve's own, and the straight line through two pulse lengths
+    then gave extra times up to 0.2 ms further off the valves' closing less opening delays.
+    Signed: negative when the chamber moved against the valve."""
+    pressures = np.linspace(before, after, OPEN_TIME_POINTS)
+    if intake:
+        flows = np.array([supervision.valve_flow(supply, p, q) for p in pressures])
+    else:
+        flows = np.array([supervision.valve_flow(p, q.atm, q) for p in pressures])
+    inverse = 1.0 / np.maximum(flows, 1e-9)
+    took = float(np.trapezoid(inverse, pressures)) * volume / q.obs_k
+    return took if intake else -took
+
+
 def identify_valves(
     hardware: Hardware,
     pressure_zero: NDArray[np.float64],
     atmosphere: float = 1.01325e5,
     config: ControllerConfig | None = None,
     geometry: Geometry = DEFAULT_GEOMETRY,
-) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+) -> tuple[Figures, Figures, Figures, Figures, Figures]:
     """Each valve's air per pulse, with every leg on its lower end stop (the chambers'
     volumes known): test pulses of two lengths into and out of each chamber, the air each
     passed measured as the air observer measures it (change of p V over its polytropic
@@ -188,9 +244,11 @@ def identify_valves(
     through the pulse lengths gives each valve's gain (air it passes against the model's)
     and its extra time (s: closing delay less opening delay, what a pulse passes beyond
     its length). The gains of a chamber's two valves also give its volume (see below).
-    Returns (gains, extra times), 24 each, valve ``2c`` the intake of chamber ``c``, and
-    each chamber's dead volume (m3, 12). Leaves every chamber vented and every valve
-    closed."""
+    Shorter pulses (:data:`SWEEP_TICKS`) then find where each valve starts to open
+    (:func:`pulse_edges`). Returns (gains, extra times), 24 each, valve ``2c`` the intake
+    of chamber ``c``, each chamber's dead volume (m3, 12), and each valve's longest pulse
+    that left it shut and shortest that opened it every time (s, 24 each). Leaves every
+    chamber vented and every valve closed."""
     cfg = config if config is not None else ControllerConfig()
     # The air observer's model and the cylinder's areas, as the controller builds them.
     q = supervision.build(cfg.supervision, atmosphere, CONTROL_PERIOD / TICK_HZ)
@@ -243,10 +301,17 @@ def identify_valves(
                 valves[2::4] = 1
             for _ in range(HOLD_READS):
                 read(valves)
-            for cycle in range(PULSE_CYCLES * len(PULSE_TICKS)):
-                width = PULSE_TICKS[cycle % len(PULSE_TICKS)]
+            widths = list(PULSE_TICKS) * PULSE_CYCLES + list(SWEEP_TICKS) * SWEEP_CYCLES
+            for width in widths:
                 to_base(valves, chambers, PULSE_BASE[side])
-                before = mean(valves)
+                # The chambers drift between two reads with every valve shut: air past the
+                # piston from the other side, held at the supply (a cap side at its stop holds
+                # 7 cm3, and a healthy piston's 0.5 NL/min moves it by about a bar a second).
+                # Measured just before the pulses and taken out of what each pulse moved: left
+                # in, it read as air a shut valve passed (a cap's exhaust "opened" by a 0.4 ms
+                # pulse) and shifted the extra times by 0.3-0.9 ms.
+                quiet = np.array([read(valves) for _ in range(DRIFT_READS)])
+                drift, before = np.polyfit(np.arange(1 - DRIFT_READS, 1), quiet, 1)  # per read
                 for intake in (True, False):
                     pulse = valves.copy()
                     for c in chambers:
@@ -255,15 +320,15 @@ def identify_valves(
                     for _ in range(PULSE_WAIT_READS):
                         read(valves)
                     after = mean(valves)
+                    # From the last read before to the middle of those after.
+                    elapsed = width / SENSOR_PERIOD_TICKS + PULSE_WAIT_READS + (PULSE_READS + 1) / 2
+                    moved = after - drift * elapsed
                     for c in chambers:
-                        mid = 0.5 * (before[c] + after[c])
-                        if intake:
-                            flow = supervision.valve_flow(before[12], mid, q)
-                        else:
-                            flow = supervision.valve_flow(mid, atmosphere, q)
-                        air = abs(after[c] - before[c]) * volume[c] / q.obs_k
                         samples[2 * c + (0 if intake else 1)].append(
-                            (width / TICK_HZ, air / max(flow, 1e-9))
+                            (
+                                width / TICK_HZ,
+                                open_time(before[c], moved[c], volume[c], before[12], intake, q),
+                            )
                         )
                     before = after
             valves[:] = 0
@@ -273,10 +338,14 @@ def identify_valves(
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
     slope, extras = np.zeros(24), np.zeros(24)
+    shut, opens = np.zeros(24), np.zeros(24)
+    fitted = np.array(PULSE_TICKS) / TICK_HZ
     for v in range(24):
         width, passed = np.array(samples[v]).T
-        slope[v], offset = np.polyfit(width, passed, 1)
+        on_line = np.isin(width, fitted)
+        slope[v], offset = np.polyfit(width[on_line], passed[on_line], 1)
         extras[v] = offset / slope[v]
+        shut[v], opens[v] = pulse_edges(width, passed)
     # The slopes carry each chamber's true volume against the design's (its tube): what a
     # fill and a discharge of the same air do to p V differs only by their polytropic
     # indices, so a chamber's two slopes against those give its volume, and what is left
@@ -291,7 +360,32 @@ def identify_valves(
         tuple(float(g) for g in gains),
         tuple(float(e) for e in extras),
         tuple(float(d) for d in dead),
+        tuple(float(t) for t in shut),
+        tuple(float(t) for t in opens),
     )
+
+
+def pulse_edges(width: NDArray[np.float64], passed: NDArray[np.float64]) -> tuple[float, float]:
+    """From one valve's test pulses (lengths, s; each one's open time, s): the longest
+    length at and below which no pulse opened it, and the shortest from which on every one
+    did (:data:`OPENED`). 0 if even the shortest opened it; the longest length tried if some
+    pulse of it failed (the calibration then refuses the valve)."""
+    lengths = np.unique(width)
+    failed = np.array([bool((passed[width == w] < OPENED).any()) for w in lengths])
+    opened = np.array([bool((passed[width == w] >= OPENED).any()) for w in lengths])
+    shut = 0.0
+    for w, any_open in zip(lengths, opened, strict=True):
+        if any_open:
+            break
+        shut = float(w)
+    opens = float(lengths[-1])
+    for w, any_failed in zip(lengths[::-1], failed[::-1], strict=True):
+        if any_failed:
+            break
+        opens = float(w)
+    if failed[-1]:
+        opens = float(lengths[-1]) * 2.0
+    return shut, opens
 
 
 # -- each leg's seal friction (start-up, last) -------------------------------------------
