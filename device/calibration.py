@@ -111,26 +111,19 @@ class Calibration:
             for figures in (self.valve_gain, self.valve_extra, self.pulse_shut, self.pulse_opens)
         )
 
-    def pulse_edges(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Per valve (s), for the controller: (longest pulse that left it shut, shortest that
-        opened it); zeros where not identified."""
+    def valve_figures(self) -> NDArray[np.float64]:
+        """For the controller's air checks (device.supervision, rows ``V_GAIN`` ...): each
+        valve's gain, extra time (s), longest pulse that left it shut and shortest that
+        opened it every time (s); 1, 0, 0 and 0 where not identified."""
         if not self.valves_identified:
-            return np.zeros(24), np.zeros(24)
-        return np.array(self.pulse_shut), np.array(self.pulse_opens)
+            return np.vstack([np.ones(24), np.zeros((3, 24))])
+        return np.array([self.valve_gain, self.valve_extra, self.pulse_shut, self.pulse_opens])
 
     def dead_volumes(self, design: float) -> NDArray[np.float64]:
         """Per chamber (m3), for the controller: the design's where not identified."""
         if len(self.dead_volume) == 12:
             return np.array(self.dead_volume)
         return np.full(12, design)
-
-    def valve_gains(self) -> NDArray[np.float64]:
-        """Per valve, for the controller: 1 where not identified."""
-        return np.array(self.valve_gain) if self.valves_identified else np.ones(24)
-
-    def valve_extras(self) -> NDArray[np.float64]:
-        """Per valve (s), for the controller: 0 where not identified."""
-        return np.array(self.valve_extra) if self.valves_identified else np.zeros(24)
 
     def leg_frictions(self) -> NDArray[np.float64]:
         """Per leg (N), for the controller: 0 where not identified."""

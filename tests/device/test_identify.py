@@ -165,6 +165,7 @@ def test_a_calibration_without_valves_still_loads_and_bad_valves_are_refused(
     path = tmp_path / "cal.json"
     cal.save(path)
     assert Calibration.load(path) == cal and cal.valves_identified
+    assert cal.valve_figures()[3, 5] == 0.9e-3  # rows gain, extra, shut, opens
     # A file from before the pulse edges were measured: its valve figures are not used.
     without_edges = {
         k: v for k, v in json.loads(cal.to_json()).items() if not k.startswith("pulse_")
@@ -177,7 +178,8 @@ def test_a_calibration_without_valves_still_loads_and_bad_valves_are_refused(
     path.write_text(json.dumps(older))
     loaded = Calibration.load(path)
     assert not loaded.valves_identified
-    assert np.all(loaded.valve_gains() == 1.0) and np.all(loaded.valve_extras() == 0.0)
+    figures = loaded.valve_figures()
+    assert np.all(figures[0] == 1.0) and np.all(figures[1:] == 0.0)
     assert np.all(loaded.dead_volumes(7e-6) == 7e-6)
     for change, match in (
         ({"valve_gain": [1.0] * 23}, "valve_gain needs 24"),

@@ -209,13 +209,15 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
             assert run.channel == 4 and run.detect_ms <= 500.0, run
         else:
             assert run.trip == Trip.NONE.name, run
-    # Measured today: a stuck-open intake is caught everywhere within 50 ms (the air
-    # observer); a 0.5 C leak while the patient pushes (201 ms); a stuck-closed exhaust
-    # while holding (489 ms). Since the outer integral ignores an error the leg sensor
-    # cannot resolve, a leak is caught less often: 4 of 9 runs (seeds 1-3, each situation,
-    # 1 s) against 8 of 9 before. The README's fault table says so.
-    least = {FaultKind.VALVE_STUCK_OPEN: 3, FaultKind.CHAMBER_LEAK: 1}.get(kind, 0)
+    # Measured on the calibrated unit, whose air observer knows each valve's pulse: a
+    # stuck-open intake and a 0.5 C leak are named everywhere (17-37 ms), a stuck-closed
+    # exhaust wherever the loop tells it to open (73-77 ms; held at home it never is).
+    least = {FaultKind.VALVE_STUCK_OPEN: 3, FaultKind.CHAMBER_LEAK: 3}.get(kind, 2)
     assert caught >= least, kind
+
+
+_UNTESTED_VALVES = np.vstack([np.ones(24), np.zeros((3, 24))])
+"""Gains, extra times and pulse edges of valves the start-up test did not measure."""
 
 
 def _air_window(cap: tuple[int, float], rod: tuple[int, float]) -> int:
@@ -234,10 +236,45 @@ def _air_window(cap: tuple[int, float], rod: tuple[int, float]) -> int:
         for c, (slots, share) in enumerate((cap, rod)):
             figured = math.copysign(max(0, abs(slots) - q.air_open_after) * q.air_per_slot, slots)
             volume = 1.0e-4 + share * figured * period / (pressure + q.atm)
-            found = supervision.check_air(monitor, counters, c, slots, pressure, volume, supply, q)
+            found = supervision.check_air(
+                monitor, counters, c, slots, pressure, volume, supply, q, _UNTESTED_VALVES
+            )
             assert found == -1 or period == q.air_window, (period, c)
             named = max(named, int(found))
     return named
+
+
+def test_a_pulse_is_read_by_where_its_valve_starts_to_open() -> None:
+    """A valve the start-up test left shut up to 0.7 ms and opened every time from 0.9 ms:
+    a shorter pulse is expected to pass nothing, a longer one its line's worth (length plus
+    the extra time), and one near the edges either, half of it give or take that half. A
+    valve not tested is read by its line alone."""
+    from device import supervision
+
+    q = Rig(SimulatedHardware()).params.sup
+    margin = q.obs_edge_margin
+    extra, shut, opens = -0.2e-3, 0.7e-3, 0.9e-3
+    assert supervision.pulse_seconds(0.5e-3, extra, shut, opens, q) == (0.0, 0.0)
+    assert supervision.pulse_seconds(1.2e-3, extra, shut, opens, q) == pytest.approx((1e-3, 0.0))
+    for near in (shut - 0.5 * margin, 0.8e-3, opens + 0.5 * margin):
+        expected, unsure = supervision.pulse_seconds(near, extra, shut, opens, q)
+        assert expected == pytest.approx(0.5 * (near + extra)) and unsure == expected
+    assert supervision.pulse_seconds(0.5e-3, extra, 0.0, 0.0, q) == pytest.approx((0.3e-3, 0.0))
+    assert supervision.pulse_seconds(0.1e-3, extra, 0.0, 0.0, q) == (0.0, 0.0)
+
+
+def test_near_the_supply_the_expected_flow_forgives_the_transducers_spans() -> None:
+    """An intake held open a period: while it is choked, the transducers' span errors move
+    its flow by about their own share; a chamber 0.14 bar under the supply, whose flow hangs
+    on the difference of two readings, by most of it (measured: 85 %)."""
+    from device import supervision
+
+    q = Rig(SimulatedHardware()).params.sup
+    supply = 6.87e5
+    choked, unsure, _ = supervision.pulse_air(0, 28, 3.0e5, supply, q, _UNTESTED_VALVES)
+    assert 0.0 < unsure <= 1.5 * q.obs_span * choked
+    near, unsure, _ = supervision.pulse_air(0, 28, supply - 0.14e5, supply, q, _UNTESTED_VALVES)
+    assert 0.0 < near < 0.5 * choked and unsure >= 0.75 * near
 
 
 def test_the_air_balance_judges_a_legs_two_chambers_together() -> None:
@@ -254,6 +291,35 @@ def test_the_air_balance_judges_a_legs_two_chambers_together() -> None:
     assert _air_window((20, 0.1), (20, 0.1)) == 0  # both filling: not mirrors
     assert _air_window((7, 0.0), (-7, 1.0)) == -1  # minimum pulses: too little air to judge
     assert _air_window((9, 0.0), (-9, 1.0)) == 0  # 3 Pa m3 figured, none of it came
+
+
+def test_the_air_balance_counts_a_pulse_near_its_valves_opening_delay_both_ways() -> None:
+    """Valves whose pulses open them from 0.9 ms on and leave them shut up to 0.7 ms: a
+    cap side told every other period to take in 10 slots (1.4 ms, surely open) and to let
+    out 6 (0.86 ms, either), whose air stays where it was. Counted by what is sure alone
+    the window is one-sided and the chamber short of it; the exhaust pulses may have let
+    out as much as the intakes brought, and the window is not judged. The same intakes
+    alone, the air still not following, name the chamber."""
+    from device import supervision
+
+    q = Rig(SimulatedHardware()).params.sup
+    tested = np.array([np.ones(24), np.zeros(24), np.full(24, 0.7e-3), np.full(24, 0.9e-3)])
+
+    def window(pattern: tuple[int, int]) -> int:
+        counters = np.zeros(supervision.N_COUNTERS, dtype=np.int64)
+        monitor = np.zeros(supervision.N_MONITOR)
+        named = -1
+        for period in range(q.air_window + 1):
+            slots = pattern[period % 2]
+            for c, driven in ((0, slots), (1, 0)):  # the rod side undriven: no mirror
+                found = supervision.check_air(
+                    monitor, counters, c, driven, 3.0e5, 1.0e-4, 6.0e5, q, tested
+                )
+                named = max(named, int(found))
+        return named
+
+    assert window((10, -6)) == -1
+    assert window((10, 0)) == 0
 
 
 def test_a_leak_that_drags_its_mirror_short_is_named_itself() -> None:
@@ -487,14 +553,15 @@ def test_a_stuck_open_intake_is_caught_within_50_ms_or_does_nothing(
 
 @pytest.mark.parametrize("valve", [0, 5, 8, 14])
 def test_a_valve_stuck_shut_mid_exercise_is_named_by_its_chambers_air(valve: int) -> None:
-    """The loop keeps asking a stuck-shut valve for short pulses (about 10 slots, 2-3 Pa m3
-    of air a window) while its leg's other chamber does the work, and the chamber's air
-    goes the other way: named within three of the air balance's windows (measured 201-601
-    ms on the calibrated unit, 201-401 without its calibration, 0.1-0.4 mm). Before windows
-    of 2 Pa m3 were judged (3), none of these was seen."""
+    """The loop keeps asking a stuck-shut valve for short pulses (about 10 slots) while its
+    leg's other chamber does the work, and the chamber's air does not follow: on the
+    calibrated unit the air observer, which knows what each of this build's valves passes
+    per pulse, names it before the first air-balance window ends (measured 89-121 ms, 0.1-
+    0.24 mm; with the type's range, 201-601 ms by the windows, and 11 of 24 valves not
+    within 0.5 s)."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "exercise", channel=valve, after=0.7)
     window_ms = SupervisionConfig().air_window_periods * 4.0  # 4 ms control periods
-    assert run.detected and run.detect_ms <= 3 * window_ms + 2.0, run
+    assert run.detected and run.detect_ms < window_ms, run
     assert run.trip == "AIR_BALANCE (service)" and run.channel == valve // 2, run
     assert not run.dormant and run.excursion_deg <= 1.0 and run.excursion_mm <= 1.0, run
 
@@ -514,15 +581,15 @@ def test_a_fault_that_made_no_difference_yet_is_counted_as_dormant() -> None:
 
 
 def test_a_stuck_closed_exhaust_is_caught_while_the_patient_pushes() -> None:
-    """Named as what it is, within three of the air balance's windows. Measured: 401 ms (an
-    air-balance service warning on chamber 4, the second window's end; 601 ms when only
-    windows told to move 3 Pa m3 were judged), 0.10 deg, 0.25 mm.
+    """Named as what it is, before the first air-balance window ends. Measured: 77 ms by
+    the air observer on the calibrated unit, 0.12 deg, 0.24 mm (401 ms by the windows
+    with the type's range, 601 ms when only windows told to move 3 Pa m3 were judged).
     Before the frozen-pressure rule looked at every read, this run was a PRESSURE_SENSOR
     trip at 489 ms: the live transducer of a chamber whose exhaust was stuck shut read the
     same at ten period ends running and was named as frozen."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "pushing", after=1.0)
     window_ms = SupervisionConfig().air_window_periods * 4.0  # 4 ms control periods
-    assert run.detected and run.detect_ms <= 3 * window_ms + 2.0, run
+    assert run.detected and run.detect_ms < window_ms, run
     assert run.trip in ("AIR_BALANCE (service)", Trip.VALVE.name) and run.channel == 4, run
     assert run.excursion_deg <= 1.0 and run.excursion_mm <= 1.0, run
 
@@ -566,7 +633,7 @@ def test_healthy_exercises_do_not_trip_the_supervision() -> None:
         assert r.residual_max_n < 0.7 * 30.0, r
         assert r.wrench_force_max_n < 45.0 and r.wrench_torque_max_nm < 5.5, r
         assert 0.0 < r.turn_share_max < 1.0, r
-        assert 0.0 < r.air_flow_max < 1.0, r
+        assert 0.0 < r.air_flow_max < 0.75, r  # measured at most 0.55 (builds 0-49)
     assert all(math.isfinite(r.residual_max_n) for r in runs)
 
 
@@ -686,10 +753,11 @@ def test_a_leg_sensor_frozen_while_holding_leaves_the_platform_where_it_was() ->
 
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
 def test_a_stuck_closed_exhaust_is_caught_within_seconds_and_moves_nothing(scenario: str) -> None:
-    """The loop hardly uses that exhaust, so the chamber's pressure creeps up until a check
-    notices (measured: 0.4-1.1 s); the leg stays within a millimetre meanwhile. Held at
-    home, the legs rest with every valve shut and the fault is not seen, nor does it move
-    anything, until the leg is driven."""
+    """The loop hardly uses that exhaust, yet each short pulse it asks of it passes nothing
+    where this build's valve would pass its measured share: the air observer names it
+    (measured: 73-77 ms; 0.4-1.1 s by the air windows with the type's range); the leg
+    stays within a millimetre meanwhile. Held at home, the legs rest with every valve
+    shut and the fault is not seen, nor does it move anything, until the leg is driven."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, scenario, after=WATCH_S)
     if scenario != "holding":
         assert run.detected and run.channel == 4, run

@@ -47,21 +47,25 @@ def test_no_axis_peaks_more_than_3_db_on_the_nominal_plant(seed: int) -> None:
 def test_the_friction_fed_forward_does_not_throw_a_small_sine_past_its_reversals(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """The 0.3 mm heave sine at 2 Hz over its 0.5 Hz gain, noise seed 4: 0.98 dB measured
+    """The 0.3 mm heave sine at 2 Hz over its 0.5 Hz gain, noise seed 4: 1.34 dB measured
     with the feed-forward fading out 0.1 mm ahead of the target
-    (ControllerConfig.friction_compensation_lead), 3.2 dB without the fade."""
+    (ControllerConfig.friction_compensation_lead), 2.44 dB without the fade (0.98 and 3.2
+    before the start-up valve test found each valve's opening edges, whose longer run
+    changed the friction and mass the unit identifies)."""
 
     def rise() -> float:
         low = fr.lab_sine("z", 0.3, 0.5, seed=4)[0]
         return fr.lab_sine("z", 0.3, 2.0, seed=4)[0] - low
 
-    assert rise() <= 1.8
+    faded = rise()
+    assert faded <= 1.8
     monkeypatch.setattr(
         ex,
         "ControllerConfig",
         lambda **kw: dataclasses.replace(ControllerConfig(**kw), friction_compensation_lead=0.0),
     )
-    assert rise() >= 2.5
+    unfaded = rise()
+    assert unfaded >= 2.0 and unfaded >= faded + 0.8
 
 
 def test_the_true_pitch_bandwidth_at_2_deg_is_at_least_7_hz() -> None:
