@@ -440,7 +440,7 @@ class SupervisionConfig:
     reached at most 0.80 of this tolerance (build 54, see ``observer_span_error``). In the
     safety benchmark's matrix a valve stuck open is named in 17-33 ms everywhere (96 of
     96), a 0.5 C leak in 21-45 ms but as the legs settle (47 of 48), a valve stuck shut
-    that the loop uses in 35-331 ms (69 of 96, 21 of the others never told to open; 39
+    while the legs move in 35-331 ms (69 of 96, 21 of the others never told to open; 39
     and up to 431 ms with the type's range)."""
     observer_pulse_edge_margin: float = 0.15e-3
     """Beyond the lengths the start-up test found a valve to stay shut up to and to open from
