@@ -911,7 +911,9 @@ def build_params(
         dt_control=CONTROL_PERIOD * dt_tick,
         # The loop's quiet hold and bleed keep the design's chambers and the type's valves:
         # with this build's (identified) instead, ensemble draw 25 overshot a 10 mm leg
-        # step by 5.40 % against 4.39 (the target is 5 %). The air checks use this build's.
+        # step by 5.40 % against 4.39 (the target is 5 %), though draws 21 and 22 rendered
+        # B = 1 closer (2.98 and 1.88 % against 5.99 and 4.73). The air checks use this
+        # build's.
         dead_volume=np.full(12, config.dead_volume),
         air_dead_volume=observed.dead_volumes(config.dead_volume),
         area_annulus=area_ann,

@@ -216,9 +216,8 @@ def open_time(
     an intake, else an exhaust to the atmosphere): the air each pressure step took (``V dp``
     over the polytropic index) divided by the flow at that pressure, summed over the pulse.
     A pulse into a small chamber moves its pressure far (a cap side at its stop, 3 to 4.5
-    bar in 3.4 ms), and the flow falls as it does: the flow at the pulse's mean pressure
-    took that fall for the valve's own, and the straight line through two pulse lengths
-    then gave extra times up to 0.2 ms further off the valves' closing less opening delays.
+    bar in 3.4 ms), and the flow falls as it does: figured at the pulse's mean pressure,
+    that fall was read as the valve's own, a longer pulse passing less than its share.
     Signed: negative when the chamber moved against the valve."""
     pressures = np.linspace(before, after, OPEN_TIME_POINTS)
     if intake:
@@ -368,8 +367,9 @@ def identify_valves(
 def pulse_edges(width: NDArray[np.float64], passed: NDArray[np.float64]) -> tuple[float, float]:
     """From one valve's test pulses (lengths, s; each one's open time, s): the longest
     length at and below which no pulse opened it, and the shortest from which on every one
-    did (:data:`OPENED`). 0 if even the shortest opened it; the longest length tried if some
-    pulse of it failed (the calibration then refuses the valve)."""
+    did (:data:`OPENED`). 0 if even the shortest opened it; twice the longest length tried
+    if some pulse of that length failed (a valve that does not open: the calibration then
+    refuses the valve figures, and the observer keeps the type's range)."""
     lengths = np.unique(width)
     failed = np.array([bool((passed[width == w] < OPENED).any()) for w in lengths])
     opened = np.array([bool((passed[width == w] >= OPENED).any()) for w in lengths])
