@@ -17,6 +17,7 @@ import pytest
 from device import controller as ctl
 from device import supervision, trips
 from device.axes import AXES
+from device.calibration import Calibration
 from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_RAMP
@@ -216,7 +217,7 @@ def test_a_leak_or_a_stuck_valve_is_caught_by_the_chambers_air(kind: FaultKind) 
     assert caught >= least, kind
 
 
-_UNTESTED_VALVES = np.vstack([np.ones(24), np.zeros((3, 24))])
+_UNTESTED_VALVES = Calibration().valve_figures()
 """Gains, extra times and pulse edges of valves the start-up test did not measure."""
 
 
@@ -1002,6 +1003,24 @@ def test_a_sideways_force_sensor_offset_moves_an_exercising_platform_at_most_3_m
             assert run.detected and run.excursion_mm <= 3.0, run
 
 
+def _pushed(
+    scenario: str, axis: int, rate: float, size: float, config: ctl.ControllerConfig | None = None
+) -> tuple[Rig, np.ndarray]:
+    """The calibrated nominal unit in ``scenario``, a foot ramping a push along ``axis``
+    (0-2 a force, N; 3-5 a torque, N m) at ``rate`` per second to ``size`` from 0.1 s on;
+    the rig and its log of the 0.6 s that follow."""
+    rig = safety._rig("relaxed", 1, config=config)
+    safety._start(rig, scenario)
+    rig.clear_log()
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    if axis < 3:
+        hw.script_force(axis, SCRIPT_RAMP, rig.time + 0.1, rate, size)
+    else:
+        hw.script_torque(axis, SCRIPT_RAMP, rig.time + 0.1, rate, size)
+    return rig, rig.run(0.6)
+
+
 @pytest.mark.parametrize("axis", [0, 1])
 def test_a_real_sideways_push_however_fast_is_held_and_compensated(axis: int) -> None:
     """A foot pushing 30 N sideways, at 1,000 to 20,000 N/s, on a held platform at home and
@@ -1010,13 +1029,7 @@ def test_a_real_sideways_push_however_fast_is_held_and_compensated(axis: int) ->
     once the push stands (the slow entry of a jump ends)."""
     for rate in (1000.0, 20000.0):
         for scenario in ("holding", "exercise"):
-            rig = safety._rig("relaxed", 1)
-            safety._start(rig, scenario)
-            rig.clear_log()
-            hw = rig.hardware
-            assert isinstance(hw, SimulatedHardware)
-            hw.script_force(axis, SCRIPT_RAMP, rig.time + 0.1, rate, 30.0)
-            log = rig.run(0.6)
+            rig, log = _pushed(scenario, axis, rate, 30.0)
             where = f"{'xy'[axis]} at {rate:g} N/s while {scenario}"
             assert rig.trip == Trip.NONE, where
             pose = log[:, COL[f"pose_{'xy'[axis]}"]]
@@ -1270,17 +1283,8 @@ def test_a_real_twist_however_fast_enters_the_compensation_as_it_comes(axis: int
             if scenario == "exercise" and axis == 4:
                 continue  # pitch is the exercise's compliant axis: the foot's to move
             poses = []
-            for slew in (None, 1.0e9):
-                rig = safety._rig("relaxed", 1)
-                if slew is not None:
-                    config = dataclasses.replace(rig.config, load_turn_slew=slew)
-                    rig = Rig(rig.hardware, config)
-                safety._start(rig, scenario)
-                rig.clear_log()
-                hw = rig.hardware
-                assert isinstance(hw, SimulatedHardware)
-                hw.script_torque(axis, SCRIPT_RAMP, rig.time + 0.1, rate, 5.0)
-                log = rig.run(0.6)
+            for config in (None, dataclasses.replace(ctl.ControllerConfig(), load_turn_slew=1e9)):
+                rig, log = _pushed(scenario, axis, rate, 5.0, config)
                 where = f"{AXES[axis]} at {rate:g} N m/s while {scenario}"
                 assert rig.trip == Trip.NONE, (where, rig.trip, rig.trip_channel)
                 taken = rig.state.monitor[supervision.M_LOAD_TURN + axis - 3]
