@@ -47,6 +47,12 @@ LEG_FRICTION_MAX = 15.0
 (glass/graphite pistons about 1 N, light elastomer seals up to 5 N, breakaway 2 times that)
 but a bent rod, a misaligned joint or a seal run dry."""
 
+LOAD_BIAS_MAX = 20.0
+"""A leg whose chambers push more than this (N) beyond its share of the empty platform's
+modelled load is not a build's spread (a plate a kilogram off its model is about 2 N a leg,
+transducer spans 2 % off at the working pressures up to about 8 N) but a transducer far off
+its span, something on the plate, or a leg that binds."""
+
 
 class IdentificationError(RuntimeError):
     """The unit could not be identified; the sentence says why and what to check."""
@@ -84,6 +90,11 @@ class Calibration:
     """Per leg: the force (N) its seals hold back at a slow, steady speed, from a slow heave
     of the empty platform up and down (device.identify.identify_friction). Empty: not
     identified, and the controller feeds no friction forward."""
+    load_bias: tuple[float, ...] = ()
+    """Per leg: what its chambers push (N) at mid-stroke beyond the force the controller
+    figures holds the empty platform (device.identify.load_bias): the plate's true weight and
+    centre of mass against the model's, and the transducers' spans. The force checks take it
+    out of each leg's residual. Empty: not identified, and they take nothing out."""
     moving_mass: float = 0.0
     """The mass (kg) the legs move in a heave of the empty platform, pistons included
     (device.identify.moving_mass): the position loop's derivative gain grows with it
@@ -125,6 +136,10 @@ class Calibration:
             return np.array(self.dead_volume)
         return np.full(12, design)
 
+    def load_biases(self) -> NDArray[np.float64]:
+        """Per leg (N), for the controller's force checks: 0 where not identified."""
+        return np.array(self.load_bias) if len(self.load_bias) == 6 else np.zeros(6)
+
     def leg_frictions(self) -> NDArray[np.float64]:
         """Per leg (N), for the controller: 0 where not identified."""
         return np.array(self.leg_friction) if len(self.leg_friction) == 6 else np.zeros(6)
@@ -146,6 +161,7 @@ class Calibration:
                 pulse_opens=_floats(data.get("pulse_opens", []), 24, "pulse_opens", True),
                 dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 leg_friction=_floats(data.get("leg_friction", []), 6, "leg_friction", True),
+                load_bias=_floats(data.get("load_bias", []), 6, "load_bias", True),
                 moving_mass=float(data.get("moving_mass", 0.0)),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
@@ -185,6 +201,19 @@ class Calibration:
         self.check_valves()
         self.check_friction()
         self.check_mass()
+        self.check_load_bias()
+
+    def check_load_bias(self) -> None:
+        """Refuse a load bias no healthy, empty unit has."""
+        if len(self.load_bias) not in (0, 6):
+            raise IdentificationError("load_bias needs 6 numbers, or none")
+        for i, b in enumerate(self.load_bias):
+            if not abs(b) <= LOAD_BIAS_MAX:
+                raise IdentificationError(
+                    f"leg {i + 1} pushes {b:+.1f} N beyond its share of the empty platform "
+                    f"(healthy: within {LOAD_BIAS_MAX:g} N): check that nothing is on the "
+                    "plate, the leg's pressure transducers and its joints"
+                )
 
     def check_mass(self) -> None:
         """Refuse a moving mass no healthy, empty unit has (0: not identified)."""

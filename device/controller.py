@@ -635,6 +635,8 @@ class ControllerParams(NamedTuple):
     friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg along its moving target
     friction_speed: float  # m/s
     leg_friction: NDArray[np.float64]  # (6,) identified seal friction per leg (N), 0 if not
+    load_bias: NDArray[np.float64]  # (6,) identified load bias per leg (N), 0 if not
+    lift_judged: bool  # the load bias was identified: the vertical cross-check judges
     friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
     friction_track_alpha: float  # its low-pass per control period
     friction_joint: NDArray[np.float64]  # (6,) N per leg on a joint step's approach
@@ -891,6 +893,8 @@ def build_params(
         lag_extra=config.impedance_lag_extra,
         friction_speed=config.friction_compensation_speed,
         leg_friction=config.calibration.leg_frictions(),
+        load_bias=config.calibration.load_biases(),
+        lift_judged=len(config.calibration.load_bias) == 6,
         friction_track=config.friction_compensation * config.calibration.leg_frictions(),
         friction_track_alpha=(
             1.0 - math.exp(-CONTROL_PERIOD * dt_tick / config.friction_compensation_lag)
@@ -1726,11 +1730,13 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
         if s.counters[supervision.C_SIDE_ARMED] < supervision.SIDE_ARM_PERIODS:
             s.counters[supervision.C_SIDE_ARMED] += 1
         if moving(s.istate) and p.load_compensation:
-            # Each leg's measured pneumatic force against the force that holds the load.
+            # Each leg's measured pneumatic force against the force that holds the load, less
+            # what it pushed beyond that at start-up (the plate's weight off its model, the
+            # transducers' spans; Calibration.load_bias).
             residuals = np.empty(6)
             for i in range(6):
                 pushed = s.pressure[2 * i] * p.area_cap - s.pressure[2 * i + 1] * p.area_annulus
-                residuals[i] = pushed - held[i]
+                residuals[i] = pushed - held[i] - p.load_bias[i]
             # Each leg's identified seal friction, against its measured motion, is no sensor's
             # error.
             seals = np.empty(6)
@@ -1750,6 +1756,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             shares = np.zeros(6)
             allowance = 0.0
             allow = np.zeros(3)  # the moment check's (turn_allowance), judged only then too
+            lift = 0.0  # and the vertical one's (lift_allowance)
             if supervision.accel_trusted(s.counters):
                 inertial = np.zeros(6)
                 for k in range(6):
@@ -1769,6 +1776,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                     p.sup,
                     allow,
                 )
+                lift = lift_allowance(J, accel, s.leg_rate, p.leg_friction, abs(F[2]), p.sup)
             leg = -1
             corrected = np.empty(6)
             for i in range(6):
@@ -1799,6 +1807,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # the seals hold beyond their identified friction: judged leg by leg as each
             # slides or sticks (check_turn).
             spin = supervision.check_turn(s.monitor, s.counters, W[3:], allow, p.sup)
+            # Vertically, what is left is the force sensor's error, the seals' friction and
+            # what the inertial model gets wrong, once the unit's load bias is known.
+            up = p.lift_judged and supervision.check_lift(s.monitor, s.counters, W[2], lift, p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return
@@ -1810,6 +1821,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 return
             if spin >= 0:
                 trip(s, Trip.FORCE_SENSOR, spin)
+                return
+            if up:
+                trip(s, Trip.FORCE_SENSOR, 2)
                 return
 
 
@@ -1849,6 +1863,41 @@ def side_allowance(
 
 
 @njit_inline
+def seal_hold(friction: float, rate: float, q: supervision.SupervisionParams) -> float:
+    """What a leg's seals may hold (N) beyond their identified ``friction`` taken out, at
+    its measured ``rate`` (m/s): ``turn_stick`` times it sticking, ``turn_slip`` sliding
+    (``turn_friction_unidentified`` where none was identified), and ``turn_viscous`` times
+    the rate."""
+    f = friction if friction > 0.0 else q.turn_friction_unidentified
+    slide = abs(math.tanh(rate / q.side_friction_speed))
+    return f * (q.turn_stick * (1.0 - slide) + q.turn_slip * slide) + q.turn_viscous * abs(rate)
+
+
+@njit_inline
+def lift_allowance(
+    J: NDArray[np.float64],
+    accel: NDArray[np.float64],
+    rate: NDArray[np.float64],
+    friction: NDArray[np.float64],
+    load: float,
+    q: supervision.SupervisionParams,
+) -> float:
+    """The vertical force (N) the legs' residual may hold at the ankle with no sensor at
+    fault: ``lift_floor``; each leg's seals (:func:`seal_hold`) times its vertical share
+    (rows of ``J``); a plate ``side_mass_tol`` off its model at the measured vertical
+    acceleration ``accel[2]``, and each piston ``side_leg_mass_tol`` off along its leg; and
+    the force sensor's span (``lift_ft_span``) of the vertical ``load`` it reads (N)."""
+    out = q.lift_floor + q.lift_ft_span * load + q.side_mass_tol * abs(accel[2])
+    for i in range(6):
+        out += seal_hold(friction[i], rate[i], q) * abs(J[i, 2])
+        along = 0.0
+        for k in range(6):
+            along += J[i, k] * accel[k]
+        out += q.side_leg_mass_tol * abs(along) * abs(J[i, 2])
+    return float(out)
+
+
+@njit_inline
 def turn_allowance(
     J: NDArray[np.float64],
     r: NDArray[np.float64],
@@ -1873,10 +1922,7 @@ def turn_allowance(
     for k in range(3):
         out[k] = q.turn_floor
     for i in range(6):
-        f = friction[i] if friction[i] > 0.0 else q.turn_friction_unidentified
-        slide = abs(math.tanh(rate[i] / q.side_friction_speed))
-        held = f * (q.turn_stick * (1.0 - slide) + q.turn_slip * slide)
-        held += q.turn_viscous * abs(rate[i])
+        held = seal_hold(friction[i], rate[i], q)
         for k in range(3):
             out[k] += held * abs(J[i, 3 + k])
     a0, a1, a2 = accel[3], accel[4], accel[5]

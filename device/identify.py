@@ -35,10 +35,14 @@ same routine on the simulation and on an I/O board.
    forward along the leg's moving target (``ControllerConfig.friction_compensation``).
    The faster passes sway a little as they go, which weighs what the legs move
    (:func:`moving_mass`): the position loop's derivative gain grows with it
-   (``ControllerConfig.moving_mass_reference``).
+   (``ControllerConfig.moving_mass_reference``). What each leg pushes beyond the load the
+   controller figures, friction fitted out, is its load bias (:func:`load_bias`): the
+   plate's true weight against the model's and the transducers' spans at the working
+   pressures, which the force checks take out of the legs' residual.
 
 What it does not identify (yet): the platform's centre of mass (the outer loop's integral
-takes up its static part), the sensors' span errors.
+takes up its static part), the sensors' span errors one by one (only what they leave in
+each leg's force at mid-stroke).
 """
 
 from __future__ import annotations
@@ -145,10 +149,11 @@ def identify(
         identified = replace(cal, notes=(f"valve identification not used: {exc}",))
     if progress:
         progress("identification: a slow heave up and down for the legs' friction")
-    friction, mass = identify_friction(hardware, identified, atmosphere)
-    with_friction = replace(identified, leg_friction=friction, moving_mass=mass)
+    friction, mass, bias = identify_friction(hardware, identified, atmosphere)
+    with_friction = replace(identified, leg_friction=friction, moving_mass=mass, load_bias=bias)
     with_friction.check_friction()  # a leg no healthy unit has: refused, look at it
     with_friction.check_mass()
+    with_friction.check_load_bias()
     return with_friction
 
 
@@ -409,8 +414,9 @@ def identify_friction(
     atmosphere: float = 1.01325e5,
     config: ControllerConfig | None = None,
     geometry: Geometry = DEFAULT_GEOMETRY,
-) -> tuple[tuple[float, ...], float]:
-    """Each leg's seal friction (N, 6) and the mass the legs move (kg). The controller,
+) -> tuple[tuple[float, ...], float, tuple[float, ...]]:
+    """Each leg's seal friction (N, 6), the mass the legs move (kg) and each leg's load
+    bias (N, 6; :func:`load_bias`). The controller,
     calibrated with ``calibration``, moves every leg together up and down
     :data:`FRICTION_SPAN` of the stroke at each of :data:`FRICTION_SPEEDS` (the empty
     platform heaving), and each leg's chamber force
@@ -469,7 +475,10 @@ def identify_friction(
                                 - s.pressure[1::2] * params.area_annulus
                             )
                             swaying = passes if sway else 0
-                            rows.append(np.concatenate((s.leg_x, force, [direction, swaying, t])))
+                            held = s.monitor[supervision.M_LOAD_HELD : supervision.M_LOAD_HELD + 6]
+                            rows.append(
+                                np.concatenate((s.leg_x, force, [direction, swaying, t], held))
+                            )
                     x = high if direction > 0 else low
     finally:
         rig.close_valves_now()
@@ -482,7 +491,31 @@ def identify_friction(
         design = np.column_stack((np.ones_like(x_m), x_m, commanded))
         coef, *_ = np.linalg.lstsq(design, f_m, rcond=None)
         friction[leg] = max(0.0, float(coef[2]))
-    return tuple(float(f) for f in friction), moving_mass(data, geometry)
+    bias = load_bias(data, 0.5 * (low + high))
+    return tuple(float(f) for f in friction), moving_mass(data, geometry), bias
+
+
+def load_bias(data: NDArray[np.float64], x: float) -> tuple[float, ...]:
+    """Each leg's load bias (N) at displacement ``x`` (m), from the rows of
+    :func:`identify_friction` (leg displacements, chamber forces, direction, pass, time, and
+    the force the controller figured each leg holds): what its chambers push beyond that
+    force, its seals' friction fitted out as in the friction's own fit (``a + b x + f d``,
+    the bias ``a + b x``).
+
+    The controller figures the load from its model of the platform (2.5 kg, its centre of
+    mass where the drawing puts it) and the force sensor; a build's plate weighs 2.0-3.5 kg
+    (up to 10 N on the six legs together), and each transducer's span, which the zeros do not
+    find, is off by up to 2 % of a chamber's working pressure (about 4 N on a leg). Both
+    stay with the unit: the force checks (device.supervision) take the bias out of each
+    leg's residual, so that what is left is what a sensor or a leg gets wrong now."""
+    out = []
+    for leg in range(6):
+        x_m = data[:, leg]
+        pushed = data[:, 6 + leg] - data[:, 15 + leg]
+        design = np.column_stack((np.ones_like(x_m), x_m, data[:, 12]))
+        coef, *_ = np.linalg.lstsq(design, pushed, rcond=None)
+        out.append(float(coef[0] + coef[1] * x))
+    return tuple(out)
 
 
 SWAY_HZ = 15.0

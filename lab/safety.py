@@ -340,6 +340,9 @@ class HealthyRun:
     """Rings the guard saw and damped (device.ring): a foot made the loop ring."""
     turn_share_max: float = 0.0
     """Largest share of its allowance the moment residual took (1 names a torque offset)."""
+    lift_share_max: float = 0.0
+    """...and the vertical residual (1 names a vertical force offset; 0 where the unit's
+    load bias was not identified and the vertical check does not judge)."""
 
 
 def _library_targets(
@@ -416,6 +419,7 @@ def healthy_runs(
                 monitor[peaks] = 0.0
                 monitor[supervision.M_OBS_PEAK] = 0.0
                 monitor[supervision.M_TURN_PEAK] = 0.0
+                monitor[supervision.M_LIFT_PEAK] = 0.0
                 for _ in range(round(seconds / 0.05)):
                     rig.run(0.05, log_hz=0)
                     residual = monitor[supervision.M_RESIDUAL : supervision.M_RESIDUAL + 6]
@@ -438,6 +442,7 @@ def healthy_runs(
                         float(monitor[supervision.M_OBS_PEAK]),
                         int(rig.state.istate[I_RINGS]),
                         float(monitor[supervision.M_TURN_PEAK]),
+                        float(monitor[supervision.M_LIFT_PEAK]),
                     )
                 )
                 if progress is not None:
@@ -639,6 +644,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("wrench_force_max_n", "largest healthy residual force, legs vs force sensor (N, limit 45)"),
     ("wrench_torque_max_nm", "largest healthy residual torque (N m, limit 5.5)"),
     ("turn_share_max", "largest healthy moment residual (share of its allowance, limit 1)"),
+    ("lift_share_max", "largest healthy vertical residual (share of its allowance, limit 1)"),
     ("air_flow_max", "largest healthy chamber air residual (share of its tolerance)"),
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
@@ -768,6 +774,7 @@ def _the_rest(
         "wrench_force_max_n": max(h.wrench_force_max_n for h in healthy),
         "wrench_torque_max_nm": max(h.wrench_torque_max_nm for h in healthy),
         "turn_share_max": max(h.turn_share_max for h in healthy),
+        "lift_share_max": max(h.lift_share_max for h in healthy),
         "air_flow_max": max(h.air_flow_max for h in healthy),
         "healthy_plants": sorted({h.plant for h in healthy}),
         "boundary_commands": sent,

@@ -315,6 +315,51 @@ def test_a_calibration_carries_the_moving_mass_and_refuses_what_no_empty_plate_w
         Calibration.load(path)
 
 
+@pytest.mark.parametrize(("mass", "weight"), [(3.5, 9.81), (2.0, -4.9)])
+def test_identification_finds_what_the_legs_carry_beyond_the_model(
+    mass: float, weight: float
+) -> None:
+    """The slow heave's static part against the load the controller figures (a 2.5 kg
+    plate): a plate a kilogram heavier is about 10 N more on the legs together, half a
+    kilogram lighter about 5 N less, and on each leg its share (the transducers' spans left
+    exact here: with them, up to about 5 N a leg either way)."""
+    overrides = (("platform_mass", mass), ("pressure_gain_error", 0.0))
+    cal = identify(SimulatedHardware(PlantConfig(patient="absent", overrides=overrides), seed=3))
+    bias = np.array(cal.load_bias)
+    assert bias.shape == (6,)
+    up = Kinematics().jacobian(DEFAULT_GEOMETRY.home_pose)[:, 2]  # each leg's unit, z
+    # Measured 10.15 and -4.44 N (0.39 N on the nominal plate: what the model's pistons and
+    # the pressures at the tubes' valve ends leave).
+    assert float(bias @ up) == pytest.approx(weight, abs=1.0)
+    share = weight / float(up.sum())
+    assert np.all(np.abs(bias - share) < 0.6), (bias, share)
+    params, _ = build_params(ControllerConfig(calibration=cal))
+    assert params.lift_judged and np.array_equal(params.load_bias, bias)
+
+
+def test_a_calibration_carries_the_load_bias_and_refuses_what_no_empty_unit_has(
+    tmp_path: Path,
+) -> None:
+    cal = Calibration(load_bias=(1.5, -2.0, 0.5, 3.0, -4.0, 0.0), identified_at="x")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    assert Calibration.load(path) == cal
+    older = {k: v for k, v in json.loads(cal.to_json()).items() if k != "load_bias"}
+    path.write_text(json.dumps(older))
+    loaded = Calibration.load(path)
+    assert np.all(loaded.load_biases() == 0.0)  # nothing taken out of the residuals
+    params, _ = build_params(ControllerConfig(calibration=loaded))
+    assert not params.lift_judged  # and the vertical cross-check does not judge
+    for change, match in (
+        ({"load_bias": [1.0] * 5}, "load_bias needs 6"),
+        ({"load_bias": [1.0] * 5 + [35.0]}, r"leg 6 pushes \+35.0 N"),
+        ({"load_bias": [-21.0] + [1.0] * 5}, "leg 1 pushes -21.0 N"),
+    ):
+        path.write_text(json.dumps(json.loads(cal.to_json()) | change))
+        with pytest.raises(IdentificationError, match=match):
+            Calibration.load(path)
+
+
 @pytest.mark.parametrize("patient", ["absent", "resisting"])
 def test_a_platform_resting_on_its_stops_homes(patient: str) -> None:
     """Where the identification leaves a unit (and a power-off): legs on their stops, vented,

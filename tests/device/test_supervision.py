@@ -177,16 +177,31 @@ def test_an_offset_on_any_force_sensor_channel_is_caught_by_the_six_legs_togethe
     assert caught["device"][0] in (Trip.FORCE_SENSOR, Trip.FOLLOWING), caught
 
 
-def test_an_offset_below_the_legs_friction_is_not_mistaken_for_a_fault() -> None:
-    """The other side of the threshold: 20 N on Fz is what light seals' friction can hide,
-    so it must not trip (it acts like a patient pushing 20 N)."""
+@pytest.mark.parametrize("calibrated", [True, False])
+def test_an_offset_the_vertical_allowance_forgives_is_not_mistaken_for_a_fault(
+    calibrated: bool,
+) -> None:
+    """The other side of the threshold: 10 N on Fz either way (the vertical check's floor)
+    acts like a patient pushing 10 N, on the unit with and without its load bias; 20 N was
+    named in 2 of 4 runs on the calibrated one (held and mid-exercise, either way)."""
+    for scenario in ("holding", "exercise"):
+        for newtons in (10.0, -10.0):
+            rig = _force_offset(scenario, 2, newtons, 0.5, calibrated=calibrated)
+            assert rig.trip == Trip.NONE, (scenario, newtons, rig.trip)
 
-    rig, _, _, _, _ = safety._run(None, "exercise", seed=5)
-    hw = rig.hardware
-    assert isinstance(hw, SimulatedHardware)
-    hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), 2, 20.0))
-    rig.run(0.5, log_hz=0)
-    assert rig.trip == Trip.NONE
+
+@pytest.mark.parametrize("scenario", safety.SCENARIOS)
+def test_a_vertical_force_sensor_offset_is_caught_by_the_vertical_cross_check(
+    scenario: str,
+) -> None:
+    """30 N on Fz acts like a foot pushing down 30 N, under the wrench cross-check's 45 N:
+    it went unnamed in every situation. With the unit's load bias taken out of the legs'
+    residual (the plate's true weight, the transducers' spans), what is left vertically is
+    the sensor's error beside the seals' friction: named in 22-56 ms (56 as the legs settle,
+    the check not yet armed), the platform 0.3-1 mm off."""
+    run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=2)
+    assert run.detected and run.trip == Trip.FORCE_SENSOR.name and run.channel == 2, run
+    assert run.detect_ms <= 80.0 and run.excursion_mm <= 2.0, run
 
 
 AIR_FAULTS = (FaultKind.VALVE_STUCK_OPEN, FaultKind.VALVE_STUCK_CLOSED, FaultKind.CHAMBER_LEAK)
@@ -634,6 +649,7 @@ def test_healthy_exercises_do_not_trip_the_supervision() -> None:
         assert r.residual_max_n < 0.7 * 30.0, r
         assert r.wrench_force_max_n < 45.0 and r.wrench_torque_max_nm < 5.5, r
         assert 0.0 < r.turn_share_max < 1.0, r
+        assert 0.0 < r.lift_share_max < 0.6, r  # measured at most 0.42 (builds 0-73)
         assert 0.0 < r.air_flow_max < 0.75, r  # measured at most 0.55 (builds 0-49)
     assert all(math.isfinite(r.residual_max_n) for r in runs)
 
