@@ -53,6 +53,11 @@ modelled load is not a build's spread (a plate a kilogram off its model is about
 transducer spans 2 % off at the working pressures up to about 8 N) but a transducer far off
 its span, something on the plate, or a leg that binds."""
 
+STILL_READS_RANGE = (10, 400)
+"""A transducer whose noise lets its reading stand still, healthy, for fewer reads than the
+first is not one the type's noise (1 mbar rms, 1-3 counts) makes; one that would need more
+than the second is too quiet to be judged by its flicker at all (stored as 0)."""
+
 
 class IdentificationError(RuntimeError):
     """The unit could not be identified; the sentence says why and what to check."""
@@ -90,6 +95,11 @@ class Calibration:
     """Per leg: the force (N) its seals hold back at a slow, steady speed, from a slow heave
     of the empty platform up and down (device.identify.identify_friction). Empty: not
     identified, and the controller feeds no friction forward."""
+    pressure_still_reads: tuple[int, ...] = ()
+    """Per pressure channel (12 chambers, then the supply): how many reads in a row (1 kHz)
+    its reading may stay bit for bit the same, healthy, from the noise it showed at rest at
+    start-up (device.identify.pressure_still_reads); 0 where the transducer is too quiet for
+    that to tell a frozen one. Empty: not identified, and nothing is judged so."""
     load_bias: tuple[float, ...] = ()
     """Per leg: what its chambers push (N) at mid-stroke beyond the force the controller
     figures holds the empty platform (device.identify.load_bias): the plate's true weight and
@@ -136,6 +146,12 @@ class Calibration:
             return np.array(self.dead_volume)
         return np.full(12, design)
 
+    def still_reads(self) -> NDArray[np.int64]:
+        """Per pressure channel (13), for the controller: 0 where not judged by its flicker."""
+        if len(self.pressure_still_reads) == 13:
+            return np.array(self.pressure_still_reads, dtype=np.int64)
+        return np.zeros(13, dtype=np.int64)
+
     def load_biases(self) -> NDArray[np.float64]:
         """Per leg (N), for the controller's force checks: 0 where not identified."""
         return np.array(self.load_bias) if len(self.load_bias) == 6 else np.zeros(6)
@@ -162,6 +178,9 @@ class Calibration:
                 dead_volume=_floats(data.get("dead_volume", []), 12, "dead_volume", True),
                 leg_friction=_floats(data.get("leg_friction", []), 6, "leg_friction", True),
                 load_bias=_floats(data.get("load_bias", []), 6, "load_bias", True),
+                pressure_still_reads=_ints(
+                    data.get("pressure_still_reads", []), 13, "pressure_still_reads"
+                ),
                 moving_mass=float(data.get("moving_mass", 0.0)),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
@@ -202,6 +221,20 @@ class Calibration:
         self.check_friction()
         self.check_mass()
         self.check_load_bias()
+        self.check_still_reads()
+
+    def check_still_reads(self) -> None:
+        """Refuse still-read counts no healthy transducer's noise gives."""
+        if len(self.pressure_still_reads) not in (0, 13):
+            raise IdentificationError("pressure_still_reads needs 13 numbers, or none")
+        low, high = STILL_READS_RANGE
+        for c, n in enumerate(self.pressure_still_reads):
+            if n != 0 and not low <= n <= high:
+                name = "the supply transducer" if c == 12 else f"chamber {c} transducer"
+                raise IdentificationError(
+                    f"{name} may stand still {n} reads (healthy: 0 or {low}-{high}): "
+                    "check the calibration file"
+                )
 
     def check_load_bias(self) -> None:
         """Refuse a load bias no healthy, empty unit has."""
@@ -266,6 +299,17 @@ class Calibration:
                     f"and {e * 1e3:+.2f} ms beyond its pulse (healthy: {low:g}-{high:g} and "
                     f"within {VALVE_EXTRA_MAX * 1e3:g} ms): check the valve and its tube"
                 )
+
+
+def _ints(values: object, n: int, name: str) -> tuple[int, ...]:
+    """An optional list of ``n`` whole numbers (empty: none)."""
+    if isinstance(values, list | tuple) and not values:
+        return ()
+    if not isinstance(values, list | tuple) or len(values) != n:
+        raise ValueError(f"{name} needs {n} numbers")
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+        raise ValueError(f"{name} must be whole numbers")
+    return tuple(int(v) for v in values)
 
 
 def _floats(values: object, n: int, name: str, optional: bool = False) -> tuple[float, ...]:

@@ -279,7 +279,8 @@ def _device(args: argparse.Namespace) -> int:
 
 def describe(calibration: Calibration) -> str:
     """One line for the technician: when the unit was identified, its largest zeros, its
-    legs' friction and what they move."""
+    legs' friction and what they move, their largest load bias, and how many transducers
+    a frozen reading is told by on their noise."""
     legs = max(abs(z) for z in calibration.leg_zero) * 1e3
     bar = max(abs(z) for z in calibration.pressure_zero) / 1e5
     valves = "valves identified" if calibration.valves_identified else "valves not identified"
@@ -293,10 +294,17 @@ def describe(calibration: Calibration) -> str:
         if calibration.moving_mass
         else "moving mass not identified (the configured derivative gain)"
     )
+    bias = (
+        f"load bias up to {max(abs(b) for b in calibration.load_bias):.1f} N a leg"
+        if calibration.load_bias
+        else "load bias not identified (no vertical force cross-check)"
+    )
+    judged = sum(1 for n in calibration.pressure_still_reads if n > 0)
+    still = f"{judged} of 13 transducers judged by their noise"
     when = calibration.identified_at or "an unknown date"
     return (
         f"calibration of {when}: leg zeros up to {legs:.3f} mm, transducer zeros up to "
-        f"{bar:.3f} bar, {valves}, {friction}, {mass}"
+        f"{bar:.3f} bar, {valves}, {friction}, {mass}, {bias}, {still}"
     )
 
 

@@ -636,6 +636,7 @@ class ControllerParams(NamedTuple):
     friction_speed: float  # m/s
     leg_friction: NDArray[np.float64]  # (6,) identified seal friction per leg (N), 0 if not
     load_bias: NDArray[np.float64]  # (6,) identified load bias per leg (N), 0 if not
+    pressure_still: NDArray[np.int64]  # (13,) reads a pressure reading may stand still, 0 not
     lift_judged: bool  # the load bias was identified: the vertical cross-check judges
     friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
     friction_track_alpha: float  # its low-pass per control period
@@ -894,6 +895,7 @@ def build_params(
         friction_speed=config.friction_compensation_speed,
         leg_friction=config.calibration.leg_frictions(),
         load_bias=config.calibration.load_biases(),
+        pressure_still=config.calibration.still_reads(),
         lift_judged=len(config.calibration.load_bias) == 6,
         friction_track=config.friction_compensation * config.calibration.leg_frictions(),
         friction_track_alpha=(
@@ -1111,6 +1113,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         s.leg_target,
         p.sensor_zero,
         p.leg_friction,
+        p.pressure_still,
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)

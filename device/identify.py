@@ -40,6 +40,10 @@ same routine on the simulation and on an I/O board.
    plate's true weight against the model's and the transducers' spans at the working
    pressures, which the force checks take out of the legs' residual.
 
+6. **Listen to the transducers** (:func:`pressure_still_reads`), the chambers vented
+   again: how often each reading changes code with its noise says how long a live one's
+   reading may stand still.
+
 What it does not identify (yet): the platform's centre of mass (the outer loop's integral
 takes up its static part), the sensors' span errors one by one (only what they leave in
 each leg's force at mid-stroke).
@@ -56,7 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device import pwm, signals, supervision
-from device.calibration import Calibration, IdentificationError
+from device.calibration import STILL_READS_RANGE, Calibration, IdentificationError
 from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware
@@ -67,6 +71,10 @@ from device.rig import Rig
 READS = 200
 """Readings averaged at rest (0.2 s at 1 kHz): the noise of the mean is 1/14 of one
 reading's (5 um on a leg, 7 Pa on a chamber)."""
+NOISE_READS = 1000
+"""Readings at rest (1 s), every chamber vented again at the end, counted code by code for
+each transducer's noise (:func:`pressure_still_reads`): from 200 a transducer of 100 Pa read
+75-117 Pa, from 1,000 96-105 Pa."""
 SENSOR_PERIOD_TICKS = 7
 DOWN_PULSE_S = 2.5
 """Pull down in pulses first: each rod-side intake and cap-side exhaust open in the
@@ -154,7 +162,85 @@ def identify(
     with_friction.check_friction()  # a leg no healthy unit has: refused, look at it
     with_friction.check_mass()
     with_friction.check_load_bias()
-    return with_friction
+    if progress:
+        progress("identification: the transducers' noise, vented")
+    history.clear()
+    try:
+        while len(history) < NOISE_READS:
+            step(valves)  # every exhaust open: the chambers stay at the atmosphere
+    finally:
+        hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
+    still = pressure_still_reads(np.array(history)[:, :13])
+    return replace(with_friction, pressure_still_reads=still)
+
+
+# -- how long a live transducer's reading may stand still (the last reads at rest) --------
+
+STILL_RISK = 1e-12
+"""The chance, at the worst place within a count, that a healthy transducer's noise leaves
+its reading the same for as many reads in a row as the rule waits, at the noise assumed
+(:data:`STILL_NOISE_SHARE`): once in a million million stretches. A live 100 Pa reading
+starts a few hundred stretches a second, so with thirteen channels that is about once in
+ten years of running without a stop; at the noise measured, far rarer (3e-18 at 100 Pa)."""
+STILL_NOISE_SHARE = 0.85
+"""The noise the rule assumes, as a share of what the reads at rest showed
+(:data:`NOISE_READS` quantised reads estimate it to within about 5 %): assumed quieter, it
+waits longer."""
+
+
+def count_size(readings: NDArray[np.float64]) -> float:
+    """The transducers' count (the smallest step between two different readings of any
+    channel, columns of ``readings``); 0 if no channel's reading changed."""
+    steps = [np.diff(np.unique(readings[:, c])) for c in range(readings.shape[1])]
+    found = np.concatenate(steps) if steps else np.zeros(0)
+    found = found[found > 0.0]
+    return float(found.min()) if found.size else 0.0
+
+
+def flicker_noise(codes: NDArray[np.int64]) -> float:
+    """The rms noise (counts) of a steady reading quantised to ``codes``: the most likely
+    Gaussian noise and place within a count to give how often each code came; 0 if only
+    one code came (too quiet to tell)."""
+    values, counts = np.unique(codes - int(np.median(codes)), return_counts=True)
+    if len(values) < 2:
+        return 0.0
+    place, noise = np.meshgrid(np.linspace(-0.5, 0.5, 21), np.geomspace(0.05, 4.0, 160))
+    erf = np.vectorize(math.erf)
+    likelihood = np.zeros_like(place)
+    for value, count in zip(values, counts, strict=True):
+        top = erf((value + 0.5 - place) / (noise * math.sqrt(2.0)))
+        bottom = erf((value - 0.5 - place) / (noise * math.sqrt(2.0)))
+        likelihood += count * np.log(np.maximum(0.5 * (top - bottom), 1e-300))
+    best = np.unravel_index(int(np.argmax(likelihood)), likelihood.shape)
+    return float(noise[best])
+
+
+def still_reads(noise: float) -> int:
+    """How many reads in a row a reading with ``noise`` (rms, counts) may stay the same with
+    the chance :data:`STILL_RISK`, taking it :data:`STILL_NOISE_SHARE` as loud, at the middle
+    of a count (where it stays longest); 0 if that is beyond
+    ``calibration.STILL_READS_RANGE`` (too quiet to tell a frozen transducer by)."""
+    low, high = STILL_READS_RANGE
+    if noise <= 0.0:
+        return 0
+    stay = math.erf(0.5 / (STILL_NOISE_SHARE * noise * math.sqrt(2.0)))
+    if stay >= 1.0:
+        return 0
+    reads = max(low, math.ceil(math.log(STILL_RISK) / math.log(stay)))
+    return reads if reads <= high else 0
+
+
+def pressure_still_reads(readings: NDArray[np.float64]) -> tuple[int, ...]:
+    """Per pressure channel (columns of ``readings``, each steady: vented chambers, the
+    supply with every intake shut), :func:`still_reads` of the noise its reading showed."""
+    count = count_size(readings)
+    if count <= 0.0:
+        return (0,) * int(readings.shape[1])
+    out: list[int] = []
+    for c in range(readings.shape[1]):
+        codes = np.round(readings[:, c] / count).astype(np.int64)
+        out.append(still_reads(flicker_noise(codes)))
+    return tuple(out)
 
 
 # -- each valve's air per pulse (start-up, after the zeros) ------------------------------

@@ -177,7 +177,8 @@ C_FT_STEPPED = 102
 held rotational axes has caught up with the readings (``ControllerConfig.load_turn_slew``)."""
 C_LIFT = 103
 """Control periods in a row with the vertical residual (``M_LIFT``) over its allowance."""
-N_COUNTERS = 104
+C_P_STILL = 104  # 13: reads in a row a pressure channel's raw reading stayed bit for bit the same
+N_COUNTERS = 117
 
 
 @dataclass(frozen=True)
@@ -922,22 +923,30 @@ def check_reading(
     leg_target: NDArray[np.float64],
     sensor_zero: NDArray[np.float64],
     leg_friction: NDArray[np.float64],
+    still: NDArray[np.int64],
 ) -> tuple[int, int]:
     """Checks of one fresh raw sensor vector (1 kHz): (trip code, channel), (0, -1) if fine.
     ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros,
-    ``leg_friction`` each leg's identified seal friction (N, 0 where none)."""
+    ``leg_friction`` each leg's identified seal friction (N, 0 where none), ``still`` per
+    pressure channel the reads in a row its reading may stay the same (0: not judged so;
+    ``Calibration.pressure_still_reads``)."""
     counters[C_READS] += 1
     first = counters[C_READS] == 1
-    # Pressure transducers: open wire, short or a jump no air makes, whatever the mode.
+    # Pressure transducers: open wire, short, a jump no air makes, or a reading that stood
+    # still longer than its noise lets a live one, whatever the mode.
     for c in range(13):
         if sensors[c] < q.open_below or sensors[c] > q.short_above:
             return Trip.PRESSURE_SENSOR, c
         if not first and abs(sensors[c] - monitor[M_P_READ + c]) > q.pressure_jump:
             return Trip.PRESSURE_SENSOR, c
     for c in range(13):
-        if c < 12 and not first and sensors[c] != monitor[M_P_READ + c]:
+        changed = first or sensors[c] != monitor[M_P_READ + c]
+        if c < 12 and changed and not first:
             monitor[M_P_MOVED + c] = 1.0
         monitor[M_P_READ + c] = sensors[c]
+        counters[C_P_STILL + c] = 0 if changed else counters[C_P_STILL + c] + 1
+        if still[c] > 0 and counters[C_P_STILL + c] >= still[c]:
+            return Trip.PRESSURE_SENSOR, c
     # The supply.
     supply = sensors[12] - q.atm
     counters[C_SUPPLY_LOSS] = counters[C_SUPPLY_LOSS] + 1 if supply < q.supply_loss else 0

@@ -67,8 +67,8 @@ SUPPLY_BY_AIR = 13
 TRIP_TEXT: dict[Trip, str] = {
     Trip.NONE: "no fault",
     Trip.SENSOR_INVALID: "a sensor gave no number (NaN or infinity): check its wiring and ADC",
-    Trip.PRESSURE_SENSOR: "a pressure transducer reads what air cannot do (open wire or "
-    "short): check that transducer and its cable",
+    Trip.PRESSURE_SENSOR: "a pressure transducer reads what air cannot do (open wire, short, "
+    "a jump, or a reading frozen without its noise): check that transducer and its cable",
     Trip.RANGE_OF_MOTION: "the platform left its range of motion",
     Trip.WRENCH_LIMIT: "the force or torque on the foot plate went over its limit",
     Trip.LEG_SPEED: "a leg moved faster than the speed limit",

@@ -14,7 +14,19 @@ from device.calibration import Calibration, IdentificationError
 from device.controller import ControllerConfig, build_params, position_kd
 from device.geometry import DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
-from device.identify import FRICTION_SPEEDS, SWAY_HZ, SWAY_SHARE, identify, moving_mass
+from device.identify import (
+    FRICTION_SPEEDS,
+    READS,
+    STILL_RISK,
+    SWAY_HZ,
+    SWAY_SHARE,
+    count_size,
+    flicker_noise,
+    identify,
+    moving_mass,
+    pressure_still_reads,
+    still_reads,
+)
 from device.kinematics import Kinematics
 from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
@@ -313,6 +325,66 @@ def test_a_calibration_carries_the_moving_mass_and_refuses_what_no_empty_plate_w
     path.write_text(cal.to_json().replace("4.1", "NaN"))
     with pytest.raises(IdentificationError, match="the legs move nan kg"):
         Calibration.load(path)
+
+
+@pytest.mark.parametrize(
+    ("noise", "low", "high"), [(50.0, 0, 0), (100.0, 100, 400), (300.0, 20, 40)]
+)
+def test_a_transducers_noise_sets_how_long_its_reading_may_stand_still(
+    noise: float, low: int, high: int
+) -> None:
+    """From the identification's steady quantised reads: the noise, and the reads in a row
+    a live reading of it stays the same once in a million million stretches (169 at 100 Pa,
+    28 at 300 Pa, on the transducer's 244 Pa count); at 50 Pa a live one stands still for
+    seconds and is not judged so (0). Twenty places within a count each."""
+    count = 1.0e6 / 4096
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        true = 3.0e5 + rng.uniform(0.0, count) + rng.normal(0.0, noise, READS)
+        readings = count * np.floor(true / count + 0.5)
+        found = pressure_still_reads(readings[:, None])[0]
+        assert found == 0 if high == 0 else low <= found <= high, (noise, found)
+    assert count_size(np.column_stack([readings, readings + 3 * count])) == pytest.approx(count)
+    assert still_reads(0.0) == 0 and flicker_noise(np.full(50, 7)) == 0.0
+    # Taken 0.85 as loud as measured: at the noise itself, the chance it waits for is smaller.
+    reads = still_reads(noise / count)
+    if reads:
+        stay = math.erf(0.5 / (noise / count * math.sqrt(2.0)))
+        assert stay**reads < STILL_RISK
+
+
+def test_identification_finds_how_long_each_transducer_may_stand_still() -> None:
+    """The nominal transducers' 100 Pa of noise on every channel, the supply's too: each is
+    judged by its flicker; the quietest a build may have (50 Pa) is not."""
+    cal = identify(SimulatedHardware(PlantConfig(patient="absent"), seed=2))
+    assert len(cal.pressure_still_reads) == 13
+    assert all(80 <= n <= 400 for n in cal.pressure_still_reads), cal.pressure_still_reads
+    params, _ = build_params(ControllerConfig(calibration=cal))
+    assert list(params.pressure_still) == list(cal.pressure_still_reads)
+    quiet = PlantConfig(patient="absent", overrides=(("pressure_noise", 50.0),))
+    assert sum(identify(SimulatedHardware(quiet, seed=2)).pressure_still_reads) == 0
+
+
+def test_a_calibration_carries_the_still_reads_and_refuses_what_no_transducer_has(
+    tmp_path: Path,
+) -> None:
+    cal = Calibration(pressure_still_reads=(150,) * 12 + (0,), identified_at="x")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    assert Calibration.load(path) == cal
+    older = {k: v for k, v in json.loads(cal.to_json()).items() if k != "pressure_still_reads"}
+    path.write_text(json.dumps(older))
+    assert not Calibration.load(path).still_reads().any()  # nothing judged by its flicker
+    for change, match in (
+        ({"pressure_still_reads": [150] * 12}, "pressure_still_reads needs 13"),
+        ({"pressure_still_reads": [150] * 12 + [1.5]}, "must be whole numbers"),
+        ({"pressure_still_reads": [150] * 12 + [True]}, "must be whole numbers"),
+        ({"pressure_still_reads": [3] + [150] * 12}, "chamber 0 transducer may stand still 3"),
+        ({"pressure_still_reads": [150] * 12 + [5000]}, "the supply transducer may stand"),
+    ):
+        path.write_text(json.dumps(json.loads(cal.to_json()) | change))
+        with pytest.raises(IdentificationError, match=match):
+            Calibration.load(path)
 
 
 @pytest.mark.parametrize(("mass", "weight"), [(3.5, 9.81), (2.0, -4.9)])
