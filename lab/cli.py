@@ -292,6 +292,7 @@ def _health(h: Any) -> dict[str, Any]:
     return {
         "tripped": h.tripped,
         "trip": h.trip,
+        "trip_part": h.part,
         "trip_time_s": h.trip_time_s,
         "saturated": list(h.saturated),
         "valid": h.valid,
@@ -444,7 +445,9 @@ def _experiment(args: argparse.Namespace) -> int:
         except ex.TrippedBeforeMeasurement as exc:
             if args.json:
                 data = {"valid": False, "tripped": True, "trip": exc.trip}
-                data |= {"invalid_reason": str(exc), "plant": choice.describe()}
+                data |= {"trip_part": exc.part, "trip_time_s": None, "saturated": []}
+                data |= {"invalid_reason": str(exc), "warning": None}
+                data |= {"plant": choice.describe()}
                 print(json.dumps(data))
             else:
                 print(f"INVALID: {exc} (on {choice.describe()}); no measurement")

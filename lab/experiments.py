@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from device import pwm, ring
+from device import pwm, ring, trips
 from device.calibration import Calibration
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
@@ -112,6 +112,9 @@ class Health:
     chamber's air did not add up with its valves) or held on a low supply. The loop ran on,
     but on a device that is not the one the experiment means to measure (an injected fault,
     or a false alarm): invalid as a trip is."""
+    part: str | None = None
+    """The part the trip names, in a technician's words ("supply transducer", "force along
+    z"; device.trips.where), None if it names none or the device did not trip."""
 
     def words(self) -> str:
         """What happened, for a person: empty when nothing did."""
@@ -124,7 +127,8 @@ class Health:
                 if self.trip_time_s is not None
                 else " before the measurement started"
             )
-            parts.append(f"tripped {self.trip}{at}")
+            named = f" ({self.part})" if self.part else ""
+            parts.append(f"tripped {self.trip}{named}{at}")
         notes = {
             "range_of_motion": "range of motion reached",
             "valve_duty": f"valves at largest duty for >= {VALVE_SATURATION_S * 1e3:.0f} ms",
@@ -230,6 +234,7 @@ def assess(
         reason is None,
         reason,
         warning,
+        (trips.where(trip, rig.trip_channel) or None) if tripped else None,
     )
 
 
@@ -376,16 +381,19 @@ class TrippedBeforeMeasurement(RuntimeError):
     """The device tripped while it was being put in place for an experiment (e.g. holding
     at home): there is no measurement, and no command could have been refused for it."""
 
-    def __init__(self, trip: str, where: str) -> None:
-        super().__init__(f"tripped {trip} {where}, before the measurement")
+    def __init__(self, trip: str, where: str, part: str | None = None) -> None:
+        named = f" ({part})" if part else ""
+        super().__init__(f"tripped {trip}{named} {where}, before the measurement")
         self.trip = trip
+        self.part = part
 
 
 def _settle_at_home(rig: Rig) -> None:
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(SETTLE_S)
     if rig.trip != Trip.NONE:
-        raise TrippedBeforeMeasurement(rig.trip.name, "while settling at home")
+        part = trips.where(rig.trip, rig.trip_channel) or None
+        raise TrippedBeforeMeasurement(rig.trip.name, "while settling at home", part)
     rig.clear_log()
 
 

@@ -109,7 +109,11 @@ def test_a_fault_injected_into_an_experiment_trips_it_and_is_reported() -> None:
     assert r.returncode == 1, r.stderr
     data = json.loads(r.stdout)
     assert data["tripped"] is True and data["trip"] == "PRESSURE_SENSOR"
+    assert data["trip_part"] == "chamber 1 (leg 1, cap side)"  # the part, in words
     assert data["valid"] is False and data["rise_ms"] is None
+    # The supply's transducer frozen: named by its missing noise, and in the text too.
+    r = ankle("sim", "step", "--fault", "pressure_stuck@0.6:12")
+    assert r.returncode == 1 and "tripped PRESSURE_SENSOR (supply transducer)" in r.stdout
 
 
 def test_a_fault_the_device_warns_of_without_tripping_is_reported_too() -> None:
@@ -291,9 +295,10 @@ def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> Non
     fault = "leg_noise@0.2+0.2:0=3"
     r = ankle("sim", "step", "--fault", fault)
     assert r.returncode == 1, r.stderr
-    assert r.stdout.startswith("INVALID: tripped LEG_SENSOR while settling at home"), r.stdout
+    assert r.stdout.startswith("INVALID: tripped LEG_SENSOR (leg 1) while settling at home")
     r = ankle("sim", "step", "--fault", fault, "--json")
     data = json.loads(r.stdout)
+    assert data["trip_part"] == "leg 1" and data["saturated"] == [] and data["warning"] is None
     assert data["valid"] is False and data["trip"] == "LEG_SENSOR"
 
 
