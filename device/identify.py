@@ -570,13 +570,7 @@ def identify_friction(
         rig.close_valves_now()
         lower_and_vent(hardware)
     data = np.array(rows)
-    friction = np.zeros(6)
-    commanded = data[:, 12]
-    for leg in range(6):
-        x_m, f_m = data[:, leg], data[:, 6 + leg]
-        design = np.column_stack((np.ones_like(x_m), x_m, commanded))
-        coef, *_ = np.linalg.lstsq(design, f_m, rcond=None)
-        friction[leg] = max(0.0, float(coef[2]))
+    friction = [max(0.0, float(heave_fit(data, leg, data[:, 6 + leg])[2])) for leg in range(6)]
     bias = load_bias(data, 0.5 * (low + high))
     return tuple(float(f) for f in friction), moving_mass(data, geometry), bias
 
@@ -596,12 +590,21 @@ def load_bias(data: NDArray[np.float64], x: float) -> tuple[float, ...]:
     leg's residual, so that what is left is what a sensor or a leg gets wrong now."""
     out = []
     for leg in range(6):
-        x_m = data[:, leg]
-        pushed = data[:, 6 + leg] - data[:, 15 + leg]
-        design = np.column_stack((np.ones_like(x_m), x_m, data[:, 12]))
-        coef, *_ = np.linalg.lstsq(design, pushed, rcond=None)
+        coef = heave_fit(data, leg, data[:, 6 + leg] - data[:, 15 + leg])
         out.append(float(coef[0] + coef[1] * x))
     return tuple(out)
+
+
+def heave_fit(
+    data: NDArray[np.float64], leg: int, force: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``force`` (N, one per row of :func:`identify_friction`'s data) fitted by least squares
+    as ``a + b x + f d`` on ``leg``'s displacement ``x`` and the direction commanded ``d``:
+    ``(a, b, f)``."""
+    x = data[:, leg]
+    design = np.column_stack((np.ones_like(x), x, data[:, 12]))
+    coef, *_ = np.linalg.lstsq(design, force, rcond=None)
+    return np.asarray(coef, dtype=np.float64)
 
 
 SWAY_HZ = 15.0

@@ -103,8 +103,7 @@ M_AIR_OUT_MOST = 307  # 12: ...and its exhaust let out (pulses near a valve's op
 M_LIFT = 319  # 1: filtered vertical residual force at the ankle less the platform's inertia (N)
 M_LIFT_ALLOW = 320  # 1: filtered allowance for what the legs' friction and the model leave there
 M_LIFT_PEAK = 321  # 1: largest share of its allowance the vertical residual took since the reset
-M_LIFT_NEED = 322  # 1: largest |vertical residual| beyond the allowance less its floor (N)
-N_MONITOR = 323
+N_MONITOR = 322
 
 # Rows of the valves' figures the air checks take (``valves``, 4 x 24; valve ``2c`` is the
 # intake, ``2c + 1`` the exhaust of chamber ``c``), from the calibration
@@ -1568,7 +1567,6 @@ def check_lift(
     monitor[M_LIFT_ALLOW] = a
     share = abs(r) / a  # a >= lift_floor > 0: the allowance starts there
     monitor[M_LIFT_PEAK] = max(monitor[M_LIFT_PEAK], share)
-    monitor[M_LIFT_NEED] = max(monitor[M_LIFT_NEED], abs(r) - (a - q.lift_floor))
     counters[C_LIFT] = counters[C_LIFT] + 1 if share > 1.0 else 0
     return bool(counters[C_LIFT] >= q.turn_periods)
 

@@ -444,11 +444,8 @@ def _experiment(args: argparse.Namespace) -> int:
             return _run_experiment(args)
         except ex.TrippedBeforeMeasurement as exc:
             if args.json:
-                data = {"valid": False, "tripped": True, "trip": exc.trip}
-                data |= {"trip_part": exc.part, "trip_time_s": None, "saturated": []}
-                data |= {"invalid_reason": str(exc), "warning": None}
-                data |= {"plant": choice.describe()}
-                print(json.dumps(data))
+                health = ex.Health(True, exc.trip, None, (), False, str(exc), part=exc.part)
+                print(json.dumps(_health(health) | {"plant": choice.describe()}))
             else:
                 print(f"INVALID: {exc} (on {choice.describe()}); no measurement")
             return INVALID
