@@ -491,13 +491,31 @@ class ControllerConfig:
     observer to 1.38 of its tolerance (1.03 without the fade, 0.56 at 100 um) and a
     service warning. While an axis renders, the law's command is followed as before. 0:
     no fade."""
-    impedance_lag_extra: float = 1.0e-3
+    impedance_lag_extra: float = 0.3e-3
     """Lag (s) the admittance law adds to the learnt one (``learn_lag``) when it takes the
     platform's lag out of the damping. The fit compares the command sent a period ago with
-    the platform measured now; the foot feels about 1 ms more than it finds. Measured, not
-    derived (the law's output is held over its 4 ms period, which the fit does not see): on
-    six builds with the friction fed forward, B = 1 at K = 50 rendered 1.03-1.06 with the
-    fit's lag alone, 0.98-1.01 with 1 ms more and 0.93-0.96 with 2 ms more. 0 adds none."""
+    the platform measured now; the foot feels a little more than it finds. Measured, not
+    derived (the law's output is held over its 4 ms period, which the fit does not see).
+    With one floor at every frequency (``impedance_lag_corner`` 0), on six builds, B = 1
+    at K = 50 rendered 1.03-1.06 with the fit's lag alone, 0.98-1.01 with 1 ms more: but
+    there the floor added damping at 0.5 Hz, where the learnt lag is longest. With the
+    corner (``impedance_lag_corner``), over the nominal unit and the fifty drawn builds
+    (noise seed 1), 1 ms rendered 0.94-1.00 (8 of 51 more than 5 % low), 0.5 ms 0.96-1.02,
+    0.3 ms 0.97-1.03 (median 1.2 % off; worst 3.6 and 3.1 % on seeds 2 and 3) and none up
+    to 4.5 % high. 0 adds none."""
+    impedance_lag_corner: float = 4.0
+    """Corner (Hz) below which the admittance law takes all of the platform's lag out of its
+    damping, never below 0; above it, never below the envelope's least damping. The floor
+    is there for the rings a stiff or resisting foot sets off at 6-11 Hz (docs/envelope.md,
+    sections 6-7); a foot at 0.5-2 Hz feels the lag as damping instead. A build whose loop
+    lags more than about 13 ms needs the law below pitch's floor of 0.4 for B = 1 at K = 50
+    (0.29 on drawn build 34, 14 ms): with one floor at every frequency it rendered 1.09. The
+    law's rate is low-passed (second-order Butterworth at the corner) and the damping below
+    the floor fed back through it as a force: the law takes out 0.98, 0.93 and 0.71 of it at
+    0.5, 1 and 2 Hz, and at 6 and 9 Hz renders 0.21 and 0.15 of it more than the floor. A
+    first-order lag at 3 Hz rendered as well but kept only 0.8-0.9 of the floor at 6-9 Hz:
+    the ring guard acted at 43 of the safety bench's 1,248 K-B points, 38 with one floor, 27
+    with this. 0: one floor at every frequency."""
     ring_guard: bool = True
     """Watch each compliant rotational axis for a ring (device.ring) and raise the damping
     the law renders there when it rings: a resisting foot on a stiff ankle (30 N m/rad in
@@ -646,6 +664,7 @@ class ControllerParams(NamedTuple):
     approach_periods: float  # control periods a joint approach lasts at most
     fill_step: float  # Pa per control period
     lag_extra: float  # s
+    lag_filter: NDArray[np.float64]  # (5,) b0, b1, b2, a1, a2 of the law's rate low-pass, or 0
     vent_pulse_slots: int
     vent_every_periods: int
     limits: NDArray[np.float64]
@@ -681,6 +700,9 @@ class ControllerState(NamedTuple):
     pose_cmd_rate: NDArray[np.float64]
     x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
     v_m: NDArray[np.float64]  # (6,) its rate (state of the virtual inertia)
+    v_low: NDArray[
+        np.float64
+    ]  # (6, 4) that rate's low-pass per axis: x[n-1], x[n-2], y[n-1], y[n-2]
     stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
     damping: NDArray[np.float64]  # (6,) B in force
     stiffness_target: NDArray[np.float64]
@@ -706,6 +728,29 @@ class ControllerState(NamedTuple):
     # left (0: none), then the joint target it last saw
     trip_air: NDArray[np.float64]  # (12,) each chamber's air at the trip (p V, Pa m3; NaN)
     ring: NDArray[np.float64]  # (6, ring.N_RING) the ring guard per axis (device.ring G_*)
+
+
+def lag_filter(corner: float, dt: float) -> NDArray[np.float64]:
+    """Coefficients (b0, b1, b2, a1, a2) of the admittance law's rate low-pass: a
+    second-order Butterworth at ``corner`` Hz sampled every ``dt`` s (bilinear, prewarped);
+    all 0 when ``corner`` is 0."""
+    if corner <= 0.0:
+        return np.zeros(5)
+    t = math.tan(math.pi * corner * dt)
+    n = 1.0 / (1.0 + math.sqrt(2.0) * t + t * t)
+    b0 = t * t * n
+    return np.array(
+        [b0, 2.0 * b0, b0, 2.0 * (t * t - 1.0) * n, (1.0 - math.sqrt(2.0) * t + t * t) * n]
+    )
+
+
+@njit
+def biquad(z: NDArray[np.float64], c: NDArray[np.float64], x: float) -> None:
+    """One step of the filter ``c`` (:func:`lag_filter`) on input ``x``; ``z`` holds x[n-1],
+    x[n-2], y[n-1], y[n-2] and takes the new output in z[2]."""
+    y = c[0] * x + c[1] * z[0] + c[2] * z[1] - c[3] * z[2] - c[4] * z[3]
+    z[1], z[0] = z[0], x
+    z[3], z[2] = z[2], y
 
 
 def position_kd(config: ControllerConfig) -> float:
@@ -789,6 +834,10 @@ def build_params(
         and 0.0 <= config.impedance_lag_extra <= config.impedance_lag_max
     ):
         raise ValueError("impedance_lag_extra must be 0..impedance_lag_max (s)")
+    if not (
+        math.isfinite(config.impedance_lag_corner) and 0.0 <= config.impedance_lag_corner <= 25.0
+    ):
+        raise ValueError("impedance_lag_corner must be 0..25 Hz (0: no corner)")
     low, high = config.ring_band
     if not (
         math.isfinite(config.ring_corner)
@@ -892,6 +941,7 @@ def build_params(
         friction_ff=config.friction_compensation
         * np.maximum(0.0, config.calibration.leg_frictions() - config.friction_compensation_keep),
         lag_extra=config.impedance_lag_extra,
+        lag_filter=lag_filter(config.impedance_lag_corner, CONTROL_PERIOD * dt_tick),
         friction_speed=config.friction_compensation_speed,
         leg_friction=config.calibration.leg_frictions(),
         load_bias=config.calibration.load_biases(),
@@ -986,6 +1036,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         pose_cmd_rate=np.zeros(6),
         x_m=np.zeros(6),
         v_m=np.zeros(6),
+        v_low=np.zeros((6, 4)),
         stiffness=np.zeros(6),
         damping=np.zeros(6),
         stiffness_target=np.zeros(6),
@@ -1549,23 +1600,32 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 j_k = max(j_k, s.stiffness[k] / p.virtual_omega2)
             renders = s.compliant[k] > 0.5 and (s.stiffness[k] > 0.0 or s.damping[k] > 0.0)
             b_k = s.damping[k]
+            b_low = b_k  # the law's damping below the lag corner
             if renders and p.lag_max > 0.0:
                 # The platform follows its command tau late, which a foot feels as K tau of
-                # extra damping: the law renders that much less, never below the envelope.
-                b_k = max(
-                    b_k - s.stiffness[k] * (s.lag[k, L_TAU] + p.lag_extra),
-                    safety.damping_min(p.limits, k, s.stiffness[k]),
-                )
+                # extra damping: the law renders that much less, never below the envelope
+                # where the loop rings (above the lag corner). Below it, where the foot
+                # feels the lag as damping, the law takes all of it out (never below 0).
+                b_lag = b_k - s.stiffness[k] * (s.lag[k, L_TAU] + p.lag_extra)
+                b_k = max(b_lag, safety.damping_min(p.limits, k, s.stiffness[k]))
+                b_low = max(b_lag, 0.0) if p.lag_filter[0] > 0.0 else b_k
             if renders and p.ring.on[k] > 0.5:
                 # A foot that made this axis ring gets more of the law's damping (device.ring).
-                b_k *= ring.factor(s.ring[k], s.stiffness_target[k], s.damping_target[k])
+                factor = ring.factor(s.ring[k], s.stiffness_target[k], s.damping_target[k])
+                b_k *= factor
+                b_low *= factor
             elif s.ring[k, ring.G_SIGN] != 0.0:
                 ring.pause(s.ring[k])
             if renders:
+                # The law is J a + b_k v + K x = F + (b_k - b_low) v_low: b_low below the
+                # corner, b_k above it.
+                f_k = s.wrench[k] - s.tare[k]
                 if j_k > 0.0:
                     z = s.impedance_map[k]
                     if abs(b_k - z[2]) <= LAG_B_STEP * s.damping[k]:
-                        b_k = z[2]  # the learnt lag wanders: keep the map for small changes
+                        # The learnt lag wanders: keep the map for small changes.
+                        b_low += z[2] - b_k
+                        b_k = z[2]
                     if z[0] != j_k or z[1] != s.stiffness[k] or z[2] != b_k:
                         # J, K and B change only while they slew or the lag is learnt: the
                         # exact map of the step is kept between changes instead of taken
@@ -1574,7 +1634,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         z[0], z[1], z[2] = j_k, s.stiffness[k], b_k
                         for i in range(6):
                             z[3 + i] = m[i]
-                    f_k = s.wrench[k] - s.tare[k]
+                    f_k += (b_k - b_low) * s.v_low[k, 2]
                     x_k, v_k = s.x_m[k], s.v_m[k]
                     s.x_m[k] = z[3] * x_k + z[4] * v_k + z[7] * f_k
                     s.v_m[k] = z[5] * x_k + z[6] * v_k + z[8] * f_k
@@ -1582,11 +1642,12 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 else:
                     s.x_m[k], v_m = impedance.compliance_step(
                         s.x_m[k],
-                        s.wrench[k] - s.tare[k],
+                        f_k + (b_k - b_low) * s.v_low[k, 2],
                         s.stiffness[k],
                         b_k,
                         p.dt_control,
                     )
+                biquad(s.v_low[k], p.lag_filter, v_m)
                 if p.ring.on[k] > 0.5:
                     own = b_k / (2.0 * j_k) if j_k > 0.0 else RING_NO_MODE
                     sine = int(s.trajectory[k, 0]) == Waveform.SINE
@@ -1596,6 +1657,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             else:
                 s.x_m[k] = 0.0
                 s.v_m[k] = 0.0
+                s.v_low[k, :] = 0.0
             x_c = x_d + s.x_m[k]
             lo, hi = p.limits[safety.ROW_ROM_LOW, k], p.limits[safety.ROW_ROM_HIGH, k]
             home = p.home_pose[k]
@@ -1609,6 +1671,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 # there instead of coasting on beyond what the platform may show.
                 s.x_m[k] = x_c - x_d
                 s.v_m[k] = 0.0
+                s.v_low[k, :] = 0.0
             if renders and p.lag_max > 0.0 and not clamped:
                 learn_lag(s.lag[k], x_c, s.pose_cmd[k], s.pose[k], s.istate[I_TICK], p)
             s.pose_cmd[k] = x_c

@@ -18,8 +18,12 @@ therefore adds a virtual inertia J per axis (``inertial_compliance_step``):
 
 The platform follows ``X_c`` some milliseconds late, and a foot feels that lag as ``K`` times
 it of extra damping. The controller learns the lag per compliant axis
-(``device.controller.learn_lag``) and runs this law with ``B - K lag`` instead of ``B``,
-never below the stable envelope's least damping, so that the foot feels the B it was given.
+(``device.controller.learn_lag``) and runs this law with ``B - K lag`` instead of ``B``, so
+that the foot feels the B it was given. Above a corner of a few hertz, where a stiff or
+resisting foot can make the loop ring, never below the stable envelope's least damping;
+below it, where the foot feels the lag as damping, never below 0
+(``ControllerConfig.impedance_lag_corner``): the law's rate, low-passed at the corner,
+feeds the damping below the floor back as a force.
 """
 
 from __future__ import annotations

@@ -182,6 +182,7 @@ class Rig:
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
             s.v_m[:] = 0.0
+            s.v_low[:] = 0.0
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
 
@@ -227,6 +228,7 @@ class Rig:
             self.state.tare[:] = self.state.wrench
             self.state.x_m[:] = 0.0
             self.state.v_m[:] = 0.0
+            self.state.v_low[:] = 0.0
             supervision.disarm_following(self.state.counters)
         self.state.istate[ctl.I_MODE] = Mode.TASK
 

@@ -420,8 +420,9 @@ never less than before the builds were mapped."""
 
 def floor_at(b: float) -> SafetyLimits:
     """The device's limits with every rotational axis's least damping at ``b``: lab only,
-    to measure below the published envelope with the law rendering ``b`` itself (none of
-    the loop's lag taken out below it)."""
+    to measure below the published envelope with the law rendering ``b`` itself above its
+    lag corner (none of the loop's lag taken out there; below the corner the law takes it
+    out as the device does, ``ControllerConfig.impedance_lag_corner``)."""
     return dataclasses.replace(SafetyLimits(), damping_min=(0.0,) * 9 + (b,) * 9)
 
 
@@ -435,7 +436,7 @@ def least_damping_over_builds(
     ``axes`` and ``patients``; :data:`STIFF` among them puts the stiffest ankle on each): at each
     :data:`BUILD_K`, the least damping of :data:`BUILD_B` that renders stably (strict
     criterion) with the device's floor at that same damping, as the device would if it
-    published it: the law then renders that damping, with no lag taken out below it. Each
+    published it: the law then renders that damping above its lag corner. Each
     unit is identified first (device.identify) and run with its calibration, as the
     device runs. None where no rung is stable. Keys ``"<unit> <axis> <patient>"``, the
     unit ``nominal`` or the draw."""

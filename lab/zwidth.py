@@ -7,9 +7,10 @@ maps (no trip, at most 0.2 deg of oscillation left, no chattering command, no wa
 stable only if stable with a relaxed foot, a resisting one and an empty plate. The rig's
 published envelope (the least B per K band the device accepts) is replaced for each point
 by a floor at that point's own B: points below the envelope are measured too (the device
-itself never renders them), and the admittance law renders the point's B itself, none of
-the loop's lag taken out below it, which is the damping the envelope's floor is about
-(docs/envelope.md, section 6). Without that floor the law took K times the lag out of B,
+itself never renders them), and the admittance law renders the point's B itself above its
+lag corner, none of the loop's lag taken out there, which is the damping the envelope's
+floor is about (docs/envelope.md, section 6; below the corner the law takes the lag out as
+the device does). Without that floor the law took K times the lag out of B,
 and a point read the stability of about none.
 
 ``ankle bench zwidth`` runs the grid (a few minutes) and prints, per axis, the least stable

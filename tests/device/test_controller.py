@@ -370,6 +370,9 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("fill_rate", math.nan),
         ("impedance_lag_extra", -1e-3),
         ("impedance_lag_extra", 1.0),
+        ("impedance_lag_corner", -1.0),
+        ("impedance_lag_corner", math.nan),
+        ("impedance_lag_corner", 30.0),
     ],
 )
 def test_a_rate_observer_setting_out_of_its_range_is_refused_by_name(
