@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -187,15 +188,16 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
     None
 ):
     """The device service on a pty, build 18 with a patient co-contracting on the stiffest
-    plausible ankle, pitch at K = 50 and the least damping: after a push, the host hears a
-    DAMPING_RAISED event naming pitch, the factor and the ring's frequency. The next
-    repetition (a segment of its own) starts with the raised damping; homing again for a
-    new exercise starts from the law's own."""
+    plausible ankle, pitch at K = 50 and the least damping the device publishes, here
+    lowered to 0.3 (lab limits: at the published 0.4 this foot no longer makes the loop
+    ring, see the test above): after a push, the host hears a DAMPING_RAISED event naming
+    pitch, the factor and the ring's frequency. The next repetition (a segment of its own)
+    starts with the raised damping; homing again for a new exercise starts from the law's
+    own."""
     import asyncio
 
     from device.client import AxisPlan, DeviceClient, build_segment
     from device.hardware import SimulatedHardware
-    from device.limits import SafetyLimits
     from device.plant.model import SCRIPT_CONSTANT, SCRIPT_NONE
     from device.plant.params import draw_plant
     from device.protocol import messages as m
@@ -208,7 +210,8 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
 
     foot, ankle = envelope.plant_patient(envelope.STIFF)
     hardware = SimulatedHardware(draw_plant(18, foot).changed(ankle), seed=1)
-    rig = Rig(hardware)
+    lowered = envelope.floor_at(0.3)
+    rig = Rig(hardware, limits=lowered)
     seen: list[m.Event] = []
     factors: list[float] = []
 
@@ -232,7 +235,7 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
             assert dev.hello is not None
             await dev.arm_home()
             await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
-            least = SafetyLimits().published().damping_min_at(4, 50.0)  # as HELLO says
+            least = lowered.published().damping_min_at(4, 50.0)  # as HELLO says
             plan = AxisPlan(Waveform.HOLD, stiffness=50.0, damping=least, compliant=True)
             await dev.start_segment(build_segment(dev.hello, 1, 4.0, {"pitch": plan}))
             await dev.wait_for_mode(DeviceMode.ACTIVE, timeout=5.0)
@@ -263,7 +266,7 @@ def test_through_the_service_a_ring_is_an_event_and_its_damping_holds_to_the_nex
     event = seen[0]
     assert event.value == pytest.approx(P.step)
     assert event.text.startswith("pitch rang at ") and "raised 1.50 times" in event.text, event.text
-    assert "(law 0.60)" in event.text, event.text  # 1.5 times the edge's 0.4, from now on
+    assert "(law 0.45)" in event.text, event.text  # 1.5 times the edge's 0.3, from now on
     assert event.text.endswith("until its K or B changes"), event.text  # whole, not cut at 120
     # The factor earned in the first repetition is where the second starts (a foot that
     # rang at 0.6 too may raise it once more there); homing again starts from 1.
@@ -282,11 +285,11 @@ def test_an_experiment_during_which_the_guard_acted_says_so_and_is_not_valid() -
 
     foot, ankle = envelope.plant_patient(envelope.STIFF)
     hardware = SimulatedHardware(draw_plant(18, foot).changed(ankle), seed=1)
-    rig = Rig(hardware)
+    rig = Rig(hardware, limits=envelope.floor_at(0.3))  # where this foot rings (above)
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
     rig.run(0.5, log_hz=0)
     stiffness, damping = np.zeros(6), np.zeros(6)
-    stiffness[4], damping[4] = 50.0, 0.4
+    stiffness[4], damping[4] = 50.0, 0.3
     rig.set_impedance(stiffness, damping, [k == 4 for k in range(6)])
     rig.track({})
     rig.run(0.5, log_hz=0)
@@ -297,4 +300,7 @@ def test_an_experiment_during_which_the_guard_acted_says_so_and_is_not_valid() -
     health = experiments.assess(rig, rig.run(3.0))
     assert not health.valid and not health.tripped
     assert health.reason is not None and health.reason.startswith("pitch rang at ")
-    assert "ring guard raised its damping 1.50 times" in health.reason, health.reason
+    # Once or twice at this floor (1.50 or 2.25 times): each ring multiplies by 1.5.
+    assert re.search(r"ring guard raised its damping (1\.50|2\.25) times", health.reason), (
+        health.reason
+    )
