@@ -501,8 +501,8 @@ class ControllerConfig:
     there the floor added damping at 0.5 Hz, where the learnt lag is longest. With the
     corner (``impedance_lag_corner``), over the nominal unit and the fifty drawn builds
     (noise seed 1), 1 ms rendered 0.94-1.00 (8 of 51 more than 5 % low), 0.5 ms 0.96-1.02,
-    0.3 ms 0.97-1.03 (median 1.2 % off; worst 3.6 and 3.1 % on seeds 2 and 3) and none up
-    to 4.5 % high. 0 adds none."""
+    0.3 ms 0.97-1.03 (median 1.2 % off; worst 3.6 and 3.1 % on seeds 2 and 3); with no
+    extra lag, up to 4.5 % high. 0 adds none."""
     impedance_lag_corner: float = 4.0
     """Corner (Hz) below which the admittance law takes all of the platform's lag out of its
     damping, never below 0; above it, never below the envelope's least damping. The floor
@@ -700,9 +700,8 @@ class ControllerState(NamedTuple):
     pose_cmd_rate: NDArray[np.float64]
     x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
     v_m: NDArray[np.float64]  # (6,) its rate (state of the virtual inertia)
-    v_low: NDArray[
-        np.float64
-    ]  # (6, 4) that rate's low-pass per axis: x[n-1], x[n-2], y[n-1], y[n-2]
+    # (6, 4) per axis, that rate low-passed at the lag corner: x[n-1], x[n-2], y[n-1], y[n-2]
+    v_low: NDArray[np.float64]
     stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
     damping: NDArray[np.float64]  # (6,) B in force
     stiffness_target: NDArray[np.float64]
