@@ -491,18 +491,25 @@ class ControllerConfig:
     observer to 1.38 of its tolerance (1.03 without the fade, 0.56 at 100 um) and a
     service warning. While an axis renders, the law's command is followed as before. 0:
     no fade."""
-    impedance_lag_extra: float = 0.3e-3
+    impedance_lag_extra: float = 1.3e-3
     """Lag (s) the admittance law adds to the learnt one (``learn_lag``) when it takes the
     platform's lag out of the damping. The fit compares the command sent a period ago with
     the platform measured now; the foot feels a little more than it finds. Measured, not
     derived (the law's output is held over its 4 ms period, which the fit does not see).
-    With one floor at every frequency (``impedance_lag_corner`` 0), on six builds, B = 1
-    at K = 50 rendered 1.03-1.06 with the fit's lag alone, 0.98-1.01 with 1 ms more: but
-    there the floor added damping at 0.5 Hz, where the learnt lag is longest. With the
-    corner (``impedance_lag_corner``), over the nominal unit and the fifty drawn builds
-    (noise seed 1), 1 ms rendered 0.94-1.00 (8 of 51 more than 5 % low), 0.5 ms 0.96-1.02,
-    0.3 ms 0.97-1.03 (median 1.2 % off; worst 3.6 and 3.1 % on seeds 2 and 3); with no
-    extra lag, up to 4.5 % high. 0 adds none."""
+    With one floor at every frequency (``impedance_lag_corner`` 0) and K lag, on six builds,
+    B = 1 at K = 50 rendered 1.03-1.06 with the fit's lag alone, 0.98-1.01 with 1 ms more.
+    With the corner and the lag figured at 2 Hz (``impedance_lag_band``), over the nominal
+    unit and the fifty drawn builds (noise seed 1), 0.8 ms rendered 0.99-1.06, 1 ms
+    0.99-1.05, 1.3 ms 0.97-1.03 (median 0.8 % off). 0 adds none."""
+    impedance_lag_band: float = 2.0
+    """Frequency (Hz) at which the admittance law figures the lag's damping. A foot feels the
+    lag as (K - J w^2) lag of damping at w, not K lag: the virtual inertia J turns with the
+    spring. At K = 5 (J = 0.03 kg m2) that is 5 lag at 0.5 Hz and 0.26 lag at 2 Hz, so K lag
+    took out more than the foot feels, and the range-of-motion preset (pitch K = 5, B = 0.8)
+    rendered 0.74 (0.72 on drawn build 34) once the floor no longer held it up below the lag
+    corner. Figured at the top of the 0.5-2 Hz band, the law takes out no more than the foot
+    feels there and a little less below it: the library's presets render within 1.5 % on the
+    nominal unit and build 34 (K 5-60). 0: K lag."""
     impedance_lag_corner: float = 4.0
     """Corner (Hz) below which the admittance law takes all of the platform's lag out of its
     damping, never below 0; above it, never below the envelope's least damping. The floor
@@ -514,7 +521,7 @@ class ControllerConfig:
     the floor fed back through it as a force: the law takes out 0.98, 0.93 and 0.71 of it at
     0.5, 1 and 2 Hz, and at 6 and 9 Hz renders 0.21 and 0.15 of it more than the floor. A
     first-order lag at 3 Hz rendered as well but kept only 0.8-0.9 of the floor at 6-9 Hz:
-    the ring guard acted at 43 of the safety bench's 1,248 K-B points, 38 with one floor, 27
+    the ring guard acted at 43 of the safety bench's 1,248 K-B points, 38 with one floor, 26
     with this. 0: one floor at every frequency."""
     ring_guard: bool = True
     """Watch each compliant rotational axis for a ring (device.ring) and raise the damping
@@ -665,6 +672,7 @@ class ControllerParams(NamedTuple):
     fill_step: float  # Pa per control period
     lag_extra: float  # s
     lag_filter: NDArray[np.float64]  # (5,) b0, b1, b2, a1, a2 of the law's rate low-pass, or 0
+    lag_band2: float  # (rad/s)^2 of impedance_lag_band
     vent_pulse_slots: int
     vent_every_periods: int
     limits: NDArray[np.float64]
@@ -837,6 +845,8 @@ def build_params(
         math.isfinite(config.impedance_lag_corner) and 0.0 <= config.impedance_lag_corner <= 25.0
     ):
         raise ValueError("impedance_lag_corner must be 0..25 Hz (0: no corner)")
+    if not (math.isfinite(config.impedance_lag_band) and 0.0 <= config.impedance_lag_band <= 25.0):
+        raise ValueError("impedance_lag_band must be 0..25 Hz (0: K lag)")
     low, high = config.ring_band
     if not (
         math.isfinite(config.ring_corner)
@@ -941,6 +951,7 @@ def build_params(
         * np.maximum(0.0, config.calibration.leg_frictions() - config.friction_compensation_keep),
         lag_extra=config.impedance_lag_extra,
         lag_filter=lag_filter(config.impedance_lag_corner, CONTROL_PERIOD * dt_tick),
+        lag_band2=(2.0 * math.pi * config.impedance_lag_band) ** 2,
         friction_speed=config.friction_compensation_speed,
         leg_friction=config.calibration.leg_frictions(),
         load_bias=config.calibration.load_biases(),
@@ -1605,7 +1616,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 # extra damping: the law renders that much less, never below the envelope
                 # where the loop rings (above the lag corner). Below it, where the foot
                 # feels the lag as damping, the law takes all of it out (never below 0).
-                b_lag = b_k - s.stiffness[k] * (s.lag[k, L_TAU] + p.lag_extra)
+                # The lag turns the spring less the virtual inertia (at lag_band).
+                felt = s.stiffness[k] - j_k * p.lag_band2
+                b_lag = b_k - max(felt, 0.0) * (s.lag[k, L_TAU] + p.lag_extra)
                 b_k = max(b_lag, safety.damping_min(p.limits, k, s.stiffness[k]))
                 b_low = max(b_lag, 0.0) if p.lag_filter[0] > 0.0 else b_k
             if renders and p.ring.on[k] > 0.5:

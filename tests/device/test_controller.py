@@ -373,6 +373,8 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("impedance_lag_corner", -1.0),
         ("impedance_lag_corner", math.nan),
         ("impedance_lag_corner", 30.0),
+        ("impedance_lag_band", -1.0),
+        ("impedance_lag_band", math.inf),
     ],
 )
 def test_a_rate_observer_setting_out_of_its_range_is_refused_by_name(

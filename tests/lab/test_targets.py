@@ -118,6 +118,23 @@ def test_a_build_whose_loop_lags_most_renders_its_damping_with_the_floor_only_ab
     assert floored.joint.damping >= 1.05, floored.joint
 
 
+def test_a_soft_axis_renders_its_damping_with_the_lag_figured_less_the_virtual_inertia(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The range-of-motion preset, pitch K = 5, B = 0.8: the virtual inertia (0.03 kg m2)
+    turns with so soft a spring that at 2 Hz the foot feels almost none of the loop's lag
+    as damping. Taking out K lag rendered 0.74; figured at 2 Hz, 0.80."""
+    with ex.on_plant(ex.PlantChoice()):
+        banded = ex.impedance_dynamic("pitch", k=5.0, b=0.8, torque=1.5, hz=(0.5, 1.0, 2.0))
+    whole = functools.partial(ControllerConfig, impedance_lag_band=0.0)
+    monkeypatch.setattr(ex, "ControllerConfig", whole)
+    with ex.on_plant(ex.PlantChoice()):
+        k_lag = ex.impedance_dynamic("pitch", k=5.0, b=0.8, torque=1.5, hz=(0.5, 1.0, 2.0))
+    assert banded.valid and k_lag.valid
+    assert banded.damping_error_pct <= 3.0, banded.joint
+    assert k_lag.joint.damping <= 0.8 * 0.95, k_lag.joint
+
+
 def test_a_stiff_sealed_unit_renders_its_damping_with_its_friction_fed_forward(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
