@@ -1612,11 +1612,11 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             b_k = s.damping[k]
             b_low = b_k  # the law's damping below the lag corner
             if renders and p.lag_max > 0.0:
-                # The platform follows its command tau late, which a foot feels as K tau of
-                # extra damping: the law renders that much less, never below the envelope
-                # where the loop rings (above the lag corner). Below it, where the foot
-                # feels the lag as damping, the law takes all of it out (never below 0).
-                # The lag turns the spring less the virtual inertia (at lag_band).
+                # The platform follows its command tau late, which a foot feels at w as
+                # (K - J w^2) tau of extra damping (figured at lag_band): the law renders
+                # that much less, never below the envelope where the loop rings (above the
+                # lag corner); below it, where the foot feels the lag as damping, never
+                # below 0.
                 felt = s.stiffness[k] - j_k * p.lag_band2
                 b_lag = b_k - max(felt, 0.0) * (s.lag[k, L_TAU] + p.lag_extra)
                 b_k = max(b_lag, safety.damping_min(p.limits, k, s.stiffness[k]))

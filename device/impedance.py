@@ -16,10 +16,11 @@ coupled loop oscillates or trips (see ``lab_envelope.py`` and ``findings.md``). 
 therefore adds a virtual inertia J per axis (``inertial_compliance_step``):
 ``J ddX_m + B dX_m + K X_m = F``, which rolls the admittance off at high frequency.
 
-The platform follows ``X_c`` some milliseconds late, and a foot feels that lag as ``K`` times
-it of extra damping. The controller learns the lag per compliant axis
-(``device.controller.learn_lag``) and runs this law with ``B - K lag`` instead of ``B``, so
-that the foot feels the B it was given. Above a corner of a few hertz, where a stiff or
+The platform follows ``X_c`` some milliseconds late, and a foot feels that lag at ``w`` as
+``(K - J w^2)`` times it of extra damping. The controller learns the lag per compliant axis
+(``device.controller.learn_lag``) and runs this law with ``B - (K - J w^2) lag`` (``w`` at
+``ControllerConfig.impedance_lag_band``) instead of ``B``, so that the foot feels the B it
+was given. Above a corner of a few hertz, where a stiff or
 resisting foot can make the loop ring, never below the stable envelope's least damping;
 below it, where the foot feels the lag as damping, never below 0
 (``ControllerConfig.impedance_lag_corner``): the law's rate, low-passed at the corner,
