@@ -226,6 +226,7 @@ def table(result: dict[str, Any]) -> str:
         "| metric | nominal | median | worst | worst plant | target | met |",
         "|---|---:|---:|---:|---:|---|---|",
     ]
+    notes: list[str] = []
     for m in METRICS:
         row = result["ensemble"][m.key]
 
@@ -234,8 +235,14 @@ def table(result: dict[str, Any]) -> str:
 
         worst = f(row["worst"])
         if row["no_number_on"]:
-            plants = ", ".join(str(d) for d in row["no_number_on"])
-            worst = f"no number on plant {plants} (tripped); {f(row['worst_measured'])} on the rest"
+            plants = ", ".join(
+                f"{d} ({_why_no_number(result, d, m.experiment)})" for d in row["no_number_on"]
+            )
+            worst = f"no number on plant {plants}; {f(row['worst_measured'])} on the rest"
+            for d in row["no_number_on"]:
+                reason = _health_of(result, d, m.experiment).get("reason")
+                if reason:
+                    notes.append(f"- plant {d}, {m.experiment}: {reason}")
         target = ("<= " if m.worst == "max" else ">= ") + f"{m.target:g}"
         met = row["worst"] is not None and (
             row["worst"] <= m.target if m.worst == "max" else row["worst"] >= m.target
@@ -251,4 +258,21 @@ def table(result: dict[str, Any]) -> str:
             f"| {m.label} | {f(row['nominal'])} | {f(row['median'])} | {worst} | {plant} | "
             f"{target} | {'yes' if met else 'NO'} |"
         )
+    if notes:
+        lines += ["", "Why a plant gave no number:", *dict.fromkeys(notes)]
     return "\n".join(lines)
+
+
+def _health_of(result: dict[str, Any], draw: int, experiment: str) -> dict[str, Any]:
+    for p in result.get("ensemble_plants", []):
+        if p["draw"] == draw:
+            health: dict[str, Any] = p.get("experiments", {}).get(experiment, {})
+            return health
+    return {}
+
+
+def _why_no_number(result: dict[str, Any], draw: int, experiment: str) -> str:
+    """Says "tripped CODE" when the experiment's rig tripped, else "not valid": a ring guard,
+    a saturation or a stopped sweep leaves a measurement that is not the quantity asked."""
+    trip = _health_of(result, draw, experiment).get("trip")
+    return f"tripped {trip}" if trip else "not valid"

@@ -70,3 +70,27 @@ def test_the_noise_seed_reaches_every_experiment_and_the_command_to_run_it_again
     assert [first[k] for k in keys] != [other[k] for k in keys]
     assert again["ensemble"]["step_rise_ms"]["again"].endswith(f"--plant-draw {DRAWS[0]} --seed 2")
     assert ", noise seed 2)" in ensemble.table(again)
+
+
+def test_a_plant_without_a_number_says_whether_it_tripped_or_why_it_is_not_valid(
+    result: dict[str, Any],
+) -> None:
+    import copy
+
+    plants = copy.deepcopy(result["ensemble_plants"])
+    ringing, tripped = plants[0], plants[1]
+    ringing["damping_error_pct"] = None
+    ringing["experiments"]["impedance_dynamic"].update(
+        valid=False, reason="pitch rang at 21 Hz and the ring guard raised its damping"
+    )
+    tripped["damping_error_pct"] = None
+    tripped["experiments"]["impedance_dynamic"].update(
+        valid=False, trip="LEG_SPEED", reason="tripped LEG_SPEED at 1.2 s"
+    )
+    tripped["trips"] = ["LEG_SPEED"]
+    text = ensemble.table(ensemble.summarise(plants, {}, seed=DRAWS[0]))
+    row = next(line for line in text.splitlines() if line.startswith("| rendered B = 1"))
+    assert f"plant {ringing['draw']} (not valid)" in row, row
+    assert f"{tripped['draw']} (tripped LEG_SPEED)" in row, row
+    assert f"- plant {ringing['draw']}, impedance_dynamic: pitch rang at 21 Hz" in text
+    assert "trips: 1" in text
