@@ -361,7 +361,7 @@ class ControllerConfig:
     """See ``load_side_jump`` (N/s): 2 N a pose period."""
     load_side_slew_unwatched: float = 100.0
     """...and this (N/s: 0.4 N a pose period) while the sideways check does not judge
-    (``supervision.accel_trusted``: the 0.1 s after a new command, or a leg reading that
+    (``supervision.accel_trusted``: the 40 ms after a new command, or a leg reading that
     moved as no leg can), when nothing would name a false sideways load: a 30 N offset on
     Fy 50 ms into the move that starts every session entered at 500 N/s, was named only as
     the check armed (52 ms) and had moved the platform 4.81 mm (Fx 2.65); now 0.32 and

@@ -59,8 +59,8 @@ def table(
             # e.g. a step that never settles into its band (NaN, written null in the JSON)
             text = "no number"
             value = math.nan
-        if isinstance(value, float) and abs(value) >= 1000:
-            text = f"{value:,.0f}"
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) >= 1000:
+            text = f"{value:,.0f}"  # counts and floats alike: 1,248 points, 1,680 s
         if key == "pitch_bandwidth_hz" and result.get("pitch_bandwidth_above_sweep"):
             text = f"> {text} (top of sweep)"
         if key == "pitch_bandwidth_true_hz" and result.get("pitch_bandwidth_true_lower_bound"):

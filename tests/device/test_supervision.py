@@ -196,8 +196,8 @@ def test_a_vertical_force_sensor_offset_is_caught_by_the_vertical_cross_check(
     """30 N on Fz acts like a foot pushing down 30 N, under the wrench cross-check's 45 N:
     it went unnamed in every situation. With the unit's load bias taken out of the legs'
     residual (the plate's true weight, the transducers' spans), what is left vertically is
-    the sensor's error beside the seals' friction: named in 22-56 ms (56 as the legs settle,
-    the check not yet armed), the platform 0.3-1 mm off."""
+    the sensor's error beside the seals' friction: named in 22-56 ms (56 as the legs settled,
+    the check not yet armed at 0.1 s; 28 since it arms at 40 ms), the platform 0.3-1 mm off."""
     run = safety.run_fault(FaultKind.FT_OFFSET, scenario, channel=2)
     assert run.detected and run.trip == Trip.FORCE_SENSOR.name and run.channel == 2, run
     assert run.detect_ms <= 80.0 and run.excursion_mm <= 2.0, run
@@ -962,15 +962,26 @@ def test_a_sideways_force_sensor_offset_is_caught_by_the_sideways_cross_check(
 def test_a_sideways_force_sensor_offset_as_the_legs_settle_enters_slower_until_it_is_judged() -> (
     None
 ):
-    """50 ms into the move that starts every session the sideways check is not yet armed
-    (0.1 s after a new command): the false 30 N entered the compensation at 500 N/s and had
-    pushed the platform 2.65 (Fx) and 4.81 mm (Fy) when it was named at 52 ms. While the
-    check is not armed a jump enters at ControllerConfig.load_side_slew_unwatched
-    (measured: 0.51 and 0.32 mm)."""
+    """When the sideways check armed 0.1 s after a new command, 50 ms into the move that
+    starts every session it was not yet armed: the false 30 N entered the compensation at
+    500 N/s and had pushed the platform 2.65 (Fx) and 4.81 mm (Fy) when it was named at
+    52 ms. While the check is not armed a jump enters at
+    ControllerConfig.load_side_slew_unwatched (measured: 0.51 and 0.32 mm)."""
     for channel in (0, 1):
         run = safety.run_fault(FaultKind.FT_OFFSET, "settling", channel=channel)
         assert run.detected and run.trip == Trip.FORCE_SENSOR.name and run.channel == channel
         assert run.excursion_mm <= 1.0 and run.excursion_deg <= 1.5, run
+
+
+@pytest.mark.parametrize("channel", range(6))
+def test_a_force_or_torque_offset_as_the_legs_settle_is_named_within_50_ms(channel: int) -> None:
+    """The checks that take the platform's inertia out wait 40 ms after a new command
+    (supervision.SIDE_ARM_PERIODS), not 0.1 s: 30 N on a force channel or 3 N m on a torque
+    channel 50 ms into the move that starts every session, named in 16-28 ms (52-56 ms
+    when they waited 0.1 s)."""
+    run = safety.run_fault(FaultKind.FT_OFFSET, "settling", channel=channel)
+    assert run.detected and run.trip == Trip.FORCE_SENSOR.name and run.channel == channel, run
+    assert run.detect_ms <= 50.0, run
 
 
 def test_a_smaller_sideways_force_sensor_offset_is_caught_too() -> None:

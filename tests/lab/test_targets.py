@@ -213,3 +213,12 @@ def test_a_measurement_with_no_number_says_so_instead_of_nan() -> None:
     # The same read back from the benchmark's JSON, which writes NaN as null.
     text = table({"settle": None}, (("settle", "settling (ms)"),), (target,))
     assert "| settling (ms) | no number | <= 100 | NO |" in text and "None" not in text
+
+
+def test_large_counts_and_figures_are_grouped_alike() -> None:
+    from lab.targets import table
+
+    rows = (("points", "points"), ("seconds", "seconds"), ("small", "small"))
+    text = table({"points": 1248, "seconds": 1680.0, "small": 202}, rows, ())
+    assert "| points | 1,248 |" in text and "| seconds | 1,680 |" in text
+    assert "| small | 202 |" in text
