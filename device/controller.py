@@ -362,11 +362,12 @@ class ControllerConfig:
     load_side_slew_unwatched: float = 100.0
     """...and this (N/s: 0.4 N a pose period) while the sideways check does not judge
     (``supervision.accel_trusted``: the 40 ms after a new command, or a leg reading that
-    moved as no leg can), when nothing would name a false sideways load: a 30 N offset on
-    Fy 50 ms into the move that starts every session entered at 500 N/s, was named only as
-    the check armed (52 ms) and had moved the platform 4.81 mm (Fx 2.65); now 0.32 and
-    0.51 mm, named as soon. Healthy readings never jump by that much in a pose period
-    (above), so no healthy figure changed."""
+    moved as no leg can), when nothing would name a false sideways load: when the check
+    armed 0.1 s after a new command, a 30 N offset on Fy 50 ms into the move that starts
+    every session entered at 500 N/s, was named only as the check armed (52 ms) and had
+    moved the platform 4.81 mm (Fx 2.65); at this rate 0.32 and 0.51 mm, named as soon.
+    (The check now arms at 40 ms, before that offset: named in 16-20 ms.) Healthy readings
+    never jump by that much in a pose period (above), so no healthy figure changed."""
     load_turn_slew: float = 50.0
     """After a torque channel of the force/torque sensor stepped as no foot twists
     (``SupervisionConfig.ft_torque_step`` between two reads), the moment about a held
