@@ -94,6 +94,7 @@ def serve(
         "log_level": "info",
         "log_config": uvicorn_log_config(settings.log_format),
         "ws_per_message_deflate": False,
+        "timeout_keep_alive": settings.keep_alive_s,
     }
     if workers > 1:
         uvicorn.run(worker_factory, factory=True, workers=workers, **options)

@@ -62,6 +62,17 @@ class Settings(BaseSettings):
         "sending 'Authorization: Bearer <token>', and no one else.",
     )
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port; 0 picks a free one.")
+    keep_alive_s: int = Field(
+        default=75,
+        gt=0,
+        le=3600,
+        description="How long an idle HTTP connection stays open for the client's next "
+        "request, seconds. Longer than any client or proxy in front keeps it idle: whoever "
+        "closes an idle connection must be the client, or a request sent as the server "
+        "closes it is lost ('server disconnected without sending a response', a 502 behind "
+        "a proxy). httpx and browsers give up idle connections within 5-60 s; the deploy/ "
+        "samples' proxies within 60 s. uvicorn's own default is 5 s.",
+    )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="Browser origins allowed to call the API and open WebSockets. Empty: "
