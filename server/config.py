@@ -70,8 +70,9 @@ class Settings(BaseSettings):
         "request, seconds. Longer than any client or proxy in front keeps it idle: whoever "
         "closes an idle connection must be the client, or a request sent as the server "
         "closes it is lost ('server disconnected without sending a response', a 502 behind "
-        "a proxy). httpx and browsers give up idle connections within 5-60 s; the deploy/ "
-        "samples' proxies within 60 s. uvicorn's own default is 5 s.",
+        "a proxy). httpx gives up idle connections after 5 s and the deploy/ samples' "
+        "proxies after 60 s; browsers keep theirs longer but send again a request that a "
+        "reused connection closed on unanswered. uvicorn's own default is 5 s.",
     )
     allowed_origins: list[str] = Field(
         default_factory=list,
