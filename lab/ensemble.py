@@ -235,14 +235,17 @@ def table(result: dict[str, Any]) -> str:
 
         worst = f(row["worst"])
         if row["no_number_on"]:
-            plants = ", ".join(
-                f"{d} ({_why_no_number(result, d, m.experiment)})" for d in row["no_number_on"]
-            )
-            worst = f"no number on plant {plants}; {f(row['worst_measured'])} on the rest"
+            why = []
             for d in row["no_number_on"]:
-                reason = _health_of(result, d, m.experiment).get("reason")
-                if reason:
-                    notes.append(f"- plant {d}, {m.experiment}: {reason}")
+                health = _health_of(result, d, m.experiment)
+                # "tripped CODE" when the rig tripped, else "not valid": a ring guard, a
+                # saturation or a stopped sweep leaves a figure that is not the one asked
+                why.append(
+                    f"{d} (tripped {health['trip']})" if health.get("trip") else f"{d} (not valid)"
+                )
+                if health.get("reason"):
+                    notes.append(f"- plant {d}, {m.experiment}: {health['reason']}")
+            worst = f"no number on plant {', '.join(why)}; {f(row['worst_measured'])} on the rest"
         target = ("<= " if m.worst == "max" else ">= ") + f"{m.target:g}"
         met = row["worst"] is not None and (
             row["worst"] <= m.target if m.worst == "max" else row["worst"] >= m.target
@@ -269,10 +272,3 @@ def _health_of(result: dict[str, Any], draw: int, experiment: str) -> dict[str, 
             health: dict[str, Any] = p.get("experiments", {}).get(experiment, {})
             return health
     return {}
-
-
-def _why_no_number(result: dict[str, Any], draw: int, experiment: str) -> str:
-    """Says "tripped CODE" when the experiment's rig tripped, else "not valid": a ring guard,
-    a saturation or a stopped sweep leaves a measurement that is not the quantity asked."""
-    trip = _health_of(result, draw, experiment).get("trip")
-    return f"tripped {trip}" if trip else "not valid"

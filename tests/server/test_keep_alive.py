@@ -7,9 +7,9 @@ If the server gives idle connections up first, a request sent as it closes one i
 
 from __future__ import annotations
 
+import http.client
 import os
 import re
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,26 +22,19 @@ from tests.processes import free_port, stop
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 
-REQUEST = b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: keep-alive\r\n\r\n"
 
-
-def _answer(sock: socket.socket) -> bytes:
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = sock.recv(4096)
-        if not chunk:
-            return data
-        data += chunk
-    head, _, body = data.partition(b"\r\n\r\n")
-    length = int(re.search(rb"content-length: (\d+)", head, re.IGNORECASE).group(1))  # type: ignore[union-attr]
-    while len(body) < length:
-        body += sock.recv(4096)
-    return head
+def _health(conn: http.client.HTTPConnection) -> int:
+    """One GET on ``conn``'s connection, read whole so that the connection can be reused."""
+    conn.request("GET", "/api/v1/health")
+    response = conn.getresponse()
+    response.read()
+    return response.status
 
 
 def test_the_server_outlasts_the_clients_and_proxies_idle_connections() -> None:
     keep = Settings().keep_alive_s
-    assert keep > httpx.Limits().keepalive_expiry  # type: ignore[operator]
+    expiry = httpx.Limits().keepalive_expiry
+    assert expiry is not None and keep > expiry
     nginx = (DEPLOY / "nginx" / "ankle.conf").read_text()
     (upstream,) = re.findall(r"^\s*keepalive_timeout (\d+)s;", nginx, re.MULTILINE)
     caddy = (DEPLOY / "caddy" / "Caddyfile").read_text()
@@ -67,9 +60,11 @@ def test_the_keep_alive_setting_reaches_the_real_server(tmp_path: Path) -> None:
         )
         try:
             wait_healthy(f"http://127.0.0.1:{port}", proc, timeout=120)
-            with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
-                sock.sendall(REQUEST)
-                assert _answer(sock).startswith(b"HTTP/1.1 200"), keep
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+            try:
+                assert _health(conn) == 200, keep
+                sock = conn.sock
+                assert sock is not None
                 if idle is None:
                     assert sock.recv(1) == b"", "the server should have closed the idle link"
                 else:
@@ -80,7 +75,9 @@ def test_the_keep_alive_setting_reaches_the_real_server(tmp_path: Path) -> None:
                         closed = False
                     assert not closed, f"closed within {idle} s with the default keep-alive"
                     sock.settimeout(30)
-                    sock.sendall(REQUEST)
-                    assert _answer(sock).startswith(b"HTTP/1.1 200")
+                    assert _health(conn) == 200
+                    assert conn.sock is sock, "the second request took a new connection"
+            finally:
+                conn.close()
         finally:
             stop(proc)
