@@ -753,9 +753,8 @@ class ControllerState(NamedTuple):
     approach: NDArray[np.float64]  # (12,) per leg: control periods of its joint approach
     # left (0: none), then the joint target it last saw
     trip_air: NDArray[np.float64]  # (12,) each chamber's air at the trip (p V, Pa m3; NaN)
-    # (12,) per leg: a stepping leg's last proportional-derivative push (N; 0 if it does not
-    # step), then the control periods left that the leg holds beside a step (0: none)
-    cross_push: NDArray[np.float64]
+    step_push: NDArray[np.float64]  # (6,) a stepping leg's last PD push (N; 0: not stepping)
+    beside: NDArray[np.float64]  # (6,) control periods left that a leg holds beside a step
     ring: NDArray[np.float64]  # (6, ring.N_RING) the ring guard per axis (device.ring G_*)
 
 
@@ -1094,7 +1093,8 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         rest=quiet.new_rest(),
         dose=np.zeros(24, dtype=np.int64),
         approach=np.zeros(12),
-        cross_push=np.zeros(12),
+        step_push=np.zeros(6),
+        beside=np.zeros(6),
         trip_air=np.full(12, np.nan),
         ring=ring.new_ring(),
     )
@@ -1286,8 +1286,8 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         s.integral[12 + leg] = 0.0
         s.friction_track[leg] = 0.0
         s.monitor[supervision.M_PUSH + leg] = 0.0
-        s.cross_push[leg] = 0.0
-        s.cross_push[6 + leg] = 0.0
+        s.step_push[leg] = 0.0
+        s.beside[leg] = 0.0
         s.counters[supervision.C_WINDOW + lo] = 0
         s.counters[supervision.C_WINDOW + up] = 0
         s.counters[supervision.C_AIR + lo] = 0
@@ -1306,11 +1306,11 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     # is over: the step's push reaches it through the platform at once, long before it
     # would drift far enough to wake. Legs that step together rest each on its own.
     if s.istate[I_MODE] != Mode.JOINT:
-        s.cross_push[6 + leg] = 0.0
-    elif s.cross_push[6 + leg] > 0.0:
-        s.cross_push[6 + leg] -= 1.0
+        s.beside[leg] = 0.0
+    elif s.beside[leg] > 0.0:
+        s.beside[leg] -= 1.0
     beside_step = False
-    if s.cross_push[6 + leg] > 0.0:
+    if s.beside[leg] > 0.0:
         for i in range(6):
             if i != leg and s.approach[i] > 0.0:
                 beside_step = True
@@ -1348,10 +1348,10 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     still = s.istate[I_MODE] == Mode.JOINT and s.leg_target_rate[leg] == 0.0
     if still and s.leg_target[leg] != s.approach[6 + leg]:
         s.approach[leg] = p.approach_periods
-        s.cross_push[6 + leg] = 0.0
+        s.beside[leg] = 0.0
         for i in range(6):
             if s.approach[i] <= 0.0:
-                s.cross_push[6 + i] = p.approach_periods  # holds beside this step
+                s.beside[i] = p.approach_periods  # holds beside this step
     s.approach[6 + leg] = s.leg_target[leg]
     if rests or not still:
         s.approach[leg] = 0.0
@@ -1372,14 +1372,14 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     # holding leg is given a share of the push that cancels that (ControllerConfig.
     # cross_leg_decoupling), counted as load, not as its own push.
     against = 0.0
-    s.cross_push[leg] = 0.0
+    s.step_push[leg] = 0.0
     if p.cross_gain > 0.0 and still:
         if approaching:
-            s.cross_push[leg] = (dP - s.compensation[leg] - s.integral[12 + leg]) * p.area_cap
+            s.step_push[leg] = (dP - s.compensation[leg] - s.integral[12 + leg]) * p.area_cap
         elif beside_step and s.leg_accel[leg, leg] > 0.0:
             for i in range(6):
                 if i != leg:
-                    against += s.leg_accel[leg, i] * s.cross_push[i]
+                    against += s.leg_accel[leg, i] * s.step_push[i]
             against *= -p.cross_gain / s.leg_accel[leg, leg] / p.area_cap
     # The seals' friction, in the direction the target moves the leg (none at rest): what
     # is beyond the nominal unit's while rendering, all of it turning with the loop's lag
@@ -1412,16 +1412,16 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         # Not while the step beside it lasts; and a leg that stepped, not before the legs
         # that held beside it rest again (their settling would move it on its air).
         waiting = False
-        if s.cross_push[6 + leg] <= 0.0:
+        if s.beside[leg] <= 0.0:
             for i in range(6):
-                if i != leg and s.cross_push[6 + i] > 0.0:
+                if i != leg and s.beside[i] > 0.0:
                     waiting = True
         if rests and (beside_step or waiting):
             quiet.reset(s.rest, leg)
             s.approach[leg] = 0.0
             rests = False
     if rests:
-        s.cross_push[6 + leg] = 0.0
+        s.beside[leg] = 0.0
     r = p.area_ratio
     P_l, P_u = pressure_loop.distribute(dP, s.pressure[lo], s.pressure[up], r, p.p_min, p.p_max)
     P_l, P_u = pressure_loop.ramp_common(
