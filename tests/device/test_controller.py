@@ -178,8 +178,11 @@ def test_an_exercise_started_from_joint_mode_tares_the_foot() -> None:
     r.track({})
     r.run(0.5)
     # The foot's own weight (0.54 N m about the ankle) must not tilt the plate: without a
-    # tare it would sit 0.011 rad (0.6 deg) down.
-    assert abs(r.state.pose[4] - r.geometry.home_pose[4]) < 0.002
+    # tare it would sit 0.011 rad (0.6 deg) down. With it the plate sits where the seals
+    # and the rendered stiffness leave it: 0.7-4.1 mrad over noise seeds 1-4 (0.7-3.2
+    # before a step's approach was braked on its excess speed, which changes where the
+    # legs start from).
+    assert abs(r.state.pose[4] - r.geometry.home_pose[4]) < 0.0045
     assert abs(r.state.tare[4]) > 0.3
 
 
@@ -341,6 +344,39 @@ def test_the_holding_legs_are_driven_against_a_stepping_legs_push() -> None:
     assert fed[1] < 0.5e-3, (fed, unfed)
 
 
+def _drawn_build_99_step(braking: float) -> float:
+    """Leg 1's overshoot (m) in a 10 mm joint step from home on drawn build 99 (a 2.95 kg
+    plate on light pistons, which the start-up identification weighs as the nominal unit:
+    its derivative gain is the nominal one, about a tenth too low for it)."""
+    plant = draw_plant(99, "absent")
+    calibration = identify(SimulatedHardware(plant, seed=0))
+    config = ctl.ControllerConfig(calibration=calibration, approach_braking=braking)
+    r = Rig(SimulatedHardware(plant, seed=1), config)
+    r.move_legs(r.state.leg_target.copy())
+    r.run(1.0, log_hz=0)
+    start = float(r.state.leg_x[0])
+    target = r.state.leg_target.copy()
+    target[0] += 0.010
+    r.move_legs(target)
+    peak = start
+    for _ in range(400):
+        r.run(1e-3, log_hz=0)
+        peak = max(peak, float(r.state.leg_x[0]))
+    assert r.trip == Trip.NONE
+    assert abs(float(r.state.leg_x[0]) - target[0]) < 0.3e-3
+    return float(peak - target[0])
+
+
+def test_a_step_that_arrives_fast_is_braked_harder() -> None:
+    """Build 99's leg reaches its target at about 55 mm/s on the nominal gain and overshoots
+    5.5-6.3 % in the benchmark; braked harder while it outruns its push's own approach,
+    1.8-2.7 %."""
+    assert ctl.ControllerConfig().approach_braking > 0.0
+    braked, unbraked = _drawn_build_99_step(1.0), _drawn_build_99_step(0.0)
+    assert braked < 0.6 * unbraked, (braked, unbraked)
+    assert braked < 0.35e-3, braked
+
+
 def test_a_still_target_is_approached_on_its_own_proportional_gain() -> None:
     p, _ = ctl.build_params(ctl.ControllerConfig(position_kp=1.3e7, position_kp_joint=1.0e7))
     assert (p.kp_pos, p.kp_joint) == (1.3e7, 1.0e7)
@@ -410,6 +446,13 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("cross_leg_decoupling", -0.1),
         ("cross_leg_decoupling", 1.5),
         ("cross_leg_decoupling", math.nan),
+        ("approach_braking", -0.1),
+        ("approach_braking", math.inf),
+        ("approach_braking_margin", -0.1),
+        ("approach_braking_margin", math.nan),
+        ("approach_braking_from", -1e-6),
+        ("approach_braking_speed", -0.01),
+        ("approach_braking_speed", math.inf),
         ("friction_compensation_joint", -0.1),
         ("friction_compensation_joint", 1.5),
         ("friction_compensation_joint", math.nan),
