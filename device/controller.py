@@ -874,6 +874,8 @@ def build_params(
     for name in ("position_kp", "position_kp_joint"):
         if not (math.isfinite(getattr(config, name)) and getattr(config, name) > 0.0):
             raise ValueError(f"{name} must be a finite gain above 0 (Pa/m)")
+    if not (math.isfinite(config.position_kd) and config.position_kd > 0.0):
+        raise ValueError("position_kd must be a finite gain above 0 (Pa per m/s)")
     if not (
         math.isfinite(config.friction_compensation_keep)
         and config.friction_compensation_keep >= 0.0

@@ -459,6 +459,8 @@ def test_without_the_observer_the_loop_uses_the_filtered_rate() -> None:
         ("friction_compensation_error", 0.0),
         ("friction_compensation_error", math.inf),
         ("position_kp", 0.0),
+        ("position_kd", 0.0),
+        ("position_kd", math.inf),
         ("position_kp", math.nan),
         ("position_kp_joint", -1.0),
         ("position_kp_joint", math.inf),
