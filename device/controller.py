@@ -1419,17 +1419,17 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     # A step's leg that runs at its target faster than its push's own approach is braked
     # harder on the excess speed (ControllerConfig.approach_braking); a leg that steps
     # alone, with the others holding beside it, not legs that move together.
-    alone = False
+    others_beside = False  # another leg holds beside a step (this leg's or another's)
     for i in range(6):
         if i != leg and s.beside[i] > 0.0:
-            alone = True
-    if approaching and alone and p.brake_gain > 0.0:
+            others_beside = True
+    if approaching and others_beside and p.brake_gain > 0.0:
         error_now = s.leg_target[leg] - s.leg_x[leg]
-        toward = math.copysign(1.0, error_now) * (s.leg_vel[leg] - s.leg_target_rate[leg])
+        closing = math.copysign(1.0, error_now) * (s.leg_vel[leg] - s.leg_target_rate[leg])
         reach = min(abs(error_now), p.max_error_joint)
         allowed = max((1.0 + p.brake_margin) * p.kp_joint * reach / p.kd_pos, p.brake_speed)
-        if toward > allowed and abs(error_now) > p.brake_from:
-            dP -= math.copysign(p.brake_gain * p.kd_pos * (toward - allowed), error_now)
+        if closing > allowed and abs(error_now) > p.brake_from:
+            dP -= math.copysign(p.brake_gain * p.kd_pos * (closing - allowed), error_now)
     # A stepping leg's push accelerates the holding legs too (through the platform): each
     # holding leg is given a share of the push that cancels that (ControllerConfig.
     # cross_leg_decoupling), counted as load, not as its own push.
@@ -1473,11 +1473,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
         )
         # Not while the step beside it lasts; and a leg that stepped, not before the legs
         # that held beside it rest again (their settling would move it on its air).
-        waiting = False
-        if s.beside[leg] <= 0.0:
-            for i in range(6):
-                if i != leg and s.beside[i] > 0.0:
-                    waiting = True
+        waiting = s.beside[leg] <= 0.0 and others_beside
         if rests and (beside_step or waiting):
             quiet.reset(s.rest, leg)
             s.approach[leg] = 0.0
