@@ -137,6 +137,8 @@ class Health:
         sat = [notes[k] for k in self.saturated if k in notes]
         if sat:
             parts.append("saturated: " + ", ".join(sat))
+        if not parts and self.reason:
+            parts.append(self.reason)  # invalid for a reason of the experiment's own
         return "; ".join(parts)
 
 
@@ -226,6 +228,13 @@ def assess(
         bad = [k for k in saturated if k in invalidating]
         if bad:
             reason = "saturated: " + ", ".join(b.replace("_", " ") for b in bad)
+    late = [f for f in _FAULTS if f.time > rig.time]
+    if reason is None and late:
+        # Asked for, never struck: what was measured is a healthy unit.
+        reason = (
+            f"the {late[0].kind.name.lower()} fault at {late[0].time:g} s never struck: the "
+            f"run ended at {rig.time:.2f} s of simulated time (the settle at home included)"
+        )
     return Health(
         tripped,
         trip.name if tripped else None,

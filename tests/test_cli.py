@@ -290,6 +290,21 @@ def test_bench_control_prints_every_key_and_writes_figures(tmp_path: Path) -> No
     assert len(list(tmp_path.glob("*.png"))) == 5
 
 
+def test_a_fault_timed_after_the_run_ends_makes_it_invalid_not_a_healthy_figure() -> None:
+    # The step's run ends 1.5 s in (the settle at home included): a fault asked for at 3 s
+    # never strikes, and a healthy unit's step is not what was asked to be measured.
+    r = ankle("sim", "step", "--fault", "leg_stuck@3:2", "--json")
+    assert r.returncode == 1, r.stderr
+    data = json.loads(r.stdout)
+    assert data["valid"] is False and data["tripped"] is False and data["rise_ms"] is None
+    assert data["invalid_reason"].startswith("the leg_stuck fault at 3 s never struck"), data
+    r = ankle("sim", "step", "--fault", "leg_stuck@3:2")
+    assert r.returncode == 1 and "never struck: the run ended at 1.50 s" in r.stdout, r.stdout
+    # Within the run it strikes: whatever it does, it is not reported as never struck.
+    r = ankle("sim", "step", "--fault", "leg_stuck@0.7:2", "--json")
+    assert "never struck" not in r.stdout and r.returncode in (0, 1), r.stdout
+
+
 def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> None:
     # A leg sensor gone noisy while the rig settles at home: LEG_SENSOR before any step.
     fault = "leg_noise@0.2+0.2:0=3"
