@@ -1421,17 +1421,16 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     # A step's leg that runs at its target faster than its push's own approach is braked
     # harder on the excess speed (ControllerConfig.approach_braking); a leg that steps
     # alone, with the others holding beside it, not legs that move together.
-    others_beside = False  # another leg holds beside a step (this leg's or another's)
-    for i in range(6):
-        if i != leg and s.beside[i] > 0.0:
-            others_beside = True
     # ...or still on the approach of an earlier command, not yet rested: a build whose legs
     # had not rested 0.5 s after the move home stepped one of them unbraked. (Those whose
     # approach began with this one's, within two periods, step with it.)
-    alone = others_beside
+    others_beside = False  # another leg holds beside a step (this leg's or another's)
+    earlier = False  # another leg is still on an earlier command's approach
     for i in range(6):
-        if i != leg and 0.0 < s.approach[i] < s.approach[leg] - 2.0:
-            alone = True
+        if i != leg:
+            others_beside = others_beside or s.beside[i] > 0.0
+            earlier = earlier or 0.0 < s.approach[i] < s.approach[leg] - 2.0
+    alone = others_beside or earlier
     if approaching and alone and p.brake_gain > 0.0:
         error_now = s.leg_target[leg] - s.leg_x[leg]
         closing = math.copysign(1.0, error_now) * (s.leg_vel[leg] - s.leg_target_rate[leg])

@@ -1,5 +1,6 @@
 """The controller on the simulated plant: modes, latching trips, command validation."""
 
+import functools
 import math
 from dataclasses import replace
 
@@ -344,17 +345,26 @@ def test_the_holding_legs_are_driven_against_a_stepping_legs_push() -> None:
     assert fed[1] < 0.5e-3, (fed, unfed)
 
 
-def _drawn_build_99_step(braking: float, soon: bool = False) -> float:
-    """Leg 1's overshoot (m) in a 10 mm joint step from home on drawn build 99 (a 2.95 kg
-    plate on light pistons, which the start-up identification weighs as the nominal unit:
-    its derivative gain is the nominal one, about a tenth too low for it). ``soon``: 0.1 s
-    after all six legs were sent 5 mm up together, none of them rested yet."""
-    plant = draw_plant(99, "absent")
-    calibration = identify(SimulatedHardware(plant, seed=0))
-    config = ctl.ControllerConfig(calibration=calibration, approach_braking=braking)
-    r = Rig(SimulatedHardware(plant, seed=1), config)
+@functools.cache
+def _build_99_calibration() -> Calibration:
+    return identify(SimulatedHardware(draw_plant(99, "absent"), seed=0))
+
+
+def _build_99_at_home(braking: float) -> Rig:
+    """Drawn build 99 (a 2.95 kg plate on light pistons, which the start-up identification
+    weighs as the nominal unit: its derivative gain is the nominal one, about a tenth too
+    low for it), calibrated, held at home for 1 s."""
+    config = ctl.ControllerConfig(calibration=_build_99_calibration(), approach_braking=braking)
+    r = Rig(SimulatedHardware(draw_plant(99, "absent"), seed=1), config)
     r.move_legs(r.state.leg_target.copy())
     r.run(1.0, log_hz=0)
+    return r
+
+
+def _drawn_build_99_step(braking: float, soon: bool = False) -> float:
+    """Leg 1's overshoot (m) in a 10 mm joint step from home on drawn build 99. ``soon``:
+    0.1 s after all six legs were sent 5 mm up together, none of them rested yet."""
+    r = _build_99_at_home(braking)
     if soon:
         r.move_legs(r.state.leg_target + 0.005)
         r.run(0.1, log_hz=0)
@@ -384,12 +394,7 @@ def test_a_step_that_arrives_fast_is_braked_harder() -> None:
 
 def _build_99_moves_together(braking: float) -> NDArray[np.float64]:
     """The six legs of drawn build 99 every millisecond while all six step 10 mm up at once."""
-    plant = draw_plant(99, "absent")
-    calibration = identify(SimulatedHardware(plant, seed=0))
-    config = ctl.ControllerConfig(calibration=calibration, approach_braking=braking)
-    r = Rig(SimulatedHardware(plant, seed=1), config)
-    r.move_legs(r.state.leg_target.copy())
-    r.run(1.0, log_hz=0)
+    r = _build_99_at_home(braking)
     r.move_legs(r.state.leg_target + 0.010)
     rows = []
     for _ in range(400):
