@@ -103,7 +103,19 @@ M_AIR_OUT_MOST = 307  # 12: ...and its exhaust let out (pulses near a valve's op
 M_LIFT = 319  # 1: filtered vertical residual force at the ankle less the platform's inertia (N)
 M_LIFT_ALLOW = 320  # 1: filtered allowance for what the legs' friction and the model leave there
 M_LIFT_PEAK = 321  # 1: largest share of its allowance the vertical residual took since the reset
-N_MONITOR = 322
+M_ANSWER = 322  # 12 x ANSWER_SUMS: each chamber's decaying sums of what its valves answered
+ANSWER_CAME = 0  # air that came in (Pa m3, + in)
+ANSWER_IN = 1  # air its intake's pulses surely brought, as this build's valve passes one
+ANSWER_IN_TOL = 2  # ...how far that may be off (Pa m3)
+ANSWER_OUT = 3  # air its exhaust's pulses surely let out (Pa m3, negative)
+ANSWER_OUT_TOL = 4  # ...how far that may be off (Pa m3)
+ANSWER_VOLUME_TOL = 5  # what the volume term and the floor leave unknown (Pa m3)
+ANSWER_SUMS = 6
+M_ANSWER_PEAK = M_ANSWER + 12 * ANSWER_SUMS
+"""1: how near a chamber's valves came to not answering since the last reset: the answer
+rule's share over the lowest answer share judged (1 asks for service; 0 while none was)."""
+M_ANSWER_LAST = M_ANSWER_PEAK + 1  # 12: the lower answer share judged last period (9: none)
+N_MONITOR = M_ANSWER_LAST + 12
 
 # Rows of the valves' figures the air checks take (``valves``, 4 x 24; valve ``2c`` is the
 # intake, ``2c + 1`` the exhaust of chamber ``c``), from the calibration
@@ -183,7 +195,8 @@ held rotational axes has caught up with the readings (``ControllerConfig.load_tu
 C_LIFT = 103
 """Control periods in a row with the vertical residual (``M_LIFT``) over its allowance."""
 C_P_STILL = 104  # 13: reads in a row a pressure channel's raw reading stayed bit for bit the same
-N_COUNTERS = 117
+C_ANSWER = 117  # 12: control periods in a row a chamber's valve did not answer its pulses
+N_COUNTERS = 129
 
 
 @dataclass(frozen=True)
@@ -505,6 +518,56 @@ class SupervisionConfig:
     observer_wake_window: int = 3
     """Control periods (12 ms) after a leg woke by drifting in which the shorter count
     applies."""
+    answer_window: float = 0.024
+    """Time constant (s) of the sums over which each valve's pulses are held against what
+    came (``answer_share``): six periods, three pulses of a valve the loop pulses every
+    other period, as it does mid-exercise (an intake in one period, the exhaust in the
+    next)."""
+    answer_share: float = 0.9
+    """A valve held to its own pulses: of the air its sure pulses (past the opening edge the
+    start-up identification found, :func:`pulse_seconds`) should have moved, at most this
+    share came, even granting that the chamber's other valve moved the least it may
+    (its pulses' tolerance of the air observer, the other way), the volume term
+    ``answer_dead_volume_error`` and ``answer_floor``: the valve did not answer, stuck
+    shut, or its chamber leaks what it brings. The device asks for service, as the air
+    observer does.
+
+    The air observer above waits for its residual to outgrow the tolerance of every pulse,
+    the healthy valve's as well: with the loop pulsing intake and exhaust in turn, a dead
+    valve kept it near that tolerance for tens of milliseconds (valves stuck shut
+    mid-exercise, while the foot pushed and as the legs settled named in 51-331 ms, four
+    not within 0.5 s). Held one at a time, a dead valve's share sits at 0.2-0.6 (what the
+    other valve's tolerance and the volume term grant it) and falls below 0.9 within
+    16-56 ms of the fault in all 72 of those runs; a healthy valve's sits above 1 (what
+    it passed plus those grants). Measured healthy over the exercise library with a
+    relaxed and a resisting foot on the nominal unit (seeds 1-3) and drawn builds 0-49
+    and 53-54 (660 runs of 10 s): at least 1.28 (drawn build 42, a range-of-motion
+    assessment), 1.42 times this share. At 1.0 all 72 fell within 48 ms, with 1.28 times
+    the margin; 0.9 keeps the wider one."""
+    answer_min_air: float = 0.3
+    """Air (Pa m3, in the decaying sum) a valve's sure pulses must have been told to move
+    before it is judged: a pulse of about 12 slots into a chamber at mid stroke. The
+    quiet hold's doses are shorter and rarer, and are not judged so: a valve stuck shut at
+    rest is named by the air observer once its leg drifts, or not at all."""
+    answer_dead_volume_error: float = 4.0e-6
+    """How far (m3) a chamber's dead volume as the start-up identification measured it may be
+    from its true one: on drawn builds 0-11 it was off by -14 to +32 % of 5-11 cm3, at most
+    2.9 cm3. The air observer forgives 35 % of a chamber at mid stroke for the design's
+    dead volume (``observer_volume_tolerance``), several times this, which hid a dead
+    valve behind the pressure swings its chamber's other valve makes; the answer rule,
+    judging only valves the identification measured, forgives this much volume of every
+    pressure change instead."""
+    answer_floor: float = 3.0
+    """Air (Pa m3/s) the answer rule always forgives: a build's healthy leaks at their most
+    (past a piston 0.5 NL/min, through each closed seat up to 0.5 NL/min: 2.5 Pa m3/s) and
+    the transducers' noise. The air observer's floor (5) was measured to cost a dead valve
+    a fifth of a pulse per period of the sums."""
+    answer_periods: int = 1
+    """Control periods (4 ms) in a row below the share before the device asks for service:
+    one. A pulse's air reaches the transducer within its own period or the next, and the
+    rule already holds a valve only to its pulses of the periods before (see
+    :func:`answered`); a second period cost up to 36 ms on the runs above and gained
+    little margin (healthy at least 1.35 against 1.28)."""
     residual_cutoff_hz: float = 5.0
     """Low-pass on the force-balance residual: a leg's accelerating force in a step or a fast
     sine is brief and alternating, a wrong reading or a leak persists."""
@@ -759,6 +822,12 @@ class SupervisionParams(NamedTuple):
     obs_periods: int
     obs_wake_periods: int
     obs_wake_window: int
+    answer_decay: float
+    answer_share: float
+    answer_min_air: float
+    answer_volume_error: float
+    answer_floor: float
+    answer_periods: int
     slot_time: float
     valve_window: int
     valve_slots: int
@@ -824,6 +893,14 @@ def build(
         raise ValueError("turn_periods must be 1 or more")
     if not config.ft_torque_step > 0.0:
         raise ValueError("ft_torque_step must be a moment > 0 (N m)")
+    if not (config.answer_window > 0.0 and 0.0 < config.answer_share <= 1.0):
+        raise ValueError("answer_window must be > 0 (s) and answer_share over 0, at most 1")
+    if not (config.answer_min_air > 0.0 and config.answer_periods >= 1):
+        raise ValueError("answer_min_air must be > 0 (Pa m3) and answer_periods 1 or more")
+    for name in ("answer_dead_volume_error", "answer_floor"):
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"{name} must be finite and 0 or more")
     return SupervisionParams(
         atm=atmosphere,
         open_below=config.pressure_open_below,
@@ -881,6 +958,12 @@ def build(
         obs_periods=config.observer_periods,
         obs_wake_periods=config.observer_wake_periods,
         obs_wake_window=config.observer_wake_window,
+        answer_decay=math.exp(-control_dt / config.answer_window),
+        answer_share=config.answer_share,
+        answer_min_air=config.answer_min_air,
+        answer_volume_error=config.answer_dead_volume_error,
+        answer_floor=config.answer_floor,
+        answer_periods=config.answer_periods,
         slot_time=control_dt / 28,
         valve_window=config.valve_window_periods,
         valve_slots=math.ceil(config.valve_duty_fraction * 28 * config.valve_window_periods),
@@ -1290,23 +1373,36 @@ def check_air_flow(
     air0, v0 = monitor[M_OBS_PV + c], monitor[M_OBS_V + c]
     monitor[M_OBS_PV + c] = air
     monitor[M_OBS_V + c] = volume
+    sums = M_ANSWER + ANSWER_SUMS * c
     if n == 0:
         monitor[M_OBS_R + c] = 0.0
         monitor[M_OBS_T + c] = 0.0
         counters[C_OBS_OVER + c] = 0
+        counters[C_ANSWER + c] = 0
+        for i in range(ANSWER_SUMS):
+            monitor[sums + i] = 0.0
         return False
     p0 = air0 / v0
     k = q.obs_k
     came_in = (air - air0 + (k - 1.0) * 0.5 * (p0 + p_abs) * (volume - v0)) / k
     p_mid = 0.5 * (p0 + p_abs)
     expected = 0.0
-    tolerance = q.obs_volume_tol * abs(v0 * (p_abs - p0)) / k
+    unsure = 0.0
+    volume_tolerance = q.obs_volume_tol * abs(v0 * (p_abs - p0)) / k
+    tolerance = volume_tolerance
     if slots != 0:
         expected, unsure, flow = pulse_air(c, slots, p_mid, supply + q.atm, q, valves)
         tolerance += q.obs_flow_tol * abs(expected) + unsure
         if abs(slots) < 28:  # a pulse, not a valve held open through the period
             tolerance += q.obs_pulse_time * abs(flow)
     dt = 28 * q.slot_time
+    # The answer rule's own volume term: the dead volume as the start-up identification
+    # measured it, off by at most ``answer_dead_volume_error``, not the design's.
+    slack = q.answer_volume_error * abs(p_abs - p0) / k + q.answer_floor * dt
+    dead = answered(
+        monitor, counters, c, slots, came_in, expected, unsure, tolerance - volume_tolerance,
+        slack, q, valves,
+    )  # fmt: skip
     r = monitor[M_OBS_R + c]
     r += q.obs_alpha * ((came_in - expected) / dt - r)
     monitor[M_OBS_R + c] = r
@@ -1316,7 +1412,72 @@ def check_air_flow(
     limit = t + q.obs_floor
     monitor[M_OBS_PEAK] = max(monitor[M_OBS_PEAK], abs(r) / limit)
     counters[C_OBS_OVER + c] = counters[C_OBS_OVER + c] + 1 if abs(r) > limit else 0
-    return bool(counters[C_OBS_OVER + c] >= q.obs_periods)
+    return dead or bool(counters[C_OBS_OVER + c] >= q.obs_periods)
+
+
+@njit_inline
+def answered(
+    monitor: NDArray[np.float64],
+    counters: NDArray[np.int64],
+    c: int,
+    slots: int,
+    came_in: float,
+    expected: float,
+    unsure: float,
+    tolerance: float,
+    volume_tolerance: float,
+    q: SupervisionParams,
+    valves: NDArray[np.float64],
+) -> bool:
+    """Hold each valve of chamber ``c`` to its own pulses (``answer_share``): decaying sums
+    of the air that came in the period that just ended (``came_in``), and of what the
+    period's pulse (``slots``, + intake) surely moved (``expected`` less ``unsure``) and
+    how far it may be off (``tolerance``, the pulse's share of the observer's), kept apart
+    for the intake and the exhaust. True when, for ``answer_periods`` in a row, a valve
+    told to move at least ``answer_min_air`` surely moved at most ``answer_share`` of it,
+    even granting the other valve passed the least it may and the volume term
+    (``volume_tolerance``) its most. Only a valve whose opening edge the start-up
+    identification measured is held so: where a pulse starts to pass air is then known."""
+    sums = M_ANSWER + ANSWER_SUMS * c
+    decay = q.answer_decay
+    for i in range(ANSWER_SUMS):
+        monitor[sums + i] *= decay
+    monitor[sums + ANSWER_CAME] += came_in
+    monitor[sums + ANSWER_VOLUME_TOL] += volume_tolerance
+    v = 2 * c + (0 if slots > 0 else 1)
+    sure = 0.0
+    if slots != 0 and valves[V_OPENS, v] > 0.0:
+        sure = max(0.0, abs(expected) - unsure)
+        if slots > 0:
+            monitor[sums + ANSWER_IN] += sure
+            monitor[sums + ANSWER_IN_TOL] += tolerance + unsure
+        else:
+            monitor[sums + ANSWER_OUT] -= sure
+            monitor[sums + ANSWER_OUT_TOL] += tolerance + unsure
+    came = monitor[sums + ANSWER_CAME]
+    into, in_tol = monitor[sums + ANSWER_IN], monitor[sums + ANSWER_IN_TOL]
+    out, out_tol = monitor[sums + ANSWER_OUT], monitor[sums + ANSWER_OUT_TOL]
+    slack = monitor[sums + ANSWER_VOLUME_TOL]
+    # A pulse's air reaches the transducer within its own period or the next: a valve is
+    # held to its pulses before this period's, whose air may not have come yet (any of
+    # it that did counts in its favour), while the other valve's air, a period old or
+    # more, has all come.
+    into_before = into - (sure if slots > 0 else 0.0)
+    out_before = out + (sure if slots < 0 else 0.0)
+    worst = math.inf
+    if into_before >= q.answer_min_air:  # the most the intake may have brought
+        worst = min(worst, (came - out + out_tol + slack) / into_before)
+    if -out_before >= q.answer_min_air:  # the most the exhaust may have let out
+        worst = min(worst, (into - came + in_tol + slack) / -out_before)
+    if worst == math.inf:
+        monitor[M_ANSWER_LAST + c] = 9.0
+        counters[C_ANSWER + c] = 0
+        return False
+    monitor[M_ANSWER_LAST + c] = worst
+    near = q.answer_share / max(worst, q.answer_share * 1.0e-3)
+    monitor[M_ANSWER_PEAK] = max(monitor[M_ANSWER_PEAK], near)
+    counters[C_ANSWER + c] = counters[C_ANSWER + c] + 1 if worst < q.answer_share else 0
+    return bool(counters[C_ANSWER + c] >= q.answer_periods)
 
 
 @njit_inline

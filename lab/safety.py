@@ -343,6 +343,9 @@ class HealthyRun:
     lift_share_max: float = 0.0
     """...and the vertical residual (1 names a vertical force offset; 0 where the unit's
     load bias was not identified and the vertical check does not judge)."""
+    answer_max: float = 0.0
+    """How near a valve came to not answering its sure pulses (1 asks for service; 0 where
+    the valves were not identified and the answer rule does not judge)."""
 
 
 def _library_targets(
@@ -420,6 +423,7 @@ def healthy_runs(
                 monitor[supervision.M_OBS_PEAK] = 0.0
                 monitor[supervision.M_TURN_PEAK] = 0.0
                 monitor[supervision.M_LIFT_PEAK] = 0.0
+                monitor[supervision.M_ANSWER_PEAK] = 0.0
                 for _ in range(round(seconds / 0.05)):
                     rig.run(0.05, log_hz=0)
                     residual = monitor[supervision.M_RESIDUAL : supervision.M_RESIDUAL + 6]
@@ -443,6 +447,7 @@ def healthy_runs(
                         int(rig.state.istate[I_RINGS]),
                         float(monitor[supervision.M_TURN_PEAK]),
                         float(monitor[supervision.M_LIFT_PEAK]),
+                        float(monitor[supervision.M_ANSWER_PEAK]),
                     )
                 )
                 if progress is not None:
@@ -646,6 +651,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("turn_share_max", "largest healthy moment residual (share of its allowance, limit 1)"),
     ("lift_share_max", "largest healthy vertical residual (share of its allowance, limit 1)"),
     ("air_flow_max", "largest healthy chamber air residual (share of its tolerance)"),
+    ("answer_max", "nearest a healthy valve came to not answering its pulses (limit 1)"),
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
     ("service_deaths", "service deaths in the boundary run"),
@@ -776,6 +782,7 @@ def _the_rest(
         "turn_share_max": max(h.turn_share_max for h in healthy),
         "lift_share_max": max(h.lift_share_max for h in healthy),
         "air_flow_max": max(h.air_flow_max for h in healthy),
+        "answer_max": max(h.answer_max for h in healthy),
         "healthy_plants": sorted({h.plant for h in healthy}),
         "boundary_commands": sent,
         "boundary_mismatches": mismatched,
