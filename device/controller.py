@@ -1241,6 +1241,15 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         trip(s, Trip.SENSOR_INVALID)
         return
     # Sensor faults are judged on the raw readings (the leg targets move into their frame).
+    # Whether an intake draws from the supply this period (as cylinder_task's "driven").
+    drawing = False
+    if moving(s.istate):
+        for c in range(12):
+            if (
+                s.slots[c] * 100.0 >= p.d_dead * pwm.PWM_SLOTS
+                and s.sensors[12] - p.p_atm - s.pressure[c] > p.sup.pressure_frozen_headroom
+            ):
+                drawing = True
     fault, channel = supervision.check_reading(
         s.monitor,
         s.counters,
@@ -1251,6 +1260,7 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         p.sensor_zero,
         p.leg_friction,
         p.pressure_still,
+        drawing,
     )
     if fault != Trip.NONE:
         trip(s, fault, channel)

@@ -196,7 +196,9 @@ C_LIFT = 103
 """Control periods in a row with the vertical residual (``M_LIFT``) over its allowance."""
 C_P_STILL = 104  # 13: reads in a row a pressure channel's raw reading stayed bit for bit the same
 C_ANSWER = 117  # 12: control periods in a row a chamber's valve did not answer its pulses
-N_COUNTERS = 129
+C_SUPPLY_DRAWN = 129
+"""Reads since the supply's raw reading last changed in which an intake drew from it."""
+N_COUNTERS = 130
 
 
 @dataclass(frozen=True)
@@ -361,6 +363,17 @@ class SupervisionConfig:
     12 counts a pulse; at the supply nothing flows in, whatever the transducer. A rod side
     pumped to 0.2 bar under the supply, next to a cap whose exhaust had stuck shut, read
     the same ten periods running and was named as a frozen transducer in place of the cap."""
+    supply_frozen_reads: int = 20
+    """The supply's raw reading bit-identical for this many reads (1 kHz) in which an intake
+    drew from it (pulsed at least the valve's response time into a chamber more than
+    ``pressure_frozen_headroom`` under the supply) is frozen: every draw dips the manifold
+    behind the regulator, up to 0.15 bar. Measured healthy over the exercise library with
+    a relaxed and a resisting foot on the nominal unit (seeds 1-2), drawn builds 3, 8, 11,
+    22, 34 and 54, and the nominal unit with the quietest transducers a build may have (50
+    and 75 Pa), 5 s each: intakes drew in nearly every period, and the reading stood still
+    through at most one such period (4 reads). A frozen supply transducer is named in
+    20-24 ms while the legs move; at rest only the flicker rule (``pressure_still_reads``)
+    tells it, in about 0.2 s. 0: not judged so."""
     valve_window_periods: int = 5
     """PWM periods (4 ms each) in which a chamber must answer its valves (20 ms)."""
     valve_duty_fraction: float = 0.5
@@ -801,6 +814,7 @@ class SupervisionParams(NamedTuple):
     leg_blind_band: float
     pressure_frozen_periods: int
     pressure_frozen_headroom: float
+    supply_frozen_reads: int
     air_window: int
     air_per_slot: float
     air_one_sided: float
@@ -891,6 +905,8 @@ def build(
             raise ValueError(f"{name} must be finite and 0 or more")
     if config.turn_periods < 1:
         raise ValueError("turn_periods must be 1 or more")
+    if config.supply_frozen_reads < 0:
+        raise ValueError("supply_frozen_reads must be 0 (not judged) or more")
     if not config.ft_torque_step > 0.0:
         raise ValueError("ft_torque_step must be a moment > 0 (N m)")
     if not (config.answer_window > 0.0 and 0.0 < config.answer_share <= 1.0):
@@ -933,6 +949,7 @@ def build(
         leg_blind_band=config.leg_blind_band,
         pressure_frozen_periods=config.pressure_frozen_periods,
         pressure_frozen_headroom=config.pressure_frozen_headroom,
+        supply_frozen_reads=config.supply_frozen_reads,
         air_window=config.air_window_periods,
         air_per_slot=config.air_per_slot,
         air_one_sided=config.air_one_sided,
@@ -1013,12 +1030,14 @@ def check_reading(
     sensor_zero: NDArray[np.float64],
     leg_friction: NDArray[np.float64],
     still: NDArray[np.int64],
+    drawing: bool = False,
 ) -> tuple[int, int]:
     """Checks of one fresh raw sensor vector (1 kHz): (trip code, channel), (0, -1) if fine.
     ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros,
     ``leg_friction`` each leg's identified seal friction (N, 0 where none), ``still`` per
     pressure channel the reads in a row its reading may stay the same (0: not judged so;
-    ``Calibration.pressure_still_reads``)."""
+    ``Calibration.pressure_still_reads``), ``drawing`` whether an intake draws from the
+    supply in this control period (``supply_frozen_reads``)."""
     counters[C_READS] += 1
     first = counters[C_READS] == 1
     # Pressure transducers: open wire, short, a jump no air makes, or a reading that stood
@@ -1036,6 +1055,13 @@ def check_reading(
         counters[C_P_STILL + c] = 0 if changed else counters[C_P_STILL + c] + 1
         if still[c] > 0 and counters[C_P_STILL + c] >= still[c]:
             return Trip.PRESSURE_SENSOR, c
+    # The supply's reading, while an intake draws from it (C_P_STILL is 0 where it changed).
+    if counters[C_P_STILL + 12] == 0:
+        counters[C_SUPPLY_DRAWN] = 0
+    elif drawing:
+        counters[C_SUPPLY_DRAWN] += 1
+    if q.supply_frozen_reads > 0 and counters[C_SUPPLY_DRAWN] >= q.supply_frozen_reads:
+        return Trip.PRESSURE_SENSOR, 12
     # The supply.
     supply = sensors[12] - q.atm
     counters[C_SUPPLY_LOSS] = counters[C_SUPPLY_LOSS] + 1 if supply < q.supply_loss else 0
