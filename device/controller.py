@@ -1235,21 +1235,32 @@ def duty_update(
 
 
 @njit_inline
+def valve_driven(s: ControllerState, p: ControllerParams, c: int) -> bool:
+    """Whether chamber ``c``'s valve of this period (``s.slots``) is driven: a pulse at
+    least as long as the valve's response time, where air can flow (an intake more than
+    ``pressure_frozen_headroom`` under the supply, an exhaust that far above the
+    atmosphere)."""
+    if abs(s.slots[c]) * 100.0 < p.d_dead * pwm.PWM_SLOTS:
+        return False
+    if s.slots[c] > 0:
+        return bool(s.sensors[12] - p.p_atm - s.pressure[c] > p.sup.pressure_frozen_headroom)
+    return bool(s.pressure[c] > p.sup.pressure_frozen_headroom)
+
+
+@njit_inline
 def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.float64]) -> None:
     s.istate[I_SENSOR_READS] += 1
     if not safety.all_finite(sensors):
         trip(s, Trip.SENSOR_INVALID)
         return
     # Sensor faults are judged on the raw readings (the leg targets move into their frame).
-    # Whether an intake draws from the supply this period (as cylinder_task's "driven").
+    # Whether an intake draws from the supply this period.
     drawing = False
     if moving(s.istate):
         for c in range(12):
-            if (
-                s.slots[c] * 100.0 >= p.d_dead * pwm.PWM_SLOTS
-                and s.sensors[12] - p.p_atm - s.pressure[c] > p.sup.pressure_frozen_headroom
-            ):
+            if s.slots[c] > 0 and valve_driven(s, p, c):
                 drawing = True
+                break
     fault, channel = supervision.check_reading(
         s.monitor,
         s.counters,
@@ -1522,12 +1533,7 @@ def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     volume_lo = chamber_volume(lo, x, p.air_dead_volume, p.area_cap, p.area_annulus, p.stroke)
     volume_up = chamber_volume(up, x, p.air_dead_volume, p.area_cap, p.area_annulus, p.stroke)
     for c in (lo, up):
-        # Driven: a pulse at least as long as the valve's response time, where air can flow.
-        driven = abs(s.slots[c]) * 100.0 >= p.d_dead * pwm.PWM_SLOTS
-        if s.slots[c] > 0:
-            driven = driven and supply - p.p_atm - s.pressure[c] > p.sup.pressure_frozen_headroom
-        elif s.slots[c] < 0:
-            driven = driven and s.pressure[c] > p.sup.pressure_frozen_headroom
+        driven = valve_driven(s, p, c)
         if supervision.check_frozen(s.monitor, s.counters, c, s.sensors[c], driven, p.sup):
             trip(s, Trip.PRESSURE_SENSOR, c)
             return

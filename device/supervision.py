@@ -114,8 +114,7 @@ ANSWER_SUMS = 6
 M_ANSWER_PEAK = M_ANSWER + 12 * ANSWER_SUMS
 """1: how near a chamber's valves came to not answering since the last reset: the answer
 rule's share over the lowest answer share judged (1 asks for service; 0 while none was)."""
-M_ANSWER_LAST = M_ANSWER_PEAK + 1  # 12: the lower answer share judged last period (9: none)
-N_MONITOR = M_ANSWER_LAST + 12
+N_MONITOR = M_ANSWER_PEAK + 1
 
 # Rows of the valves' figures the air checks take (``valves``, 4 x 24; valve ``2c`` is the
 # intake, ``2c + 1`` the exhaust of chamber ``c``), from the calibration
@@ -1416,20 +1415,20 @@ def check_air_flow(
     p_mid = 0.5 * (p0 + p_abs)
     expected = 0.0
     unsure = 0.0
-    volume_tolerance = q.obs_volume_tol * abs(v0 * (p_abs - p0)) / k
-    tolerance = volume_tolerance
+    pulse_tolerance = 0.0  # what the valves' flow leaves unknown of the period's air
     if slots != 0:
         expected, unsure, flow = pulse_air(c, slots, p_mid, supply + q.atm, q, valves)
-        tolerance += q.obs_flow_tol * abs(expected) + unsure
+        pulse_tolerance = q.obs_flow_tol * abs(expected) + unsure
         if abs(slots) < 28:  # a pulse, not a valve held open through the period
-            tolerance += q.obs_pulse_time * abs(flow)
+            pulse_tolerance += q.obs_pulse_time * abs(flow)
+    tolerance = q.obs_volume_tol * abs(v0 * (p_abs - p0)) / k + pulse_tolerance
     dt = 28 * q.slot_time
     # The answer rule's own volume term: the dead volume as the start-up identification
     # measured it, off by at most ``answer_dead_volume_error``, not the design's.
     slack = q.answer_volume_error * abs(p_abs - p0) / k + q.answer_floor * dt
     dead = answered(
-        monitor, counters, c, slots, came_in, expected, unsure, tolerance - volume_tolerance,
-        slack, q, valves,
+        monitor, counters, c, slots, came_in, expected, unsure, pulse_tolerance, slack, q,
+        valves,
     )  # fmt: skip
     r = monitor[M_OBS_R + c]
     r += q.obs_alpha * ((came_in - expected) / dt - r)
@@ -1453,7 +1452,7 @@ def answered(
     expected: float,
     unsure: float,
     tolerance: float,
-    volume_tolerance: float,
+    slack: float,
     q: SupervisionParams,
     valves: NDArray[np.float64],
 ) -> bool:
@@ -1463,15 +1462,15 @@ def answered(
     how far it may be off (``tolerance``, the pulse's share of the observer's), kept apart
     for the intake and the exhaust. True when, for ``answer_periods`` in a row, a valve
     told to move at least ``answer_min_air`` surely moved at most ``answer_share`` of it,
-    even granting the other valve passed the least it may and the volume term
-    (``volume_tolerance``) its most. Only a valve whose opening edge the start-up
+    even granting the other valve passed the least it may and the volume term and the
+    floor (``slack``, this period's) their most. Only a valve whose opening edge the start-up
     identification measured is held so: where a pulse starts to pass air is then known."""
     sums = M_ANSWER + ANSWER_SUMS * c
     decay = q.answer_decay
     for i in range(ANSWER_SUMS):
         monitor[sums + i] *= decay
     monitor[sums + ANSWER_CAME] += came_in
-    monitor[sums + ANSWER_VOLUME_TOL] += volume_tolerance
+    monitor[sums + ANSWER_VOLUME_TOL] += slack
     v = 2 * c + (0 if slots > 0 else 1)
     sure = 0.0
     if slots != 0 and valves[V_OPENS, v] > 0.0:
@@ -1485,7 +1484,7 @@ def answered(
     came = monitor[sums + ANSWER_CAME]
     into, in_tol = monitor[sums + ANSWER_IN], monitor[sums + ANSWER_IN_TOL]
     out, out_tol = monitor[sums + ANSWER_OUT], monitor[sums + ANSWER_OUT_TOL]
-    slack = monitor[sums + ANSWER_VOLUME_TOL]
+    allowed = monitor[sums + ANSWER_VOLUME_TOL]
     # A pulse's air reaches the transducer within its own period or the next: a valve is
     # held to its pulses before this period's, whose air may not have come yet (any of
     # it that did counts in its favour), while the other valve's air, a period old or
@@ -1494,14 +1493,12 @@ def answered(
     out_before = out + (sure if slots < 0 else 0.0)
     worst = math.inf
     if into_before >= q.answer_min_air:  # the most the intake may have brought
-        worst = min(worst, (came - out + out_tol + slack) / into_before)
+        worst = min(worst, (came - out + out_tol + allowed) / into_before)
     if -out_before >= q.answer_min_air:  # the most the exhaust may have let out
-        worst = min(worst, (into - came + in_tol + slack) / -out_before)
+        worst = min(worst, (into - came + in_tol + allowed) / -out_before)
     if worst == math.inf:
-        monitor[M_ANSWER_LAST + c] = 9.0
         counters[C_ANSWER + c] = 0
         return False
-    monitor[M_ANSWER_LAST + c] = worst
     near = q.answer_share / max(worst, q.answer_share * 1.0e-3)
     monitor[M_ANSWER_PEAK] = max(monitor[M_ANSWER_PEAK], near)
     counters[C_ANSWER + c] = counters[C_ANSWER + c] + 1 if worst < q.answer_share else 0
