@@ -173,9 +173,9 @@ async def test_series_keeps_every_minimum_and_maximum_in_clinic_units(
     elapsed = time.perf_counter() - t0
     assert r.status_code == 200, r.text
     body = r.json()
-    # 3 min at 100 Hz on this kind of machine answers in tens of milliseconds; a second
-    # means the decimation went quadratic or the file is read more than once.
-    assert elapsed < 1.0, elapsed
+    # 3 min at 100 Hz answers in tens of milliseconds on an idle machine of this kind; a
+    # busy one may take a second. A decimation gone quadratic takes minutes.
+    assert elapsed < 5.0, elapsed
 
     assert body["samples"] == N
     assert body["decimated"] is True
