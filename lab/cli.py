@@ -166,6 +166,21 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="run the nominal unit without its start-up identification, as the device runs "
         "without --calibration (the checks then allow for the heaviest plausible seals)",
     )
+    p.add_argument(
+        "--drawn",
+        type=ranged(int, 1, 100000),
+        default=None,
+        metavar="N",
+        help="instead of the matrix, N faults drawn at random (exercise, patient, unit, kind, "
+        "channel, size, moment), each against its healthy twin and an e-stop (lab/faultdraws.py)",
+    )
+    p.add_argument(
+        "--draw-seed",
+        type=ranged(int, 0, 2**31 - 1),
+        default=1,
+        metavar="S",
+        help="with --drawn: the seed the faults are drawn from (default 1)",
+    )
     p = bs.add_parser(
         "zwidth", help="the stiffness and damping rendered stably per rotational axis (Z-width)"
     )
@@ -338,6 +353,18 @@ def _bench(args: argparse.Namespace) -> int:
     if args.bench == "safety":
         from lab import safety
 
+        if args.drawn is not None:
+            if args.only or args.uncalibrated:
+                raise UsageError(
+                    "ankle bench safety: --drawn runs its own faults on calibrated units; "
+                    "it takes neither --only nor --uncalibrated"
+                )
+            from lab import faultdraws
+
+            drawn = faultdraws.run(args.drawn, args.draw_seed, args.after, _progress)
+            print(file=sys.stderr)
+            print(json.dumps(_jsonable(drawn), indent=2) if args.json else faultdraws.table(drawn))
+            return 0
         only = tuple(dict.fromkeys(args.only))
         sfresult = safety.run(
             progress=_progress, only=only, after=args.after, calibrated=not args.uncalibrated

@@ -112,7 +112,9 @@ class RedisRelay(Relay):
                 await self.release(station_id)
         if self._pubsub is not None:
             with contextlib.suppress(Exception):
-                await self._pubsub.aclose()  # type: ignore[no-untyped-call]
+                # redis-py types aclose() from 8.2 on; the range we accept starts at 5.
+                closing: Any = self._pubsub.aclose
+                await closing()
         await self.redis.aclose()
 
     # -- presence --------------------------------------------------------------------------
