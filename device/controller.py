@@ -1254,13 +1254,15 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         trip(s, Trip.SENSOR_INVALID)
         return
     # Sensor faults are judged on the raw readings (the leg targets move into their frame).
-    # Whether an intake draws from the supply this period.
+    # Whether the intakes of this period surely drew enough from the supply to dip it.
     drawing = False
     if moving(s.istate):
+        drawn = 0.0
         for c in range(12):
-            if s.slots[c] > 0 and valve_driven(s, p, c):
-                drawing = True
-                break
+            drawn += supervision.drawn_surely(
+                c, int(s.slots[c]), s.pressure[c] + p.p_atm, s.sensors[12], p.sup, p.valves
+            )
+        drawing = drawn >= p.sup.supply_draw_air
     fault, channel = supervision.check_reading(
         s.monitor,
         s.counters,

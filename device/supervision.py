@@ -354,7 +354,12 @@ class SupervisionConfig:
     each of which a valve of it was open at least the valve's response time (d_dead of
     eq. 1) is frozen (40 ms). Such a pulse moves a chamber by about 0.06 bar or 25
     transducer counts; a shorter one may pass no air at all (without dead-band compensation
-    most pulses at rest are that short)."""
+    most pulses at rest are that short). Counting only the air a pulse surely moved past
+    its valve's opening edge (as ``supply_draw_air`` does) was tried and not kept: the
+    loop's pulses in motion surely move a chamber only 1,000-2,000 Pa a period, the rule
+    then named a frozen chamber reading mid-exercise in up to 175 ms (41 ms), the platform
+    3.4 mm off, and on a unit without its calibration hardly at all; no healthy run of the
+    library on drawn builds 0-99 had a chamber reading stand still so."""
     pressure_frozen_headroom: float = 0.5e5
     """...and only where that pulse can move air: an intake counts while the chamber is more
     than this (Pa) below the supply, an exhaust while it is more than this above the
@@ -363,16 +368,38 @@ class SupervisionConfig:
     pumped to 0.2 bar under the supply, next to a cap whose exhaust had stuck shut, read
     the same ten periods running and was named as a frozen transducer in place of the cap."""
     supply_frozen_reads: int = 20
-    """The supply's raw reading bit-identical for this many reads (1 kHz) in which an intake
-    drew from it (pulsed at least the valve's response time into a chamber more than
-    ``pressure_frozen_headroom`` under the supply) is frozen: every draw dips the manifold
+    """The supply's raw reading bit-identical for this many reads (1 kHz) in which the
+    intakes surely drew from it (``supply_draw_air``) is frozen: every draw dips the manifold
     behind the regulator, up to 0.15 bar. Measured healthy over the exercise library with
     a relaxed and a resisting foot on the nominal unit (seeds 1-2), drawn builds 3, 8, 11,
     22, 34 and 54, and the nominal unit with the quietest transducers a build may have (50
     and 75 Pa), 5 s each: intakes drew in nearly every period, and the reading stood still
     through at most one such period (4 reads). A frozen supply transducer is named in
     20-24 ms while the legs move; at rest only the flicker rule (``pressure_still_reads``)
-    tells it, in about 0.2 s. 0: not judged so."""
+    tells it, in about 0.2 s. 0: not judged so.
+
+    A period counts as drawing only where its intakes together surely drew
+    ``supply_draw_air``: counted by the pulses' length alone (one just over the response
+    time), drawn build 99, whose valves open late and whose transducers are too quiet to
+    flicker, was tripped healthy in the isometric hold with a resisting foot (4.3 s in):
+    the hold's doses barely opened its intakes and the manifold did not dip a count. And
+    counted at the flow the readings say, drawn build 81 was tripped in the hold with a
+    relaxed foot (8.0 s in): an intake held open into a chamber that had all but reached
+    the supply, whose transducer read 0.08 bar above the manifold."""
+    supply_draw_air: float = 0.05
+    """Air (Pa m3) the intakes of a control period must surely have drawn for the period to
+    count in ``supply_frozen_reads``, by :func:`drawn_surely`. Drawn from the 48 cm3 behind
+    the supply hose (the manifold and the hose, device/plant/params.py), 0.05 Pa m3 dips
+    the supply reading about 1,000 Pa, four counts of its transducer, before the hose
+    refills it (about 25 ms): a live reading cannot stay in its code. A 1 ms pulse past the
+    edge into a chamber 1.5 bar under the supply draws about 0.15 Pa m3."""
+    supply_draw_edge: float = 1.5e-3
+    """On a unit whose valves were not identified: the pulse length (s) from which every
+    valve a build may have surely opened (the slowest opening delay, 1.21 ms, and three
+    times the 0.1 ms jitter; device.calibration.PULSE_OPENS_MAX). The loop's pulses in
+    motion are mostly 1.4-1.7 ms long, so such a unit counts few periods as drawing: it
+    cannot be sure its short pulses drew anything, and does not name a frozen supply
+    reading by this rule (it did in 21 ms, with the false trips above)."""
     valve_window_periods: int = 5
     """PWM periods (4 ms each) in which a chamber must answer its valves (20 ms)."""
     valve_duty_fraction: float = 0.5
@@ -816,6 +843,8 @@ class SupervisionParams(NamedTuple):
     pressure_frozen_periods: int
     pressure_frozen_headroom: float
     supply_frozen_reads: int
+    supply_draw_air: float
+    supply_draw_edge: float
     air_window: int
     air_per_slot: float
     air_one_sided: float
@@ -908,6 +937,8 @@ def build(
         raise ValueError("turn_periods must be 1 or more")
     if config.supply_frozen_reads < 0:
         raise ValueError("supply_frozen_reads must be 0 (not judged) or more")
+    if not (config.supply_draw_air > 0.0 and config.supply_draw_edge >= 0.0):
+        raise ValueError("supply_draw_air must be > 0 (Pa m3) and supply_draw_edge 0 s or more")
     if not config.ft_torque_step > 0.0:
         raise ValueError("ft_torque_step must be a moment > 0 (N m)")
     if not (config.answer_window > 0.0 and 0.0 < config.answer_share <= 1.0):
@@ -951,6 +982,8 @@ def build(
         pressure_frozen_periods=config.pressure_frozen_periods,
         pressure_frozen_headroom=config.pressure_frozen_headroom,
         supply_frozen_reads=config.supply_frozen_reads,
+        supply_draw_air=config.supply_draw_air,
+        supply_draw_edge=config.supply_draw_edge,
         air_window=config.air_window_periods,
         air_per_slot=config.air_per_slot,
         air_one_sided=config.air_one_sided,
@@ -1326,6 +1359,35 @@ def pulse_seconds(
     if length < opens + q.obs_edge_margin:
         return 0.5 * full, 0.5 * full
     return full, 0.0
+
+
+@njit_inline
+def drawn_surely(
+    c: int,
+    slots: int,
+    chamber: float,
+    supply: float,
+    q: SupervisionParams,
+    valves: NDArray[np.float64],
+) -> float:
+    """The air (Pa m3) chamber ``c``'s intake, driven ``slots`` this period, surely drew
+    from ``supply`` into ``chamber`` (both Pa abs): only the pulse's time past the valve's
+    opening edge (the identified one, else ``supply_draw_edge``), at the least flow the
+    readings allow (their span errors, ``observer_span_error``) less the observer's
+    tolerance. 0 for an exhaust, a pulse that may not have opened the valve, or a chamber
+    the readings cannot tell from the supply: near it the flow hangs on the small
+    difference of two readings, which their span errors may wholly take (drawn build 81's
+    supply read 0.08 bar above its manifold while an intake held open filled a chamber
+    that had all but reached it: no air moved)."""
+    if slots <= 0:
+        return 0.0
+    opens = valves[V_OPENS, 2 * c]
+    edge = opens + q.obs_edge_margin if opens > 0.0 else q.supply_draw_edge
+    past = slots * q.slot_time - edge
+    if past <= 0.0:
+        return 0.0
+    least = valve_flow(supply * (1.0 - q.obs_span), chamber * (1.0 + q.obs_span), q)
+    return least * float(valves[V_GAIN, 2 * c]) * (1.0 - q.obs_flow_tol) * past
 
 
 @njit_inline

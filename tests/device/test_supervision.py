@@ -29,6 +29,7 @@ from device.supervision import build as build_supervision
 from device.tickloop import COL
 from device.trips import Trip
 from lab import safety
+from sessions.prescription import ExerciseKind
 
 DETECTED: dict[FaultKind, tuple[str, float]] = {
     # kind: (trip reported, worst detection time in ms over the three situations)
@@ -1314,6 +1315,9 @@ def test_the_moment_allowance_follows_each_legs_seals_and_the_turning() -> None:
         ("answer_dead_volume_error", -1.0e-6),
         ("answer_floor", math.inf),
         ("supply_frozen_reads", -1),
+        ("supply_draw_air", 0.0),
+        ("supply_draw_air", math.nan),
+        ("supply_draw_edge", -1e-3),
         ("turn_floor", 0.0),
         ("turn_floor", math.inf),
         ("turn_stick", -0.1),
@@ -1538,6 +1542,39 @@ def test_a_frozen_supply_transducer_is_named_while_intakes_draw(
         rig.run(0.001, log_hz=0)
     assert rig.trip == Trip.PRESSURE_SENSOR and rig.trip_channel == 12
     assert rig.time - t0 <= 0.05
+
+
+@pytest.mark.parametrize(("build", "patient"), [(99, "resisting"), (81, "relaxed")])
+def test_a_live_supply_reading_behind_intakes_that_draw_next_to_nothing_is_not_frozen(
+    build: int, patient: str
+) -> None:
+    """Both drawn builds have transducers too quiet to flicker. Build 99 opens its valves
+    late: in the isometric hold the doses barely open its intakes and the manifold does not
+    dip a count, and counted by the pulses' length its supply's reading was named frozen
+    4.3 s into a healthy hold with a resisting foot. On build 81 an intake held open fills
+    a chamber that has all but reached the supply, whose transducer reads 0.08 bar above
+    the manifold: counted at the flow the readings say, named frozen 8.0 s in. Counted by
+    the air the intakes surely drew (past their identified opening edges, at the least
+    flow the readings allow), both holds run on; a frozen reading in motion is still named
+    in 21 ms (the test above)."""
+    from lab.experiments import calibration_of
+
+    plant = draw_plant(build, patient)
+    cal = calibration_of(plant)
+    assert not any(cal.pressure_still_reads)  # the flicker rule cannot judge these units
+    rig = Rig(SimulatedHardware(plant, seed=build), ctl.ControllerConfig(calibration=cal))
+    safety.start_exercise(rig, ExerciseKind.ISOMETRIC)
+    rig.run(10.0, log_hz=0)
+    assert rig.trip == Trip.NONE and not rig.supply_low and rig.service_chamber < 0
+    # Doses that pass next to nothing are not counted, whatever their length says.
+    q, valves = rig.params.sup, rig.params.valves
+    supply, chamber = 7.0e5, 5.5e5
+    at_edge = round(valves[supervision.V_OPENS, 0] / q.slot_time)
+    assert supervision.drawn_surely(0, at_edge, chamber, supply, q, valves) == 0.0
+    assert supervision.drawn_surely(0, at_edge + 6, chamber, supply, q, valves) > q.supply_draw_air
+    assert supervision.drawn_surely(0, -20, chamber, supply, q, valves) == 0.0  # an exhaust
+    # A chamber the readings cannot tell from the supply: nothing surely flows in.
+    assert supervision.drawn_surely(0, 28, supply * 0.99, supply, q, valves) == 0.0
 
 
 @pytest.mark.parametrize("scenario", ["exercise", "pushing"])
