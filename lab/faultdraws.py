@@ -133,6 +133,8 @@ def _watch(d: Draw, what: str, after: float) -> tuple[Rig, np.ndarray, float, fl
     rig = _unit(d)
     start_exercise(rig, ExerciseKind(d.exercise))
     rig.run(d.at_s, log_hz=0)
+    if what == "twin" and (_named(rig) != Trip.NONE.name):
+        return rig, np.zeros((0, 6)), 0.0, 0.0  # a false trip before the fault's moment
     rig.clear_log()
     t0 = rig.time
     kind = FaultKind[d.kind]
@@ -173,13 +175,23 @@ def _moved(moved: np.ndarray) -> tuple[float, float]:
     return float(np.degrees(moved[3:].max())), float(moved[:3].max() * 1e3)
 
 
+def _named(rig: Rig) -> str:
+    """What the rig noticed: its trip, a low supply's hold or a service warning, or NONE."""
+    if rig.trip != Trip.NONE:
+        return rig.trip.name
+    if rig.supply_low:
+        return "SUPPLY_LOW (hold)"
+    if rig.service_chamber >= 0:
+        return "AIR_BALANCE (service)"
+    return Trip.NONE.name
+
+
 def run_draw(d: Draw, after: float = AFTER_S) -> DrawnRun:
     twin_rig, twin, _, _ = _watch(d, "twin", after)
-    twin_trip = twin_rig.trip.name
-    if twin_rig.supply_low:
-        twin_trip = "SUPPLY_LOW (hold)"
-    if twin_rig.service_chamber >= 0 and twin_rig.trip == Trip.NONE:
-        twin_trip = "AIR_BALANCE (service)"
+    twin_trip = _named(twin_rig)
+    if len(twin) == 0:
+        twin_trip += ", before the fault's moment"
+        return DrawnRun(d, False, twin_trip, False, "NONE", *(math.nan,) * 7)
     rig, pose, detect, stop = _watch(d, "fault", after)
     _, held, _, _ = _watch(d, "estop", after)
     row = None if math.isnan(stop) else round(stop * 1000.0)
@@ -187,11 +199,7 @@ def run_draw(d: Draw, after: float = AFTER_S) -> DrawnRun:
     end = len(pose) if row is None else row + 1
     run_deg, run_mm = _moved(excursion(pose[:end], twin[:end], None))
     estop_deg, estop_mm = _moved(excursion(held, twin, 0))
-    trip = rig.trip.name
-    if rig.supply_low and rig.trip == Trip.NONE:
-        trip = "SUPPLY_LOW (hold)"
-    if rig.service_chamber >= 0 and rig.trip == Trip.NONE:
-        trip = "AIR_BALANCE (service)"
+    trip = _named(rig)
     return DrawnRun(
         draw=d,
         valid=twin_trip == Trip.NONE.name,
