@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,16 +11,7 @@ import pytest
 from device.plant.faults import FaultKind
 from lab import faultdraws
 from lab.safety import CHANNELS, FAULTS
-
-
-def _bench(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ankle", "bench", "safety", *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        check=False,
-    )
+from tests.lab.test_safety_bench import _bench
 
 
 def test_the_draws_reach_every_kind_channel_size_and_moment_the_docstring_names() -> None:
