@@ -26,6 +26,7 @@ twin says how far a healthy unit gives there with that patient at that moment.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -246,6 +247,7 @@ def run(
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """``count`` drawn faults from ``seed``, summed up, with every run."""
+    started = time.perf_counter()
     rng = np.random.default_rng(seed)
     runs = []
     for i in range(count):
@@ -287,6 +289,7 @@ def run(
             {**asdict(r.draw), **{k: v for k, v in asdict(r).items() if k != "draw"}} for r in runs
         ],
     }
+    out["wall_s"] = time.perf_counter() - started
     out["targets_met"] = {t.key: t.met(float(out[t.key])) for t in TARGETS}
     return out
 

@@ -67,7 +67,7 @@ def test_drawn_faults_from_the_command_line_print_every_key_and_each_run() -> No
     for key, _ in faultdraws.ROWS:
         assert key in result, key
     assert result["drawn_faults"] == 2 and result["drawn_seed"] == 7
-    assert result["after_s"] == 0.2 and len(result["drawn"]) == 2
+    assert result["after_s"] == 0.2 and len(result["drawn"]) == 2 and result["wall_s"] > 0
     rng = np.random.default_rng(7)
     expected = [faultdraws.draw(rng) for _ in range(2)]
     assert [r["kind"] for r in result["drawn"]] == [d.kind for d in expected]
