@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from device.axes import AXES
-from device.controller import Mode
 from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.rig import Rig
@@ -48,7 +47,10 @@ from lab.safety import (
     _drawn_rig,
     _rig,
     excursion,
+    noticed,
+    since_onset,
     start_exercise,
+    watch,
 )
 from lab.targets import Target
 from lab.targets import table as render
@@ -91,7 +93,8 @@ class DrawnRun:
     trip: str
     """The trip, ``SUPPLY_LOW (hold)`` or ``AIR_BALANCE (service)``, ``NONE`` if unseen."""
     detect_ms: float
-    """From the injection (a drooping supply: from its first read under the low mark)."""
+    """From the fault's onset (:func:`lab.safety.since_onset`): the injection, or where a
+    drooping supply's regulator output crossed the low mark."""
     excursion_deg: float
     excursion_mm: float
     while_running_deg: float
@@ -129,15 +132,16 @@ def _unit(d: Draw) -> Rig:
 
 
 def _watch(d: Draw, what: str, after: float) -> tuple[Rig, np.ndarray, float, float]:
-    """``what`` (fault, twin or estop) from ``d.at_s`` into the exercise for ``after``
-    seconds from the fault's onset: (rig, true pose log, detection s, stop s)."""
+    """``what`` (fault, twin or estop) from ``d.at_s`` into the exercise, watched as the
+    matrix watches (:func:`lab.safety.watch`): (rig, true pose log, detection s from the
+    fault's onset, stop s from the injection). A twin that tripped before the fault's
+    moment comes back with an empty log."""
     rig = _unit(d)
     start_exercise(rig, ExerciseKind(d.exercise))
     rig.run(d.at_s, log_hz=0)
-    if what == "twin" and (_named(rig) != Trip.NONE.name):
-        return rig, np.zeros((0, 6)), 0.0, 0.0  # a false trip before the fault's moment
+    if what == "twin" and noticed(rig) != Trip.NONE.name:
+        return rig, np.zeros((0, 6)), math.nan, math.nan  # a false trip
     rig.clear_log()
-    t0 = rig.time
     kind = FaultKind[d.kind]
     hw = rig.hardware
     assert isinstance(hw, SimulatedHardware)
@@ -146,50 +150,18 @@ def _watch(d: Draw, what: str, after: float) -> tuple[Rig, np.ndarray, float, fl
         hw.inject(Fault(kind, float(hw.state.time[0]), d.channel, d.value, duration))
     elif what == "estop":
         rig.estop()
-    detect = stop = onset = math.nan
-    droop = what == "fault" and kind == FaultKind.SUPPLY_DROOP
-    low_mark = rig.config.atmosphere + _supply_low()
-    for _ in range(round((after + (1.0 if droop else 0.0)) / 0.001)):
-        if not math.isnan(onset) and rig.time - t0 >= onset + after - 0.0005:
-            break
-        rig.run(0.001, log_hz=1000.0)
-        if math.isnan(onset) and not (droop and hw.state.supply[1] > low_mark):
-            onset = rig.time - t0 - 0.001
-        noticed = rig.mode == Mode.FAULT or rig.supply_low or rig.service_chamber >= 0
-        if math.isnan(detect) and noticed:
-            detect = rig.time - t0 - (0.0 if math.isnan(onset) else onset)
-        if math.isnan(stop) and (rig.mode == Mode.FAULT or rig.supply_low):
-            stop = rig.time - t0
-            if rig.mode != Mode.FAULT:
-                rig.hold()  # as the service's mode machine answers a low supply
+    detect, onset, stop = watch(rig, kind if what == "fault" else None, after)
     pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
-    return rig, pose, detect, stop
-
-
-def _supply_low() -> float:
-    from device.supervision import SupervisionConfig
-
-    return SupervisionConfig().supply_low
+    return rig, pose, since_onset(detect, onset), stop
 
 
 def _moved(moved: np.ndarray) -> tuple[float, float]:
     return float(np.degrees(moved[3:].max())), float(moved[:3].max() * 1e3)
 
 
-def _named(rig: Rig) -> str:
-    """What the rig noticed: its trip, a low supply's hold or a service warning, or NONE."""
-    if rig.trip != Trip.NONE:
-        return rig.trip.name
-    if rig.supply_low:
-        return "SUPPLY_LOW (hold)"
-    if rig.service_chamber >= 0:
-        return "AIR_BALANCE (service)"
-    return Trip.NONE.name
-
-
 def run_draw(d: Draw, after: float = AFTER_S) -> DrawnRun:
     twin_rig, twin, _, _ = _watch(d, "twin", after)
-    twin_trip = _named(twin_rig)
+    twin_trip = noticed(twin_rig)
     if len(twin) == 0:
         twin_trip += ", before the fault's moment"
         return DrawnRun(d, False, twin_trip, False, "NONE", *(math.nan,) * 7)
@@ -200,7 +172,7 @@ def run_draw(d: Draw, after: float = AFTER_S) -> DrawnRun:
     end = len(pose) if row is None else row + 1
     run_deg, run_mm = _moved(excursion(pose[:end], twin[:end], None))
     estop_deg, estop_mm = _moved(excursion(held, twin, 0))
-    trip = _named(rig)
+    trip = noticed(rig)
     return DrawnRun(
         draw=d,
         valid=twin_trip == Trip.NONE.name,

@@ -199,7 +199,6 @@ def _run(
     _start(rig, scenario)
     rig.run({"holding": 0.1, "settling": 0.05}.get(scenario, 0.5), log_hz=0)
     rig.clear_log()
-    t0 = rig.time
     hw = rig.hardware
     assert isinstance(hw, SimulatedHardware)
     if kind is not None:
@@ -209,6 +208,20 @@ def _run(
             value = FT_TORQUE_OFFSET
         duration = 0.3 if kind == FaultKind.LEG_NOISE else math.inf
         hw.inject(Fault(kind, float(hw.state.time[0]), channel, value, duration))
+    detect, onset, stop = watch(rig, kind, after)
+    pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
+    return rig, pose, detect, onset, stop
+
+
+def watch(rig: Rig, kind: FaultKind | None, after: float) -> tuple[float, float, float]:
+    """Run ``rig`` on from now, logging at 1 kHz, for ``after`` seconds from the onset of
+    ``kind`` (injected now, or None): (detection s, onset s, stop s), all from now, NaN if
+    never. The onset is when the fault became one (a drooping regulator's output crossing
+    the low mark), now for any other; the stop is when the loop let go of the platform (a
+    trip) or held it (a low supply, answered as the device service's mode machine does)."""
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    t0 = rig.time
     detect = onset = stop = math.nan
     step = 0.001
     low_mark = supervision.SupervisionConfig().supply_low + rig.config.atmosphere
@@ -227,8 +240,8 @@ def _run(
         sagging = kind == FaultKind.SUPPLY_DROOP and hw.state.supply[1] > low_mark
         if math.isnan(onset) and not sagging:
             onset = rig.time - t0 - step
-        noticed = rig.mode == Mode.FAULT or rig.supply_low or rig.service_chamber >= 0
-        if math.isnan(detect) and noticed:
+        seen = rig.mode == Mode.FAULT or rig.supply_low or rig.service_chamber >= 0
+        if math.isnan(detect) and seen:
             detect = rig.time - t0
         if math.isnan(stop) and (rig.mode == Mode.FAULT or rig.supply_low):
             stop = rig.time - t0
@@ -236,8 +249,28 @@ def _run(
                 # What the device service's mode machine does on a low supply
                 # (device.modes): HOLD, every valve shut, the segment paused.
                 rig.hold()
-    pose = rig.log[:, [COL[f"pose_{a}"] for a in AXES]]
-    return rig, pose, detect, onset, stop
+    return detect, onset, stop
+
+
+def since_onset(detect: float, onset: float) -> float:
+    """A detection time (s, from :func:`watch`) counted from the fault's onset instead: NaN
+    if never noticed, 0 if noticed before the onset (a drooping supply whose manifold dipped
+    under the low mark as intakes drew while the regulator's output was still above it)."""
+    if math.isnan(detect):
+        return math.nan
+    if math.isnan(onset) or detect < onset:
+        return 0.0
+    return detect - onset
+
+
+def noticed(rig: Rig) -> str:
+    """What ``rig`` noticed: a service warning (``AIR_BALANCE (service)``), else its trip,
+    else a low supply's hold (``SUPPLY_LOW (hold)``), or ``NONE``."""
+    if rig.service_chamber >= 0 and rig.trip == Trip.NONE:
+        return "AIR_BALANCE (service)"
+    if rig.supply_low and rig.trip == Trip.NONE:
+        return "SUPPLY_LOW (hold)"
+    return rig.trip.name
 
 
 def excursion(faulty: np.ndarray, healthy: np.ndarray, stop_row: int | None) -> np.ndarray:
@@ -283,7 +316,6 @@ def run_fault(
     row = None if math.isnan(stop) else round(stop * 1000.0)
     moved = excursion(pose, healthy, row)
     trip = rig.trip
-    held = rig.supply_low and trip == Trip.NONE
     dormant = False
     params = rig.hardware.params if isinstance(rig.hardware, SimulatedHardware) else None
     if kind == FaultKind.VALVE_STUCK_CLOSED:
@@ -296,18 +328,15 @@ def run_fault(
         true = rig.log[:, COL[f"leg_x{channel}"]]
         dormant = float(np.ptp(true)) <= DORMANT_COUNTS * params.leg_lsb
     service = rig.service_chamber >= 0 and trip == Trip.NONE
-    name = "SUPPLY_LOW (hold)" if held else trip.name
-    if service:
-        name = "AIR_BALANCE (service)"
     return FaultRun(
         kind=kind.name,
         scenario=scenario,
         seed=seed,
         injected=channel,
         detected=not math.isnan(detect),
-        trip=name,
+        trip=noticed(rig),
         channel=rig.service_chamber if service else rig.trip_channel,
-        detect_ms=(detect - onset) * 1e3,
+        detect_ms=since_onset(detect, onset) * 1e3,
         onset_ms=onset * 1e3,
         excursion_deg=float(np.degrees(moved[3:].max())),
         excursion_mm=float(moved[:3].max() * 1e3),

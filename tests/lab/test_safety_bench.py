@@ -105,3 +105,18 @@ def test_the_first_calibrated_unit_of_a_process_runs_as_every_later_one(
         rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
         runs.append(rig.run(0.3))
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_a_detection_counts_from_the_onset_and_never_before_it() -> None:
+    """A drooping supply is a fault from where its regulator's output crosses the low
+    mark; its manifold, dipping as intakes draw, may be flagged before that: 0, not a
+    negative time. Never noticed is NaN; a fault with no onset counted (it never sagged
+    that far) but noticed all the same is 0."""
+    import math
+
+    from lab.safety import since_onset
+
+    assert since_onset(0.25, 0.2) == pytest.approx(0.05)
+    assert since_onset(0.13, 0.19) == 0.0
+    assert since_onset(0.3, math.nan) == 0.0
+    assert math.isnan(since_onset(math.nan, 0.1))
