@@ -136,6 +136,15 @@ class FaultRun:
     transducer or a leg's sensor frozen on a value that stayed true (the chamber's pressure
     or the leg within :data:`DORMANT_COUNTS` of where it froze). Nothing can tell such a
     part from a healthy one until it is used; counted as undetected all the same."""
+    used_trip: str = ""
+    """For a fault left unnamed while watched, what the run noticed once the matrix's pitch
+    exercise then began and used every leg and valve (:func:`noticed`'s words, ``NONE`` if
+    nothing within ``after`` seconds); empty for a fault named while watched."""
+    used_detect_ms: float = math.nan
+    """...how long after the exercise began (ms); NaN if not then either."""
+    used_excursion_deg: float = math.nan
+    used_excursion_mm: float = math.nan
+    """...and how far the platform went from the same exercise without the fault."""
 
 
 def _rig(
@@ -164,17 +173,37 @@ def _start(rig: Rig, scenario: str) -> None:
     rig.run(0.5, log_hz=0)
     if scenario == "holding":
         return
-    K, B = np.zeros(6), np.zeros(6)
-    K[4], B[4] = (30.0, 1.0) if scenario == "exercise" else (50.0, 1.0)
-    compliant = [k == 4 for k in range(6)]
-    rig.set_impedance(K, B, compliant)
     if scenario == "exercise":
-        rig.track({"pitch": AxisTarget(Waveform.SINE, 0.0, math.radians(8.0), 0.5)})
-    else:
-        rig.track({})
-        hw = rig.hardware
-        assert isinstance(hw, SimulatedHardware)
-        hw.script_torque(4, SCRIPT_RAMP, rig.time, 10.0, 8.0)  # up to 8 N m in 0.8 s
+        _pitch_exercise(rig)
+        return
+    _compliant_pitch(rig, 50.0)
+    rig.track({})
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.script_torque(4, SCRIPT_RAMP, rig.time, 10.0, 8.0)  # up to 8 N m in 0.8 s
+
+
+def _compliant_pitch(rig: Rig, stiffness: float) -> None:
+    """Pitch rendered compliant (``stiffness`` N m/rad, 1 N m s/rad), the other axes held."""
+    K, B = np.zeros(6), np.zeros(6)
+    K[4], B[4] = stiffness, 1.0
+    rig.set_impedance(K, B, [k == 4 for k in range(6)])
+
+
+def _pitch_exercise(rig: Rig) -> None:
+    """The matrix's exercise, begun now: a pitch sine of 8 deg at 0.5 Hz, compliant at 30."""
+    _compliant_pitch(rig, 30.0)
+    rig.track({"pitch": AxisTarget(Waveform.SINE, 0.0, math.radians(8.0), 0.5)})
+
+
+def _then_used(rig: Rig, after: float) -> tuple[np.ndarray, float, float]:
+    """What follows a fault left unnamed while watched: the matrix's pitch exercise begins,
+    which drives every leg and both chambers of each, and is watched ``after`` seconds:
+    (true pose log, detection s, stop s), both from its start, NaN if never."""
+    rig.clear_log()
+    _pitch_exercise(rig)
+    detect, _, stop = watch(rig, None, after)
+    return rig.log[:, [COL[f"pose_{a}"] for a in AXES]], detect, stop
 
 
 def _watched_s(kind: FaultKind | None, after: float) -> float:
@@ -298,6 +327,18 @@ def _healthy_pose(scenario: str, seed: int, after: float, calibrated: bool = Tru
     return pose
 
 
+@functools.cache
+def _healthy_used_pose(
+    scenario: str, seed: int, watched: float, after: float, calibrated: bool
+) -> np.ndarray:
+    """The twin of :func:`_then_used`: the same run without the fault, ``watched`` seconds
+    from the moment of the injection, then the exercise watched ``after`` seconds."""
+    rig, _, _, _, _ = _run(None, scenario, seed, after=watched, calibrated=calibrated)
+    pose, _, _ = _then_used(rig, after)
+    pose.flags.writeable = False
+    return pose
+
+
 def run_fault(
     kind: FaultKind,
     scenario: str,
@@ -328,19 +369,35 @@ def run_fault(
         true = rig.log[:, COL[f"leg_x{channel}"]]
         dormant = float(np.ptp(true)) <= DORMANT_COUNTS * params.leg_lsb
     service = rig.service_chamber >= 0 and trip == Trip.NONE
+    seen, seen_channel = noticed(rig), rig.service_chamber if service else rig.trip_channel
+    used: dict[str, Any] = {}
+    if math.isnan(detect):
+        # Unnamed: does the exercise that follows name it once it uses the part?
+        watched = round(len(pose) * 1e-3, 3)  # logged at 1 kHz from the injection
+        used_pose, used_detect, used_stop = _then_used(rig, after)
+        twin = _healthy_used_pose(scenario, seed, watched, after, calibrated)
+        used_row = None if math.isnan(used_stop) else round(used_stop * 1000.0)
+        used_moved = excursion(used_pose, twin, used_row)
+        used = {
+            "used_trip": noticed(rig),
+            "used_detect_ms": used_detect * 1e3,
+            "used_excursion_deg": float(np.degrees(used_moved[3:].max())),
+            "used_excursion_mm": float(used_moved[:3].max() * 1e3),
+        }
     return FaultRun(
         kind=kind.name,
         scenario=scenario,
         seed=seed,
         injected=channel,
         detected=not math.isnan(detect),
-        trip=noticed(rig),
-        channel=rig.service_chamber if service else rig.trip_channel,
+        trip=seen,
+        channel=seen_channel,
         detect_ms=since_onset(detect, onset) * 1e3,
         onset_ms=onset * 1e3,
         excursion_deg=float(np.degrees(moved[3:].max())),
         excursion_mm=float(moved[:3].max() * 1e3),
         dormant=dormant,
+        **used,
     )
 
 
@@ -668,6 +725,11 @@ ROWS: tuple[tuple[str, str], ...] = (
         "faults_undetected_dormant",
         "...of them dormant: a valve never told to open, a frozen reading that stayed true",
     ),
+    ("faults_named_once_used", "...of them named once the exercise that followed used the part"),
+    ("faults_never_named", "...of them not named then either"),
+    ("used_detect_ms_max", "...named that long after the exercise began, worst (ms)"),
+    ("used_excursion_deg_max", "...the platform off the same exercise without it, worst (deg)"),
+    ("used_excursion_mm_max", "...the platform off the same exercise without it, worst (mm)"),
     ("detect_ms_max", "detection time, worst (ms)"),
     ("detect_ms_p50", "detection time, median (ms)"),
     ("excursion_deg_max", "excursion after injection, worst (deg)"),
@@ -759,7 +821,20 @@ def _fault_summary(faults: list[FaultRun]) -> dict[str, Any]:
         "detect_ms_p50": float(np.median(times)) if times else math.nan,
         "excursion_deg_max": max(f.excursion_deg for f in faults),
         "excursion_mm_max": max(f.excursion_mm for f in faults),
+        **_used_summary([f for f in faults if not f.detected]),
         "faults": [dataclasses.asdict(f) for f in faults],
+    }
+
+
+def _used_summary(missed: list[FaultRun]) -> dict[str, Any]:
+    """What the exercise that followed made of the faults left unnamed while watched."""
+    named = [f for f in missed if not math.isnan(f.used_detect_ms)]
+    return {
+        "faults_named_once_used": len(named),
+        "faults_never_named": len(missed) - len(named),
+        "used_detect_ms_max": max((f.used_detect_ms for f in named), default=math.nan),
+        "used_excursion_deg_max": max((f.used_excursion_deg for f in missed), default=0.0),
+        "used_excursion_mm_max": max((f.used_excursion_mm for f in missed), default=0.0),
     }
 
 
@@ -860,6 +935,11 @@ def fault_table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _nan(value: float | None) -> bool:
+    """No number: NaN in the result as run, null in its JSON."""
+    return value is None or math.isnan(value)
+
+
 def _fault_row(kind: str, runs: list[dict[str, Any]]) -> str:
     found = [r for r in runs if r["detected"]]
     trips = sorted({r["trip"] for r in found})
@@ -873,6 +953,15 @@ def _fault_row(kind: str, runs: list[dict[str, Any]]) -> str:
     if dormant:
         what = "never told to open" if kind == "VALVE_STUCK_CLOSED" else "frozen on a true value"
         where += f"; {dormant} of them {what}"
+    if missed and all("used_trip" in r for r in missed):
+        used = [r for r in missed if not _nan(r["used_detect_ms"])]
+        if used:
+            where += (
+                f"; {len(used)} of {len(missed)} named once the next exercise used them, "
+                f"within {max(r['used_detect_ms'] for r in used):.0f} ms"
+            )
+        else:
+            where += "; none named once the next exercise used them"
     worst = f"{max(r['detect_ms'] for r in found):.0f}" if found else "-"
     deg = max(r["excursion_deg"] for r in runs)
     mm = max(r["excursion_mm"] for r in runs)

@@ -660,14 +660,23 @@ def test_a_fault_that_made_no_difference_yet_is_counted_as_dormant() -> None:
     """Held at home, the legs rest with every valve shut: an intake stuck shut there is
     never told to open, and a leg sensor that freezes on a resting leg reads where the leg
     is. Nothing can tell either from a healthy part, and the benchmark says so beside
-    counting it as missed; a fault that moved something is never dormant."""
+    counting it as missed; a fault that moved something is never dormant. Neither stays
+    hidden once used: the exercise that follows names the valve by its own pulses (measured
+    17-45 ms over the 24 valves) and the sensor by its leg running from it (78-195 ms over
+    the six legs), the platform at most 0.28 deg / 1.0 mm and 1.01 deg / 1.96 mm off the
+    same exercise without the fault."""
     run = safety.run_fault(FaultKind.VALVE_STUCK_CLOSED, "holding", channel=0)
     assert not run.detected and run.dormant, run
     assert run.excursion_deg <= 0.1 and run.excursion_mm <= 0.1, run
+    assert run.used_trip in ("AIR_BALANCE (service)", Trip.VALVE.name), run
+    assert run.used_detect_ms <= 50.0 and run.used_excursion_mm <= 1.0, run
     frozen = safety.run_fault(FaultKind.LEG_STUCK, "holding", channel=5)
     assert not frozen.detected and frozen.dormant, frozen
+    assert frozen.used_trip == Trip.LEG_SENSOR.name and frozen.used_detect_ms <= 250.0, frozen
+    assert frozen.used_excursion_deg <= 2.0 and frozen.used_excursion_mm <= 3.0, frozen
     moved = safety.run_fault(FaultKind.LEG_STUCK, "exercise", channel=0)
     assert not moved.dormant, moved  # its leg moved on under the frozen reading
+    assert moved.detected and moved.used_trip == "" and math.isnan(moved.used_detect_ms), moved
 
 
 def test_a_stuck_closed_exhaust_is_caught_while_the_patient_pushes() -> None:
