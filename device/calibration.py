@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device import signals
+from device.signals import chamber
 
 LEG_ZERO_MAX = 3.0e-3
 """A leg zero beyond this (m) is not an offset but a fault (a bent rod, a slipped sensor):
@@ -214,7 +215,7 @@ class Calibration:
         for c, z in enumerate(self.pressure_zero):
             if abs(z) > PRESSURE_ZERO_MAX:
                 raise IdentificationError(
-                    f"chamber {c} transducer reads {z / 1e5:+.2f} bar vented (more than "
+                    f"the transducer of {chamber(c)} reads {z / 1e5:+.2f} bar vented (more than "
                     f"{PRESSURE_ZERO_MAX / 1e5:g} bar): check the transducer and its valves"
                 )
         self.check_valves()
@@ -230,7 +231,7 @@ class Calibration:
         low, high = STILL_READS_RANGE
         for c, n in enumerate(self.pressure_still_reads):
             if n != 0 and not low <= n <= high:
-                name = "the supply transducer" if c == 12 else f"chamber {c} transducer"
+                name = "the supply transducer" if c == 12 else f"the transducer of {chamber(c)}"
                 raise IdentificationError(
                     f"{name} may stand still {n} reads (healthy: 0 or {low}-{high}): "
                     "check the calibration file"
@@ -279,7 +280,7 @@ class Calibration:
             if not 0.0 <= shut < opens <= PULSE_OPENS_MAX:
                 which = "intake" if v % 2 == 0 else "exhaust"
                 raise IdentificationError(
-                    f"the {which} of chamber {v // 2} stayed shut up to a {shut * 1e3:.2f} ms "
+                    f"the {which} of {chamber(v // 2)} stayed shut up to a {shut * 1e3:.2f} ms "
                     f"pulse and opened on every one from {opens * 1e3:.2f} ms (healthy: opened "
                     f"by {PULSE_OPENS_MAX * 1e3:g} ms): check the valve, its coil and its driver"
                 )
@@ -287,7 +288,7 @@ class Calibration:
         for c, vol in enumerate(self.dead_volume):
             if not low <= vol <= high:
                 raise IdentificationError(
-                    f"chamber {c} holds {vol * 1e6:.1f} cm3 beyond its piston (healthy: "
+                    f"{chamber(c)} holds {vol * 1e6:.1f} cm3 beyond its piston (healthy: "
                     f"{low * 1e6:g}-{high * 1e6:g} cm3): check its tube for a leak or a kink"
                 )
         low, high = VALVE_GAIN_RANGE
@@ -295,7 +296,7 @@ class Calibration:
             if not low <= g <= high or abs(e) > VALVE_EXTRA_MAX:
                 which = "intake" if v % 2 == 0 else "exhaust"
                 raise IdentificationError(
-                    f"the {which} of chamber {v // 2} passes {g:.2f} times the model's air "
+                    f"the {which} of {chamber(v // 2)} passes {g:.2f} times the model's air "
                     f"and {e * 1e3:+.2f} ms beyond its pulse (healthy: {low:g}-{high:g} and "
                     f"within {VALVE_EXTRA_MAX * 1e3:g} ms): check the valve and its tube"
                 )

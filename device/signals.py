@@ -18,3 +18,13 @@ SENSOR_FORCE = 19
 SENSOR_TORQUE = 22
 """Torque on the foot plate about the sensor origin (N m), sensor frame."""
 N_SENSORS = 25
+
+
+def chamber(c: int) -> str:
+    """Chamber ``c`` (0-11; 12: the supply) as a technician finds it on the unit, counted
+    from 1 as the legs are: ``chamber 1 (leg 1, cap side)``. Every sentence that names a
+    chamber (trip events, calibration checks, the simulator's faults) says it so."""
+    if c == N_CHAMBERS:
+        return "supply transducer"
+    side = "cap" if c % 2 == 0 else "rod"
+    return f"chamber {c + 1} (leg {c // 2 + 1}, {side} side)"

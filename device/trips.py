@@ -10,6 +10,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 from device.axes import AXES
+from device.signals import chamber
 
 
 class Trip(IntEnum):
@@ -113,10 +114,7 @@ def where(trip: int, channel: int) -> str:
     if channel < 0:
         return ""
     if trip in (Trip.PRESSURE_SENSOR, Trip.VALVE, Trip.AIR_BALANCE):
-        if channel == 12:
-            return "supply transducer"
-        side = "cap" if channel % 2 == 0 else "rod"
-        return f"chamber {channel + 1} (leg {channel // 2 + 1}, {side} side)"
+        return chamber(channel)
     if trip in (Trip.LEG_SENSOR, Trip.FORCE_BALANCE):
         return f"leg {channel + 1}"
     if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):

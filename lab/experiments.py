@@ -250,10 +250,8 @@ def assess(
 def device_warning(rig: Rig) -> str | None:
     """What the rig's device warned of without tripping (latched until a re-arm), if any."""
     if rig.service_chamber >= 0:
-        return (
-            f"the device asked for service: chamber {rig.service_chamber}'s air did not add up "
-            "with its valves"
-        )
+        part = trips.where(Trip.AIR_BALANCE, rig.service_chamber)
+        return f"the device asked for service: the air of {part} did not add up with its valves"
     if rig.supply_low:
         return "the device held: the air supply is low"
     rang = [k for k in range(6) if rig.state.ring[k, ring.G_RINGS] > 0]

@@ -126,7 +126,9 @@ def test_a_fault_the_device_warns_of_without_tripping_is_reported_too() -> None:
     assert r.returncode == 1, r.stderr
     data = json.loads(r.stdout)
     assert data["tripped"] is False and data["valid"] is False, data
-    assert "service: chamber 0's air" in data["warning"] and data["gain_db"] is None, data
+    # Named as the device's events name it (from 1), not by its index in the arrays.
+    assert "the air of chamber 1 (leg 1, cap side)" in data["warning"], data
+    assert data["gain_db"] is None, data
     r = ankle(*faulty, "--fault", "valve_stuck_closed@1.0:0")
     assert r.returncode == 1 and r.stdout.startswith("INVALID: the device asked for service")
 

@@ -32,6 +32,8 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from device.signals import chamber
+
 MAX_FAULTS = 16
 """Rows of the plant's fault table."""
 
@@ -265,26 +267,24 @@ def format_fault(fault: Fault) -> str:
 
 
 def _channel_words(fault: Fault) -> str:
+    """The part struck: its channel as ``--fault`` counts it (from 0), then the part as the
+    device's events name it (from 1, :func:`device.signals.chamber`)."""
     k, ch = fault.kind, fault.channel
     lo, hi, _ = _CHANNEL_RANGE[k]
     if lo == hi == -1:
         return "the air supply"
     if k.name.startswith("PRESSURE"):
         if ch == 12:
-            return "the supply pressure transducer (12)"
-        side = "cap" if ch % 2 == 0 else "rod"
-        return f"pressure transducer {ch} ({side} side of leg {ch // 2})"
+            return "channel 12, the supply pressure transducer"
+        return f"channel {ch}, the transducer of {chamber(ch)}"
     if k.name.startswith("LEG"):
-        return f"the length sensor of leg {ch}"
+        return f"channel {ch}, the length sensor of leg {ch + 1}"
     if k.name.startswith("FT"):
         return "every force/torque channel" if ch == -1 else f"force/torque channel {_FT_NAMES[ch]}"
     if k.name.startswith("VALVE"):
         role = "intake" if ch % 2 == 0 else "exhaust"
-        c = ch // 2
-        side = "cap" if c % 2 == 0 else "rod"
-        return f"valve {ch} ({role} of chamber {c}, {side} side of leg {c // 2})"
-    side = "cap" if ch % 2 == 0 else "rod"
-    return f"chamber {ch} ({side} side of leg {ch // 2})"
+        return f"channel {ch}, the {role} of {chamber(ch // 2)}"
+    return f"channel {ch}, {chamber(ch)}"
 
 
 _WHAT: dict[FaultKind, str] = {

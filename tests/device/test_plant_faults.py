@@ -171,9 +171,13 @@ def test_bad_specs_are_refused_with_a_sentence(spec: str, complaint: str) -> Non
 
 
 def test_describe_names_the_part_in_words() -> None:
-    assert "rod side of leg 1" in describe(parse_fault("pressure_open@0.5:3"))
+    # The channel as --fault counts it (from 0), the part as the device's events name it.
+    said = describe(parse_fault("pressure_open@0.5:3"))
+    assert "channel 3, the transducer of chamber 4 (leg 2, rod side)" in said
     assert "supply pressure transducer" in describe(parse_fault("pressure_open@0.5:12"))
-    assert "exhaust of chamber 3" in describe(parse_fault("valve_stuck_open@0:7"))
+    said = describe(parse_fault("valve_stuck_open@0:7"))
+    assert "channel 7, the exhaust of chamber 4 (leg 2, rod side)" in said
+    assert "the length sensor of leg 1" in describe(parse_fault("leg_stuck@1:0"))
     assert "force/torque channel Fz" in describe(parse_fault("ft_offset@1:2=15"))
     assert "for 0.3 s" in describe(parse_fault("leg_noise@2+0.3:4=0.5"))
 
