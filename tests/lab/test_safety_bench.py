@@ -42,16 +42,18 @@ def test_only_one_kind_runs_its_four_situations_and_reports_the_fault_keys() -> 
 
 def test_the_unit_without_its_calibration_allows_for_the_heaviest_seals() -> None:
     """`--uncalibrated` runs the nominal unit as the device runs without `--calibration`:
-    no seal friction is taken out, the moment check allows for 5 N a leg, and a 3 N m
-    torque offset is named later than on the calibrated unit (10-52 ms there) or not within
-    the 0.5 s watched, the platform turning further."""
+    no seal friction is taken out and no transducer zero, so the moment check allows for
+    5 N of seals and 9.3 N of zeros a leg, and a 3 N m torque offset on roll or pitch (named
+    in 10-52 ms on the calibrated unit) is not named: it acts as a patient's 3 N m would,
+    the platform turning further (4.0 deg at most, 2.4 deg until FOLLOWING names one on
+    yaw at 90-116 ms)."""
     done = _bench("--only", "ft_offset", "--json", "--uncalibrated")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert result["calibrated"] is False and result["faults_total"] == 24
     torque = [f for f in result["faults"] if f["injected"] >= 3]
-    named = [f["detect_ms"] for f in torque if f["detected"]]
-    assert named and min(named) > 50.0, torque
+    assert not any(f["detected"] for f in torque if f["injected"] in (3, 4)), torque
+    assert all(f["detect_ms"] > 50.0 for f in torque if f["detected"]), torque
     assert max(f["excursion_deg"] for f in torque) > 2.0, torque
 
 
