@@ -8,7 +8,8 @@ the boundary-command run, which goes through the real device service over a pty.
   against the rendered stiffness). Each is *detected* when the controller latches a trip
   (or, for a drooping supply, raises its low-supply flag, on which the mode machine holds).
   Detection time is from the injection to that moment; the excursion is how far the true
-  platform moved from where it was at the injection, until 0.5 s after it.
+  platform moved from where it was at the injection, until 0.5 s after it. A fault left
+  unnamed is then used: the matrix's pitch exercise begins and is watched as long again.
 - **Healthy runs**: every exercise of the library on a healthy plant, several seeds: any trip
   is a false trip.
 """
