@@ -2121,21 +2121,31 @@ def wrench_allowance(
     q: supervision.SupervisionParams,
 ) -> tuple[float, float]:
     """What the wrench check allows beyond its limits (force N, moment N m at the ankle)
-    for what nothing identified: the seals of each leg whose friction was not identified
-    (:func:`seal_hold`; where it was, it is taken out of the residual and the limits cover
-    what is left) and each leg's transducer zeros where they were not read (``zero_hold``),
-    each times the leg's share of the force and of the moment (rows of ``J``). 0, 0 on a
-    calibrated unit. Without it the slow heave of the start-up identification tripped
-    drawn build 200 (seals of 4.4 N, 1.9 times that to break away, a plate 0.7 kg over its
-    model) at 46.9 N against 45, and the same build uncalibrated at its first move."""
+    for seals whose friction was not identified (where it was, it is taken out of the
+    residual and the limits cover what is left), at the plausible top
+    (``turn_friction_unidentified``), each leg through its row of ``J``: a sliding leg's
+    friction opposes its motion, so the sliding legs' share is summed as the vector it
+    makes (``turn_slip`` times the top, signed by each leg's ``rate``: in a heave they add,
+    in a turn they mostly cancel); a sticking leg may hold anything up to its breakaway
+    either way (``turn_stick`` times the top, in magnitude), and each leg's viscous share
+    (``turn_viscous`` times its rate) too. 0, 0 where every leg's friction was identified.
+    Without it the slow heave of the start-up identification tripped drawn build 200
+    (seals of 4.4 N, 1.9 times that to break away, a plate 0.7 kg over its model) at 46.9 N
+    against 45, and the same build uncalibrated at its first move (47.1 N)."""
+    slid = np.zeros(6)
     force, torque = 0.0, 0.0
+    top = q.turn_friction_unidentified
     for i in range(6):
-        held = q.zero_hold
-        if friction[i] <= 0.0:
-            held += seal_hold(0.0, rate[i], q)
-        if held > 0.0:
-            force += held * math.sqrt(J[i, 0] ** 2 + J[i, 1] ** 2 + J[i, 2] ** 2)
-            torque += held * math.sqrt(J[i, 3] ** 2 + J[i, 4] ** 2 + J[i, 5] ** 2)
+        if friction[i] > 0.0:
+            continue
+        slide = math.tanh(rate[i] / q.side_friction_speed)  # signed
+        held = top * q.turn_stick * (1.0 - abs(slide)) + q.turn_viscous * abs(rate[i])
+        for k in range(6):
+            slid[k] += J[i, k] * top * q.turn_slip * slide
+        force += held * math.sqrt(J[i, 0] ** 2 + J[i, 1] ** 2 + J[i, 2] ** 2)
+        torque += held * math.sqrt(J[i, 3] ** 2 + J[i, 4] ** 2 + J[i, 5] ** 2)
+    force += math.sqrt(slid[0] ** 2 + slid[1] ** 2 + slid[2] ** 2)
+    torque += math.sqrt(slid[3] ** 2 + slid[4] ** 2 + slid[5] ** 2)
     return force, torque
 
 

@@ -627,10 +627,10 @@ class SupervisionConfig:
     identified friction in a fast heave or a 15 deg sine, a platform a kilogram off its
     model and each transducer's zero. Largest healthy value measured over the exercise
     library, leg steps of 10-20 mm and sines up to the axis speed limit, on the nominal
-    plant and seven drawn ones: 30 N (11 N nominal). Where the seals' friction or the
-    transducers' zeros were not identified (the start-up identification's own heave, a
-    unit run without its calibration), what they may hold is allowed for on top, leg by
-    leg (:func:`device.controller.wrench_allowance`). An offset of 80 N on any force
+    plant and seven drawn ones: 30 N (11 N nominal). Where the seals' friction was not
+    identified (the start-up identification's own heave, a unit run without its
+    calibration), what they may hold is allowed for on top, leg by leg
+    (:func:`device.controller.wrench_allowance`). An offset of 80 N on any force
     channel is caught; one of 30 N is not here (sideways ``side_force_limit`` catches it,
     vertically ``lift_floor`` on a unit whose load bias was identified)."""
     side_force_limit: float = 18.0
@@ -749,10 +749,11 @@ class SupervisionConfig:
     plant draws each channel's zero within it; docs/plant.md). A leg's cap side and rod
     side off by it in opposite ways make its chambers seem to push (or hold) up to that
     times both areas, 9.3 N on the design's cylinder, that no sensor is at fault for: the
-    moment check (:func:`device.controller.turn_allowance`) and the wrench check
-    (:func:`check_wrench`) allow for it leg by leg, as they do for the seals. Uncalibrated,
-    drawn builds 47 and 48 went 1-1.4 % over the moment allowance without it in the
-    library (7 of 600 runs on builds 0-49)."""
+    moment check (:func:`device.controller.turn_allowance`) allows for it leg by leg, as
+    it does for the seals. Uncalibrated, drawn builds 47 and 48 went 1-1.4 % over the
+    moment allowance without it in the library (7 of 600 runs on builds 0-49). The wrench
+    check's 45 N covers the zeros (an 80 N vertical offset, uncalibrated, reaches 77 N in
+    its residual: allowing 9.3 N a leg there too would hide it)."""
     turn_periods: int = 1
     """Control periods over the allowance before the trip, as ``side_periods``."""
     lift_floor: float = 10.0
@@ -1736,9 +1737,9 @@ def check_wrench(
     torque_allow: float = 0.0,
 ) -> bool:
     """Filter the legs' residual as a wrench at the ankle (force N, moment N m, base frame);
-    True when its force or its moment stayed over its limit, plus what the seals and the
-    transducers' zeros may hold where nothing identified them (``force_allow`` N,
-    ``torque_allow`` N m: :func:`device.controller.wrench_allowance`)."""
+    True when its force or its moment stayed over its limit, plus what the seals may hold
+    where their friction was not identified (``force_allow`` N, ``torque_allow`` N m:
+    :func:`device.controller.wrench_allowance`)."""
     force2, torque2 = 0.0, 0.0
     for k in range(6):
         r = monitor[M_WRENCH + k]

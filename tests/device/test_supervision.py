@@ -1295,21 +1295,47 @@ def test_the_moment_allowance_follows_each_legs_seals_and_the_turning() -> None:
         ctl.turn_allowance(J, r, accel, rate, seals, p.body_mass, p.body_inertia, q, out)
         return out
 
+    # This rig has no calibration: each leg also counts what its unread transducer zeros
+    # may make its chambers seem to push (10 kPa each way over both areas: 9.3 N).
+    assert q.zero_hold == pytest.approx(10.0e3 * (p.area_cap + p.area_annulus))
+    assert 9.0 < q.zero_hold < 9.6
+    zeros = q.zero_hold * arms.sum(axis=0)
+    floor = q.turn_floor + zeros
     rest = allowance(np.zeros(6), friction)
-    assert rest == pytest.approx(q.turn_floor + q.turn_stick * friction @ arms, rel=1e-12)
+    assert rest == pytest.approx(floor + q.turn_stick * friction @ arms, rel=1e-12)
     fast = np.full(6, 0.2)  # every leg sliding (tanh(20) is 1 to 1e-17)
     sliding = allowance(fast, friction)
     held = q.turn_slip * friction + q.turn_viscous * fast
-    assert sliding == pytest.approx(q.turn_floor + held @ arms, rel=1e-12)
+    assert sliding == pytest.approx(floor + held @ arms, rel=1e-12)
     unknown = allowance(np.zeros(6), np.zeros(6))
     seals = np.full(6, q.turn_friction_unidentified)
-    assert unknown == pytest.approx(q.turn_floor + q.turn_stick * seals @ arms, rel=1e-12)
+    assert unknown == pytest.approx(floor + q.turn_stick * seals @ arms, rel=1e-12)
     assert (unknown > rest).all()
     # Turning within the acceleration's noise adds nothing; beyond it, linearly.
     assert allowance(np.zeros(6), friction, 0.9 * q.side_turn_floor) == pytest.approx(rest)
     beyond = [allowance(np.zeros(6), friction, q.side_turn_floor + d) - rest for d in (100, 200)]
     assert (beyond[0] > 0.0).all()
     assert beyond[1] == pytest.approx(2.0 * beyond[0], rel=1e-9)
+
+
+def test_the_wrench_allowance_counts_unidentified_seals_the_way_they_slide() -> None:
+    """``wrench_allowance`` by itself, every leg at mid stroke: nothing where each leg's
+    friction was identified; where none was, sliding seals oppose their legs' motion, so in
+    a heave (all legs one way) their shares add along z, and in a turn (the legs both ways)
+    they largely cancel; sticking seals count their breakaway either way."""
+    p, J, _ = _at_mid_stroke()
+    q = p.sup
+    none = np.zeros(6)
+    heave = np.full(6, 0.02)  # every leg sliding up (tanh(2) = 0.96)
+    assert ctl.wrench_allowance(J, heave, np.full(6, 1.0), q) == (0.0, 0.0)
+    up, _ = ctl.wrench_allowance(J, heave, none, q)
+    turn = np.array([0.02, -0.02, 0.02, -0.02, 0.02, -0.02])
+    across, _ = ctl.wrench_allowance(J, turn, none, q)
+    still, _ = ctl.wrench_allowance(J, none, none, q)
+    top, norms = q.turn_friction_unidentified, np.linalg.norm(J[:, :3], axis=1)
+    assert still == pytest.approx(q.turn_stick * top * norms.sum(), rel=1e-12)
+    assert up > 1.5 * across, (up, across)
+    assert up < still  # a sliding seal holds its Coulomb friction, a stuck one its breakaway
 
 
 @pytest.mark.parametrize(
