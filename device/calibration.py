@@ -124,6 +124,13 @@ class Calibration:
         return z
 
     @property
+    def zeros_read(self) -> bool:
+        """The sensors' zeros were read at start-up (device.identify dates them as it reads
+        them): the controller subtracts them. Without, the force checks allow for what a
+        transducer's zero may leave (``SupervisionConfig.pressure_zero_unidentified``)."""
+        return bool(self.identified_at)
+
+    @property
     def valves_identified(self) -> bool:
         """Every valve's pulse measured: its gain, extra time and where it starts to open. A
         file with only the first two (older) reads a pulse near a slow valve's opening delay

@@ -1063,7 +1063,7 @@ def build_params(
             CONTROL_PERIOD * dt_tick,
             config.calibration.valves_identified and config.supervision.use_identified_valves,
             lever=geometry.ankle_height,
-            zero_area=0.0 if config.calibration.identified_at else area_cap + area_ann,
+            zero_area=0.0 if config.calibration.zeros_read else area_cap + area_ann,
         ),
         sensor_zero=config.calibration.sensor_zero(),
         valves=observed.valve_figures(),
@@ -2132,20 +2132,21 @@ def wrench_allowance(
     Without it the slow heave of the start-up identification tripped drawn build 200
     (seals of 4.4 N, 1.9 times that to break away, a plate 0.7 kg over its model) at 46.9 N
     against 45, and the same build uncalibrated at its first move (47.1 N)."""
-    slid = np.zeros(6)
     force, torque = 0.0, 0.0
+    fx = fy = fz = tx = ty = tz = 0.0  # the sliding seals' shares, as the vector they make
     top = q.turn_friction_unidentified
     for i in range(6):
         if friction[i] > 0.0:
             continue
         slide = math.tanh(rate[i] / q.side_friction_speed)  # signed
         held = top * q.turn_stick * (1.0 - abs(slide)) + q.turn_viscous * abs(rate[i])
-        for k in range(6):
-            slid[k] += J[i, k] * top * q.turn_slip * slide
+        f = top * q.turn_slip * slide
+        fx, fy, fz = fx + J[i, 0] * f, fy + J[i, 1] * f, fz + J[i, 2] * f
+        tx, ty, tz = tx + J[i, 3] * f, ty + J[i, 4] * f, tz + J[i, 5] * f
         force += held * math.sqrt(J[i, 0] ** 2 + J[i, 1] ** 2 + J[i, 2] ** 2)
         torque += held * math.sqrt(J[i, 3] ** 2 + J[i, 4] ** 2 + J[i, 5] ** 2)
-    force += math.sqrt(slid[0] ** 2 + slid[1] ** 2 + slid[2] ** 2)
-    torque += math.sqrt(slid[3] ** 2 + slid[4] ** 2 + slid[5] ** 2)
+    force += math.sqrt(fx * fx + fy * fy + fz * fz)
+    torque += math.sqrt(tx * tx + ty * ty + tz * tz)
     return force, torque
 
 

@@ -939,10 +939,11 @@ def build(
     height above the platform's joint plane (m, see ``following_lag``); ``zero_area``: on
     a unit whose transducer zeros were not read, a leg's cap and rod areas together (m2),
     over which ``pressure_zero_unidentified`` is allowed for (0: the zeros were read)."""
-    if not (math.isfinite(config.pressure_zero_unidentified) and zero_area >= 0.0):
-        raise ValueError("pressure_zero_unidentified must be finite, zero_area 0 or more")
-    if config.pressure_zero_unidentified < 0.0:
-        raise ValueError("pressure_zero_unidentified must be 0 or more (Pa)")
+    zero = config.pressure_zero_unidentified
+    if not (math.isfinite(zero) and zero >= 0.0 and zero_area >= 0.0):
+        raise ValueError(
+            "pressure_zero_unidentified must be finite and 0 or more (Pa), zero_area 0 or more"
+        )
     if not (config.leg_stuck_floor >= 0.0 and config.leg_stuck_seals >= 0.0):
         raise ValueError("leg_stuck_floor and leg_stuck_seals must be 0 or more")
     if config.leg_blind_reads < 1 or not config.leg_blind_band >= 0.0:

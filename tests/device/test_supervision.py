@@ -1299,6 +1299,8 @@ def test_the_moment_allowance_follows_each_legs_seals_and_the_turning() -> None:
     # may make its chambers seem to push (10 kPa each way over both areas: 9.3 N).
     assert q.zero_hold == pytest.approx(10.0e3 * (p.area_cap + p.area_annulus))
     assert 9.0 < q.zero_hold < 9.6
+    read = ctl.ControllerConfig(calibration=Calibration(identified_at="2026-01-01T00:00:00+00:00"))
+    assert ctl.build_params(read)[0].sup.zero_hold == 0.0  # zeros read: nothing allowed for
     zeros = q.zero_hold * arms.sum(axis=0)
     floor = q.turn_floor + zeros
     rest = allowance(np.zeros(6), friction)
@@ -1359,6 +1361,8 @@ def test_the_wrench_allowance_counts_unidentified_seals_the_way_they_slide() -> 
         ("turn_slip", math.nan),
         ("turn_viscous", -1.0),
         ("turn_friction_unidentified", math.inf),
+        ("pressure_zero_unidentified", -1.0),
+        ("pressure_zero_unidentified", math.nan),
         ("turn_periods", 0),
         ("ft_torque_step", 0.0),
         ("ft_torque_step", math.nan),
