@@ -123,6 +123,14 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         "read every sensor's zero and pulse every valve, save the calibration to FILE and "
         "exit (the simulation identifies its plant with the plate empty)",
     )
+    unit.add_argument(
+        "--uncalibrated",
+        action="store_true",
+        help="run without a calibration (development and maintenance): no sensor zero is "
+        "subtracted and the checks allow for unread zeros and unknown seals, which a few "
+        "plausible builds still trip. Without --calibration the simulation identifies its "
+        "plant first, plate empty, and the I/O board refuses to start",
+    )
     add_plant_options(dev, seed_default=0)
 
 
@@ -229,6 +237,7 @@ def _device(args: argparse.Namespace) -> int:
     from device.calibration import Calibration, IdentificationError
     from device.controller import ControllerConfig
     from device.hardware import HardwareError, SimulatedHardware, open_hardware
+    from device.identify import identify_simulated
     from device.plant.model import SCRIPT_SINE
     from device.rig import Rig
     from device.service import DeviceService, ServiceConfig, serve
@@ -242,16 +251,40 @@ def _device(args: argparse.Namespace) -> int:
         return USAGE_ERROR
     if args.identify is not None:
         return _identify(args)
+    if args.hardware != "sim" and args.calibration is None and not args.uncalibrated:
+        print(
+            "error: the device runs a patient only with its unit's calibration: identify the "
+            "unit once, plate empty (ankle device --identify FILE), then start it with "
+            "--calibration FILE (or --uncalibrated for maintenance)",
+            file=sys.stderr,
+        )
+        return USAGE_ERROR
+    if args.hardware == "sim":
+        print("ankle device: preparing the simulated device (first start compiles for ~2 min)...")
     calibration = Calibration()
-    try:
+    try:  # what the command line names first: a bad file or link fails before any wait
         if args.calibration is not None:
             calibration = Calibration.load(args.calibration)
-        hardware = open_hardware(args.hardware, plant_config(args, args.patient), args.seed)
         link = open_link(args.link, args.baud)
     except IdentificationError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    except (HardwareError, LinkError) as exc:
+    except LinkError as exc:
+        print(f"error: {exc.args[-1]}", file=sys.stderr)
+        return 1
+    try:
+        if args.calibration is None and args.hardware == "sim" and not args.uncalibrated:
+            # As a deployed unit was identified before its first patient: the simulated
+            # unit's twin, plate empty, first (it seeds the plant's random generator).
+            print("ankle device: identifying the simulated unit, plate empty...", flush=True)
+            calibration = identify_simulated(plant_config(args, args.patient))
+        hardware = open_hardware(args.hardware, plant_config(args, args.patient), args.seed)
+    except IdentificationError as exc:
+        link.close()
+        print(f"error: the simulated unit cannot be identified: {exc}", file=sys.stderr)
+        return 1
+    except HardwareError as exc:
+        link.close()
         print(f"error: {exc.args[-1]}", file=sys.stderr)
         return 1
     if isinstance(hardware, SimulatedHardware) and args.patient_torque > 0:
@@ -266,12 +299,11 @@ def _device(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return USAGE_ERROR
-    if args.hardware == "sim":
-        print("ankle device: preparing the simulated device (first start compiles for ~2 min)...")
-    if args.calibration is not None:
-        print(f"ankle device: {describe(calibration)} ({args.calibration})")
+    if args.uncalibrated:
+        print("ankle device: uncalibrated (--uncalibrated): sensor zeros are not subtracted")
     else:
-        print("ankle device: uncalibrated (no --calibration): sensor zeros are not subtracted")
+        source = args.calibration or "identified at start, plate empty"
+        print(f"ankle device: {describe(calibration)} ({source})")
     rig = Rig(hardware, ControllerConfig(calibration=calibration))
     service = DeviceService(rig, link, ServiceConfig(args.telemetry_hz, args.watchdog_ms))
     return serve(service, args.seconds)

@@ -63,9 +63,9 @@ from device import pwm, signals, supervision
 from device.calibration import STILL_READS_RANGE, Calibration, IdentificationError
 from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
-from device.hardware import Hardware
+from device.hardware import Hardware, SimulatedHardware
 from device.kinematics import Kinematics
-from device.plant.params import TICK_HZ
+from device.plant.params import TICK_HZ, PlantConfig
 from device.rig import Rig
 
 READS = 200
@@ -186,6 +186,19 @@ STILL_NOISE_SHARE = 0.85
 """The noise the rule assumes, as a share of what the reads at rest showed
 (:data:`NOISE_READS` quantised reads estimate it to within about 5 %): assumed quieter, it
 waits longer."""
+
+
+def identify_simulated(config: PlantConfig) -> Calibration:
+    """The calibration a simulated unit's maintenance made: :func:`identify` on a twin of
+    its plant with nobody on the plate, as a technician identifies a real unit before its
+    first patient. The zeros, valves and seals are the unit's, the same on the twin; its
+    patient and faults are not (a fault comes after the calibration). Seeds the plant's
+    random generator: open the unit's own simulation after this, not before."""
+    twin = SimulatedHardware(replace(config, patient="absent"), seed=0)
+    try:
+        return identify(twin)
+    finally:
+        twin.close()
 
 
 def count_size(readings: NDArray[np.float64]) -> float:

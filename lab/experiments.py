@@ -43,7 +43,7 @@ from device.calibration import Calibration
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
-from device.identify import identify
+from device.identify import identify_simulated
 from device.plant.faults import Fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig, draw_plant
@@ -333,8 +333,7 @@ def calibration_of(cfg: PlantConfig) -> Calibration:
     home. The zeros are properties of the unit, the same on the twin."""
     key = (cfg.overrides, cfg.unit, cfg.substeps, id(cfg.geometry))
     if key not in _CALIBRATIONS:
-        twin = SimulatedHardware(replace(cfg, patient="absent"), seed=0)
-        _CALIBRATIONS[key] = identify(twin)
+        _CALIBRATIONS[key] = identify_simulated(cfg)
     return _CALIBRATIONS[key]
 
 

@@ -181,7 +181,7 @@ def test_console_shows_live_telemetry_from_the_service_and_stops_cleanly() -> No
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["device", "--link", "pty"], "no I/O board driver"),
+        (["device", "--link", "pty", "--uncalibrated"], "no I/O board driver"),
         (["device", "--sim", "--link", "tcp://nohost"], "expected tcp://HOST:PORT"),
         (["device", "--sim", "--link", "/dev/does-not-exist"], "cannot open serial port"),
     ],
@@ -191,6 +191,14 @@ def test_device_service_that_cannot_start_says_why(args: list[str], needle: str)
     assert r.returncode == 1
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_the_board_is_not_started_without_its_calibration() -> None:
+    """A real unit runs a patient only on its own zeros; the sentence says how to make them."""
+    r = ankle("device", "--link", "pty")
+    assert r.returncode == 2 and r.stdout == ""
+    assert "ankle device --identify FILE" in r.stderr and "--calibration FILE" in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
 def test_device_service_stops_on_sigterm_with_valves_closed() -> None:
@@ -360,9 +368,17 @@ def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
     caps, output = asyncio.run(capabilities("--calibration", str(path)))
     assert caps & Capability.CALIBRATED, caps
     assert any("calibration of " in line and "valves identified" in line for line in output)
-    caps, output = asyncio.run(capabilities())
+    caps, output = asyncio.run(capabilities("--uncalibrated"))
     assert not caps & Capability.CALIBRATED, caps
     assert any("uncalibrated" in line for line in output)
+    # Without a file the simulation identifies its unit first, as maintenance did: the
+    # same build's zeros (its twin, plate empty), so it reports itself calibrated.
+    caps, output = asyncio.run(capabilities())
+    assert caps & Capability.CALIBRATED, caps
+    started = [line for line in output if "identified at start, plate empty" in line]
+    assert started and "valves identified" in started[0], output
+    zeros = f"leg zeros up to {max(abs(z) for z in cal.leg_zero) * 1e3:.3f} mm"
+    assert zeros in started[0], (zeros, started)
 
     bad = tmp_path / "bent.json"
     bad.write_text(path.read_text().replace(str(cal.leg_zero[0]), "0.01", 1))
