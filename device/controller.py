@@ -93,7 +93,11 @@ I_BLEED = 9
 (``BLEED_RELEASED``); see :func:`bleed`."""
 I_RINGS = 10
 """Rings the guard has seen on compliant axes since start-up (device.ring), all axes."""
-N_ISTATE = 11
+I_RELEASE_STOP = 11
+"""What stopped the last release (device.controller.watch_release): 0 none, ``1 + c`` chamber
+``c`` gained air (an intake stuck open), ``13 + c`` chamber ``c`` did not vent (its exhaust
+stuck shut)."""
+N_ISTATE = 12
 
 
 def controller_tasks() -> tuple[Task, ...]:
@@ -2317,6 +2321,7 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
     """Run this tick's tasks; ``sensors`` must be fresh when the read-sensors task is due."""
     tick = s.istate[I_TICK]
     row = p.schedule[tick % p.schedule.shape[0]]
+    read = False
     for j in range(row.shape[0]):
         task = row[j]
         if task < 0:
@@ -2327,10 +2332,15 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
             )
         elif task == TASK_SENSORS:
             sensor_task(s, p, sensors)
+            read = True
         elif task == TASK_POSE:
             pose_task(s, p)
         else:
             cylinder_task(s, p, task - TASK_CYLINDER0)
+    if not venting(s.istate):
+        s.monitor[supervision.M_RELEASE] = 0.0  # the next release starts its watch anew
+    elif read:
+        watch_release(s, p)
     if s.istate[I_MODE] == Mode.FAULT or s.istate[I_MODE] == Mode.IDLE:
         if venting(s.istate):
             # Also after a trip earlier in this tick (which closed everything): exactly the
@@ -2347,6 +2357,86 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
                 p.dead_volume, p.area_cap, p.area_annulus, p.stroke, s.sensors[12], p.sup,
             )  # fmt: skip
     s.istate[I_TICK] = tick + 1
+
+
+@njit_inline
+def watch_release(s: ControllerState, p: ControllerParams) -> None:
+    """While the platform is released (every exhaust pulsing, no intake) each chamber's air
+    can only fall, and falls with the others'. A chamber whose air rose is fed by an intake
+    stuck open (``SupervisionConfig.release_gain``); one that kept its air while the others
+    vented has its exhaust stuck shut (``release_lag``). Either pushes its leg to an end stop
+    and tilts the platform with the foot on it: the release stops (every valve closes, and
+    a stuck intake's chamber is held by its own exhaust, see :func:`bleed`), a VALVE trip
+    names the chamber if none was latched, and ``I_RELEASE_STOP`` says which and why.
+
+    Not judged: a chamber whose transducer the latched trip named, both chambers of a leg
+    whose sensor it named, anything after a trip on sensors that gave no number or legs
+    that fit no pose. Air is ``p^(1/k) V`` (k the observer's polytropic index): a leg the
+    foot pushes compresses one chamber and expands the other without changing either's."""
+    code, named = s.istate[I_TRIP], s.istate[I_TRIP_CHANNEL]
+    if s.istate[I_MODE] == Mode.FAULT and (code == Trip.SENSOR_INVALID or code == Trip.KINEMATICS):
+        return
+    q = p.sup
+    m = supervision.M_RELEASE
+    air = np.empty(12)
+    for c in range(12):
+        volume = chamber_volume(
+            c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
+        )
+        air[c] = max(s.pressure[c] + q.atm, 1.0) ** (1.0 / q.obs_k) * max(volume, 1e-9)
+    if s.monitor[m] == 0.0:  # the release's first read
+        for c in range(12):
+            s.monitor[m + c] = air[c]
+            s.monitor[m + 12 + c] = air[c]
+            s.monitor[m + 24 + c] = s.pressure[c]
+            s.monitor[m + 36 + c] = s.pressure[c]
+        return
+    skip_chamber = named if code == Trip.PRESSURE_SENSOR else -1
+    skip_leg = named if code == Trip.LEG_SENSOR else -1
+    found = -1
+    losses = np.empty(12)
+    judged = 0
+    for c in range(12):
+        if c == skip_chamber or c // 2 == skip_leg:
+            continue
+        least, low = s.monitor[m + 12 + c], s.monitor[m + 24 + c]
+        if s.pressure[c] <= q.release_rise:
+            # At the atmosphere an exhaust lets air back in as the foot expands the chamber:
+            # its air is judged only from where it stays above.
+            least, low = air[c], s.pressure[c]
+        elif air[c] > (1.0 + q.release_gain) * least and s.pressure[c] > low + q.release_rise:
+            if found < 0:
+                found = 1 + c
+        s.monitor[m + 12 + c] = min(least, air[c])
+        s.monitor[m + 24 + c] = min(low, s.pressure[c])
+        if s.monitor[m + 36 + c] > q.release_judged:
+            losses[judged] = 1.0 - air[c] / s.monitor[m + c]
+            judged += 1
+    if found < 0 and judged >= 4:
+        median = np.median(losses[:judged])
+        if median >= q.release_median:
+            for c in range(12):
+                if c == skip_chamber or c // 2 == skip_leg:
+                    continue
+                if s.monitor[m + 36 + c] > q.release_judged and s.pressure[c] > q.release_judged:
+                    if 1.0 - air[c] / s.monitor[m + c] < q.release_lag * median:
+                        found = 13 + c
+                        break
+    if found < 0:
+        return
+    c = (found - 1) % 12
+    if s.istate[I_MODE] != Mode.FAULT:
+        trip(s, Trip.VALVE, c)
+    s.istate[I_VENT] = 0
+    s.istate[I_RELEASE_STOP] = found
+    for v in range(24):
+        s.valves[v] = 0
+    s.trip_air[0] = math.nan  # the bleed records every chamber's air now and holds from there
+    if found <= 12:  # its intake feeds it: its own exhaust holds it where it is
+        s.istate[I_BLEED] = c
+        s.p_desired[c] = s.pressure[c]
+    else:
+        s.istate[I_BLEED] = -1
 
 
 BLEED_RISE = 0.1e5

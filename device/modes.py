@@ -90,6 +90,7 @@ class ModeMachine:
         self.homed = False
         self.segment: Segment | None = None
         self._service_reported = False
+        self._release_reported = False
         self._rings = np.zeros(6)
         self._factors = np.ones(6)
         self._homing_start = 0.0
@@ -198,6 +199,7 @@ class ModeMachine:
             text = event_text(trip, self.rig.trip_channel)
             self._set_mode(DeviceMode.FAULT, text, kind=kind, code=trip)
             return
+        self._report_release()
         chamber = self.rig.service_chamber
         if chamber >= 0 and not self._service_reported:
             self._service_reported = True
@@ -226,6 +228,29 @@ class ModeMachine:
             self._homing_step()
         elif self.mode == DeviceMode.ACTIVE and self.segment is not None:
             self._segment_step(self.segment)
+
+    def _report_release(self) -> None:
+        """An event when the controller stopped a release (ctl.watch_release), once."""
+        chamber, gained = self.rig.release_stopped
+        if chamber < 0 or self._release_reported:
+            self._release_reported = chamber >= 0
+            return
+        self._release_reported = True
+        why = (
+            "its air rose with every intake shut (an intake stuck open): its exhaust holds it"
+            if gained
+            else "it kept its air while the others vented (its exhaust stuck shut or its tube "
+            "blocked)"
+        )
+        self.on_event(
+            EventKind.FAULT,
+            self.mode,
+            self.mode,
+            int(Trip.VALVE),
+            float(chamber),
+            f"VALVE on {where(Trip.VALVE, chamber)}: the release stopped, {why}; the "
+            "platform is held where it is. Free the foot from the plate, then service",
+        )
 
     def _report_rings(self) -> None:
         """An event for each ring the guard damped since the last pass (device.ring)."""

@@ -262,8 +262,21 @@ class Rig:
             self.state.istate[ctl.I_MODE] = Mode.TASK
 
     def set_vent(self, on: bool) -> None:
-        """Release: vent the chambers slowly while idle or tripped (see device.controller)."""
+        """Release: vent the chambers slowly while idle or tripped (see device.controller).
+        A new release forgets what stopped the last (``release_stopped``)."""
+        if on and not self.venting:
+            self.state.istate[ctl.I_RELEASE_STOP] = 0
         self.state.istate[ctl.I_VENT] = 1 if on else 0
+
+    @property
+    def release_stopped(self) -> tuple[int, bool]:
+        """(chamber, gained) that stopped the last release (ctl.watch_release): gained, its
+        air rose (an intake stuck open), else it kept its air (its exhaust stuck shut);
+        (-1, False) if none did."""
+        code = int(self.state.istate[ctl.I_RELEASE_STOP])
+        if code == 0:
+            return -1, False
+        return (code - 1) % 12, code <= 12
 
     @property
     def venting(self) -> bool:
@@ -331,6 +344,7 @@ class Rig:
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
         s.istate[ctl.I_BLEED] = -1
+        s.istate[ctl.I_RELEASE_STOP] = 0
         s.trip_air[:] = np.nan
         s.counters[supervision.C_SERVICE] = 0
         s.counters[supervision.C_SERVICE_LEGS] = 0

@@ -114,7 +114,11 @@ ANSWER_SUMS = 6
 M_ANSWER_PEAK = M_ANSWER + 12 * ANSWER_SUMS
 """1: how near a chamber's valves came to not answering since the last reset: the answer
 rule's share over the lowest answer share judged (1 asks for service; 0 while none was)."""
-N_MONITOR = M_ANSWER_PEAK + 1
+M_RELEASE = M_ANSWER_PEAK + 1
+"""4 x 12, while the platform is released (vented): per chamber, its air at the release's
+start (0 before the first read), the least air since, the least gauge pressure since, and
+its gauge pressure at the start (device.controller.watch_release)."""
+N_MONITOR = M_RELEASE + 48
 
 # Rows of the valves' figures the air checks take (``valves``, 4 x 24; valve ``2c`` is the
 # intake, ``2c + 1`` the exhaust of chamber ``c``), from the calibration
@@ -824,6 +828,34 @@ class SupervisionConfig:
     """Pose periods (4 ms) in a row past the bound before the trip (8 ms), against a single
     bad reading: 30 N of phantom force accelerates platform and foot about 100 mm/s within
     30 ms, so each period more lets the platform run 0.4 mm further."""
+    release_gain: float = 0.1
+    """While the platform is released no intake opens: a chamber whose air (p^(1/k) V, as
+    compression leaves it) rose this share above the least it had since the release began,
+    its pressure ``release_rise`` over its least too, is fed by an intake stuck open. The
+    release stops and its exhaust holds it (device.controller.watch_release). Measured on
+    the nominal unit, an intake stuck open as the strength exercise's platform was released
+    filled its chamber to the supply within 0.5 s and drove its leg onto the end stop,
+    the platform 10 deg in roll, unseen. Held at home and released, a stuck intake is now
+    held 1.2-1.7 deg and 3.1-3.6 mm off (4.2-4.5 mm at 0.2: the motion comes before the
+    chamber gained enough to be told apart); no healthy release of the library stopped."""
+    release_rise: float = 0.1e5
+    """See ``release_gain`` (Pa): a reading that moved, not the noise on a near-empty one.
+    Also the least gauge pressure at which air is judged: at the atmosphere an exhaust lets
+    air back in as the foot expands a vented chamber (healthy, measured: the strength
+    exercise's foot drew a vented chamber to -0.07 bar and back to +0.17)."""
+    release_judged: float = 1.0e5
+    """A chamber above this gauge pressure (Pa) when the release began, and still above it,
+    is judged by how its air falls (``release_lag``); one below can hardly carry its leg,
+    and one vented below it may draw air back through its exhaust."""
+    release_lag: float = 0.25
+    """Once the judged chambers' median lost ``release_median`` of its air, one that lost
+    less than this share of that median's loss did not vent: its exhaust stuck shut or its
+    tube blocked. The release stops and every valve holds. Measured on the nominal unit, a
+    cap-side exhaust stuck shut as the platform was released kept its air while the others
+    vented, pushed its leg onto the end stop and the platform to 11 deg in roll, unseen."""
+    release_median: float = 0.15
+    """See ``release_lag``: enough loss that a chamber keeping its air is not the vent's
+    first pulses (the nominal unit's chambers lose about 30 % in the first 0.5 s)."""
 
 
 class SupervisionParams(NamedTuple):
@@ -924,6 +956,11 @@ class SupervisionParams(NamedTuple):
     following_decay: float
     following_turn_decay: float
     following_periods: int
+    release_gain: float
+    release_rise: float
+    release_judged: float
+    release_lag: float
+    release_median: float
 
 
 def build(
@@ -948,6 +985,17 @@ def build(
         raise ValueError("leg_stuck_floor and leg_stuck_seals must be 0 or more")
     if config.leg_blind_reads < 1 or not config.leg_blind_band >= 0.0:
         raise ValueError("leg_blind_reads must be 1 or more and leg_blind_band 0 or more")
+    if not (
+        0.0 < config.release_gain < 10.0
+        and 0.0 < config.release_rise < 1.0e6
+        and 0.0 <= config.release_judged < 1.0e6
+        and 0.0 < config.release_lag < 1.0
+        and 0.0 < config.release_median < 1.0
+    ):
+        raise ValueError(
+            "release_gain must be in (0, 10), release_rise in (0, 1e6) Pa, release_judged in "
+            "[0, 1e6) Pa, release_lag and release_median in (0, 1)"
+        )
     if not (math.isfinite(config.turn_floor) and config.turn_floor > 0.0):
         raise ValueError("turn_floor must be a finite moment > 0 (N m)")
     if not (math.isfinite(config.lift_floor) and config.lift_floor > 0.0):
@@ -1076,6 +1124,11 @@ def build(
         following_decay=math.exp(-control_dt / config.following_lag),
         following_turn_decay=math.exp(-control_dt / config.following_turn),
         following_periods=config.following_periods,
+        release_gain=config.release_gain,
+        release_rise=config.release_rise,
+        release_judged=config.release_judged,
+        release_lag=config.release_lag,
+        release_median=config.release_median,
     )
 
 
