@@ -95,8 +95,9 @@ I_RINGS = 10
 """Rings the guard has seen on compliant axes since start-up (device.ring), all axes."""
 I_RELEASE_STOP = 11
 """What stopped the last release (device.controller.watch_release): 0 none, ``1 + c`` chamber
-``c`` gained air (an intake stuck open), ``13 + c`` chamber ``c`` did not vent (its exhaust
-stuck shut)."""
+``c`` gained air (an intake stuck open), ``13 + c`` chamber ``c`` kept its air (its exhaust
+stuck shut), ``25 + c`` chamber ``c`` emptied ahead of the others (its exhaust stuck open,
+or a leak)."""
 N_ISTATE = 12
 
 
@@ -2341,6 +2342,10 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         s.monitor[supervision.M_RELEASE] = 0.0  # the next release starts its watch anew
     elif read:
         watch_release(s, p)
+    if s.istate[I_MODE] != Mode.IDLE or venting(s.istate):
+        s.monitor[supervision.M_SHUT + 24] = 0.0  # shut again, the watch starts anew
+    elif read:
+        watch_shut(s, p)
     if s.istate[I_MODE] == Mode.FAULT or s.istate[I_MODE] == Mode.IDLE:
         if venting(s.istate):
             # Also after a trip earlier in this tick (which closed everything): exactly the
@@ -2414,7 +2419,13 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
             judged += 1
     if found < 0 and judged >= 4:
         median = np.median(losses[:judged])
-        if median >= q.release_median:
+        for c in range(12):
+            if c == skip_chamber or c // 2 == skip_leg or s.pressure[c] <= q.release_rise:
+                continue
+            if 1.0 - air[c] / s.monitor[m + c] > q.release_ahead + q.release_ahead_ratio * median:
+                found = 25 + c
+                break
+        if found < 0 and median >= q.release_median:
             for c in range(12):
                 if c == skip_chamber or c // 2 == skip_leg:
                     continue
@@ -2424,19 +2435,55 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
                         break
     if found < 0:
         return
-    c = (found - 1) % 12
-    if s.istate[I_MODE] != Mode.FAULT:
-        trip(s, Trip.VALVE, c)
     s.istate[I_VENT] = 0
     s.istate[I_RELEASE_STOP] = found
+    hold_stuck(s, (found - 1) % 12, found <= 12, found > 24)
+
+
+@njit_inline
+def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool) -> None:
+    """Chamber ``c``'s air moved with no valve of its own told to (``gained``: up, ``lost``:
+    down, neither: it kept its air while told to vent): a VALVE trip names it unless a trip
+    is latched already, every valve closes, and a valve of its own holds it at its pressure
+    now (see :func:`bleed`): its exhaust against a stuck intake, its intake against a stuck
+    exhaust. The bleed records every chamber's air from here."""
+    if s.istate[I_MODE] != Mode.FAULT:
+        trip(s, Trip.VALVE, c)
     for v in range(24):
         s.valves[v] = 0
-    s.trip_air[0] = math.nan  # the bleed records every chamber's air now and holds from there
-    if found <= 12:  # its intake feeds it: its own exhaust holds it where it is
-        s.istate[I_BLEED] = c
-        s.p_desired[c] = s.pressure[c]
-    else:
-        s.istate[I_BLEED] = -1
+    s.trip_air[0] = math.nan
+    s.istate[I_BLEED] = c if gained else (HOLD_FEED + c if lost else -1)
+    s.p_desired[c] = s.pressure[c]
+
+
+@njit_inline
+def watch_shut(s: ControllerState, p: ControllerParams) -> None:
+    """With every valve shut (IDLE, not released) a chamber's air moves only through a valve
+    stuck open (or a leak): moved by ``SupervisionConfig.shut_air`` within a window of
+    ``shut_reads``, its pressure by ``release_rise`` the same way, it is held
+    (:func:`hold_stuck`). The first window after the valves shut only sets the reference."""
+    q = p.sup
+    m = supervision.M_SHUT
+    n = int(s.monitor[m + 24]) + 1
+    s.monitor[m + 24] = n
+    if n < q.shut_reads:
+        return
+    refresh = (n - q.shut_reads) % q.shut_reads == 0
+    for c in range(12):
+        volume = chamber_volume(
+            c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
+        )
+        air = max(s.pressure[c] + q.atm, 1.0) ** (1.0 / q.obs_k) * max(volume, 1e-9)
+        if refresh:
+            s.monitor[m + c] = air
+            s.monitor[m + 12 + c] = s.pressure[c]
+            continue
+        ref, ref_p = s.monitor[m + c], s.monitor[m + 12 + c]
+        gained = air > (1.0 + q.shut_air) * ref and s.pressure[c] > ref_p + q.release_rise
+        lost = air < (1.0 - q.shut_air) * ref and s.pressure[c] < ref_p - q.release_rise
+        if gained or lost:
+            hold_stuck(s, c, gained, lost)
+            return
 
 
 BLEED_RISE = 0.1e5

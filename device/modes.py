@@ -231,17 +231,19 @@ class ModeMachine:
 
     def _report_release(self) -> None:
         """An event when the controller stopped a release (ctl.watch_release), once."""
-        chamber, gained = self.rig.release_stopped
+        chamber, why = self.rig.release_stopped
         if chamber < 0 or self._release_reported:
             self._release_reported = chamber >= 0
             return
         self._release_reported = True
-        why = (
-            "its air rose with every intake shut (an intake stuck open): its exhaust holds it"
-            if gained
-            else "it kept its air while the others vented (its exhaust stuck shut or its tube "
-            "blocked)"
-        )
+        why = {
+            "gained": "its air rose with every intake shut (an intake stuck open): its "
+            "exhaust holds it",
+            "kept": "it kept its air while the others vented (its exhaust stuck shut or its "
+            "tube blocked)",
+            "lost": "it emptied ahead of the others (its exhaust stuck open or a leak): its "
+            "intake holds it",
+        }[why]
         self.on_event(
             EventKind.FAULT,
             self.mode,

@@ -269,14 +269,15 @@ class Rig:
         self.state.istate[ctl.I_VENT] = 1 if on else 0
 
     @property
-    def release_stopped(self) -> tuple[int, bool]:
-        """(chamber, gained) that stopped the last release (ctl.watch_release): gained, its
-        air rose (an intake stuck open), else it kept its air (its exhaust stuck shut);
-        (-1, False) if none did."""
+    def release_stopped(self) -> tuple[int, str]:
+        """(chamber, why) that stopped the last release (ctl.watch_release): why is
+        "gained" (its air rose: an intake stuck open), "kept" (it kept its air: its exhaust
+        stuck shut) or "lost" (it emptied ahead of the others: its exhaust stuck open or a
+        leak); (-1, "") if none did."""
         code = int(self.state.istate[ctl.I_RELEASE_STOP])
         if code == 0:
-            return -1, False
-        return (code - 1) % 12, code <= 12
+            return -1, ""
+        return (code - 1) % 12, ("gained", "kept", "lost")[(code - 1) // 12]
 
     @property
     def venting(self) -> bool:

@@ -118,7 +118,11 @@ M_RELEASE = M_ANSWER_PEAK + 1
 """4 x 12, while the platform is released (vented): per chamber, its air at the release's
 start (0 before the first read), the least air since, the least gauge pressure since, and
 its gauge pressure at the start (device.controller.watch_release)."""
-N_MONITOR = M_RELEASE + 48
+M_SHUT = M_RELEASE + 48
+"""2 x 12 and 1, while every valve is shut (IDLE, not released): per chamber, its air and
+its gauge pressure at the window's start, then the reads since the valves shut
+(device.controller.watch_shut; 0: not yet)."""
+N_MONITOR = M_SHUT + 25
 
 # Rows of the valves' figures the air checks take (``valves``, 4 x 24; valve ``2c`` is the
 # intake, ``2c + 1`` the exhaust of chamber ``c``), from the calibration
@@ -856,6 +860,25 @@ class SupervisionConfig:
     release_median: float = 0.15
     """See ``release_lag``: enough loss that a chamber keeping its air is not the vent's
     first pulses (the nominal unit's chambers lose about 30 % in the first 0.5 s)."""
+    release_ahead: float = 0.1
+    """A released chamber still above ``release_rise`` gauge that lost this share of its
+    air more than ``release_ahead_ratio`` times the judged chambers' median loss empties
+    through more than its exhaust's pulses: that exhaust stuck open, or a leak. The release
+    stops and its intake holds it (device.controller.watch_release). Measured on the
+    nominal unit held at home, leg 1's rod-side exhaust stuck open lost 34 % of its air in
+    the release's first 50 ms against a few for the others, and then ran the leg 37 mm."""
+    release_ahead_ratio: float = 3.0
+    """See ``release_ahead``."""
+    shut_air: float = 0.1
+    """With every valve shut (IDLE: the service's HOLD and READY, not released) a chamber's
+    air (``p^(1/k) V``) moving this share, and its pressure ``release_rise`` the same way,
+    within one ``shut_reads`` window has a valve stuck open: a VALVE trip names it and a
+    valve of its own holds it (device.controller.watch_shut). A seal's leak past its
+    piston moves about 1 % of a chamber's air a second; a stuck exhaust, held at home, a
+    third in 50 ms."""
+    shut_reads: int = 100
+    """See ``shut_air``: the window (reads, 0.1 s); the first window after the valves shut
+    only sets the reference (the tubes' air settling into the chambers)."""
 
 
 class SupervisionParams(NamedTuple):
@@ -961,6 +984,10 @@ class SupervisionParams(NamedTuple):
     release_judged: float
     release_lag: float
     release_median: float
+    release_ahead: float
+    release_ahead_ratio: float
+    shut_air: float
+    shut_reads: int
 
 
 def build(
@@ -991,10 +1018,15 @@ def build(
         and 0.0 <= config.release_judged < 1.0e6
         and 0.0 < config.release_lag < 1.0
         and 0.0 < config.release_median < 1.0
+        and 0.0 < config.release_ahead < 1.0
+        and 1.0 <= config.release_ahead_ratio < 100.0
+        and 0.0 < config.shut_air < 1.0
+        and config.shut_reads >= 1
     ):
         raise ValueError(
             "release_gain must be in (0, 10), release_rise in (0, 1e6) Pa, release_judged in "
-            "[0, 1e6) Pa, release_lag and release_median in (0, 1)"
+            "[0, 1e6) Pa, release_lag, release_median, release_ahead and shut_air in (0, 1), "
+            "release_ahead_ratio in [1, 100), shut_reads 1 or more"
         )
     if not (math.isfinite(config.turn_floor) and config.turn_floor > 0.0):
         raise ValueError("turn_floor must be a finite moment > 0 (N m)")
@@ -1129,6 +1161,10 @@ def build(
         release_judged=config.release_judged,
         release_lag=config.release_lag,
         release_median=config.release_median,
+        release_ahead=config.release_ahead,
+        release_ahead_ratio=config.release_ahead_ratio,
+        shut_air=config.shut_air,
+        shut_reads=config.shut_reads,
     )
 
 
