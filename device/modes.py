@@ -237,12 +237,9 @@ class ModeMachine:
             return
         self._release_reported = True
         why = {
-            "gained": "its air rose with every intake shut (an intake stuck open): its "
-            "exhaust holds it",
-            "kept": "it kept its air while the others vented (its exhaust stuck shut or its "
-            "tube blocked)",
-            "lost": "it emptied ahead of the others (its exhaust stuck open or a leak): its "
-            "intake holds it",
+            "gained": "its air rose (intake stuck open): its exhaust holds it",
+            "kept": "it kept its air (exhaust stuck shut, tube blocked): held",
+            "lost": "it emptied first (exhaust stuck open, leak): its intake holds it",
         }[why]
         self.on_event(
             EventKind.FAULT,
@@ -250,8 +247,7 @@ class ModeMachine:
             self.mode,
             int(Trip.VALVE),
             float(chamber),
-            f"VALVE on {where(Trip.VALVE, chamber)}: the release stopped, {why}; the "
-            "platform is held where it is. Free the foot from the plate, then service",
+            f"VALVE on {where(Trip.VALVE, chamber)}: release stopped, {why}",
         )
 
     def _report_rings(self) -> None:

@@ -312,7 +312,7 @@ def test_a_stopped_release_is_reported_once_and_a_new_release_watches_again() ->
     assert len(stops) == 1, events
     _, mode_from, mode_to, code, value, text = stops[0]
     assert mode_from == mode_to == DeviceMode.ESTOP and code == Trip.VALVE and value == 4
-    assert "chamber 5 (leg 3, cap side)" in str(text) and "the release stopped" in str(text)
+    assert "chamber 5 (leg 3, cap side)" in str(text) and "release stopped" in str(text)
     assert "intake stuck open" in str(text), text
     # Asked again, the device releases again, and stops again on the same valve.
     machine.release()
@@ -382,3 +382,20 @@ def test_a_long_healthy_hold_is_not_taken_for_a_stuck_valve(patient: str) -> Non
     hw.script_torque(4, SCRIPT_SINE, r.time, 5.0, 0.3)
     r.run(20.0, log_hz=0)
     assert r.trip == Trip.NONE and r.mode == Mode.IDLE
+
+
+@pytest.mark.parametrize("code", [1, 13, 25])
+def test_every_stopped_release_event_fits_the_wire(code: int) -> None:
+    """An event's text is 120 bytes on the wire: the longest part's name still fits whole."""
+    from device.modes import ModeMachine
+
+    r = Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=2))
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(r, lambda *e: events.append(e))
+    r.state.istate[ctl.I_RELEASE_STOP] = code + 11  # chamber 12 (leg 6, rod side)
+    machine.step()
+    machine.step()
+    assert len(events) == 1, events
+    text = str(events[0][5])
+    assert len(text.encode()) <= 120 and text.startswith("VALVE on chamber 12 (leg 6, rod side)")
+    assert text.endswith(("holds it", "held")), text
