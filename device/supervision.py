@@ -869,13 +869,15 @@ class SupervisionConfig:
     the release's first 50 ms against a few for the others, and then ran the leg 37 mm."""
     release_ahead_ratio: float = 3.0
     """See ``release_ahead``."""
-    shut_air: float = 0.1
+    shut_air: float = 0.05
     """With every valve shut (IDLE: the service's HOLD and READY, not released) a chamber's
     air (``p^(1/k) V``) moving this share, and its pressure ``release_rise`` the same way,
-    within one ``shut_reads`` window has a valve stuck open: a VALVE trip names it and a
-    valve of its own holds it (device.controller.watch_shut). A seal's leak past its
-    piston moves about 1 % of a chamber's air a second; a stuck exhaust, held at home, a
-    third in 50 ms."""
+    within one ``shut_reads`` window has a valve stuck open or a leak: a VALVE trip names it
+    and a valve of its own holds it (device.controller.watch_shut). Measured on the nominal
+    unit held 18 s: the seals' leaks past their pistons moved each chamber's air 2-4 % (0.02
+    % a window; a leg's two together 0.1 %); a stuck exhaust takes a third in 50 ms, a leak
+    of a tenth of a valve 7.6 % in 0.1 s (at 10 % it was named only once its leg had sunk
+    8 mm, at 5 % within 0.7 mm; a twentieth of a valve still runs 6.9 mm first)."""
     shut_reads: int = 100
     """See ``shut_air``: the window (reads, 0.1 s); the first window after the valves shut
     only sets the reference (the tubes' air settling into the chambers)."""
