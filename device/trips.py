@@ -91,8 +91,9 @@ TRIP_TEXT: dict[Trip, str] = {
     Trip.FORCE_BALANCE: "a leg's chamber forces disagree with the load on the platform: "
     "check that leg's pressure transducers, valves and tubes for a leak",
     Trip.VALVE: "a chamber's pressure did not follow its valves: a valve stuck open or "
-    "closed, a frozen pressure reading or a blocked tube (if it held its pressure against "
-    "its open exhaust, that exhaust stays open to bleed a stuck intake until re-armed)",
+    "closed, a leak, a blocked tube, or its transducer frozen or jumped (if it held its "
+    "pressure against its open exhaust, that exhaust stays open to bleed a stuck intake "
+    "until re-armed)",
     Trip.AIR_BALANCE: "a chamber's air does not add up with what its valves moved: a leak "
     "in its tube, fitting or seal, a valve stuck, or its leg's length sensor stuck",
     Trip.FOLLOWING: "the platform left the pose it was commanded to: check the foot's "

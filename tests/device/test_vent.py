@@ -1,5 +1,7 @@
 """Release (slow vent) after a stop: exhaust pulses only, gentle sinking, no trips."""
 
+import math
+
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -399,3 +401,25 @@ def test_every_stopped_release_event_fits_the_wire(code: int) -> None:
     text = str(events[0][5])
     assert len(text.encode()) <= 120 and text.startswith("VALVE on chamber 12 (leg 6, rod side)")
     assert text.endswith(("holds it", "held")), text
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"release_gain": 0.0},
+        {"release_rise": math.nan},
+        {"release_judged": -1.0},
+        {"release_lag": 1.0},
+        {"release_median": 0.0},
+        {"release_ahead": math.inf},
+        {"release_ahead_ratio": 0.5},
+        {"shut_air": -0.05},
+        {"shut_reads": 0},
+    ],
+)
+def test_a_release_or_shut_watch_setting_out_of_range_is_refused(bad: dict[str, float]) -> None:
+    from device.supervision import SupervisionConfig
+    from device.supervision import build as build_supervision
+
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        build_supervision(SupervisionConfig(**bad), 1.0e5, 0.004)  # type: ignore[arg-type]
