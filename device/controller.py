@@ -2372,7 +2372,10 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
     vented has its exhaust stuck shut (``release_lag``). Either pushes its leg to an end stop
     and tilts the platform with the foot on it: the release stops (every valve closes, and
     a stuck intake's chamber is held by its own exhaust, see :func:`bleed`), a VALVE trip
-    names the chamber if none was latched, and ``I_RELEASE_STOP`` says which and why.
+    names the chamber if none was latched, and ``I_RELEASE_STOP`` says which and why. The
+    kept and emptied-first rules judge each chamber's loss since the release began and over
+    a recent window (:func:`judge_recent_loss`), so a valve that fails halfway through a
+    release is caught too.
 
     Not judged: a chamber whose transducer the latched trip named, both chambers of a leg
     whose sensor it named, anything after a trip on sensors that gave no number or legs
@@ -2395,7 +2398,12 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
             s.monitor[m + 12 + c] = air[c]
             s.monitor[m + 24 + c] = s.pressure[c]
             s.monitor[m + 36 + c] = s.pressure[c]
+            s.monitor[m + 48 + c] = air[c]
         return
+    recent = np.empty(12)
+    for c in range(12):  # each chamber's loss against its air's trailing average
+        s.monitor[m + 48 + c] += (air[c] - s.monitor[m + 48 + c]) / q.release_window
+        recent[c] = 1.0 - air[c] / s.monitor[m + 48 + c]
     skip_chamber = named if code == Trip.PRESSURE_SENSOR else -1
     skip_leg = named if code == Trip.LEG_SENSOR else -1
     found = -1
@@ -2434,10 +2442,49 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
                         found = 13 + c
                         break
     if found < 0:
+        found = judge_recent_loss(s.pressure, recent, q, skip_chamber, skip_leg)
+    if found < 0:
         return
     s.istate[I_VENT] = 0
     s.istate[I_RELEASE_STOP] = found
     hold_stuck(s, (found - 1) % 12, found <= 12, found > 24)
+
+
+@njit_inline
+def judge_recent_loss(
+    pressure: NDArray[np.float64],
+    recent: NDArray[np.float64],
+    q: supervision.SupervisionParams,
+    skip_chamber: int,
+    skip_leg: int,
+) -> int:
+    """The release's lost and kept rules over a recent window (``release_window``): each
+    chamber's ``recent`` loss against its air's trailing average, judged against the median
+    of the chambers above ``release_judged`` now. A valve that fails halfway through a
+    release shows here at once, while its chamber's loss since the start still looks like
+    the others'. ``I_RELEASE_STOP``'s value (13 + c kept, 25 + c lost) or -1."""
+    losses = np.empty(12)
+    judged = 0
+    for c in range(12):
+        if c != skip_chamber and c // 2 != skip_leg and pressure[c] > q.release_judged:
+            losses[judged] = recent[c]
+            judged += 1
+    if judged < 4:
+        return -1
+    median = np.median(losses[:judged])
+    for c in range(12):
+        if c == skip_chamber or c // 2 == skip_leg or pressure[c] <= q.release_rise:
+            continue
+        if recent[c] > q.release_ahead + q.release_ahead_ratio * median:
+            return 25 + c
+    if median < q.release_recent_median:
+        return -1
+    for c in range(12):
+        if c == skip_chamber or c // 2 == skip_leg or pressure[c] <= q.release_judged:
+            continue
+        if recent[c] < q.release_lag * median:
+            return 13 + c
+    return -1
 
 
 @njit_inline
