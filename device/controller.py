@@ -89,8 +89,9 @@ I_OUTSIDE = 8
 outside their limits and have not yet been inside (``safety.outside_at_start``)."""
 I_BLEED = 9
 """Chamber the latched trip holds at its trip pressure (-1: none): its exhaust bleeding it
-(0-11), its intake feeding it (``HOLD_FEED`` + chamber), or none since a release
-(``BLEED_RELEASED``); see :func:`bleed`."""
+(0-11), its intake feeding it (``HOLD_FEED`` + chamber), its exhaust bleeding it while its
+leg's other chamber is fed to match (``HOLD_BALANCE`` + chamber, a release stopped by a stuck
+intake), or none since a release (``BLEED_RELEASED``); see :func:`bleed`."""
 I_RINGS = 10
 """Rings the guard has seen on compliant axes since start-up (device.ring), all axes."""
 I_RELEASE_STOP = 11
@@ -2447,7 +2448,7 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
         return
     s.istate[I_VENT] = 0
     s.istate[I_RELEASE_STOP] = found
-    hold_stuck(s, (found - 1) % 12, found <= 12, found > 24)
+    hold_stuck(s, (found - 1) % 12, found <= 12, found > 24, q.release_balance)
 
 
 @njit_inline
@@ -2488,7 +2489,7 @@ def judge_recent_loss(
 
 
 @njit_inline
-def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool) -> None:
+def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool, balance: bool = False) -> None:
     """Chamber ``c``'s air moved with no valve of its own told to (``gained``: up, ``lost``:
     down, neither: it kept its air while told to vent): a VALVE trip names it unless a trip
     is latched already, every valve closes, and a valve of its own holds it at its pressure
@@ -2501,6 +2502,8 @@ def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool) -> None:
     s.trip_air[0] = math.nan
     s.istate[I_BLEED] = c if gained else (HOLD_FEED + c if lost else -1)
     s.p_desired[c] = s.pressure[c]
+    if gained and balance:
+        s.istate[I_BLEED] = HOLD_BALANCE + c
 
 
 @njit_inline
@@ -2545,7 +2548,12 @@ SUPPLY_CHANNEL = 12
 """The supply transducer's channel (sensor 12): named by a PRESSURE_SENSOR trip, no intake
 feeds on its reading."""
 HOLD_FEED = 12
-"""``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_FEED`` is fed, not bled."""
+"""``I_BLEED`` at or above this (below ``HOLD_BALANCE``): the chamber ``I_BLEED - HOLD_FEED``
+is fed, not bled."""
+HOLD_BALANCE = 24
+"""``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_BALANCE`` is bled by its
+exhaust against a stuck intake, and its leg's other chamber is fed to keep the leg's force
+where it was when the chamber was named (a release stopped by a stuck intake)."""
 BLEED_RELEASED = -2
 """``I_BLEED`` once the platform was released (vented) after the trip: its chambers are
 emptied on purpose, and nothing holds them at their trip pressures any more."""
@@ -2586,7 +2594,12 @@ def bleed(
     supply is above the chamber, never on a supply transducer the trip named. An e-stop
     after the trip does not close them either: de-energising the coils would not stop the
     stuck valve's air.
-    An e-stop itself starts no hold: it closes every valve, as the protocol promises."""
+    An e-stop itself starts no hold: it closes every valve, as the protocol promises.
+
+    A release stopped by a stuck intake (``HOLD_BALANCE``, ``SupervisionConfig.
+    release_balance``) is different: its leg's other chamber was half vented, so the exhaust
+    alone let the leg run until that side balanced it (up to 12 mm); that side's intake adds
+    what the stuck chamber gained since it was named, times their areas' ratio."""
     c = istate[I_BLEED]
     if c == BLEED_RELEASED:
         return
@@ -2611,17 +2624,32 @@ def bleed(
                 elif rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:
                     c = HOLD_FEED + k
         istate[I_BLEED] = c
+    supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL
     if 0 <= c < HOLD_FEED and pressure[c] > p_desired[c]:
         valves[2 * c + 1] = 1
-    elif c >= HOLD_FEED:
+    elif HOLD_FEED <= c < HOLD_BALANCE:
         k = c - HOLD_FEED
-        supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL
         if (
             pressure[k] < p_desired[k]
             and not supply_named
             and supervision.intake_allowed(supply_abs, pressure[k], sup)
         ):
             valves[2 * k] = 1
+    elif c >= HOLD_BALANCE:
+        k = c - HOLD_BALANCE
+        if pressure[k] > p_desired[k]:
+            valves[2 * k + 1] = 1
+        # What the stuck intake added on its side of the piston, the other side matches.
+        o = k ^ 1
+        push = area_cap if k % 2 == 0 else area_annulus
+        back = area_annulus if k % 2 == 0 else area_cap
+        target = p_desired[o] + max(pressure[k] - p_desired[k], 0.0) * push / back
+        if (
+            pressure[o] < target
+            and not supply_named
+            and supervision.intake_allowed(supply_abs, pressure[o], sup)
+        ):
+            valves[2 * o] = 1
 
 
 @njit_inline

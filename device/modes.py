@@ -237,7 +237,12 @@ class ModeMachine:
             return
         self._release_reported = True
         why = {
-            "gained": "its air rose (intake stuck open): its exhaust holds it",
+            "gained": "its air rose (intake stuck open): "
+            + (
+                "exhaust and other side hold it"  # ctl.HOLD_BALANCE
+                if self.rig.params.sup.release_balance
+                else "its exhaust holds it"
+            ),
             "kept": "it kept its air (exhaust stuck shut, tube blocked): held",
             "lost": "it emptied first (exhaust stuck open, leak): its intake holds it",
         }[why]

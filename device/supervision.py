@@ -837,12 +837,14 @@ class SupervisionConfig:
     """While the platform is released no intake opens: a chamber whose air (p^(1/k) V, as
     compression leaves it) rose this share above the least it had since the release began,
     its pressure ``release_rise`` over its least too, is fed by an intake stuck open. The
-    release stops and its exhaust holds it (device.controller.watch_release). Measured on
-    the nominal unit, an intake stuck open as the strength exercise's platform was released
-    filled its chamber to the supply within 0.5 s and drove its leg onto the end stop,
-    the platform 10 deg in roll, unseen. Held at home and released, a stuck intake is now
-    held 1.2-1.7 deg and 3.1-3.6 mm off (4.2-4.5 mm at 0.2: the motion comes before the
-    chamber gained enough to be told apart); no healthy release of the library stopped."""
+    release stops and its exhaust holds it, its leg's other side fed to match
+    (``release_balance``; device.controller.watch_release). Measured on the nominal unit,
+    an intake stuck open as the strength exercise's platform was released filled its
+    chamber to the supply within 0.5 s and drove its leg onto the end stop, the platform
+    10 deg in roll, unseen. Held at home and released, a stuck intake is now held
+    1.06-1.32 deg and 2.61-2.73 mm off (by its exhaust alone 1.2-1.7 deg and 3.1-3.6 mm;
+    4.2-4.5 mm at a gain of 0.2, the motion coming before the chamber gained enough to be
+    told apart); no healthy release of the library stopped."""
     release_rise: float = 0.1e5
     """See ``release_gain`` (Pa): a reading that moved, not the noise on a near-empty one.
     Also the least gauge pressure at which air is judged: at the atmosphere an exhaust lets
@@ -889,6 +891,17 @@ class SupervisionConfig:
     """See ``release_window``: the judged chambers' median loss against their trailing
     averages at which one that lost less than ``release_lag`` of it kept its air (a chamber
     venting steadily through its pulses loses about 3-7 % against a 50-read average)."""
+    release_balance: bool = True
+    """A release stopped by a stuck intake: its exhaust cannot hold the chamber (it rises
+    to the supply), so the leg's other chamber is fed by what the stuck one gained since it
+    was named, times their areas' ratio, keeping the leg's force where it was
+    (device.controller.bleed, ``HOLD_BALANCE``). Measured on the nominal unit, intakes
+    stuck open 0-1.5 s into a release held at home (valves 0, 2, 8, 10): without it the
+    legs ran until their half-vented other chambers balanced them, up to 10.7 deg and 12.2
+    mm (relaxed foot) and 7.3 deg, 13.0 mm (resisting); with it at most 2.4 deg and 4.4 mm,
+    and 1.3 deg, 3.3 mm. Off (False), the exhaust alone holds. Only after a stuck intake
+    was named: a reading that jumped up once feeds nothing, as only what the chamber gained
+    *since* it was named is matched."""
     shut_air: float = 0.05
     """With every valve shut (IDLE: the service's HOLD and READY, not released) a chamber's
     air (``p^(1/k) V``) moving this share, and its pressure ``release_rise`` the same way,
@@ -1010,6 +1023,7 @@ class SupervisionParams(NamedTuple):
     release_ahead_ratio: float
     release_window: int
     release_recent_median: float
+    release_balance: bool
     shut_air: float
     shut_reads: int
 
@@ -1192,6 +1206,7 @@ def build(
         release_ahead_ratio=config.release_ahead_ratio,
         release_window=config.release_window,
         release_recent_median=config.release_recent_median,
+        release_balance=config.release_balance,
         shut_air=config.shut_air,
         shut_reads=config.shut_reads,
     )
