@@ -2511,7 +2511,9 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     """With every valve shut (IDLE, not released) a chamber's air moves only through a valve
     stuck open (or a leak): moved by ``SupervisionConfig.shut_air`` within a window of
     ``shut_reads``, its pressure by ``release_rise`` the same way, it is held
-    (:func:`hold_stuck`). The first window after the valves shut only sets the reference."""
+    (:func:`hold_stuck`); a slower leak the same way against its air's and pressure's
+    trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first window after the
+    valves shut only sets the references."""
     q = p.sup
     m = supervision.M_SHUT
     n = int(s.monitor[m + 24]) + 1
@@ -2519,18 +2521,34 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     if n < q.shut_reads:
         return
     refresh = (n - q.shut_reads) % q.shut_reads == 0
+    slow = m + 25  # the trailing averages (air, then gauge pressure)
     for c in range(12):
         volume = chamber_volume(
             c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
         )
         air = max(s.pressure[c] + q.atm, 1.0) ** (1.0 / q.obs_k) * max(volume, 1e-9)
+        if n == q.shut_reads:
+            s.monitor[slow + c] = air
+            s.monitor[slow + 12 + c] = s.pressure[c]
+        else:
+            s.monitor[slow + c] += (air - s.monitor[slow + c]) / q.shut_slow_reads
+            s.monitor[slow + 12 + c] += (s.pressure[c] - s.monitor[slow + 12 + c]) / (
+                q.shut_slow_reads
+            )
+        avg, avg_p = s.monitor[slow + c], s.monitor[slow + 12 + c]
+        gained = air > (1.0 + q.shut_slow_air) * avg and s.pressure[c] > avg_p + q.release_rise
+        lost = air < (1.0 - q.shut_slow_air) * avg and s.pressure[c] < avg_p - q.release_rise
         if refresh:
             s.monitor[m + c] = air
             s.monitor[m + 12 + c] = s.pressure[c]
-            continue
-        ref, ref_p = s.monitor[m + c], s.monitor[m + 12 + c]
-        gained = air > (1.0 + q.shut_air) * ref and s.pressure[c] > ref_p + q.release_rise
-        lost = air < (1.0 - q.shut_air) * ref and s.pressure[c] < ref_p - q.release_rise
+        else:
+            ref, ref_p = s.monitor[m + c], s.monitor[m + 12 + c]
+            gained = gained or (
+                air > (1.0 + q.shut_air) * ref and s.pressure[c] > ref_p + q.release_rise
+            )
+            lost = lost or (
+                air < (1.0 - q.shut_air) * ref and s.pressure[c] < ref_p - q.release_rise
+            )
         if gained or lost:
             hold_stuck(s, c, gained, lost)
             return
