@@ -2426,8 +2426,8 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
         if s.monitor[m + 36 + c] > q.release_judged:
             losses[judged] = 1.0 - air[c] / s.monitor[m + c]
             judged += 1
+    median = np.median(losses[:judged]) if judged >= 4 else 0.0
     if found < 0 and judged >= 4:
-        median = np.median(losses[:judged])
         for c in range(12):
             if c == skip_chamber or c // 2 == skip_leg or s.pressure[c] <= q.release_rise:
                 continue
@@ -2448,7 +2448,15 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
         return
     s.istate[I_VENT] = 0
     s.istate[I_RELEASE_STOP] = found
-    hold_stuck(s, (found - 1) % 12, found <= 12, found > 24, q.release_balance)
+    c = (found - 1) % 12
+    hold_stuck(s, c, found <= 12, found > 24, q.release_balance)
+    if found > 24 and judged >= 4 and q.release_refill:
+        # Held where the median chamber's venting would have left it, not where it was found.
+        volume = chamber_volume(
+            c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
+        )
+        back = (s.monitor[m + c] * (1.0 - median) / max(volume, 1e-9)) ** q.obs_k - q.atm
+        s.p_desired[c] = min(max(back, s.pressure[c]), s.monitor[m + 36 + c])
 
 
 @njit_inline
@@ -2617,7 +2625,9 @@ def bleed(
     A release stopped by a stuck intake (``HOLD_BALANCE``, ``SupervisionConfig.
     release_balance``) is different: its leg's other chamber was half vented, so the exhaust
     alone let the leg run until that side balanced it (up to 12 mm); that side's intake adds
-    what the stuck chamber gained since it was named, times their areas' ratio."""
+    what the stuck chamber gained since it was named, times their areas' ratio. And a
+    release stopped by a chamber that emptied first feeds it to the ``p_desired``
+    :func:`watch_release` set (``release_refill``), which the record here keeps."""
     c = istate[I_BLEED]
     if c == BLEED_RELEASED:
         return
@@ -2630,7 +2640,7 @@ def bleed(
             air = (pressure[k] + sup.atm) * volume
             if record:
                 trip_air[k] = air
-                if k != c:
+                if k != c and k != c - HOLD_FEED:  # a fed chamber's: set by hold_stuck
                     p_desired[k] = pressure[k]
             elif c == -1 and not (
                 (code == Trip.PRESSURE_SENSOR and named == k)
