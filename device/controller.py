@@ -2366,6 +2366,15 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
 
 
 @njit_inline
+def chamber_air(s: ControllerState, p: ControllerParams, c: int) -> float:
+    """Chamber ``c``'s air as the valve watches judge it: ``p^(1/k) V`` (absolute pressure,
+    k the observer's polytropic index), which a foot compressing or expanding the chamber
+    leaves alone; only a valve or a leak changes it."""
+    volume = chamber_volume(c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke)
+    return float(max(s.pressure[c] + p.sup.atm, 1.0) ** (1.0 / p.sup.obs_k) * max(volume, 1e-9))
+
+
+@njit_inline
 def watch_release(s: ControllerState, p: ControllerParams) -> None:
     """While the platform is released (every exhaust pulsing, no intake) each chamber's air
     can only fall, and falls with the others'. A chamber whose air rose is fed by an intake
@@ -2389,10 +2398,7 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
     m = supervision.M_RELEASE
     air = np.empty(12)
     for c in range(12):
-        volume = chamber_volume(
-            c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
-        )
-        air[c] = max(s.pressure[c] + q.atm, 1.0) ** (1.0 / q.obs_k) * max(volume, 1e-9)
+        air[c] = chamber_air(s, p, c)
     if s.monitor[m] == 0.0:  # the release's first read
         for c in range(12):
             s.monitor[m + c] = air[c]
@@ -2531,10 +2537,7 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     refresh = (n - q.shut_reads) % q.shut_reads == 0
     slow = m + 25  # the trailing averages (air, then gauge pressure)
     for c in range(12):
-        volume = chamber_volume(
-            c, s.leg_x[c // 2], p.dead_volume, p.area_cap, p.area_annulus, p.stroke
-        )
-        air = max(s.pressure[c] + q.atm, 1.0) ** (1.0 / q.obs_k) * max(volume, 1e-9)
+        air = chamber_air(s, p, c)
         if n == q.shut_reads:
             s.monitor[slow + c] = air
             s.monitor[slow + 12 + c] = s.pressure[c]
