@@ -900,9 +900,10 @@ class SupervisionConfig:
     stuck open 0-1.5 s into a release held at home (valves 0, 2, 8, 10): without it the
     legs ran until their half-vented other chambers balanced them, up to 10.7 deg and 12.2
     mm (relaxed foot) and 7.3 deg, 13.0 mm (resisting); with it at most 2.4 deg and 4.4 mm,
-    and 1.3 deg, 3.3 mm. Off (False), the exhaust alone holds. Only after a stuck intake
-    was named: a reading that jumped up once feeds nothing, as only what the chamber gained
-    *since* it was named is matched."""
+    and 1.3 deg, 3.3 mm (``ankle bench shutwatch``, calibrated and held 0.3 s first: up to
+    3.7 deg and 6.4 mm half a second in, over the targets). Off (False), the exhaust alone
+    holds. Only after a stuck intake was named: a reading that jumped up once feeds
+    nothing, as only what the chamber gained *since* it was named is matched."""
     release_refill: bool = True
     """A release stopped because a chamber emptied first (an exhaust stuck open, a leak):
     its intake feeds it back to the air the judged chambers' median share of loss since the

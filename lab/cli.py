@@ -182,6 +182,33 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="with --drawn: the seed the faults are drawn from (default 1)",
     )
     p = bs.add_parser(
+        "shutwatch",
+        help="valves stuck and leaks while every valve is shut and while the platform is "
+        "released; healthy holds and releases (lab/shutwatch.py)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--builds",
+        type=ranged(int, 0, 10000),
+        default=4,
+        metavar="N",
+        help="healthy runs on the nominal unit and drawn builds 0..N-1 (default 4)",
+    )
+    p.add_argument(
+        "--hold",
+        type=ranged(float, 0.5, 600.0),
+        default=10.0,
+        metavar="S",
+        help="each healthy hold's length before its release (default 10)",
+    )
+    p.add_argument(
+        "--seed",
+        type=ranged(int, 0, 2**31 - 1),
+        default=1,
+        metavar="S",
+        help="the seed the healthy runs' moments and stops are drawn from (default 1)",
+    )
+    p = bs.add_parser(
         "zwidth", help="the stiffness and damping rendered stably per rotational axis (Z-width)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -371,6 +398,13 @@ def _bench(args: argparse.Namespace) -> int:
         )
         print(file=sys.stderr)
         print(json.dumps(_jsonable(sfresult), indent=2) if args.json else safety.table(sfresult))
+        return 0
+    if args.bench == "shutwatch":
+        from lab import shutwatch
+
+        wresult = shutwatch.run(args.builds, args.hold, args.seed, _progress)
+        print(file=sys.stderr)
+        print(json.dumps(_jsonable(wresult), indent=2) if args.json else shutwatch.table(wresult))
         return 0
     if args.bench == "zwidth":
         from lab import zwidth
