@@ -390,6 +390,15 @@ def test_a_long_healthy_hold_is_not_taken_for_a_stuck_valve(patient: str) -> Non
     """Held 20 s with every valve shut while the foot pushes (5 N m in pitch at 0.3 Hz):
     the seals' leak past their pistons and the foot's squeeze move no chamber's air by the
     watch's share within its window."""
+    r, _ = _held_while_the_foot_pushes(patient, 4, 5.0, 0.3, 20.0)
+    assert r.trip == Trip.NONE and r.mode == Mode.IDLE
+
+
+def _held_while_the_foot_pushes(
+    patient: str, axis: int, torque: float, hz: float, seconds: float
+) -> tuple[Rig, NDArray[np.float64]]:
+    """Held at home (IDLE, every valve shut), the foot pushing a sine of ``torque`` N m at
+    ``hz`` on ``axis`` for ``seconds``: (rig, log at 100 Hz)."""
     from device.plant.model import SCRIPT_SINE
 
     r = Rig(SimulatedHardware(PlantConfig(patient=patient), seed=3))
@@ -398,9 +407,8 @@ def test_a_long_healthy_hold_is_not_taken_for_a_stuck_valve(patient: str) -> Non
     r.hold()
     hw = r.hardware
     assert isinstance(hw, SimulatedHardware)
-    hw.script_torque(4, SCRIPT_SINE, r.time, 5.0, 0.3)
-    r.run(20.0, log_hz=0)
-    assert r.trip == Trip.NONE and r.mode == Mode.IDLE
+    hw.script_torque(axis, SCRIPT_SINE, r.time, torque, hz)
+    return r, r.run(seconds, log_hz=100)
 
 
 @pytest.mark.parametrize("patient", ["relaxed", "resisting"])
@@ -412,16 +420,7 @@ def test_a_foot_that_shakes_the_held_platform_hard_is_not_taken_for_a_leak(
     foot squeezes the chambers (their air as ``p^(1/k) V`` does not count it) and warms
     them, and neither the window's 5 % nor the trailing averages' 4 % is reached
     (measured at 10 and 20 N m, 0.3-2 Hz, both axes and feet: no trip)."""
-    from device.plant.model import SCRIPT_SINE
-
-    r = Rig(SimulatedHardware(PlantConfig(patient=patient), seed=3))
-    r.move_legs(r.state.leg_x.copy())
-    r.run(1.0, log_hz=0)
-    r.hold()
-    hw = r.hardware
-    assert isinstance(hw, SimulatedHardware)
-    hw.script_torque(axis, SCRIPT_SINE, r.time, 20.0, hz)
-    log = r.run(10.0, log_hz=100)
+    r, log = _held_while_the_foot_pushes(patient, axis, 20.0, hz, 10.0)
     turn = np.degrees(np.ptp(log[:, COL["pose_x"] + axis]))
     assert turn > 2.0, turn  # the foot swung the platform on its trapped air (7.8-9.9 deg)
     assert r.trip == Trip.NONE and r.mode == Mode.IDLE

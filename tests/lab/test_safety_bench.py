@@ -4,20 +4,15 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from tests.lab.benches import ankle_bench
+
 
 def _bench(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ankle", "bench", "safety", *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        check=False,
-    )
+    return ankle_bench("safety", *args)
 
 
 def test_only_one_kind_runs_its_four_situations_and_reports_the_fault_keys() -> None:

@@ -4,19 +4,14 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import pytest
 
+from tests.lab.benches import ankle_bench
+
 
 def _bench(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ankle", "bench", "shutwatch", *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        check=False,
-    )
+    return ankle_bench("shutwatch", *args)
 
 
 def test_every_fault_is_named_on_its_chamber_and_no_healthy_release_is_stopped() -> None:
