@@ -2056,20 +2056,32 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             # Vertically, what is left is the force sensor's error, the seals' friction and
             # what the inertial model gets wrong, once the unit's load bias is known.
             up = p.lift_judged and supervision.check_lift(s.monitor, s.counters, W[2], lift, p.sup)
+            # A leg that carries a residual alone, under the limit but steadily over what
+            # its seals may hold, is that leg's fault (a transducer a little off, a leak).
+            steady = supervision.check_steady(s.monitor, s.counters, p.leg_friction, p.sup)
             if leg >= 0 and supervision.one_leg(s.monitor, leg):
                 trip(s, Trip.FORCE_BALANCE, leg)
                 return
+            if steady >= 0:
+                trip(s, Trip.FORCE_BALANCE, steady)
+                return
+            component = -1
             if sensor or leg >= 0:
-                trip(s, Trip.FORCE_SENSOR, supervision.wrench_component(s.monitor, p.sup))
-                return
-            if axis >= 0:
-                trip(s, Trip.FORCE_SENSOR, axis)
-                return
-            if spin >= 0:
-                trip(s, Trip.FORCE_SENSOR, spin)
-                return
-            if up:
-                trip(s, Trip.FORCE_SENSOR, 2)
+                component = supervision.wrench_component(s.monitor, p.sup)
+            elif axis >= 0:
+                component = axis
+            elif spin >= 0:
+                component = spin
+            elif up:
+                component = 2
+            if component >= 0:
+                # The wrench the legs and the sensor disagree on is one leg's alone: that
+                # leg's force is wrong, not the sensor (supervision.leg_alone).
+                alone = supervision.leg_alone(s.monitor, p.sup)
+                if alone >= 0:
+                    trip(s, Trip.FORCE_BALANCE, alone)
+                else:
+                    trip(s, Trip.FORCE_SENSOR, component)
                 return
 
 

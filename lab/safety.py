@@ -433,6 +433,10 @@ class HealthyRun:
     answer_max: float = 0.0
     """How near a valve came to not answering its sure pulses (1 asks for service; 0 where
     the valves were not identified and the answer rule does not judge)."""
+    steady_share_max: float = 0.0
+    """Largest share of its floor the force-balance residual of a leg that carried it alone
+    took (1 for 0.1 s names that leg, ``FORCE_BALANCE``; 0 where the seals were not
+    identified and the rule does not judge)."""
 
 
 def _library_targets(
@@ -511,6 +515,7 @@ def healthy_runs(
                 monitor[supervision.M_TURN_PEAK] = 0.0
                 monitor[supervision.M_LIFT_PEAK] = 0.0
                 monitor[supervision.M_ANSWER_PEAK] = 0.0
+                monitor[supervision.M_STEADY_PEAK] = 0.0
                 for _ in range(round(seconds / 0.05)):
                     rig.run(0.05, log_hz=0)
                     residual = monitor[supervision.M_RESIDUAL : supervision.M_RESIDUAL + 6]
@@ -535,6 +540,7 @@ def healthy_runs(
                         float(monitor[supervision.M_TURN_PEAK]),
                         float(monitor[supervision.M_LIFT_PEAK]),
                         float(monitor[supervision.M_ANSWER_PEAK]),
+                        float(monitor[supervision.M_STEADY_PEAK]),
                     )
                 )
                 if progress is not None:
@@ -744,6 +750,10 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("lift_share_max", "largest healthy vertical residual (share of its allowance, limit 1)"),
     ("air_flow_max", "largest healthy chamber air residual (share of its tolerance)"),
     ("answer_max", "nearest a healthy valve came to not answering its pulses (limit 1)"),
+    (
+        "steady_share_max",
+        "largest healthy residual a leg carried alone (share of its floor, limit 1 for 0.1 s)",
+    ),
     ("boundary_commands", "boundary commands sent to the service"),
     ("boundary_mismatches", "boundary answers unlike the check module"),
     ("service_deaths", "service deaths in the boundary run"),
@@ -888,6 +898,7 @@ def _the_rest(
         "lift_share_max": max(h.lift_share_max for h in healthy),
         "air_flow_max": max(h.air_flow_max for h in healthy),
         "answer_max": max(h.answer_max for h in healthy),
+        "steady_share_max": max(h.steady_share_max for h in healthy),
         "healthy_plants": sorted({h.plant for h in healthy}),
         "boundary_commands": sent,
         "boundary_mismatches": mismatched,
