@@ -84,8 +84,9 @@ TRIP_TEXT: dict[Trip, str] = {
     "and the regulator",
     Trip.SUPPLY_HIGH: "the air supply is above its high mark: check the regulator",
     Trip.LEG_SENSOR: "a leg length sensor jumped or stopped changing while its leg was "
-    "driven: check that sensor and its cable, then that leg's two pressure transducers' zero "
-    "(one that reads half a bar off makes the loop push a leg that then does not move)",
+    "driven: check that sensor and its cable, then the force/torque sensor's zero and that "
+    "leg's two pressure transducers' (a load read 10-20 N off makes the loop push a leg that "
+    "then does not move)",
     Trip.FORCE_SENSOR: "the foot's force/torque sensor is saturated, dead, frozen or reads "
     "a load the legs do not carry: check its cable, power, amplifier and zero",
     Trip.FORCE_BALANCE: "a leg's chamber forces disagree with the load on the platform: "
