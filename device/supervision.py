@@ -2125,11 +2125,11 @@ def check_steady(
     friction: NDArray[np.float64],
     q: SupervisionParams,
 ) -> int:
-    """The leg whose filtered force-balance residual it alone has carried
-    (:func:`leg_alone`) over ``balance_steady_floor`` plus twice its seals' identified
-    ``friction`` (N) for ``balance_steady_periods``, -1 if none. A leg whose seals were
-    not identified (friction 0), or one of whose chambers asked for service, is not judged
-    so."""
+    """The leg that has carried the filtered force-balance residual alone
+    (:func:`leg_alone`), at more than ``balance_steady_floor`` plus twice its seals'
+    identified ``friction`` (N), for ``balance_steady_periods``; -1 if none. A leg whose
+    seals were not identified (friction 0), or one of whose chambers asked for service, is
+    not judged so."""
     alone = leg_alone(monitor, q)
     found = -1
     for i in range(6):
