@@ -97,7 +97,7 @@ TRIP_TEXT: dict[Trip, str] = {
     "until re-armed)",
     Trip.AIR_BALANCE: "a chamber's air does not add up with what its valves moved: a leak "
     "in its tube, fitting or seal, a valve stuck, its transducer's zero off, or its leg's "
-    "length sensor stuck",
+    "length sensor stuck or off",
     Trip.FOLLOWING: "the platform left the pose it was commanded to: check the foot's "
     "force/torque sensor zero, then the valves and tubes for a leak",
 }

@@ -71,6 +71,46 @@ AT_S = (1.0, 8.0)
 """The injection's moment, drawn between these many seconds into the exercise."""
 
 
+_TRANSDUCER = frozenset({"PRESSURE_SENSOR", "FORCE_BALANCE", "AIR_BALANCE (service)", "VALVE"})
+_LEG = frozenset({"LEG_SENSOR", "KINEMATICS", "AIR_BALANCE (service)"})
+_FT = frozenset({"FORCE_SENSOR", "FOLLOWING"})
+_AIR = frozenset({"VALVE", "AIR_BALANCE (service)", "FORCE_BALANCE", "FOLLOWING"})
+_SUPPLY = frozenset({"SUPPLY_LOSS", "SUPPLY_LOW (hold)"})
+RIGHT_NAMES: dict[FaultKind, frozenset[str]] = {
+    FaultKind.SUPPLY_LOSS: _SUPPLY,
+    FaultKind.SUPPLY_DROOP: _SUPPLY,
+    FaultKind.PRESSURE_OPEN: _TRANSDUCER,
+    FaultKind.PRESSURE_SHORT: _TRANSDUCER,
+    FaultKind.PRESSURE_STUCK: _TRANSDUCER,
+    FaultKind.PRESSURE_OFFSET: _TRANSDUCER,
+    FaultKind.LEG_STUCK: _LEG,
+    FaultKind.LEG_OFFSET: _LEG,
+    FaultKind.LEG_NOISE: _LEG,
+    FaultKind.FT_DEAD: _FT,
+    FaultKind.FT_SATURATED: _FT,
+    FaultKind.FT_OFFSET: _FT,
+    FaultKind.VALVE_STUCK_OPEN: _AIR,
+    FaultKind.VALVE_STUCK_CLOSED: _AIR,
+    FaultKind.CHAMBER_LEAK: _AIR,
+}
+"""What a fault of each kind may be named (:func:`lab.safety.noticed`, the last word: a trip
+after a service warning is what the technician reads): the trips whose sentence
+(device.trips) sends the technician to the part that failed. A pressure transducer's fault
+also reads as its chamber's air or its leg's forces not adding up, whose sentences name the
+transducer; a leg sensor's as its chamber's air (the volume it reads is off; that sentence
+names the length sensor); a force/torque sensor's as the platform pushed off its pose
+(FOLLOWING: "check the foot's force/torque sensor zero" first); a valve's or a leak's as
+any of the air's checks or the pose pushed off. Anything else (a length sensor named for a
+transducer, a range or speed limit that stopped what nothing named) sends the technician
+elsewhere."""
+
+
+def misnamed(kind: str, trip: str) -> bool:
+    """Whether a fault of ``kind`` (a :class:`FaultKind` name), noticed as ``trip`` (a
+    :func:`lab.safety.noticed` answer), was named as another part; False if unnoticed."""
+    return trip != "NONE" and trip not in RIGHT_NAMES[FaultKind[kind]]
+
+
 @dataclass(frozen=True)
 class Draw:
     exercise: str
@@ -199,6 +239,7 @@ ROWS: tuple[tuple[str, str], ...] = (
     ("drawn_detected", "detected"),
     ("drawn_undetected", "not detected within the watch"),
     ("drawn_undetected_moved", "...of them with the platform 0.5 deg or 1 mm off its twin"),
+    ("drawn_misnamed", "...named as another part than the one that failed (RIGHT_NAMES)"),
     ("drawn_detect_ms_max", "detection time, worst (ms)"),
     ("drawn_detect_ms_p50", "detection time, median (ms)"),
     ("drawn_false_trips", "healthy twins that tripped or warned"),
@@ -248,6 +289,7 @@ def run(
         "drawn_undetected_moved": sum(
             r.excursion_deg >= 0.5 or r.excursion_mm >= 1.0 for r in missed
         ),
+        "drawn_misnamed": sum(r.detected and misnamed(r.draw.kind, r.trip) for r in valid),
         "drawn_detect_ms_max": worst(found),
         "drawn_detect_ms_p50": float(np.median(found)) if found else math.nan,
         "drawn_running_deg_max": worst([r.while_running_deg for r in valid]),
@@ -275,6 +317,7 @@ def table(result: dict[str, Any]) -> str:
         for r in result["drawn"]
         if not r["valid"]
         or not r["detected"]
+        or misnamed(r["kind"], r["trip"])
         or r["excursion_deg"] > 2.0
         or r["excursion_mm"] > 3.0
     ]

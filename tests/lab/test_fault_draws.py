@@ -37,6 +37,21 @@ def test_the_draws_reach_every_kind_channel_size_and_moment_the_docstring_names(
     assert [faultdraws.draw(again) for _ in range(20)] == draws[:20]
 
 
+def test_a_fault_named_as_another_part_is_counted_as_misnamed() -> None:
+    assert set(faultdraws.RIGHT_NAMES) == set(CHANNELS)
+    # A transducer a little off once named the leg's length sensor or the force sensor.
+    assert faultdraws.misnamed("PRESSURE_OFFSET", "LEG_SENSOR")
+    assert faultdraws.misnamed("PRESSURE_OFFSET", "FORCE_SENSOR")
+    assert not faultdraws.misnamed("PRESSURE_OFFSET", "FORCE_BALANCE")
+    assert not faultdraws.misnamed("PRESSURE_OFFSET", "AIR_BALANCE (service)")
+    assert faultdraws.misnamed("FT_OFFSET", "LEG_SENSOR")
+    assert not faultdraws.misnamed("FT_OFFSET", "FOLLOWING")
+    assert faultdraws.misnamed("LEG_STUCK", "STROKE_END")
+    assert not faultdraws.misnamed("LEG_OFFSET", "AIR_BALANCE (service)")  # names the sensor
+    assert not faultdraws.misnamed("SUPPLY_DROOP", "SUPPLY_LOW (hold)")
+    assert not faultdraws.misnamed("CHAMBER_LEAK", "NONE")  # unnoticed is not misnamed
+
+
 def test_a_supply_lost_mid_exercise_is_caught_and_measured_against_both_twins() -> None:
     d = faultdraws.Draw("strength", "resisting", -1, "SUPPLY_LOSS", -1, 0.0, 2.0)
     r = faultdraws.run_draw(d, after=0.3)
