@@ -2091,21 +2091,9 @@ def wrench_component(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
 
 
 @njit_inline
-def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
-    """Whether ``leg`` carries most of the filtered force-balance residual (more than half
-    of its sum of squares): a fault of that leg (its transducers, valves, tube). A wrong
-    force/torque reading spreads over several legs instead."""
-    total = 0.0
-    for i in range(6):
-        total += monitor[M_RESIDUAL + i] ** 2
-    return bool(monitor[M_RESIDUAL + leg] ** 2 > 0.5 * total)
-
-
-@njit_inline
-def leg_alone(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
-    """The leg that carries ``balance_one_leg_share`` or more of the filtered force-balance
-    residual (of its sum of squares), -1 if none: a fault of that leg, not of the
-    force/torque sensor."""
+def residual_share(monitor: NDArray[np.float64]) -> tuple[int, float]:
+    """The leg carrying the most of the filtered force-balance residual and its share of
+    the six legs' sum of squares; (-1, 0) while there is none."""
     total = 0.0
     worst, most = -1, 0.0
     for i in range(6):
@@ -2113,9 +2101,25 @@ def leg_alone(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
         total += r2
         if r2 > most:
             worst, most = i, r2
-    if worst < 0 or most < q.balance_one_leg_share * total:
-        return -1
-    return worst
+    return (worst, most / total) if worst >= 0 else (-1, 0.0)
+
+
+@njit_inline
+def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
+    """Whether ``leg`` carries most of the filtered force-balance residual (more than half
+    of its sum of squares): a fault of that leg (its transducers, valves, tube). A wrong
+    force/torque reading spreads over several legs instead."""
+    worst, share = residual_share(monitor)
+    return bool(worst == leg and share > 0.5)
+
+
+@njit_inline
+def leg_alone(monitor: NDArray[np.float64], q: SupervisionParams) -> int:
+    """The leg that carries ``balance_one_leg_share`` or more of the filtered force-balance
+    residual (of its sum of squares), -1 if none: a fault of that leg, not of the
+    force/torque sensor."""
+    worst, share = residual_share(monitor)
+    return worst if share >= q.balance_one_leg_share else -1
 
 
 @njit_inline
