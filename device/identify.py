@@ -60,13 +60,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device import pwm, signals, supervision
-from device.calibration import STILL_READS_RANGE, Calibration, IdentificationError
+from device.calibration import (
+    LEG_ZERO_MAX,
+    PRESSURE_ZERO_MAX,
+    STILL_READS_RANGE,
+    Calibration,
+    IdentificationError,
+)
 from device.controller import CONTROL_PERIOD, ControllerConfig, Mode, build_params
 from device.geometry import DEFAULT_GEOMETRY, Geometry
 from device.hardware import Hardware, SimulatedHardware
 from device.kinematics import Kinematics
 from device.plant.params import TICK_HZ, PlantConfig
 from device.rig import Rig
+from device.signals import chamber
+from device.trips import Trip, event_text
 
 READS = 200
 """Readings averaged at rest (0.2 s at 1 kHz): the noise of the mean is 1/14 of one
@@ -87,6 +95,21 @@ VENT_OPEN_S = 1.0
 SETTLED_SPEED = 2.0e-3
 """The legs count as resting on their stops when none moved faster than this (m/s) over
 the last 0.1 s of the vent; otherwise the identification fails."""
+NOISY_STEP = 0.1e-3
+"""A leg sensor whose steps from read to read scatter by more than this (m, their standard
+deviation) over the last 0.1 s of the vent is noisy: a healthy one (5-15 um of noise on
+24 um counts) steps by one count at most, and a leg that moves steps evenly."""
+FILLED_READS = 20
+"""Reads at the end of the open pull-down (the rod sides open to the supply for
+``DOWN_OPEN_S``) over which the supply transducer is judged against them."""
+SUPPLY_GAP_MAX = 0.3e5
+"""The supply transducer may read this far (Pa) from the rod sides, the median of six, once
+their intakes have stood open to it for ``DOWN_OPEN_S``. Over the nominal unit and drawn
+builds 0-99 the median stood -0.18 to +0.20 bar from it, a single rod side -0.23 to +0.24
+(the supply transducer's zero, up to 0.1 bar, is never vented; both transducers' span
+errors, up to 2 % of 7 bar; what still flows). Beyond, the supply transducer is off: the
+supply's low and loss marks and the valves' flow model would be judged on a wrong
+pressure. The limit a chamber's zero has (``device.calibration.PRESSURE_ZERO_MAX``)."""
 
 
 def identify(
@@ -111,16 +134,11 @@ def identify(
 
     if progress:
         progress("identification: legs down to their end stops")
+    filled: list[int] = []
     try:
-        valves = _down_and_vent(step)
-        legs = np.array([h[signals.SENSOR_LEG : signals.SENSOR_LEG + 6] for h in history[-101:]])
-        speed = np.abs(legs[-1] - legs[0]) / 0.1
-        if np.any(speed > SETTLED_SPEED):
-            worst = int(np.argmax(speed))
-            raise IdentificationError(
-                f"leg {worst + 1} still moves at {speed[worst] * 1e3:.1f} mm/s after venting: "
-                "is something on the plate or holding the platform?"
-            )
+        valves = _down_and_vent(step, lambda: filled.append(len(history)))
+        down = np.array(history)
+        check_settled(down[-101:, signals.SENSOR_LEG : signals.SENSOR_LEG + 6])
         if progress:
             progress("identification: reading the zeros")
         history.clear()
@@ -130,6 +148,8 @@ def identify(
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
     mean = np.mean(np.array(history), axis=0)
     pressure_zero = mean[:12] - atmosphere
+    check_came_down(down, mean, atmosphere)
+    check_supply(down[filled[0] - FILLED_READS : filled[0]], pressure_zero)
     if progress:
         progress("identification: test pulses through every valve")
     gains, extras, dead, shut, opens = identify_valves(hardware, pressure_zero, atmosphere)
@@ -455,7 +475,8 @@ def identify_valves(
     # of each slope is the valve's own conductance. The cap side, empty at its stop, tells
     # its leg's dead volume best (a rod side's is a seventh of its volume there): both
     # sides of a leg have the same tube and port.
-    ratio = np.sqrt(slope[0::2] * slope[1::2] / (FILL_INDEX * DISCHARGE_INDEX)) * q.obs_k
+    with np.errstate(invalid="ignore"):  # a valve that passed nothing: NaN, refused below
+        ratio = np.sqrt(slope[0::2] * slope[1::2] / (FILL_INDEX * DISCHARGE_INDEX)) * q.obs_k
     dead = np.repeat(volume[0::2] / ratio[0::2], 2)
     true_volume = dead + volume - cfg.dead_volume
     gains = slope * np.repeat(true_volume / volume, 2)
@@ -721,11 +742,26 @@ def _lift_off_stops(
         hardware.write_valves(closed)
 
 
+LOAD_TRIPS = frozenset(
+    {
+        Trip.FOLLOWING,
+        Trip.WRENCH_LIMIT,
+        Trip.RANGE_OF_MOTION,
+        Trip.LEG_SPEED,
+        Trip.STROKE_END,
+        Trip.HOMING,
+    }
+)
+"""Trips that something on the plate, or a hand holding it, can cause on a healthy unit; the
+others name a part, and the identification's refusal names it alone."""
+
+
 def _check(rig: Rig) -> None:
     if rig.mode == Mode.FAULT:
+        text = event_text(rig.trip, rig.trip_channel, limit=1000)
+        plate = "; or is something on the plate?" if rig.trip in LOAD_TRIPS else ""
         raise IdentificationError(
-            f"the controller tripped ({rig.trip.name}) while the empty platform heaved "
-            "slowly: is something on the plate?"
+            f"the controller tripped while the empty platform heaved slowly: {text}{plate}"
         )
 
 
@@ -737,10 +773,14 @@ def _release_pulse(tick: int) -> bool:
     return slot < ControllerConfig.vent_pulse_slots and period % every == 0
 
 
-def _down_and_vent(step: Callable[[NDArray[np.uint8]], None]) -> NDArray[np.uint8]:
+def _down_and_vent(
+    step: Callable[[NDArray[np.uint8]], None], filled: Callable[[], None] | None = None
+) -> NDArray[np.uint8]:
     """Bring the legs down onto their stops (each cap side's exhaust and rod side's intake,
     in the release pattern first, then open), then vent every chamber, ``step`` writing one
-    tick's valve pattern. Returns the vent pattern (every exhaust open) it ends on."""
+    tick's valve pattern; ``filled`` is called when the rod sides have stood open to the
+    supply for ``DOWN_OPEN_S``, before the vent. Returns the vent pattern (every exhaust
+    open) it ends on."""
     closed = np.zeros(signals.N_VALVES, dtype=np.uint8)
     down = closed.copy()
     down[1::4] = 1  # each cap side's exhaust (chamber 2i: valves 4i, 4i + 1)
@@ -749,10 +789,79 @@ def _down_and_vent(step: Callable[[NDArray[np.uint8]], None]) -> NDArray[np.uint
     vent[1::2] = 1
     for tick in range(int(DOWN_PULSE_S * TICK_HZ)):
         step(down if _release_pulse(tick) else closed)
-    for pattern, seconds in ((down, DOWN_OPEN_S), (vent, VENT_OPEN_S)):
-        for _ in range(int(seconds * TICK_HZ)):
-            step(pattern)
+    for _ in range(int(DOWN_OPEN_S * TICK_HZ)):
+        step(down)
+    if filled is not None:
+        filled()
+    for _ in range(int(VENT_OPEN_S * TICK_HZ)):
+        step(vent)
     return vent
+
+
+def check_settled(legs: NDArray[np.float64]) -> None:
+    """Refuse a unit whose legs, over the last 0.1 s of the vent (``legs``: reads x 6, m),
+    are not at rest on their stops: a sensor that steps from read to read more than
+    :data:`NOISY_STEP` is named as noisy; a leg that moved on faster than
+    :data:`SETTLED_SPEED`, as held or loaded."""
+    steps = np.std(np.diff(legs, axis=0), axis=0)  # a steady motion steps evenly
+    if np.any(steps > NOISY_STEP):
+        worst = int(np.argmax(steps))
+        raise IdentificationError(
+            f"leg {worst + 1} sensor's reading scatters {steps[worst] * 1e3:.2f} mm from read "
+            "to read with its leg at rest on the stop: a noisy sensor or a loose contact, "
+            "check the sensor and its cable"
+        )
+    speed = np.abs(legs[-1] - legs[0]) / ((len(legs) - 1) * 1e-3)
+    if np.any(speed > SETTLED_SPEED):
+        worst = int(np.argmax(speed))
+        raise IdentificationError(
+            f"leg {worst + 1} still moves at {speed[worst] * 1e3:.1f} mm/s after venting: "
+            "is something on the plate or holding the platform?"
+        )
+
+
+def check_came_down(
+    down: NDArray[np.float64], rest: NDArray[np.float64], atmosphere: float
+) -> None:
+    """Before a leg zero beyond ``LEG_ZERO_MAX`` is refused as a slipped sensor
+    (``Calibration.check``), see whether the leg came down at all: ``down`` is every read of
+    the pull-down and the vent, ``rest`` the mean read at rest after it. A chamber of that
+    leg still holding air with its exhaust open says a valve kept it up; a reading the same
+    bit for bit through the whole pull-down, a stuck sensor."""
+    for leg in range(6):
+        reading = rest[signals.SENSOR_LEG + leg]
+        if abs(reading) <= LEG_ZERO_MAX:
+            continue
+        for c in (2 * leg, 2 * leg + 1):
+            gauge = rest[signals.SENSOR_PRESSURE + c] - atmosphere
+            if abs(gauge) > PRESSURE_ZERO_MAX:
+                raise IdentificationError(
+                    f"leg {leg + 1} did not come down onto its end stop (its sensor reads "
+                    f"{reading * 1e3:+.2f} mm) and {chamber(c)} still reads {gauge / 1e5:+.2f} "
+                    "bar with its exhaust open: check that chamber's valves (an intake stuck "
+                    "open or an exhaust stuck shut) and its transducer"
+                )
+        column = down[:, signals.SENSOR_LEG + leg]
+        if np.all(column == column[0]):
+            raise IdentificationError(
+                f"leg {leg + 1} sensor read {reading * 1e3:+.2f} mm bit for bit the same all "
+                "the while the legs were pulled down onto their stops: the sensor is stuck "
+                "or its cable is off (or the leg is jammed)"
+            )
+
+
+def check_supply(filled: NDArray[np.float64], pressure_zero: NDArray[np.float64]) -> None:
+    """Refuse a supply transducer that reads more than :data:`SUPPLY_GAP_MAX` from the rod
+    sides (the median of the six, each less its zero) at the end of the open pull-down
+    (``filled``: those reads x sensors, Pa abs), when their intakes have stood open to it."""
+    rod = filled[:, signals.SENSOR_PRESSURE + 1 : 12 : 2] - pressure_zero[1::2]
+    gap = float(np.mean(filled[:, signals.SENSOR_SUPPLY]) - np.median(np.mean(rod, axis=0)))
+    if abs(gap) > SUPPLY_GAP_MAX:
+        raise IdentificationError(
+            f"the supply transducer reads {gap / 1e5:+.2f} bar from the rod sides its open "
+            f"intakes filled (more than {SUPPLY_GAP_MAX / 1e5:g} bar): check the supply "
+            "transducer and its cable"
+        )
 
 
 def lower_and_vent(hardware: Hardware) -> None:

@@ -29,6 +29,7 @@ from device.identify import (
     still_reads,
 )
 from device.kinematics import Kinematics
+from device.plant.faults import Fault, FaultKind
 from device.plant.params import PARAMETERS, PlantConfig, draw_plant
 from device.rig import Rig
 from device.trips import Trip
@@ -75,6 +76,35 @@ def test_a_foot_on_the_plate_or_a_bad_sensor_refuses_the_calibration() -> None:
     hw.params.sensor_offset[13] = 5e-3  # this unit's leg 1 sensor slipped by 5 mm
     with pytest.raises(IdentificationError, match="leg 1 sensor reads"):
         identify(hw)
+
+
+@pytest.mark.parametrize(
+    ("kind", "channel", "value", "named"),
+    [
+        # Each names its part, not the one a healthy part's zero would point to.
+        (FaultKind.LEG_STUCK, 2, 0.0, r"leg 3 sensor read .* bit for bit .* stuck"),
+        (FaultKind.LEG_NOISE, 1, 0.5, r"leg 2 sensor's reading scatters .* noisy sensor"),
+        (FaultKind.VALVE_STUCK_OPEN, 0, 0.0, r"leg 1 did not come down .* chamber 1 .* valves"),
+        (FaultKind.VALVE_STUCK_CLOSED, 9, 0.0, r"leg 3 did not come down .* chamber 5 .* valves"),
+        (FaultKind.PRESSURE_OFFSET, 12, 0.5, r"supply transducer reads \+0\.5\d bar"),
+        (FaultKind.PRESSURE_OFFSET, 12, -0.4, r"supply transducer reads -0\.[34]\d bar"),
+        (FaultKind.PRESSURE_STUCK, 12, 0.0, r"PRESSURE_SENSOR on supply transducer: a pressure"),
+        (FaultKind.FT_DEAD, -1, 0.0, r"FORCE_SENSOR: the foot's force/torque sensor .*zero$"),
+    ],
+)
+def test_a_fault_present_at_identification_is_refused_by_its_name(
+    kind: FaultKind, channel: int, value: float, named: str
+) -> None:
+    """A technician identifying a unit with a broken part is sent to that part: a stuck
+    valve that kept a leg up was refused as a slipped leg sensor, a dead force sensor as
+    "something on the plate", and a supply transducer 1.5 bar off was accepted (no check
+    reads it at rest) and judged the supply's low and loss marks on a wrong pressure."""
+    hw = SimulatedHardware(PlantConfig(patient="absent"), seed=0)
+    hw.inject(Fault(kind, 0.0, channel, value, math.inf))
+    with pytest.raises(IdentificationError, match=named) as refused:
+        identify(hw)
+    assert "on the plate" not in str(refused.value)
+    assert hw.state.valve_cmd.max() == 0  # every coil left released
 
 
 def test_a_calibration_round_trips_and_refuses_garbage(tmp_path: Path) -> None:
