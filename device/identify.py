@@ -26,7 +26,9 @@ same routine on the simulation and on an I/O board.
 
 4. **Pulse every valve** (:func:`identify_valves`): how much air each valve passes per
    pulse, against the air observer's model, so that the observer (device.supervision)
-   judges a held chamber against this build's valves rather than the type's range.
+   judges a held chamber against this build's valves rather than the type's range; and
+   what each chamber loses between the pulses with every valve shut (a leak,
+   :func:`check_leaks`).
 
 5. **Heave slowly** (:func:`identify_friction`): the controller, with the zeros just
    found, moves every leg up and down its mid-stroke at two slow, steady speeds. A leg's
@@ -84,6 +86,7 @@ NOISE_READS = 1000
 each transducer's noise (:func:`pressure_still_reads`): from 200 a transducer of 100 Pa read
 75-117 Pa, from 1,000 96-105 Pa."""
 SENSOR_PERIOD_TICKS = 7
+READ_HZ = TICK_HZ / SENSOR_PERIOD_TICKS
 DOWN_PULSE_S = 2.5
 """Pull down in pulses first: each rod-side intake and cap-side exhaust open in the
 controller's release pattern (``ControllerConfig.vent_pulse_slots`` of 28 slots, once every
@@ -152,7 +155,8 @@ def identify(
     check_supply(down[filled[0] - FILLED_READS : filled[0]], pressure_zero)
     if progress:
         progress("identification: test pulses through every valve")
-    gains, extras, dead, shut, opens = identify_valves(hardware, pressure_zero, atmosphere)
+    gains, extras, dead, shut, opens, lost = identify_valves(hardware, pressure_zero, atmosphere)
+    check_leaks(lost)
     cal = Calibration(
         leg_zero=tuple(float(v) for v in mean[signals.SENSOR_LEG : signals.SENSOR_LEG + 6]),
         pressure_zero=tuple(float(v) for v in pressure_zero),
@@ -359,7 +363,7 @@ def identify_valves(
     atmosphere: float = 1.01325e5,
     config: ControllerConfig | None = None,
     geometry: Geometry = DEFAULT_GEOMETRY,
-) -> tuple[Figures, Figures, Figures, Figures, Figures]:
+) -> tuple[Figures, Figures, Figures, Figures, Figures, Figures]:
     """Each valve's air per pulse, with every leg on its lower end stop (the chambers'
     volumes known): test pulses of two lengths into and out of each chamber, the air each
     passed measured as the air observer measures it (change of p V over its polytropic
@@ -370,8 +374,10 @@ def identify_valves(
     Shorter pulses (:data:`SWEEP_TICKS`) then find where each valve starts to open
     (:func:`pulse_edges`). Returns (gains, extra times), 24 each, valve ``2c`` the intake
     of chamber ``c``, each chamber's dead volume (m3, 12), and each valve's longest pulse
-    that left it shut and shortest that opened it every time (s, 24 each). Leaves every
-    chamber vented and every valve closed."""
+    that left it shut and shortest that opened it every time (s, 24 each), and the air each
+    chamber lost with every valve shut (NL/min, 12; negative: it gained, across its
+    piston from the side held at the supply). Leaves every chamber vented and every valve
+    closed."""
     cfg = config if config is not None else ControllerConfig()
     # The air observer's model and the cylinder's areas, as the controller builds them.
     q = supervision.build(cfg.supervision, atmosphere, CONTROL_PERIOD / TICK_HZ)
@@ -416,6 +422,7 @@ def identify_valves(
             read(pattern)
 
     samples: dict[int, list[tuple[float, float]]] = {v: [] for v in range(24)}
+    drifts: list[list[float]] = [[] for _ in range(12)]  # Pa a read, every valve shut
     try:
         for side in (0, 1):
             chambers = list(range(side, 12, 2))
@@ -435,6 +442,8 @@ def identify_valves(
                 # pulse) and shifted the extra times by 0.3-0.9 ms.
                 quiet = np.array([read(valves) for _ in range(DRIFT_READS)])
                 drift, before = np.polyfit(np.arange(1 - DRIFT_READS, 1), quiet, 1)  # per read
+                for c in chambers:
+                    drifts[c].append(float(drift[c]))
                 for intake in (True, False):
                     pulse = valves.copy()
                     for c in chambers:
@@ -480,12 +489,17 @@ def identify_valves(
     dead = np.repeat(volume[0::2] / ratio[0::2], 2)
     true_volume = dead + volume - cfg.dead_volume
     gains = slope * np.repeat(true_volume / volume, 2)
+    # What each chamber lost with every valve shut, as normal litres a minute: the median
+    # drift over its cycles (a big fill's first read of the air cooling is one of 39).
+    held = np.where(np.isfinite(true_volume), true_volume, volume)
+    lost = -np.median(np.array(drifts), axis=1) * READ_HZ * held / atmosphere * 60e3
     return (
         tuple(float(g) for g in gains),
         tuple(float(e) for e in extras),
         tuple(float(d) for d in dead),
         tuple(float(t) for t in shut),
         tuple(float(t) for t in opens),
+        tuple(float(n) for n in lost),
     )
 
 
@@ -733,6 +747,12 @@ def _lift_off_stops(
             pattern[0::4] = up & ~filling.any() & _release_pulse(tick)  # cap intake
             hardware.write_valves(pattern)
             hardware.wait_tick()
+        if filling.any():  # the legs are lifted once every rod side is filled
+            empty = [chamber(2 * i + 1) for i in range(6) if filling[i]]
+            raise IdentificationError(
+                f"{', '.join(empty)} did not fill to {LIFT_ROD_PRESSURE / 1e5:g} bar in "
+                f"{LIFT_TIMEOUT_S:g} s: check the supply and the rod-side intakes"
+            )
         stuck = [i + 1 for i in range(6) if up[i]]
         raise IdentificationError(
             f"leg(s) {stuck} did not lift {lift * 1e3:.0f} mm off the stop in "
@@ -848,6 +868,35 @@ def check_came_down(
                 "the while the legs were pulled down onto their stops: the sensor is stuck "
                 "or its cable is off (or the leg is jammed)"
             )
+
+
+LOST_MAX = 1.0
+"""NL/min a chamber may lose with every valve shut in the valve test (a cap side at 3 bar
+absolute with its rod side at the supply, a rod side at 3.5 with its cap side vented): what
+its piston passes across by design (up to 2 NL/min from 6 bar gauge to atmosphere, laminar:
+at most 0.5 out of a rod side at 3.5 bar) and its exhaust's seat (up to 0.5 from 6 bar
+gauge: 0.1 there), against what its intake's seat brings in. Measured (the median of each
+chamber's 39 cycles): the nominal unit's rod sides lose 0.04-0.11, its cap sides gain 0.6
+across the piston; drawn builds 0-99 lose at most 0.39 (a rod side), and their cap sides
+gain 0.26-3.1. A leak to atmosphere of a hundredth of a valve's conductance loses 0.6 at
+3.5 bar, a fiftieth 1.3 (a cap side's piston inflow hides up to 1.7 of it). Real chambers
+also cool after a fill, which reads as air lost for a second or so: each cycle starts
+within 0.1 bar of its base, so that is a small fill, and the median of 39 cycles leaves out
+the first, large one."""
+
+
+def check_leaks(lost: Figures) -> None:
+    """Refuse a chamber that lost more than :data:`LOST_MAX` with every valve shut
+    (``lost``: NL/min per chamber, :func:`identify_valves`): a leak. Left in, the valve
+    figures take it up as the chamber's own valves' air, and the air observer then judges
+    that chamber's leak as healthy."""
+    worst = int(np.argmax(lost))
+    if lost[worst] > LOST_MAX:
+        raise IdentificationError(
+            f"{chamber(worst)} lost {lost[worst]:.1f} NL/min with every valve shut (a healthy "
+            f"piston and valve seats: under {LOST_MAX:g}): a leak in its tube, fitting or "
+            "seal, or a valve that does not close"
+        )
 
 
 def check_supply(filled: NDArray[np.float64], pressure_zero: NDArray[np.float64]) -> None:

@@ -86,19 +86,25 @@ def test_a_foot_on_the_plate_or_a_bad_sensor_refuses_the_calibration() -> None:
         (FaultKind.LEG_NOISE, 1, 0.5, r"leg 2 sensor's reading scatters .* noisy sensor"),
         (FaultKind.VALVE_STUCK_OPEN, 0, 0.0, r"leg 1 did not come down .* chamber 1 .* valves"),
         (FaultKind.VALVE_STUCK_CLOSED, 9, 0.0, r"leg 3 did not come down .* chamber 5 .* valves"),
+        (FaultKind.VALVE_STUCK_CLOSED, 6, 0.0, r"^chamber 4 \(leg 2, rod side\) did not fill"),
         (FaultKind.PRESSURE_OFFSET, 12, 0.5, r"supply transducer reads \+0\.5\d bar"),
         (FaultKind.PRESSURE_OFFSET, 12, -0.4, r"supply transducer reads -0\.[34]\d bar"),
         (FaultKind.PRESSURE_STUCK, 12, 0.0, r"PRESSURE_SENSOR on supply transducer: a pressure"),
         (FaultKind.FT_DEAD, -1, 0.0, r"FORCE_SENSOR: the foot's force/torque sensor .*zero$"),
+        # A tenth of a valve's conductance, a cracked fitting: the valve figures took it up.
+        (FaultKind.CHAMBER_LEAK, 5, 0.1, r"^chamber 6 \(leg 3, rod side\) lost [4-9]\.\d NL/min"),
+        (FaultKind.CHAMBER_LEAK, 0, 0.1, r"^chamber 1 \(leg 1, cap side\) lost [3-9]\.\d NL/min"),
     ],
 )
 def test_a_fault_present_at_identification_is_refused_by_its_name(
     kind: FaultKind, channel: int, value: float, named: str
 ) -> None:
     """A technician identifying a unit with a broken part is sent to that part: a stuck
-    valve that kept a leg up was refused as a slipped leg sensor, a dead force sensor as
+    valve that kept a leg up was refused as a slipped leg sensor, a rod side's intake stuck
+    shut as all six legs not lifting by their cap sides, a dead force sensor as
     "something on the plate", and a supply transducer 1.5 bar off was accepted (no check
-    reads it at rest) and judged the supply's low and loss marks on a wrong pressure."""
+    reads it at rest) and judged the supply's low and loss marks on a wrong pressure; a
+    leaking chamber was accepted, its leak taken up in its valves' figures."""
     hw = SimulatedHardware(PlantConfig(patient="absent"), seed=0)
     hw.inject(Fault(kind, 0.0, channel, value, math.inf))
     with pytest.raises(IdentificationError, match=named) as refused:
