@@ -104,8 +104,8 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         action="append",
         default=[],
         metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
-        help="simulation only: inject a plant fault at TIME s after the start (repeatable), "
-        "e.g. supply_loss@30 or pressure_open@12:4",
+        help="simulation only: inject a plant fault at TIME s after the start (repeatable; "
+        "with --identify, of the identification), e.g. supply_loss@30 or pressure_open@12:4",
     )
     unit = dev.add_mutually_exclusive_group()
     unit.add_argument(
@@ -343,7 +343,7 @@ def describe(calibration: Calibration) -> str:
 def _identify(args: argparse.Namespace) -> int:
     """``ankle device --identify FILE``: identify the unit, save, and exit."""
     from device.calibration import IdentificationError
-    from device.hardware import HardwareError, open_hardware
+    from device.hardware import HardwareError, SimulatedHardware, open_hardware
     from device.identify import identify
 
     # The plate must be empty: the simulation takes its patient off, a technician the foot.
@@ -353,6 +353,18 @@ def _identify(args: argparse.Namespace) -> int:
     except HardwareError as exc:
         print(f"error: {exc.args[-1]}", file=sys.stderr)
         return 1
+    if args.fault and not isinstance(hardware, SimulatedHardware):
+        hardware.close()
+        print("error: --fault injects into the plant simulation: use --sim", file=sys.stderr)
+        return USAGE_ERROR
+    for fault in args.fault:  # from the identification's start: a part broken before it
+        assert isinstance(hardware, SimulatedHardware)
+        try:
+            hardware.inject(fault)
+        except ValueError as exc:
+            hardware.close()
+            print(f"error: {exc}", file=sys.stderr)
+            return USAGE_ERROR
     print("ankle device: identifying the unit; nobody may stand on the plate...", flush=True)
     try:
         calibration = identify(hardware)

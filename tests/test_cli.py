@@ -327,6 +327,20 @@ def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> Non
     assert data["valid"] is False and data["trip"] == "LEG_SENSOR"
 
 
+def test_identifying_a_simulated_unit_with_a_fault_refuses_it_by_its_part(
+    tmp_path: Path,
+) -> None:
+    """``--fault`` reaches the identification (it was ignored there): a leaking rod side is
+    refused in one line naming the chamber, and no calibration is written."""
+    path = tmp_path / "unit.json"
+    r = ankle("device", "--sim", "--identify", str(path), "--fault", "chamber_leak@0:5=0.1")
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "identification failed" in lines[0], r.stderr
+    assert "chamber 6 (leg 3, rod side) lost" in lines[0] and "leak" in lines[0], r.stderr
+    assert not path.exists()
+
+
 def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
     tmp_path: Path,
 ) -> None:
