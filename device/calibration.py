@@ -101,6 +101,11 @@ class Calibration:
     its reading may stay bit for bit the same, healthy, from the noise it showed at rest at
     start-up (device.identify.pressure_still_reads); 0 where the transducer is too quiet for
     that to tell a frozen one. Empty: not identified, and nothing is judged so."""
+    ft_still_reads: tuple[int, ...] = ()
+    """Per force/torque channel (Fx, Fy, Fz, Tx, Ty, Tz), the same from the noise it showed
+    with nobody on the plate: a channel that reads bit for bit the same for longer is dead
+    or frozen on its own (the checks of the whole sensor want all six so). Empty: not
+    identified, and no channel is judged so alone."""
     load_bias: tuple[float, ...] = ()
     """Per leg: what its chambers push (N) at mid-stroke beyond the force the controller
     figures holds the empty platform (device.identify.load_bias): the plate's true weight and
@@ -155,10 +160,14 @@ class Calibration:
         return np.full(12, design)
 
     def still_reads(self) -> NDArray[np.int64]:
-        """Per pressure channel (13), for the controller: 0 where not judged by its flicker."""
+        """Per pressure channel (13), then per force/torque channel (6), for the controller:
+        0 where not judged by its flicker."""
+        out = np.zeros(19, dtype=np.int64)
         if len(self.pressure_still_reads) == 13:
-            return np.array(self.pressure_still_reads, dtype=np.int64)
-        return np.zeros(13, dtype=np.int64)
+            out[:13] = self.pressure_still_reads
+        if len(self.ft_still_reads) == 6:
+            out[13:] = self.ft_still_reads
+        return out
 
     def load_biases(self) -> NDArray[np.float64]:
         """Per leg (N), for the controller's force checks: 0 where not identified."""
@@ -189,6 +198,7 @@ class Calibration:
                 pressure_still_reads=_ints(
                     data.get("pressure_still_reads", []), 13, "pressure_still_reads"
                 ),
+                ft_still_reads=_ints(data.get("ft_still_reads", []), 6, "ft_still_reads"),
                 moving_mass=float(data.get("moving_mass", 0.0)),
                 identified_at=str(data.get("identified_at", "")),
                 notes=tuple(str(n) for n in data.get("notes", ())),
@@ -242,6 +252,14 @@ class Calibration:
                 raise IdentificationError(
                     f"{name} may stand still {n} reads (healthy: 0 or {low}-{high}): "
                     "check the calibration file"
+                )
+        if len(self.ft_still_reads) not in (0, 6):
+            raise IdentificationError("ft_still_reads needs 6 numbers, or none")
+        for k, n in enumerate(self.ft_still_reads):
+            if n != 0 and not low <= n <= high:
+                raise IdentificationError(
+                    f"force/torque channel {k + 1} may stand still {n} reads (healthy: 0 or "
+                    f"{low}-{high}): check the calibration file"
                 )
 
     def check_load_bias(self) -> None:

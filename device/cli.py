@@ -332,7 +332,11 @@ def describe(calibration: Calibration) -> str:
         else "load bias not identified (no vertical force cross-check)"
     )
     judged = sum(1 for n in calibration.pressure_still_reads if n > 0)
-    still = f"{judged} of 13 transducers judged by their noise"
+    channels = sum(1 for n in calibration.ft_still_reads if n > 0)
+    still = (
+        f"{judged} of 13 transducers and {channels} of 6 force/torque channels judged by "
+        "their noise"
+    )
     when = calibration.identified_at or "an unknown date"
     return (
         f"calibration of {when}: leg zeros up to {legs:.3f} mm, transducer zeros up to "

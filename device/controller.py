@@ -717,7 +717,8 @@ class ControllerParams(NamedTuple):
     friction_speed: float  # m/s
     leg_friction: NDArray[np.float64]  # (6,) identified seal friction per leg (N), 0 if not
     load_bias: NDArray[np.float64]  # (6,) identified load bias per leg (N), 0 if not
-    pressure_still: NDArray[np.int64]  # (13,) reads a pressure reading may stand still, 0 not
+    pressure_still: NDArray[np.int64]  # (19,) reads a pressure, then a force/torque, reading
+    # may stand still (0: not judged so)
     lift_judged: bool  # the load bias was identified: the vertical cross-check judges
     friction_track: NDArray[np.float64]  # (6,) N fed forward per leg along a trajectory
     friction_track_alpha: float  # its low-pass per control period

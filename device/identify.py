@@ -44,7 +44,7 @@ same routine on the simulation and on an I/O board.
 
 6. **Listen to the transducers** (:func:`pressure_still_reads`), the chambers vented
    again: how often each reading changes code with its noise says how long a live one's
-   reading may stand still.
+   reading may stand still; the force sensor's six channels too, the plate empty.
 
 What it does not identify (yet): the platform's centre of mass (the outer loop's integral
 takes up its static part), the sensors' span errors one by one (only what they leave in
@@ -194,8 +194,11 @@ def identify(
             step(valves)  # every exhaust open: the chambers stay at the atmosphere
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
-    still = pressure_still_reads(np.array(history)[:, :13])
-    return replace(with_friction, pressure_still_reads=still)
+    rest = np.array(history)
+    still = pressure_still_reads(rest[:, :13])
+    force = pressure_still_reads(rest[:, signals.SENSOR_FORCE : signals.SENSOR_FORCE + 3])
+    torque = pressure_still_reads(rest[:, signals.SENSOR_TORQUE : signals.SENSOR_TORQUE + 3])
+    return replace(with_friction, pressure_still_reads=still, ft_still_reads=force + torque)
 
 
 # -- how long a live transducer's reading may stand still (the last reads at rest) --------
@@ -269,7 +272,9 @@ def still_reads(noise: float) -> int:
 
 def pressure_still_reads(readings: NDArray[np.float64]) -> tuple[int, ...]:
     """Per pressure channel (columns of ``readings``, each steady: vented chambers, the
-    supply with every intake shut), :func:`still_reads` of the noise its reading showed."""
+    supply with every intake shut), :func:`still_reads` of the noise its reading showed.
+    Likewise for channels of one count size, each steady: the force sensor's three force
+    channels, its three torque channels, with nobody on the plate."""
     count = count_size(readings)
     if count <= 0.0:
         return (0,) * int(readings.shape[1])

@@ -17,7 +17,8 @@ What is watched, and how:
   would vent the chamber backwards into a failing supply line;
 - the force/torque sensor: any channel at its full scale (saturated), all six channels
   reading exactly zero (dead: a live sensor always shows noise), or all six unchanged bit for
-  bit (frozen);
+  bit (frozen); on a calibrated unit, one channel unchanged bit for bit for longer than the
+  noise it showed at start-up lets a live one (dead or frozen alone);
 - each leg length sensor: a jump between two reads that no leg can make (unplugged, noisy
   wiper), or a reading that stays bit for bit constant while the leg is driven hard toward a
   target that ran millimetres away from it (stuck);
@@ -213,7 +214,8 @@ C_ANSWER = 117  # 12: control periods in a row a chamber's valve did not answer 
 C_SUPPLY_DRAWN = 129
 """Reads since the supply's raw reading last changed in which an intake drew from it."""
 C_STEADY = 130  # 6: control periods in a row a leg alone carried a residual over its floor
-N_COUNTERS = 136
+C_FT_STILL = 136  # 6: reads in a row a force/torque channel stayed bit for bit the same
+N_COUNTERS = 142
 
 
 @dataclass(frozen=True)
@@ -1301,9 +1303,10 @@ def check_reading(
     """Checks of one fresh raw sensor vector (1 kHz): (trip code, channel), (0, -1) if fine.
     ``leg_target`` is in the calibrated frame, ``sensor_zero`` the calibration's zeros,
     ``leg_friction`` each leg's identified seal friction (N, 0 where none), ``still`` per
-    pressure channel the reads in a row its reading may stay the same (0: not judged so;
-    ``Calibration.pressure_still_reads``), ``drawing`` whether an intake draws from the
-    supply in this control period (``supply_frozen_reads``)."""
+    pressure channel (13), then per force/torque channel (6), the reads in a row its
+    reading may stay the same (0: not judged so; ``Calibration.still_reads``), ``drawing``
+    whether an intake draws from the supply in this control period
+    (``supply_frozen_reads``)."""
     counters[C_READS] += 1
     first = counters[C_READS] == 1
     # Pressure transducers: open wire, short, a jump no air makes, or a reading that stood
@@ -1360,6 +1363,8 @@ def check_reading(
             zero = False
         if v != monitor[M_FT_PREV + k]:
             same = False
+        stood = not first and v == monitor[M_FT_PREV + k]
+        counters[C_FT_STILL + k] = counters[C_FT_STILL + k] + 1 if stood else 0
         monitor[M_FT_PREV + k] = v
     counters[C_FT_SAT] = counters[C_FT_SAT] + 1 if saturated else 0
     counters[C_FT_ZERO] = counters[C_FT_ZERO] + 1 if zero else 0
@@ -1370,6 +1375,11 @@ def check_reading(
         or counters[C_FT_SAME] >= q.ft_frozen_reads
     ):
         return Trip.FORCE_SENSOR, -1
+    # One channel dead or frozen alone (the whole sensor's rules above want all six): it
+    # stood still longer than its noise lets a live one (tens of reads, after theirs).
+    for k in range(6):
+        if still[13 + k] > 0 and counters[C_FT_STILL + k] >= still[13 + k]:
+            return Trip.FORCE_SENSOR, k
     # Leg length sensors.
     alone = leg_alone(monitor, q)
     if counters[C_POSE_ROUGH] > 0:

@@ -365,7 +365,8 @@ def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
     assert 3.7 < cal.moving_mass < 4.6 and f"the legs move {cal.moving_mass:.2f} kg" in r.stdout
     assert len(cal.load_bias) == 6 and "load bias up to " in r.stdout
     # Draw 4's transducers (121 Pa of noise): every one is judged by its flicker.
-    assert all(cal.pressure_still_reads) and "13 of 13 transducers judged" in r.stdout
+    assert all(cal.pressure_still_reads) and "13 of 13 transducers and" in r.stdout
+    assert all(cal.ft_still_reads) and "6 of 6 force/torque channels judged" in r.stdout
 
     async def capabilities(*args: str) -> tuple[Capability, list[str]]:
         proc = ServiceProcess("--link", "tcp://127.0.0.1:0", "--plant-draw", "4", *args)

@@ -405,8 +405,11 @@ def test_identification_finds_how_long_each_transducer_may_stand_still() -> None
     cal = identify(SimulatedHardware(PlantConfig(patient="absent"), seed=2))
     assert len(cal.pressure_still_reads) == 13
     assert all(80 <= n <= 400 for n in cal.pressure_still_reads), cal.pressure_still_reads
+    # The force sensor's channels, about a count of noise each, the plate empty: judged too.
+    assert len(cal.ft_still_reads) == 6
+    assert all(20 <= n <= 100 for n in cal.ft_still_reads), cal.ft_still_reads
     params, _ = build_params(ControllerConfig(calibration=cal))
-    assert list(params.pressure_still) == list(cal.pressure_still_reads)
+    assert list(params.pressure_still) == list(cal.pressure_still_reads + cal.ft_still_reads)
     quiet = PlantConfig(patient="absent", overrides=(("pressure_noise", 50.0),))
     assert sum(identify(SimulatedHardware(quiet, seed=2)).pressure_still_reads) == 0
 
@@ -414,11 +417,15 @@ def test_identification_finds_how_long_each_transducer_may_stand_still() -> None
 def test_a_calibration_carries_the_still_reads_and_refuses_what_no_transducer_has(
     tmp_path: Path,
 ) -> None:
-    cal = Calibration(pressure_still_reads=(150,) * 12 + (0,), identified_at="x")
+    cal = Calibration(
+        pressure_still_reads=(150,) * 12 + (0,), ft_still_reads=(45,) * 6, identified_at="x"
+    )
     path = tmp_path / "cal.json"
     cal.save(path)
     assert Calibration.load(path) == cal
-    older = {k: v for k, v in json.loads(cal.to_json()).items() if k != "pressure_still_reads"}
+    assert list(cal.still_reads()) == [150] * 12 + [0] + [45] * 6
+    still = ("pressure_still_reads", "ft_still_reads")
+    older = {k: v for k, v in json.loads(cal.to_json()).items() if k not in still}
     path.write_text(json.dumps(older))
     assert not Calibration.load(path).still_reads().any()  # nothing judged by its flicker
     for change, match in (
@@ -430,6 +437,8 @@ def test_a_calibration_carries_the_still_reads_and_refuses_what_no_transducer_ha
             "transducer of chamber 1 (leg 1, cap side) may stand still 3",
         ),
         ({"pressure_still_reads": [150] * 12 + [5000]}, "the supply transducer may stand"),
+        ({"ft_still_reads": [45] * 5}, "ft_still_reads needs 6"),
+        ({"ft_still_reads": [45] * 5 + [2]}, "force/torque channel 6 may stand still 2"),
     ):
         path.write_text(json.dumps(json.loads(cal.to_json()) | change))
         with pytest.raises(IdentificationError, match=re.escape(match)):

@@ -90,6 +90,21 @@ def test_every_channel_is_watched_and_named(kind: FaultKind, channels: range, tr
         assert run.detect_ms <= 50.0 and run.excursion_mm <= 1.5, run
 
 
+@pytest.mark.parametrize("scenario", safety.SCENARIOS)
+def test_one_force_torque_channel_dead_alone_is_named(scenario: str) -> None:
+    """The matrix kills the whole sensor; one channel alone reading zero (its wire off) was
+    named only where it carried a load (force along z, pitch while pushing): the others
+    read a live channel's near-zero and were never named. Its missing noise names it once
+    its reading has stood still longer than the unit's noise lets a live one's
+    (``Calibration.ft_still_reads``)."""
+    for channel in range(6):
+        run = safety.run_fault(FaultKind.FT_DEAD, scenario, seed=channel + 2, channel=channel)
+        assert run.detected and run.trip == Trip.FORCE_SENSOR.name, run
+        assert run.channel == channel, run
+        assert run.detect_ms <= 100.0, run
+        assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
+
+
 def test_a_drooping_supply_holds_the_exercise_before_it_can_no_longer_carry_the_foot() -> None:
     for scenario in safety.SCENARIOS:
         # A regulator droops under flow: it takes 0.44-0.48 s to reach the low mark (475 ms
@@ -1025,7 +1040,7 @@ def test_the_compensation_a_still_leg_is_given_is_bounded_and_what_it_withholds_
         sensors[13:19] = 0.05
         sensors[19:25] = [0.1, 0.2, 0.3, 0.01, 0.02, 0.03]
         target, zero = np.full(6, 0.05), np.zeros(25)
-        still = np.zeros(13, dtype=np.int64)  # the transducers' flicker not judged here
+        still = np.zeros(19, dtype=np.int64)  # the transducers' and channels' flicker not judged
         found = (0, -1)
         for n in range(q.leg_stuck_reads + 2):
             sensors[13:19] += 24.0e-6  # every leg but ``leg`` moves a count a read
