@@ -195,6 +195,7 @@ def identify(
     finally:
         hardware.write_valves(np.zeros(signals.N_VALVES, dtype=np.uint8))
     rest = np.array(history)
+    check_live_channels(rest[:, signals.SENSOR_FORCE : signals.SENSOR_FORCE + 6])
     still = pressure_still_reads(rest[:, :13])
     force = pressure_still_reads(rest[:, signals.SENSOR_FORCE : signals.SENSOR_FORCE + 3])
     torque = pressure_still_reads(rest[:, signals.SENSOR_TORQUE : signals.SENSOR_TORQUE + 3])
@@ -268,6 +269,24 @@ def still_reads(noise: float) -> int:
         return 0
     reads = max(low, math.ceil(math.log(STILL_RISK) / math.log(stay)))
     return reads if reads <= high else 0
+
+
+FT_CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+
+
+def check_live_channels(readings: NDArray[np.float64]) -> None:
+    """Refuse a force/torque channel that read exactly 0 at every one of ``readings`` (reads
+    x 6, at rest, the plate empty): a live one's zero is off by some counts and its noise
+    flickers it (about a count), so a channel of only zeros is dead alone (its wire or
+    amplifier), which the whole sensor's dead rule (all six zero) does not see, and whose
+    flicker the identification cannot count (``ft_still_reads`` would not judge it)."""
+    for k in range(readings.shape[1]):
+        if not np.any(readings[:, k]):
+            raise IdentificationError(
+                f"force/torque channel {FT_CHANNELS[k]} read exactly 0 through the "
+                f"{len(readings)} reads at rest, where a live one shows its zero and its "
+                "noise: check that channel's cable and amplifier"
+            )
 
 
 def pressure_still_reads(readings: NDArray[np.float64]) -> tuple[int, ...]:

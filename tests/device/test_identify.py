@@ -91,6 +91,7 @@ def test_a_foot_on_the_plate_or_a_bad_sensor_refuses_the_calibration() -> None:
         (FaultKind.PRESSURE_OFFSET, 12, -0.4, r"supply transducer reads -0\.[34]\d bar"),
         (FaultKind.PRESSURE_STUCK, 12, 0.0, r"PRESSURE_SENSOR on supply transducer: a pressure"),
         (FaultKind.FT_DEAD, -1, 0.0, r"FORCE_SENSOR: the foot's force/torque sensor .*zero$"),
+        (FaultKind.FT_DEAD, 4, 0.0, r"^force/torque channel Ty read exactly 0 through"),
         # A tenth of a valve's conductance, a cracked fitting: the valve figures took it up.
         (FaultKind.CHAMBER_LEAK, 5, 0.1, r"^chamber 6 \(leg 3, rod side\) lost [4-9]\.\d NL/min"),
         (FaultKind.CHAMBER_LEAK, 0, 0.1, r"^chamber 1 \(leg 1, cap side\) lost [3-9]\.\d NL/min"),
@@ -104,7 +105,8 @@ def test_a_fault_present_at_identification_is_refused_by_its_name(
     shut as all six legs not lifting by their cap sides, a dead force sensor as
     "something on the plate", and a supply transducer 1.5 bar off was accepted (no check
     reads it at rest) and judged the supply's low and loss marks on a wrong pressure; a
-    leaking chamber was accepted, its leak taken up in its valves' figures."""
+    leaking chamber was accepted, its leak taken up in its valves' figures, and one force
+    sensor channel dead alone too (its flicker, then, not judged once it ran)."""
     hw = SimulatedHardware(PlantConfig(patient="absent"), seed=0)
     hw.inject(Fault(kind, 0.0, channel, value, math.inf))
     with pytest.raises(IdentificationError, match=named) as refused:
