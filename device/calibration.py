@@ -18,6 +18,8 @@ from numpy.typing import NDArray
 from device import signals
 from device.signals import chamber
 
+FT_CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+"""The force/torque sensor's channels as its cable and amplifier label them."""
 LEG_ZERO_MAX = 3.0e-3
 """A leg zero beyond this (m) is not an offset but a fault (a bent rod, a slipped sensor):
 the identification refuses it rather than let the controller trust it."""
@@ -258,8 +260,8 @@ class Calibration:
         for k, n in enumerate(self.ft_still_reads):
             if n != 0 and not low <= n <= high:
                 raise IdentificationError(
-                    f"force/torque channel {k + 1} may stand still {n} reads (healthy: 0 or "
-                    f"{low}-{high}): check the calibration file"
+                    f"force/torque channel {FT_CHANNELS[k]} may stand still {n} reads "
+                    f"(healthy: 0 or {low}-{high}): check the calibration file"
                 )
 
     def check_load_bias(self) -> None:

@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 
 from device import pwm, signals, supervision
 from device.calibration import (
+    FT_CHANNELS,
     LEG_ZERO_MAX,
     PRESSURE_ZERO_MAX,
     STILL_READS_RANGE,
@@ -269,9 +270,6 @@ def still_reads(noise: float) -> int:
         return 0
     reads = max(low, math.ceil(math.log(STILL_RISK) / math.log(stay)))
     return reads if reads <= high else 0
-
-
-FT_CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 
 
 def check_live_channels(readings: NDArray[np.float64]) -> None:

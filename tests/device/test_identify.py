@@ -440,7 +440,7 @@ def test_a_calibration_carries_the_still_reads_and_refuses_what_no_transducer_ha
         ),
         ({"pressure_still_reads": [150] * 12 + [5000]}, "the supply transducer may stand"),
         ({"ft_still_reads": [45] * 5}, "ft_still_reads needs 6"),
-        ({"ft_still_reads": [45] * 5 + [2]}, "force/torque channel 6 may stand still 2"),
+        ({"ft_still_reads": [45] * 5 + [2]}, "force/torque channel Tz may stand still 2"),
     ):
         path.write_text(json.dumps(json.loads(cal.to_json()) | change))
         with pytest.raises(IdentificationError, match=re.escape(match)):
