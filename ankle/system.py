@@ -146,7 +146,16 @@ class _Device:
         return "\n".join(list(self.service.output)[-10:])
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 def _interrupt(signum: int, frame: object) -> None:
+    """The first stop signal starts the orderly stop; the ones after it are ignored (each
+    child's stop is bounded: SIGKILL after 10 s). ``make run`` under ``timeout`` or a
+    service manager gets SIGTERM twice (make passes on its own), and the second, raised
+    inside the stop, cut it short: the server and the station were left running."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 
@@ -189,7 +198,7 @@ def run_system(
     # A service manager, `timeout` or a closed terminal stops us with SIGTERM or SIGHUP, not
     # Ctrl-C: the same orderly stop, or the children (started in their own sessions) would be
     # left running without us.
-    for sig in (signal.SIGTERM, signal.SIGHUP):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, _interrupt)
     url = f"http://{host}:{port}"
     env = {"ANKLE_DATA_DIR": str(data_dir), "ANKLE_HOST": host, "ANKLE_PORT": str(port)}

@@ -104,9 +104,17 @@ def test_run_serves_dashboard_and_patient_page_restarts_a_killed_station_and_sto
 
         _wait_for("the device and the station restarted", device_back, log, proc, 120)
 
+        # Stopped as `timeout make run` stops it: SIGTERM, and make passes on another; an
+        # impatient Ctrl-C after. The first starts the orderly stop, the others cannot cut
+        # it short (they did: the server and the station were left running).
         proc.send_signal(signal.SIGTERM)
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 0
         assert "stopped; valves closed" in log.read_text()
+        assert "Traceback" not in log.read_text()
         # Its children are gone with it: nothing listens on either port any more.
         assert not listening(port)
         assert not listening(page_port)
