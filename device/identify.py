@@ -853,7 +853,7 @@ def check_settled(legs: NDArray[np.float64]) -> None:
             "to read with its leg at rest on the stop: a noisy sensor or a loose contact, "
             "check the sensor and its cable"
         )
-    speed = np.abs(legs[-1] - legs[0]) / ((len(legs) - 1) * 1e-3)
+    speed = np.abs(legs[-1] - legs[0]) / ((len(legs) - 1) / READ_HZ)
     if np.any(speed > SETTLED_SPEED):
         worst = int(np.argmax(speed))
         raise IdentificationError(
