@@ -1361,9 +1361,8 @@ def check_reading(
             saturated = True
         if v != 0.0:
             zero = False
-        if v != monitor[M_FT_PREV + k]:
-            same = False
         stood = not first and v == monitor[M_FT_PREV + k]
+        same = same and stood
         counters[C_FT_STILL + k] = counters[C_FT_STILL + k] + 1 if stood else 0
         monitor[M_FT_PREV + k] = v
     counters[C_FT_SAT] = counters[C_FT_SAT] + 1 if saturated else 0
