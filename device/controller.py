@@ -91,7 +91,9 @@ I_BLEED = 9
 """Chamber the latched trip holds at its trip pressure (-1: none): its exhaust bleeding it
 (0-11), its intake feeding it (``HOLD_FEED`` + chamber), its exhaust bleeding it while its
 leg's other chamber is fed to match (``HOLD_BALANCE`` + chamber, a release stopped by a stuck
-intake), or none since a release (``BLEED_RELEASED``); see :func:`bleed`."""
+intake), either of its own valves holding it (``HOLD_BOTH`` + chamber, the loop's service
+chamber when the valves shut), or none since a release (``BLEED_RELEASED``); see
+:func:`bleed`."""
 I_RINGS = 10
 """Rings the guard has seen on compliant axes since start-up (device.ring), all axes."""
 I_RELEASE_STOP = 11
@@ -2534,17 +2536,42 @@ def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool, balance: bo
 
 
 @njit_inline
+def hold_service(s: ControllerState, c: int) -> None:
+    """The valves shut (the segment ended, a hold, homing done) while chamber ``c``'s air
+    did not add up (``supervision.C_SERVICE``): the loop had been outrunning a leak or a
+    valve stuck open, which now moves the leg alone. :func:`watch_shut` would name it only
+    after its first window (0.1 s to set the references, then a window to judge): measured
+    at the end of the matrix's pitch exercise, an exhaust stuck open let its leg sink
+    8.5-10.3 mm and tilt the platform 4.6-5.2 deg before that VALVE trip, a leak of half a
+    valve's conductance left by homing 4.8-6.8 mm and 3.0-3.6 deg. Named now (a VALVE trip, the
+    device needs service already) and held at its pressure by either of its own valves
+    (``HOLD_BOTH``: which path moves its air, a leak, an intake or an exhaust stuck open, is
+    not known here)."""
+    trip(s, Trip.VALVE, c)
+    for v in range(24):
+        s.valves[v] = 0
+    s.trip_air[0] = math.nan
+    s.istate[I_BLEED] = HOLD_BOTH + c
+    s.p_desired[c] = s.pressure[c]
+
+
+@njit_inline
 def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     """With every valve shut (IDLE, not released) a chamber's air moves only through a valve
     stuck open (or a leak): moved by ``SupervisionConfig.shut_air`` within a window of
     ``shut_reads``, its pressure by ``release_rise`` the same way, it is held
     (:func:`hold_stuck`); a slower leak the same way against its air's and pressure's
     trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first window after the
-    valves shut only sets the references."""
+    valves shut only sets the references. A chamber the loop already named (the service
+    warning, ``supervision.C_SERVICE``) is held at once (:func:`hold_service`)."""
     q = p.sup
     m = supervision.M_SHUT
     n = int(s.monitor[m + 24]) + 1
     s.monitor[m + 24] = n
+    service = s.counters[supervision.C_SERVICE]
+    if n == 1 and service > 0 and s.istate[I_MODE] != Mode.FAULT:
+        hold_service(s, int(service) - 1)
+        return
     if n < q.shut_reads:
         return
     refresh = (n - q.shut_reads) % q.shut_reads == 0
@@ -2596,6 +2623,13 @@ HOLD_BALANCE = 24
 """``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_BALANCE`` is bled by its
 exhaust against a stuck intake, and its leg's other chamber is fed to keep the leg's force
 where it was when the chamber was named (a release stopped by a stuck intake)."""
+HOLD_BOTH = 36
+"""``I_BLEED`` at or above this: the chamber ``I_BLEED - HOLD_BOTH`` is held at its pressure
+by its exhaust above and its intake below, ``HOLD_BAND`` either side (:func:`hold_service`)."""
+HOLD_BAND = 0.02e5
+"""Pa either side of the held pressure before one of ``HOLD_BOTH``'s valves opens: 8
+transducer counts, 7 times the noisiest transducer a build may draw (3 mbar rms), so the
+two valves never take turns on a reading's noise; 1 N on a cap side's piston."""
 BLEED_RELEASED = -2
 """``I_BLEED`` once the platform was released (vented) after the trip: its chambers are
 emptied on purpose, and nothing holds them at their trip pressures any more."""
@@ -2656,7 +2690,7 @@ def bleed(
             air = (pressure[k] + sup.atm) * volume
             if record:
                 trip_air[k] = air
-                if k != c and k != c - HOLD_FEED:  # a fed chamber's: set by hold_stuck
+                if k != c and k != c - HOLD_FEED and k != c - HOLD_BOTH:  # set by the hold
                     p_desired[k] = pressure[k]
             elif c == -1 and not (
                 (code == Trip.PRESSURE_SENSOR and named == k)
@@ -2675,6 +2709,16 @@ def bleed(
         k = c - HOLD_FEED
         if (
             pressure[k] < p_desired[k]
+            and not supply_named
+            and supervision.intake_allowed(supply_abs, pressure[k], sup)
+        ):
+            valves[2 * k] = 1
+    elif c >= HOLD_BOTH:
+        k = c - HOLD_BOTH
+        if pressure[k] > p_desired[k] + HOLD_BAND:
+            valves[2 * k + 1] = 1
+        elif (
+            pressure[k] < p_desired[k] - HOLD_BAND
             and not supply_named
             and supervision.intake_allowed(supply_abs, pressure[k], sup)
         ):

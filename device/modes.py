@@ -210,8 +210,9 @@ class ModeMachine:
                 self.mode,
                 int(Trip.AIR_BALANCE),
                 float(chamber),
-                f"AIR_BALANCE on {part}: a leak or a stuck valve; this segment ends under "
-                "control, then service",
+                f"AIR_BALANCE on {part}: a leak or a stuck valve; "
+                f"{'homing' if self.mode == DeviceMode.HOMING else 'this segment'} ends under "
+                "control, then its own valves hold it until serviced",
             )
         elif chamber < 0:
             self._service_reported = False

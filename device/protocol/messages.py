@@ -92,7 +92,9 @@ class EventKind(IntEnum):
     motion is refused until it recovers."""
     SERVICE = 9
     """A chamber's air does not add up (code AIR_BALANCE, a leak or a stuck valve): the
-    running segment finishes under control, nothing new starts until a re-arm."""
+    running segment (or homing) finishes under control, nothing new starts until a re-arm.
+    When it ends and the valves shut, the chamber is named by a VALVE fault at once and
+    held by its own valves."""
     DAMPING_RAISED = 10
     """A compliant axis rang with the foot on it and the ring guard raised the damping the
     law renders there (code: the axis 0-5; value: the factor now on its damping); it holds
