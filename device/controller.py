@@ -2560,10 +2560,12 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     """With every valve shut (IDLE, not released) a chamber's air moves only through a valve
     stuck open (or a leak): moved by ``SupervisionConfig.shut_air`` within a window of
     ``shut_reads``, its pressure by ``release_rise`` the same way, it is held
-    (:func:`hold_stuck`); a slower leak the same way against its air's and pressure's
-    trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first window after the
-    valves shut only sets the references. A chamber the loop already named (the service
-    warning, ``supervision.C_SERVICE``) is held at once (:func:`hold_service`)."""
+    (:func:`hold_stuck`, a stuck intake's leg's other side fed to match as in a release,
+    ``SupervisionConfig.release_balance``); a slower leak the same way against its air's
+    and pressure's trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first
+    window after the valves shut only sets the references. A chamber the loop already
+    named (the service warning, ``supervision.C_SERVICE``) is held at once
+    (:func:`hold_service`)."""
     q = p.sup
     m = supervision.M_SHUT
     n = int(s.monitor[m + 24]) + 1
@@ -2601,7 +2603,7 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
                 air < (1.0 - q.shut_air) * ref and s.pressure[c] < ref_p - q.release_rise
             )
         if gained or lost:
-            hold_stuck(s, c, gained, lost)
+            hold_stuck(s, c, gained, lost, q.release_balance)
             return
 
 

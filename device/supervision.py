@@ -925,10 +925,15 @@ class SupervisionConfig:
     averages at which one that lost less than ``release_lag`` of it kept its air (a chamber
     venting steadily through its pulses loses about 3-7 % against a 50-read average)."""
     release_balance: bool = True
-    """A release stopped by a stuck intake: its exhaust cannot hold the chamber (it rises
-    to the supply), so the leg's other chamber is fed by what the stuck one gained since it
-    was named, times their areas' ratio, keeping the leg's force where it was
-    (device.controller.bleed, ``HOLD_BALANCE``). Measured on the nominal unit, intakes
+    """A release stopped by a stuck intake, or one named with every valve shut (the
+    service's HOLD and READY, device.controller.watch_shut): its exhaust cannot hold the
+    chamber (it rises toward the supply), so the leg's other chamber is fed by what the
+    stuck one gained since it was named, times their areas' ratio, keeping the leg's force
+    where it was (device.controller.bleed, ``HOLD_BALANCE``). Held at home with every valve
+    shut (``ankle bench shutwatch``: the calibrated nominal unit, both feet, every axis
+    over 3 s), each of the twelve intakes stuck open: by the exhaust alone 0.38-2.02 deg
+    and 0.99-3.70 mm (leg 5's cap side the most), with the other side fed 0.11-1.49 deg
+    and 0.28-2.73 mm. Measured on the nominal unit, intakes
     stuck open 0-1.5 s into a release held at home (valves 0, 2, 8, 10): without it the
     legs ran until their half-vented other chambers balanced them, up to 10.7 deg and 12.2
     mm (relaxed foot) and 7.3 deg, 13.0 mm (resisting); with it at most 2.4 deg and 4.4 mm,

@@ -5,12 +5,17 @@
 have no place in the safety benchmark's matrix, which injects while the loop runs. This
 benchmark measures them the same two ways:
 
-- **Faults**: on the nominal unit (calibrated, both feet), valves stuck open and leaks
-  injected 0.3 s into a hold at home, and intakes and exhausts stuck open or shut injected
-  0, 0.5 and 1 s into a release after a hold; each watched 3 s: named or not (the chamber
-  right), the detection time, the platform's largest turn (roll, pitch) and sideways shift
-  from its pose at the injection. A healthy release itself turns and shifts the platform
-  as it sinks; the same release without the fault is measured for comparison.
+- **Faults**: on the nominal unit (calibrated, both feet), every valve stuck open and leaks
+  injected 0.3 s into a hold at home (``held``); every valve stuck open and a leak on every
+  chamber injected into the safety matrix's pitch exercise, which the air checks name while
+  the loop outruns them, and the hold that ends the segment 0.5 s later (``exercise+hold``,
+  watched from the hold); and intakes and exhausts stuck open or shut injected 0, 0.5 and
+  1 s into a release after a hold. Each watched 3 s: named or not (the chamber right), the
+  detection time, the platform's largest turn (roll, pitch, yaw) and shift from its pose
+  at the injection (or the hold): sideways (x, y), and down or up as well (z) where
+  nothing releases it. A healthy release itself turns and shifts the platform as it
+  sinks; the same release without the fault is measured for comparison, and so is the
+  exercise's own hold.
 - **Healthy**: the library's exercises x both feet on the nominal unit and drawn builds,
   stopped at a drawn moment by a hold (``hold_s`` long) or an e-stop, then released and
   watched 6 s: any trip of the hold, or a stopped release, is a false one.
@@ -28,7 +33,7 @@ from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.rig import Rig
 from device.safety import Trip
-from lab.safety import _drawn_rig, _rig, start_exercise
+from lab.safety import _drawn_rig, _rig, _start, start_exercise
 from sessions.prescription import EXERCISE_LIBRARY
 
 WATCH_S = 3.0
@@ -41,13 +46,17 @@ TILT_TARGET_DEG, SHIFT_TARGET_MM = 2.0, 3.0
 """The issue's excursion targets."""
 
 HELD: tuple[tuple[FaultKind, int, float], ...] = (
-    (FaultKind.VALVE_STUCK_OPEN, 2, 0.0),  # leg 1's rod-side intake
-    (FaultKind.VALVE_STUCK_OPEN, 3, 0.0),  # leg 1's rod-side exhaust
-    (FaultKind.VALVE_STUCK_OPEN, 8, 0.0),  # leg 3's cap-side intake
-    (FaultKind.VALVE_STUCK_OPEN, 9, 0.0),  # leg 3's cap-side exhaust
+    *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in range(24)),  # every intake and exhaust
     (FaultKind.CHAMBER_LEAK, 1, 0.02),  # a fiftieth of a valve
     (FaultKind.CHAMBER_LEAK, 4, 0.1),  # a tenth
 )
+EXERCISE_HELD: tuple[tuple[FaultKind, int, float], ...] = (
+    *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in range(24)),
+    *((FaultKind.CHAMBER_LEAK, c, 0.5) for c in range(12)),  # the safety matrix's size
+)
+EXERCISE_HOLD_AFTER_S = 0.5
+"""How long the exercise runs on after the injection before the hold ends it (s): the air
+checks name a valve stuck open or a leak within 7-23 ms (``ankle bench safety``)."""
 RELEASED: tuple[tuple[FaultKind, int, float], ...] = (
     *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in (0, 2, 8, 10)),  # intakes
     *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in (1, 3, 9, 11)),  # exhausts
@@ -60,7 +69,7 @@ PATIENTS = ("relaxed", "resisting")
 
 @dataclass(frozen=True)
 class FaultRun:
-    situation: str  # "held", or "released+S" (S s into the release)
+    situation: str  # "held", "exercise+hold" or "released+S" (S s into the release)
     kind: str
     channel: int
     size: float
@@ -81,20 +90,39 @@ def _held(patient: str) -> Rig:
     return rig
 
 
+def _exercise_held(patient: str, fault: Fault | None) -> Rig:
+    """The safety matrix's pitch exercise with ``fault`` injected (if any), ended by a hold
+    ``EXERCISE_HOLD_AFTER_S`` later (what the device's modes do when a segment ends)."""
+    rig = _rig(patient, 2)
+    _start(rig, "exercise")
+    rig.run(0.5, log_hz=0)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    if fault is not None:
+        hw.inject(Fault(fault.kind, float(hw.state.time[0]), fault.channel, fault.value))
+    rig.run(EXERCISE_HOLD_AFTER_S, log_hz=0)
+    rig.hold()
+    return rig
+
+
 def _watch(rig: Rig, fault: Fault | None, released: bool) -> tuple[int, float, float, float]:
-    """Inject ``fault`` now (if any) and watch: (chamber named, ms to it, tilt, shift)."""
+    """Inject ``fault`` now (if any) and watch: (chamber named, ms to it, tilt, shift).
+    A VALVE trip latched already names its chamber at 0 ms."""
     hw = rig.hardware
     assert isinstance(hw, SimulatedHardware)
     if fault is not None:
         hw.inject(Fault(fault.kind, float(hw.state.time[0]), fault.channel, fault.value))
     start = np.array(hw.state.pose[:6])
     named, at = -1, float("nan")
+    if not released and rig.trip == Trip.VALVE:
+        named, at = rig.trip_channel, 0.0
     tilt = shift = 0.0
+    across = 2 if released else 3  # a release sinks the platform on purpose
     for i in range(round(WATCH_S / STEP_S)):
         rig.run(STEP_S, log_hz=0)
         d = np.abs(np.array(hw.state.pose[:6]) - start)
-        tilt = max(tilt, float(np.degrees(d[3:5].max())))
-        shift = max(shift, float(d[:2].max() * 1e3))
+        tilt = max(tilt, float(np.degrees(d[3:6].max())))
+        shift = max(shift, float(d[:across].max() * 1e3))
         if named < 0:
             if released and rig.release_stopped[0] >= 0:
                 named, at = rig.release_stopped[0], (i + 1) * STEP_S * 1e3
@@ -106,10 +134,11 @@ def _watch(rig: Rig, fault: Fault | None, released: bool) -> tuple[int, float, f
 def fault_runs(
     progress: Callable[[str], None] | None = None,
 ) -> tuple[list[FaultRun], dict[str, list[float]]]:
-    """Every fault of ``HELD`` and ``RELEASED`` on both feet; and the healthy release's own
-    motion over the same windows, per foot and moment."""
+    """Every fault of ``HELD``, ``EXERCISE_HELD`` and ``RELEASED`` on both feet; and the
+    healthy release's (and the exercise's hold's) own motion over the same windows, per
+    foot and moment."""
     rows: list[FaultRun] = []
-    total = len(PATIENTS) * (len(HELD) + len(RELEASED) * len(RELEASE_AT_S))
+    total = len(PATIENTS) * (len(HELD) + len(EXERCISE_HELD) + len(RELEASED) * len(RELEASE_AT_S))
     for patient in PATIENTS:
         for kind, channel, size in HELD:
             if progress:
@@ -118,6 +147,15 @@ def fault_runs(
             named, at, tilt, shift = _watch(rig, Fault(kind, 0.0, channel, size), False)
             rows.append(
                 FaultRun("held", kind.name.lower(), channel, size, patient,
+                         named == _chamber(kind, channel), named, at, tilt, shift)
+            )  # fmt: skip
+        for kind, channel, size in EXERCISE_HELD:
+            if progress:
+                progress(f"shut watch: fault {len(rows) + 1}/{total}")
+            rig = _exercise_held(patient, Fault(kind, 0.0, channel, size))
+            named, at, tilt, shift = _watch(rig, None, False)
+            rows.append(
+                FaultRun("exercise+hold", kind.name.lower(), channel, size, patient,
                          named == _chamber(kind, channel), named, at, tilt, shift)
             )  # fmt: skip
         for after in RELEASE_AT_S:
@@ -140,6 +178,8 @@ def fault_runs(
             rig.run(after, log_hz=0)
             _, _, tilt, shift = _watch(rig, None, True)
             own[f"{patient} released+{after:g}"] = [tilt, shift]
+        _, _, tilt, shift = _watch(_exercise_held(patient, None), None, False)
+        own[f"{patient} exercise+hold"] = [tilt, shift]
     return rows, own
 
 
@@ -232,7 +272,7 @@ def table(result: dict[str, Any]) -> str:
         f"excursion, worst      {result['excursion_deg_max']:.2f} deg, "
         f"{result['excursion_mm_max']:.2f} mm (targets {TILT_TARGET_DEG:g} deg, "
         f"{SHIFT_TARGET_MM:g} mm; {result['over_targets']} runs over)",
-        "a healthy release's own motion over the same 3 s: "
+        "a healthy release's (or the exercise's hold's) own motion over the same 3 s: "
         + ", ".join(
             f"{k} {v[0]:.2f} deg {v[1]:.2f} mm" for k, v in result["release_own_motion"].items()
         ),

@@ -370,6 +370,24 @@ def test_a_valve_stuck_open_while_every_valve_is_shut_is_held(
 
 
 @pytest.mark.parametrize("patient", ["relaxed", "resisting"])
+@pytest.mark.parametrize("valve", [4, 16, 20])
+def test_an_intake_stuck_open_while_every_valve_is_shut_is_balanced_by_its_legs_other_side(
+    valve: int, patient: str
+) -> None:
+    """An intake stuck open with every valve shut: its exhaust cannot hold the chamber (it
+    rises toward the supply), so, as in a release (``release_balance``), the leg's other
+    chamber is fed by what the stuck one gained since it was named. By the exhaust alone
+    (``ankle bench shutwatch``, 3 s, every axis): valves 4, 16 and 20 turned the platform
+    1.26-2.02 deg and shifted it 2.19-3.70 mm; balanced, 0.57-1.49 deg and 1.17-2.73 mm."""
+    chamber = valve // 2
+    r, start, pose = _held_with(FaultKind.VALVE_STUCK_OPEN, valve, patient)
+    assert r.trip == Trip.VALVE and r.trip_channel == chamber, (r.trip, r.trip_channel)
+    assert r.state.istate[ctl.I_BLEED] == ctl.HOLD_BALANCE + chamber
+    moved = np.abs(pose - start).max(axis=0)
+    assert np.degrees(moved[3:]).max() < 2.0 and 1e3 * moved[:3].max() < 3.0, moved
+
+
+@pytest.mark.parametrize("patient", ["relaxed", "resisting"])
 @pytest.mark.parametrize(("chamber", "size"), [(1, 0.02), (9, 0.02), (4, 0.05)])
 def test_a_slow_leak_while_every_valve_is_shut_is_held(
     chamber: int, size: float, patient: str
