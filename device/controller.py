@@ -2563,9 +2563,9 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     (:func:`hold_stuck`, a stuck intake's leg's other side fed to match as in a release,
     ``SupervisionConfig.release_balance``); a slower leak the same way against its air's
     and pressure's trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first
-    window after the valves shut only sets the references. A chamber the loop already
-    named (the service warning, ``supervision.C_SERVICE``) is held at once
-    (:func:`hold_service`)."""
+    ``shut_settle_reads`` reads after the valves shut only set the references. A chamber
+    the loop already named (the service warning, ``supervision.C_SERVICE``) is held at
+    once (:func:`hold_service`)."""
     q = p.sup
     m = supervision.M_SHUT
     n = int(s.monitor[m + 24]) + 1
@@ -2574,13 +2574,13 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     if n == 1 and service > 0 and s.istate[I_MODE] != Mode.FAULT:
         hold_service(s, int(service) - 1)
         return
-    if n < q.shut_reads:
+    if n < q.shut_settle_reads:
         return
-    refresh = (n - q.shut_reads) % q.shut_reads == 0
+    refresh = (n - q.shut_settle_reads) % q.shut_reads == 0
     slow = m + 25  # the trailing averages (air, then gauge pressure)
     for c in range(12):
         air = chamber_air(s, p, c)
-        if n == q.shut_reads:
+        if n == q.shut_settle_reads:
             s.monitor[slow + c] = air
             s.monitor[slow + 12 + c] = s.pressure[c]
         else:

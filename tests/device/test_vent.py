@@ -369,6 +369,25 @@ def test_a_valve_stuck_open_while_every_valve_is_shut_is_held(
     assert tilt < 2.0 and shift < 3.0, (tilt, shift)
 
 
+@pytest.mark.parametrize(("valve", "after"), [(1, 0.0), (9, 0.02), (2, 0.05)])
+def test_a_valve_that_fails_just_after_the_valves_shut_is_named_at_once(
+    valve: int, after: float
+) -> None:
+    """The hold that ends the safety matrix's pitch exercise, and a valve stuck open
+    ``after`` s later, inside the first window of the shut watch. While that window only
+    set the references, an exhaust stuck then was named 56-106 ms in, its leg 8.2-12.8 mm
+    down and the platform turned 4.2-6.1 deg; a rod-side intake was not named at all."""
+    from lab import shutwatch
+
+    r = shutwatch._exercise_held("relaxed", None)
+    r.run(after, log_hz=0) if after > 0 else None
+    named, at, tilt, shift = shutwatch._watch(
+        r, Fault(FaultKind.VALVE_STUCK_OPEN, 0.0, valve, 0.0), False
+    )
+    assert named == valve // 2 and at <= 30.0, (named, at)
+    assert tilt < 2.0 and shift < 3.0, (tilt, shift)
+
+
 @pytest.mark.parametrize("patient", ["relaxed", "resisting"])
 @pytest.mark.parametrize("valve", [4, 16, 20])
 def test_an_intake_stuck_open_while_every_valve_is_shut_is_balanced_by_its_legs_other_side(
@@ -473,6 +492,7 @@ def test_every_stopped_release_event_fits_the_wire(code: int) -> None:
         {"release_ahead_ratio": 0.5},
         {"shut_air": -0.05},
         {"shut_reads": 0},
+        {"shut_settle_reads": 0},
         {"release_window": 0},
         {"release_recent_median": 1.0},
         {"shut_slow_air": 0.0},
