@@ -25,6 +25,7 @@ from fastapi.responses import FileResponse
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
+from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 
 from device.protocol.messages import DeviceMode
 from server import audit
@@ -181,8 +182,7 @@ async def download(
                 f.write(digest)
         digest = sidecar.read_text().strip()
         media, filename = MEDIA_TYPES[fmt], f"{name}{FILE_SUFFIX[fmt]}"
-    await exported(db, user, row, fmt)
-    return FileResponse(
+    response = FileResponse(
         path,
         media_type=media,
         filename=filename,
@@ -191,7 +191,27 @@ async def download(
             "ETag": f'"{digest}"',
             "Cache-Control": "no-store",
         },
+        stat_result=await asyncio.to_thread(os.stat, path),
     )
+    if _sends_data(request, response):
+        await exported(db, user, row, fmt)
+    return response
+
+
+def _sends_data(request: Request, response: FileResponse) -> bool:
+    """Whether ``response`` will send any of its file: a Range it cannot serve is answered
+    400 (malformed) or 416 (past the end) with none, and is not an export. Asks Starlette's
+    own Range reading, so that the answer and the audit cannot disagree."""
+    http_range = request.headers.get("range")
+    if_range = request.headers.get("if-range")
+    if http_range is None or (if_range is not None and not response._should_use_range(if_range)):
+        return True  # the whole file
+    assert response.stat_result is not None
+    try:
+        response._parse_range_header(http_range, response.stat_result.st_size)
+    except (MalformedRangeHeader, RangeNotSatisfiable):
+        return False
+    return True
 
 
 async def exported(db: Db, user: Any, row: Session, fmt: str) -> None:
