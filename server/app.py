@@ -6,6 +6,8 @@ in the lifespan, so two apps with different settings (tests, the demo) never sha
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import gc
 import re
 from collections.abc import AsyncIterator
@@ -27,7 +29,7 @@ from server.relay import open_relay
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.common import document_must_change
 from server.routes.health import server_version
-from server.routes.uploads import CHUNK_MAX
+from server.routes.uploads import CHUNK_MAX, expire_uploads_forever
 from server.security import HashingSlots
 from server.throttle import LoginGate, LoginThrottle
 from server.tickets import ViewTickets
@@ -73,6 +75,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     metrics.watch_database(engine)
     relay = open_relay(settings.relay_url, settings.relay_lease_s, VIEW_HZ)
     hub = Hub(recheck_s=settings.live_recheck_s, relay=relay)
+    expiry: asyncio.Task[None] | None = None
     try:
         await prepare(engine, settings.migrate_on_start)
         app.state.engine = engine
@@ -83,10 +86,15 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.login_throttle = LoginThrottle(settings)
         # Here, not in the dashboard, so that whatever ends a user's access can end theirs.
         app.state.view_tickets = hub.tickets = ViewTickets(settings.view_ticket_ttl_s)
+        expiry = asyncio.create_task(expire_uploads_forever(app))
         if settings.gc_freeze:
             settle_garbage_collector()
         yield
     finally:
+        if expiry is not None:
+            expiry.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await expiry
         await hub.close()
         if hasattr(app.state, "hashing"):
             app.state.hashing.close()

@@ -126,6 +126,14 @@ class Settings(BaseSettings):
         gt=0,
         description="Largest session file a station may upload, bytes.",
     )
+    upload_expire_s: float = Field(
+        default=86400.0,
+        gt=0.0,
+        description="An incomplete upload no chunk has reached for this long is abandoned: "
+        "its bytes and its row are removed at start and by a pass every "
+        "min(upload_expire_s / 4, 1 hour), seconds. The station keeps its own copy and "
+        "sends it again from the start.",
+    )
     body_max_bytes: int = Field(
         default=1 * MiB,
         gt=0,

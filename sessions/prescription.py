@@ -68,6 +68,9 @@ TORQUE_LIMIT_MAX = DEVICE_LIMITS.torque_limit
 FORCE_LIMIT_MAX = DEVICE_LIMITS.force_limit
 SEGMENT_S_MAX = 600.0
 """Longest repetition (s): one device segment."""
+SETS_MAX, REPETITIONS_MAX = 20, 100
+"""The most sets, and repetitions per set, a prescription asks (a session's end record
+counts no more: ``sessions.recording.End``)."""
 
 
 class ExerciseKind(StrEnum):
@@ -302,9 +305,14 @@ class PrescriptionBody(BaseModel):
         description="Plain words for the patient.",
     )
     axes: list[AxisPrescription] = Field(min_length=1, max_length=3, title="Axes")
-    sets: int = Field(strict=True, default=1, ge=1, le=20, title="Sets")
+    sets: int = Field(strict=True, default=1, ge=1, le=SETS_MAX, title="Sets")
     repetitions: int = Field(
-        strict=True, default=10, ge=1, le=100, title="Repetitions per set", description="Per set."
+        strict=True,
+        default=10,
+        ge=1,
+        le=REPETITIONS_MAX,
+        title="Repetitions per set",
+        description="Per set.",
     )
     repetition_s: float = Field(
         strict=True,

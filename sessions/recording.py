@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from device.protocol.messages import Telemetry
+from sessions.prescription import REPETITIONS_MAX, SETS_MAX
 
 MAGIC = b"ANKLREC1"
 FORMAT_VERSION = 1
@@ -38,6 +39,11 @@ MAX_RECORD = 16 * 1024 * 1024
 
 UNIX_TIME_MAX = 253_402_300_800.0
 """Year 10000 in Unix seconds: a start or end time a date can hold."""
+ID_MAX = 2**63 - 1
+"""The largest id a database holds: a header naming a larger one names nothing."""
+CLOCK_SLACK_S = 3600.0
+"""Seconds a sample's times may reach past the session's start and end: a clock set while
+the session ran. Beyond that a recording is not of the session it says it is."""
 
 
 class RecordType(enum.IntEnum):
@@ -111,9 +117,9 @@ class Header(BaseModel):
 
     format_version: int = FORMAT_VERSION
     session_id: str = Field(description="UUID chosen by the station; the upload's key.")
-    station_id: int
-    patient_id: int
-    prescription_id: int
+    station_id: int = Field(ge=0, le=ID_MAX)
+    patient_id: int = Field(ge=0, le=ID_MAX)
+    prescription_id: int = Field(ge=0, le=ID_MAX)
     prescription: dict[str, Any] = Field(description="The prescription as it was run.")
     device: DeviceInfo
     software: str
@@ -149,8 +155,9 @@ class End(BaseModel):
         ge=0.0, lt=UNIX_TIME_MAX, allow_inf_nan=False, description="Unix time, s."
     )
     reason: EndReason
-    sets_completed: int
-    repetitions_completed: int
+    # No more than a prescription can ask: a count past it is not what the station ran.
+    sets_completed: int = Field(ge=0, le=SETS_MAX)
+    repetitions_completed: int = Field(ge=0, le=SETS_MAX * REPETITIONS_MAX, description="All sets.")
     text: str = Field(
         default="", description="Why it ended, in words, when not simply completed or stopped."
     )
@@ -234,6 +241,51 @@ def decode(data: bytes | memoryview) -> Recording:
             raise RecordingError("a second header record")
     samples = np.concatenate(blocks) if blocks else np.zeros(0, SAMPLE_DTYPE)
     return Recording(header, samples, events, end, valid, damaged)
+
+
+def check_session_times(rec: Recording) -> None:
+    """A finished recording's times must describe one session: it ends no earlier than it
+    starts, its samples were received within it (station clock, ``wall``), and the device's
+    clock covers no more time than the session lasted (the sum of its forward steps ``t``,
+    so that a device restarted mid-session, its clock back at 0, still counts right). Each
+    allows :data:`CLOCK_SLACK_S`. Times that are not finite are unmeasured, not wrong (the
+    summary leaves them out). Raises :class:`RecordingError` naming the field.
+
+    The server asks it of every upload before filing it (``server.routes.uploads``);
+    :func:`decode` does not, so that the station's recovery never takes a session whose
+    clock was set while it ran for a file to delete, and a session filed earlier still
+    reads."""
+    if rec.end is None:
+        raise RecordingError("it is cut off: it has no end record")
+    samples = rec.samples
+    start, stop = rec.header.started_at, rec.end.ended_at
+    if stop < start:
+        raise RecordingError(
+            f"the end record's ended_at ({stop:.3f}) is before the header's started_at "
+            f"({start:.3f}): a session ends after it starts"
+        )
+    wall = samples["wall"].astype(np.float64)
+    wall = wall[np.isfinite(wall)]
+    if len(wall) and (wall.min() < start - CLOCK_SLACK_S or wall.max() > stop + CLOCK_SLACK_S):
+        raise RecordingError(
+            f"a sample's wall time ({_outlier(wall, start, stop):.6g}) lies outside the "
+            f"session (started_at {start:.3f} to ended_at {stop:.3f}, give or take "
+            f"{CLOCK_SLACK_S:g} s)"
+        )
+    with np.errstate(over="ignore", invalid="ignore"):
+        dt = np.diff(samples["t"].astype(np.float64))
+        forward = dt[np.isfinite(dt) & (dt > 0)]
+        covered = float(forward.sum()) if len(forward) else 0.0
+    if covered > stop - start + CLOCK_SLACK_S:
+        raise RecordingError(
+            f"the samples' device time t covers {covered:.6g} s, more than the session lasted "
+            f"(ended_at - started_at = {stop - start:.6g} s): not a recording of this session"
+        )
+
+
+def _outlier(wall: NDArray[np.float64], start: float, stop: float) -> float:
+    low, high = float(wall.min()), float(wall.max())
+    return low if low < start - CLOCK_SLACK_S else high
 
 
 def read(path: Path) -> Recording:

@@ -3,9 +3,11 @@
 Bytes are appended to ``data_dir/uploads/<session uuid>.part`` and reach the disk (fsync)
 before the answer leaves, so an acknowledged byte is never lost and never asked for again.
 ``complete`` checks size, SHA-256 and the recording itself (its header must name this
-station's patient, it must end with an end record, every record's CRC must hold), files the
+station's patient, it must end with an end record, every record's CRC must hold, its times
+must be those of one session, its summary must come out in finite numbers), files the
 session under ``data_dir/sessions/`` with its summary, and answers the same way if asked
-again.
+again. A recording refused there is discarded (:class:`Refused`), and an upload no chunk has
+reached for ``upload_expire_s`` is removed (:func:`expire_uploads`).
 """
 
 from __future__ import annotations
@@ -13,35 +15,40 @@ from __future__ import annotations
 import asyncio
 import fcntl
 import hashlib
+import logging
 import os
+import time
 import uuid
 import zlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from sqlalchemy import select
 
 from server import audit
 from server.deps import CurrentStation, Db
-from server.models import Prescription, Session, Upload
+from server.models import Prescription, Session, Upload, utcnow
 from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses
 from server.routes.sessions import SessionPublic, session_public
 from sessions.recording import (
     MAGIC,
+    Recording,
     RecordingError,
     RecordType,
+    check_session_times,
     decode,
     iter_records,
 )
 from sessions.recording import Header as RecordingHeader
-from sessions.summary import summarize
+from sessions.summary import Summary, summarize
 from sessions.wire import error_text
 
+log = logging.getLogger("ankle.server")
 router = APIRouter(tags=["uploads"], responses=UNAUTHORIZED)
 CHUNK_MAX = 1024 * 1024 + 64 * 1024
 """Largest PATCH body (bytes): the station's 1 MiB chunk and a margin. ``server.guard``
@@ -72,8 +79,8 @@ class UploadComplete(BaseModel):
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of the file, hex.")
 
 
-def _dirs(request: Request) -> tuple[Path, Path]:
-    data = Path(request.app.state.settings.data_dir)
+def _dirs(app: Any) -> tuple[Path, Path]:
+    data = Path(app.state.settings.data_dir)
     uploads, sessions = data / "uploads", data / "sessions"
     uploads.mkdir(mode=0o700, parents=True, exist_ok=True)
     sessions.mkdir(mode=0o700, parents=True, exist_ok=True)
@@ -87,14 +94,14 @@ LOCK_POLL_S = 0.01
 
 
 @asynccontextmanager
-async def _lock(request: Request, key: str) -> AsyncIterator[None]:
-    """One upload's appends and completion, one at a time: among this process's requests
-    (an asyncio lock) and among every server process sharing the data directory (an
+async def _lock(app: Any, key: str) -> AsyncIterator[None]:
+    """One upload's appends, completion and expiry, one at a time: among this process's
+    requests (an asyncio lock) and among every server process sharing the data directory (an
     exclusive flock on a stripe file in uploads/). The flock is polled, never waited for
     in a thread: the holder needs the thread pool to write its bytes."""
-    locks: dict[str, asyncio.Lock] = request.app.state.__dict__.setdefault("upload_locks", {})
+    locks: dict[str, asyncio.Lock] = app.state.__dict__.setdefault("upload_locks", {})
     async with locks.setdefault(key, asyncio.Lock()):
-        uploads, _ = _dirs(request)
+        uploads, _ = _dirs(app)
         stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
         fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
         try:
@@ -168,8 +175,8 @@ async def upload_append(
     data = await request.body()  # at most CHUNK_MAX: server.guard refused anything longer
     if len(data) > CHUNK_MAX:
         raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
-    uploads, _ = _dirs(request)
-    async with _lock(request, sid):
+    uploads, _ = _dirs(request.app)
+    async with _lock(request.app, sid):
         if await db.scalar(select(Session.id).where(Session.session_uuid == sid)):
             raise HTTPException(409, "this session is already complete")
         up = await db.get(Upload, sid)
@@ -232,8 +239,8 @@ async def upload_complete(
     db: Db,
 ) -> SessionPublic:
     sid = str(session_id)
-    uploads, sessions_dir = _dirs(request)
-    async with _lock(request, sid):
+    uploads, sessions_dir = _dirs(request.app)
+    async with _lock(request.app, sid):
         done = await db.scalar(select(Session).where(Session.session_uuid == sid))
         if done is not None:
             if done.station_id != station.id:
@@ -251,30 +258,17 @@ async def upload_complete(
                 headers={"Upload-Offset": str(up.received_bytes)},
             )
         part = uploads / f"{sid}.part"
-        digest = await asyncio.to_thread(_sha256, part)
-        if digest != body.sha256:
-            # Start over rather than keep bytes that do not match the station's file.
-            await db.delete(up)
-            await db.commit()
-            part.unlink(missing_ok=True)
-            raise HTTPException(
-                422, f"checksum mismatch: the server's bytes hash to {digest}; upload again"
-            )
         try:
-            rec = await asyncio.to_thread(decode, part.read_bytes())
-            end = rec.end
-            if rec.damaged or end is None:
-                raise RecordingError("it is cut off: it has no end record")
-        except ValueError as exc:  # RecordingError, or a record's ValidationError
+            rec, summary, digest = await asyncio.to_thread(_checked, part, body.sha256)
+        except Refused as exc:
             # The station's whole file is wrong; keeping a copy of it helps nobody, and the
             # station can only send a corrected file from the start.
             await db.delete(up)
             await db.commit()
             part.unlink(missing_ok=True)
-            raise HTTPException(
-                422, f"not a valid recording: {error_text(exc, 300)}; upload the session again"
-            ) from None
-        summary = await asyncio.to_thread(summarize, rec)
+            raise HTTPException(422, str(exc)) from None
+        end = rec.end
+        assert end is not None  # _checked refuses a recording without one
         final = sessions_dir / f"{sid}.rec"
         prescription = await db.get(Prescription, rec.header.prescription_id)
         row = Session(
@@ -318,3 +312,93 @@ async def upload_complete(
             raise
         response.status_code = status.HTTP_201_CREATED
         return session_public(row)
+
+
+class Refused(Exception):
+    """A recording refused at ``complete``, in words: the upload is discarded."""
+
+
+def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
+    """The recording in ``part``, its summary and its SHA-256, or :class:`Refused` saying
+    why not. Every check ``complete`` makes of the bytes is here, so that every refusal
+    discards the upload the same way."""
+    digest = _sha256(part)
+    if digest != sha256:
+        # Start over rather than keep bytes that do not match the station's file.
+        raise Refused(f"checksum mismatch: the server's bytes hash to {digest}; upload again")
+    try:
+        rec = decode(part.read_bytes())
+        if rec.damaged or rec.end is None:
+            raise RecordingError("it is cut off: it has no end record")
+        check_session_times(rec)
+    except ValueError as exc:  # RecordingError, or a record's ValidationError
+        raise Refused(
+            f"not a valid recording: {error_text(exc, 300)}; upload the session again"
+        ) from None
+    try:
+        summary = summarize(rec)
+    except ValidationError as exc:  # a value past what a float holds: no clinician's number
+        raise Refused(
+            f"not a valid recording: its values give no finite summary ({exc.title}."
+            f"{error_text(exc, 300)}); upload the session again"
+        ) from None
+    return rec, summary, digest
+
+
+EXPIRE_PASS_MAX_S = 3600.0
+"""The longest time between two passes of :func:`expire_uploads`, seconds."""
+
+
+async def expire_uploads(app: Any) -> int:
+    """Remove the incomplete uploads no chunk has reached for ``upload_expire_s`` (row and
+    bytes), and any ``.part`` file as old that no row names (a crash between writing the
+    bytes and the row). Each under its upload's lock, looked at again there: a chunk that
+    arrived meanwhile keeps it. Returns how many were removed."""
+    settings = app.state.settings
+    uploads, _ = _dirs(app)
+    cutoff = utcnow() - timedelta(seconds=settings.upload_expire_s)
+    removed = 0
+    async with app.state.sessionmaker() as db:
+        stale = list(
+            await db.scalars(select(Upload.session_uuid).where(Upload.updated_at < cutoff))
+        )
+        known = set(await db.scalars(select(Upload.session_uuid)))
+    for sid in stale:
+        async with _lock(app, sid), app.state.sessionmaker() as db:
+            up = await db.get(Upload, sid)
+            if up is None or up.updated_at >= cutoff:
+                continue
+            await db.delete(up)
+            await db.commit()
+            (uploads / f"{sid}.part").unlink(missing_ok=True)
+            removed += 1
+            log.info("upload %s expired: no chunk for %g s", sid, settings.upload_expire_s)
+    old = time.time() - settings.upload_expire_s
+    for part in uploads.glob("*.part"):
+        sid = part.stem
+        if sid in known:
+            continue
+        async with _lock(app, sid), app.state.sessionmaker() as db:
+            if await db.get(Upload, sid) is None and _older(part, old):
+                part.unlink(missing_ok=True)
+                removed += 1
+    return removed
+
+
+def _older(path: Path, when: float) -> bool:
+    try:
+        return path.stat().st_mtime < when
+    except FileNotFoundError:
+        return False
+
+
+async def expire_uploads_forever(app: Any) -> None:
+    """:func:`expire_uploads` now and every ``min(upload_expire_s / 4, 1 hour)``: every
+    server process runs its own (the locks keep them apart)."""
+    period = min(app.state.settings.upload_expire_s / 4, EXPIRE_PASS_MAX_S)
+    while True:
+        try:
+            await expire_uploads(app)
+        except Exception:  # the database is away: the next pass tries again
+            log.exception("removing abandoned uploads failed")
+        await asyncio.sleep(period)

@@ -83,9 +83,14 @@ def recording_bytes(
     started_at: float | None = None,
 ) -> bytes:
     """A whole recording (header, samples, events, end record) of the library's ``kind`` as
-    the station writes it; it starts at ``started_at``, by default at ``rows["wall"]``'s."""
+    the station writes it; it starts at ``started_at`` (the samples' ``wall`` moved with
+    it), by default at ``rows["wall"]``'s."""
     body = EXERCISE_LIBRARY[kind].defaults.model_dump(mode="json")
     start = float(rows["wall"][0]) if started_at is None else started_at
+    if started_at is not None and len(rows):
+        # A station receives its samples during the session it starts: move their clock.
+        rows = rows.copy()
+        rows["wall"] += started_at - rows["wall"][0]
     header = Header(
         session_id=sid,
         station_id=station_id,

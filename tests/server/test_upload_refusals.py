@@ -3,24 +3,31 @@ acknowledged lost, and the upload completes once the station sends what is right
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import hashlib
 import json
 import math
 import os
 import struct
+import time
 import uuid
 import zlib
+from datetime import timedelta
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from sqlalchemy import event, text
+from sqlalchemy import event, text, update
 
+from device.protocol.messages import DeviceMode
 from server.errors import DISK_FULL
+from server.models import Upload, utcnow
+from sessions.prescription import ExerciseKind
 from station.uploader import CHUNK
-from tests.server.live_server import Live, World, bearer
-from tests.server.test_series import STARTED_AT, N, recording_bytes, samples
+from tests.server.live_server import Live, Seeds, Store, World, bearer, on_store, running
+from tests.server.test_series import PITCH, STARTED_AT, N, recording_bytes, samples
 
 pytestmark = pytest.mark.both_stores
 
@@ -127,6 +134,191 @@ async def test_a_bad_end_time_is_a_422_and_the_upload_can_be_sent_again(
     r = await complete(live, world, sid, good)
     assert r.status_code == 201, r.text
     assert r.json()["started_at"].startswith("2023-11-14")
+
+
+async def refused_and_discarded(live: Live, world: World, sid: str, bad: bytes) -> str:
+    """Send ``bad`` whole, expect ``complete`` to refuse it; check that nothing of it is
+    kept and that the right recording then goes through. Returns the refusal's detail."""
+    assert await put(live, world, sid, bad) == 204
+    r = await complete(live, world, sid, bad)
+    assert r.status_code == 422, r.text
+    detail: str = r.json()["detail"]
+    assert detail.endswith("upload the session again"), detail
+    assert await held(live, world, sid) is None
+    assert not part_file(live, sid).exists()
+    assert not list((live.settings.data_dir / "sessions").glob("*.rec"))
+    good = recording_bytes(sid, samples()[:200], world.s1_id, world.p1, world.rx1)
+    assert await put(live, world, sid, good) == 204
+    assert (await complete(live, world, sid, good)).status_code == 201
+    return detail
+
+
+def part_file(live: Live, sid: str) -> Path:
+    return live.settings.data_dir / "uploads" / f"{sid}.part"
+
+
+def _ages_long() -> np.ndarray:
+    """Every value finite, but the device clock runs 1e308 s, the pitch torque at float32's
+    floor: a time-weighted mean torque past what a float holds."""
+    s = samples()
+    s["t"] = np.linspace(0.0, 1e308, len(s))
+    s["wrench"][:, PITCH] = -3.4e38
+    return s
+
+
+def _received_in_year_5138() -> np.ndarray:
+    s = samples()[:200]
+    s["wall"][100] = 1e11
+    return s
+
+
+def _sways_at_no_speed() -> np.ndarray:
+    """Plausible times (a device clock that hardly moves), but swings from float32's floor to
+    its ceiling in no time: a sway speed no float holds."""
+    s = samples()[:200]
+    s["mode"] = int(DeviceMode.ACTIVE)
+    s["t"] = np.arange(len(s)) * 1e-300
+    s["pose"][::2, PITCH], s["pose"][1::2, PITCH] = 3.4e38, -3.4e38
+    return s
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(
+    ("rows", "kind", "named"),
+    [
+        (_ages_long, ExerciseKind.STRENGTH, "device time t covers 1e+308 s"),
+        (_received_in_year_5138, ExerciseKind.STRENGTH, "a sample's wall time (1e+11)"),
+        (_sways_at_no_speed, ExerciseKind.BALANCE, "mean_speed_deg_s"),
+    ],
+    ids=["device-time-1e308", "wall-in-5138", "sway-speed-infinite"],
+)
+async def test_a_recording_of_no_plausible_session_is_a_422_and_discarded(
+    live: Live, world: World, rows: Any, kind: ExerciseKind, named: str
+) -> None:
+    """A clinician is never shown a session of 1e308 s or an infinite number: the recording
+    is refused, naming what is wrong, not filed, and dropped like any refused upload."""
+    sid = str(uuid.uuid4())
+    bad = recording_bytes(sid, rows(), world.s1_id, world.p1, world.rx1, kind=kind)
+    detail = await refused_and_discarded(live, world, sid, bad)
+    assert detail.startswith("not a valid recording: ") and named in detail, detail
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(
+    ("end", "named"),
+    [
+        ({"sets_completed": -5}, "sets_completed"),
+        ({"repetitions_completed": -(2**62)}, "repetitions_completed"),
+        ({"repetitions_completed": 10**30}, "repetitions_completed"),
+        ({"sets_completed": 21}, "sets_completed"),
+        ({"ended_at": STARTED_AT - 86400 * 365}, "ended_at"),
+    ],
+    ids=["sets-negative", "reps-negative", "reps-huge", "sets-past-prescribable", "end-first"],
+)
+async def test_impossible_end_counts_or_an_end_before_the_start_are_a_422(
+    live: Live, world: World, end: dict[str, Any], named: str
+) -> None:
+    """What the therapist reads ("-4611686018427387904 of 3 repetitions") never gets in."""
+    sid = str(uuid.uuid4())
+    detail = await refused_and_discarded(live, world, sid, recording_with(sid, world, {}, end))
+    assert named in detail, detail
+    attention = await live.client.get("/patients/attention", headers=bearer(world.t1))
+    assert attention.status_code == 200 and "-" + "4611686018427387904" not in attention.text
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("field", ["prescription_id", "patient_id", "station_id"])
+async def test_an_id_past_what_the_store_holds_is_refused_with_the_first_chunk(
+    live: Live, world: World, field: str
+) -> None:
+    sid = str(uuid.uuid4())
+    bad = recording_with(sid, world, {field: 2**80}, {})
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=bad, headers={**bearer(world.s1), "Upload-Offset": "0"}
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith(f"the header record is not valid: {field}: ")
+    assert await held(live, world, sid) is None and not part_file(live, sid).exists()
+
+
+@pytest.mark.asyncio
+async def test_an_upload_no_chunk_reached_for_upload_expire_s_is_removed(
+    seeds: Seeds, store: Store, seeded_store: tuple[Path | str, World], tmp_path: Path
+) -> None:
+    """The periodic pass: an upload left half-done goes, row and bytes, within a pass of
+    its expiry; one still being sent stays."""
+    world = seeded_store[1]
+    with on_store(seeds, store, tmp_path, seeded_store[0]) as base:
+        settings = base.model_copy(update={"upload_expire_s": 2.0})
+        async with running(settings) as live:
+            left, sent = str(uuid.uuid4()), str(uuid.uuid4())
+            data = {
+                sid: recording_bytes(sid, samples(), world.s1_id, world.p1, world.rx1)
+                for sid in (left, sent)
+            }
+            for sid in (left, sent):
+                r = await live.client.patch(
+                    f"/uploads/{sid}",
+                    content=data[sid][:CHUNK],
+                    headers={**bearer(world.s1), "Upload-Offset": "0"},
+                )
+                assert r.status_code == 204
+            assert part_file(live, left).exists()
+            offset = CHUNK
+            for i in range(80):  # 4 s: the expiry, a pass every 0.5 s, and a margin
+                await asyncio.sleep(0.05)
+                if i % 10 == 9:  # a chunk every 0.5 s
+                    r = await live.client.patch(
+                        f"/uploads/{sent}",
+                        content=data[sent][offset : offset + CHUNK // 4],
+                        headers={**bearer(world.s1), "Upload-Offset": str(offset)},
+                    )
+                    assert r.status_code == 204, r.text
+                    offset += CHUNK // 4
+            assert await held(live, world, left) is None
+            assert not part_file(live, left).exists()
+            assert await held(live, world, sent) == offset and part_file(live, sent).exists()
+            # The station sends the abandoned one again from the start; it is filed.
+            assert await put(live, world, left, data[left]) == 204
+            assert (await complete(live, world, left, data[left])).status_code == 201
+
+
+@pytest.mark.asyncio
+async def test_abandoned_uploads_are_removed_when_the_server_starts(
+    seeds: Seeds, store: Store, seeded_store: tuple[Path | str, World], tmp_path: Path
+) -> None:
+    """With the default expiry (a day): an upload untouched for two days, and a .part file
+    no upload names, are gone once the server is up; an upload from an hour ago stays."""
+    world = seeded_store[1]
+    with on_store(seeds, store, tmp_path, seeded_store[0]) as settings:
+        assert settings.upload_expire_s == 86400.0
+        old, recent = str(uuid.uuid4()), str(uuid.uuid4())
+        async with running(settings) as live:
+            for sid in (old, recent):
+                data = recording_bytes(sid, samples()[:200], world.s1_id, world.p1, world.rx1)
+                assert await put(live, world, sid, data) == 204
+            async with live.sessionmaker() as db:
+                for sid, age in ((old, timedelta(days=2)), (recent, timedelta(hours=1))):
+                    await db.execute(
+                        update(Upload)
+                        .where(Upload.session_uuid == sid)
+                        .values(updated_at=utcnow() - age)
+                    )
+                await db.commit()
+            orphan = live.settings.data_dir / "uploads" / f"{uuid.uuid4()}.part"
+            orphan.write_bytes(b"ANKLREC1")
+            two_days_ago = time.time() - 2 * 86400
+            os.utime(orphan, (two_days_ago, two_days_ago))
+            recent_size = part_file(live, recent).stat().st_size
+        async with running(settings) as live:
+            for _ in range(100):
+                if await held(live, world, old) is None and not orphan.exists():
+                    break
+                await asyncio.sleep(0.05)
+            assert await held(live, world, old) is None and not part_file(live, old).exists()
+            assert not orphan.exists()
+            assert await held(live, world, recent) == recent_size
+            assert part_file(live, recent).exists()
 
 
 @pytest.mark.asyncio
