@@ -20,7 +20,7 @@ from typing import Annotated, Literal, NamedTuple, Protocol, TypeVar
 from annotated_types import Ge, Le
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
-from sqlalchemy import select
+from sqlalchemy import select, text
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
 from server.models import ID_MAX, AuthToken, Patient, Station, User, utcnow
@@ -253,6 +253,29 @@ def require_current(patient: Patient) -> None:
         raise conflict(PATIENT_ARCHIVED.replace("{id}", str(patient.id)))
 
 
+async def hold(db: AsyncSession, patient: Patient) -> None:
+    """Hold ``patient`` for a change in ``db``'s transaction and read them again as they
+    are now.
+
+    A change is read, checked, written and audited in one transaction; two at once must
+    take turns, or both would start from the same old value: one change lost, and two
+    audit rows claiming the same "before". Every change of a patient's record or of
+    anything of theirs (their prescriptions and stations) holds the patient first
+    (``patient_for`` with ``write``, ``prescription_for``, the station routes), so an edit,
+    a cancellation and an archiving of one patient take turns: whoever holds the patient
+    first goes on, the other waits until that transaction ends and then reads what it
+    stored. PostgreSQL locks the row (``FOR NO KEY UPDATE``: rows naming the patient may
+    still be inserted). SQLite locks no rows, only the whole database for writing: a write
+    that changes nothing takes that lock (waiting for any other writer up to its busy
+    timeout) before the row is read again. The lock goes at commit or rollback, when the
+    request's session ends."""
+    if db.get_bind().dialect.name == "sqlite":
+        await db.execute(text("UPDATE patients SET id = id WHERE id = :id"), {"id": patient.id})
+        await db.refresh(patient)
+    else:
+        await db.refresh(patient, with_for_update={"key_share": True})
+
+
 async def patient_for(
     db: AsyncSession,
     user: User,
@@ -263,13 +286,16 @@ async def patient_for(
 ) -> Patient:
     """The patient ``user`` may read (or, with ``write``, change); else 404, the same 404
     as for an id that does not exist. A change to an archived patient is a 409, unless
-    ``even_archived`` (archiving and unarchiving themselves)."""
+    ``even_archived`` (archiving and unarchiving themselves). With ``write`` the patient is
+    held for the change (:func:`hold`) and checked as it is once held."""
     patient = await db.get(Patient, patient_id)
     allowed = may_write if write else may_read
     if patient is None or not allowed(user, patient):
         raise not_found("patient")
-    if write and not even_archived:
-        require_current(patient)
+    if write:
+        await hold(db, patient)
+        if not even_archived:
+            require_current(patient)
     return patient
 
 

@@ -19,6 +19,7 @@ from server.deps import (
     Id,
     Therapist,
     TherapistOrAdmin,
+    hold,
     may_read,
     may_write,
     not_found,
@@ -44,13 +45,17 @@ def body_json(body: PrescriptionBody) -> dict[str, Any]:
 async def prescription_for(
     db: AsyncSession, user: User, prescription_id: int, *, write: bool = False
 ) -> Prescription:
-    """Like ``patient_for``: someone else's prescription is the same 404 as a missing one."""
+    """Like ``patient_for``: someone else's prescription is the same 404 as a missing one.
+    With ``write`` its patient is held for the change (``server.deps.hold``) and the
+    prescription read again as it is then."""
     prescription = await db.get(Prescription, prescription_id)
     patient = None if prescription is None else await db.get(Patient, prescription.patient_id)
     allowed = may_write if write else may_read
     if prescription is None or patient is None or not allowed(user, patient):
         raise not_found("prescription")
     if write:
+        await hold(db, patient)
+        await db.refresh(prescription)
         require_current(patient)
     return prescription
 

@@ -9,7 +9,15 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
-from server.deps import Db, Id, TherapistOrAdmin, may_manage_stations, not_found, require_current
+from server.deps import (
+    Db,
+    Id,
+    TherapistOrAdmin,
+    hold,
+    may_manage_stations,
+    not_found,
+    require_current,
+)
 from server.models import Patient, Station, User
 from server.routes.common import CONFLICT, NOT_FOUND, UNAUTHORIZED
 from server.schemas import StationCreate, StationProvisioned, StationPublic
@@ -23,8 +31,13 @@ async def _online(request: Request, station: Station) -> bool:
 
 
 async def _manageable(db: AsyncSession, user: User, patient_id: int) -> Patient | None:
+    """The patient whose stations ``user`` may provision and revoke, held for the change
+    (``server.deps.hold``); None if there is none such."""
     patient = await db.get(Patient, patient_id)
-    return patient if patient is not None and may_manage_stations(user, patient) else None
+    if patient is None or not may_manage_stations(user, patient):
+        return None
+    await hold(db, patient)
+    return patient
 
 
 def revoke(db: AsyncSession, actor: str, station: Station, because: str = "") -> bool:
@@ -123,6 +136,7 @@ async def revoke_station(
     station = await db.get(Station, station_id)
     if station is None or not await _manageable(db, user, station.patient_id):
         raise not_found("station")
+    await db.refresh(station)  # as it is now that its patient is held
     if revoke(db, audit.user_actor(user), station):
         await db.commit()
         await request.app.state.hub.recheck()  # its open link goes too

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from datetime import UTC, datetime
 from typing import Any
 
@@ -79,3 +80,31 @@ async def test_invalid_updates_are_refused(live: Live, world: World) -> None:
         assert r.status_code == 422, body
         assert (r.json()["detail"][0]["loc"], r.json()["detail"][0]["msg"]) == (loc, msg), body
     assert (await live.client.get(f"/patients/{world.p1}", headers=t1)).json() == before
+
+
+@pytest.mark.asyncio
+async def test_two_edits_at_once_are_applied_in_turn_and_audited_as_stored(
+    live: Live, world: World
+) -> None:
+    """Two changes of one patient at the same moment: each is applied in turn, and each
+    audit row's old value is what the other had stored (the log replays to the record)."""
+    t1 = bearer(world.t1)
+    path = f"/patients/{world.p1}"
+    for round_ in range(4):
+        wanted = {f"first {round_}", f"second {round_}"}
+        answers = await asyncio.gather(
+            *(live.client.patch(path, json={"notes": n}, headers=t1) for n in sorted(wanted))
+        )
+        assert [a.status_code for a in answers] == [200, 200], [a.text for a in answers]
+        assert {a.json()["notes"] for a in answers} == wanted
+    stored = (await live.client.get(path, headers=t1)).json()
+    r = await live.client.get(
+        "/audit", params={"patient_id": world.p1, "action": "patient.update"}, headers=t1
+    )
+    rows = list(reversed(r.json()))
+    assert len(rows) == 8
+    notes = ""
+    for row in rows:
+        assert row["old"] == {"notes": notes}, rows
+        notes = row["new"]["notes"]
+    assert notes == stored["notes"]

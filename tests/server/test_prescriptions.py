@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 from typing import Any
 
@@ -170,3 +171,54 @@ async def test_create_update_cancel(
         f"/patients/{world.p1}/prescriptions?status=cancelled", headers=t1
     )
     assert [p["id"] for p in listed.json()] == [rx["id"]]
+
+
+@pytest.mark.asyncio
+async def test_two_edits_at_once_are_two_versions_audited_as_stored(
+    live: Live, world: World
+) -> None:
+    """Two saves of one prescription at the same moment: each is applied in turn, as its
+    own version, and the audit log replays exactly to what is stored (neither save lost, no
+    version given out twice)."""
+    t1 = bearer(world.t1)
+    path = f"/prescriptions/{world.rx1}"
+    for round_ in range(4):
+        wanted = (20 + 2 * round_, 21 + 2 * round_)
+        answers = await asyncio.gather(
+            *(
+                live.client.patch(path, json={**STRENGTH, "repetitions": n}, headers=t1)
+                for n in wanted
+            )
+        )
+        assert [a.status_code for a in answers] == [200, 200], [a.text for a in answers]
+        got = sorted((a.json()["version"], a.json()["body"]["repetitions"]) for a in answers)
+        assert got[1][0] == got[0][0] + 1, got
+        assert sorted(n for _, n in got) == list(wanted)
+        stored = (await live.client.get(path, headers=t1)).json()
+        assert (stored["version"], stored["body"]["repetitions"]) == got[1]
+    r = await live.client.get(
+        "/audit", params={"patient_id": world.p1, "action": "prescription.update"}, headers=t1
+    )
+    rows = [e for e in reversed(r.json()) if e["entity_id"] == str(world.rx1)]
+    assert len(rows) == 8
+    version, repetitions = 1, STRENGTH["repetitions"]
+    for row in rows:
+        assert row["old"] == {"version": version, "body": {"repetitions": repetitions}}, rows
+        version, repetitions = row["new"]["version"], row["new"]["body"]["repetitions"]
+    assert (version, repetitions) == (stored["version"], stored["body"]["repetitions"])
+    assert version == 1 + 8
+
+
+@pytest.mark.asyncio
+async def test_two_cancellations_at_once_withdraw_once(live: Live, world: World) -> None:
+    """The second of two cancellations at once finds the prescription withdrawn: a 409, and
+    one audit row."""
+    t1 = bearer(world.t1)
+    answers = await asyncio.gather(
+        *(live.client.post(f"/prescriptions/{world.rx1}/cancel", headers=t1) for _ in range(2))
+    )
+    assert sorted(a.status_code for a in answers) == [200, 409], [a.text for a in answers]
+    r = await live.client.get(
+        "/audit", params={"patient_id": world.p1, "action": "prescription.cancel"}, headers=t1
+    )
+    assert [e["entity_id"] for e in r.json()] == [str(world.rx1)]
