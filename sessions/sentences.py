@@ -40,7 +40,10 @@ class FieldError(ValueError):
 
 def number(value: float) -> str:
     """A number as a sentence says it: whole numbers bare, from 10 up to one decimal, smaller
-    ones to three figures (22.9, 114.6, 0.698, 0.00349)."""
+    ones to three figures (22.9, 114.6, 0.698, 0.00349). An integer is said exactly, however
+    large (an id's bound, 9223372036854775807, has no float that says it)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
     v = float(value)
     if not math.isfinite(v):
         return str(v)
@@ -149,8 +152,9 @@ def _place(model: type[BaseModel] | None, loc: Sequence[str | int], body: Any) -
 
 
 def _ctx_number(ctx: Mapping[str, Any], key: str) -> float | None:
+    """A bound of the error's context as it was given: an integer stays exact."""
     v = ctx.get(key)
-    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+    return v if isinstance(v, int | float) and not isinstance(v, bool) else None
 
 
 def _expected(ctx: Mapping[str, Any]) -> str:

@@ -80,6 +80,24 @@ async def test_an_id_out_of_range_is_a_422_naming_it(
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize(
+    ("value", "sentence"),
+    [
+        (str(ID_MAX + 1), f"Session id must be at most {ID_MAX}."),
+        ("0", "Session id must be at least 1."),
+    ],
+)
+async def test_an_id_out_of_range_is_refused_with_the_exact_bound(
+    live: Live, world: World, value: str, sentence: str
+) -> None:
+    """The bound is said as the integer it is (2**63-1), not as the float nearest to it."""
+    r = await live.client.get(f"/sessions/{value}/download/csv", headers=bearer(world.t1))
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert (error["loc"], error["msg"]) == (["path", "session_id"], sentence)
+
+
+@pytest.mark.asyncio
 async def test_the_largest_id_is_an_ordinary_404(live: Live, world: World) -> None:
     for id_ in (ABOVE_INT4, ID_MAX):
         r = await live.client.get(f"/patients/{id_}", headers=bearer(world.t1))
