@@ -26,7 +26,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from sqlalchemy.exc import DBAPIError
 
-from sessions.sentences import sentence
+from sessions.sentences import FieldError, Loc, sentence
 
 log = logging.getLogger("ankle.server")
 
@@ -117,14 +117,40 @@ def excerpt(value: Any) -> Any:
     return json.loads(text)
 
 
+_ABSENT = object()
+
+
+def _at(value: Any, loc: Loc) -> Any:
+    """What ``loc`` names inside ``value`` (a parsed JSON body), or ``_ABSENT``."""
+    for part in loc:
+        if isinstance(value, dict) and isinstance(part, str) and part in value:
+            value = value[part]
+            continue
+        if not (isinstance(value, list) and isinstance(part, int)):
+            return _ABSENT
+        if not -len(value) <= part < len(value):
+            return _ABSENT
+        value = value[part]
+    return value
+
+
 def _error(e: Any, model: type[BaseModel] | None, body: Any) -> dict[str, Any]:
+    """One entry of a 422. A refusal a model-wide check made about one of its fields (a
+    ``FieldError``: the damping below the stable least, say) is reported as that field's:
+    its location, its value as ``input`` (not the whole model's, which pydantic gives), and
+    its sentence whole in ``ctx.error``, bound included (ours, and short)."""
     loc, msg = sentence(e, model, body)
     out: dict[str, Any] = {"type": e.get("type"), "loc": list(loc), "msg": msg}
-    if "input" in e:
-        out["input"] = excerpt(e["input"])
     ctx = e.get("ctx")
+    cause = ctx.get("error") if isinstance(ctx, dict) else None
+    if "input" in e:
+        value = _at(e["input"], cause.loc) if isinstance(cause, FieldError) else e["input"]
+        if value is not _ABSENT:  # absent: the field took its default
+            out["input"] = excerpt(value)
     if isinstance(ctx, dict):
-        out["ctx"] = {str(k): _scalar(v) for k, v in ctx.items()}
+        out["ctx"] = {
+            str(k): str(v) if isinstance(v, FieldError) else _scalar(v) for k, v in ctx.items()
+        }
     return out
 
 

@@ -8,7 +8,14 @@ from typing import Any
 
 import pytest
 
-from sessions.prescription import STIFFNESS_MAX, ExerciseKind, PrescriptionBody
+from sessions.prescription import (
+    AXIS_INDEX,
+    DEVICE_LIMITS,
+    STIFFNESS_MAX,
+    ExerciseKind,
+    PrescriptionBody,
+)
+from sessions.sentences import bound_sentence
 from tests.server.live_server import STRENGTH, Live, World, bearer
 
 pytestmark = pytest.mark.both_stores
@@ -222,3 +229,31 @@ async def test_two_cancellations_at_once_withdraw_once(live: Live, world: World)
         "/audit", params={"patient_id": world.p1, "action": "prescription.cancel"}, headers=t1
     )
     assert [e["entity_id"] for e in r.json()] == [str(world.rx1)]
+
+
+@pytest.mark.asyncio
+async def test_damping_below_the_stable_least_names_the_field_and_its_value(
+    live: Live, world: World
+) -> None:
+    """A refusal a model-wide check makes about one field (here the stable envelope) points
+    at that field: its loc, its value as input, and the whole sentence, bound included."""
+    least = DEVICE_LIMITS.damping_min_at(AXIS_INDEX["pitch"], 40.0)
+    assert least > 0
+    r = await live.client.post(
+        f"/patients/{world.p1}/prescriptions",
+        json=with_pitch(stiffness=40.0, damping=0.0),
+        headers=bearer(world.t1),
+    )
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    expected = bound_sentence(
+        "Damping B on pitch",
+        "ge",
+        least,
+        "N·m·s/rad",
+        "the least the platform renders steadily at a stiffness of 40 N·m/rad",
+    )
+    assert error["loc"] == [*AXIS, "damping"]
+    assert error["input"] == 0.0
+    assert error["msg"] == expected
+    assert error["ctx"] == {"error": expected}
