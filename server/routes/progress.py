@@ -7,10 +7,10 @@ minimal detectable change, and adherence per prescription (``sessions.progress``
 
 from __future__ import annotations
 
-from datetime import UTC, date, datetime, time, timedelta
+from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, Query, Request
 from pydantic import Field
 from sqlalchemy import select
 
@@ -18,6 +18,7 @@ from server.deps import Db, Id, TherapistOrAdmin, patient_for
 from server.facts import prescription_facts, session_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.dates import day_or_time, refuse, shown
 from server.routes.sessions import with_metrics
 from sessions.anatomy import direction_table
 from sessions.prescription import ExerciseKind
@@ -38,30 +39,6 @@ class ProgressPublic(Progress):
     )
 
 
-def parse_when(name: str, text: str | None, *, end_of_day: bool = False) -> datetime | None:
-    """A query's date (YYYY-MM-DD, midnight UTC; with ``end_of_day`` the next midnight, so
-    the day is included) or ISO 8601 time (UTC if it names no offset); a 422 that names
-    the parameter for anything else."""
-    if text is None or text == "":
-        return None
-    try:
-        day = date.fromisoformat(text)
-    except ValueError:
-        pass
-    else:
-        start = datetime.combine(day, time(), UTC)
-        return start + timedelta(days=1) if end_of_day else start
-    try:
-        when = datetime.fromisoformat(text)
-    except ValueError:
-        raise HTTPException(
-            422,
-            f"{name} '{text[:40]}' is not a date: give a day as YYYY-MM-DD "
-            "or a time as ISO 8601 (2026-03-02T09:00:00Z)",
-        ) from None
-    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
-
-
 def parse_kind(text: str | None) -> ExerciseKind | None:
     if text is None or text == "":
         return None
@@ -69,8 +46,8 @@ def parse_kind(text: str | None) -> ExerciseKind | None:
         return ExerciseKind(text)
     except ValueError:
         kinds = ", ".join(k.value for k in ExerciseKind)
-        raise HTTPException(
-            422, f"kind '{text[:40]}' is not an exercise type: one of {kinds}"
+        raise refuse(
+            "kind", f"kind '{shown(text)}' is not an exercise type: one of {kinds}"
         ) from None
 
 
@@ -114,7 +91,11 @@ async def load_progress(
     "/{patient_id}/progress",
     response_model=ProgressPublic,
     summary="A patient's progress and adherence",
-    responses={**UNAUTHORIZED, **NOT_FOUND, 422: {"description": "A date or kind not understood."}},
+    responses={
+        **UNAUTHORIZED,
+        **NOT_FOUND,
+        422: {"description": "A date or kind not understood, or a date outside 1900..9998."},
+    },
 )
 async def get_progress(
     patient_id: Id,
@@ -126,7 +107,10 @@ async def get_progress(
     ] = None,
     until: Annotated[
         str | None,
-        Query(description="Up to and including this day (YYYY-MM-DD), or before this time."),
+        Query(
+            description="Up to and including this day (YYYY-MM-DD), or before this time; "
+            "days from 1900-01-01 to 9998-12-31."
+        ),
     ] = None,
     kind: Annotated[
         str | None, Query(description="One exercise type (strength, rom_assessment, …).")
@@ -136,10 +120,10 @@ async def get_progress(
     MDC95 from the device's own repeated trials, with a change flagged real only beyond it;
     adherence per prescription per prescribed week, never above what was prescribed. See
     ``sessions.progress`` for how each number is made."""
-    start = parse_when("since", since)
-    end = parse_when("until", until, end_of_day=True)
+    start = day_or_time("since", since)
+    end = day_or_time("until", until, end_of_day=True)
     exercise = parse_kind(kind)
     if start is not None and end is not None and start >= end:
-        raise HTTPException(422, f"since ({since}) must be before until ({until})")
+        raise refuse("since", f"since ({since}) must be before until ({until})")
     patient = await patient_for(db, user, patient_id)
     return await load_progress(request, db, patient, since=start, until=end, kind=exercise)

@@ -15,7 +15,7 @@ import re
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Query, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy import select
 
 from server import audit
@@ -24,6 +24,7 @@ from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.dates import FIRST_DAY, LAST_DAY, refuse, shown
 from server.routes.progress import load_progress
 from sessions import fhir, record
 
@@ -31,8 +32,6 @@ router = APIRouter(prefix="/patients", tags=["reports"])
 
 DEFAULT_DAYS = 90
 """The period a report covers when not told: this many days up to today, inclusive."""
-FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
-"""The days a period may name: any a record can hold, with room to count a day past it."""
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 _WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
 """How a refusal names each parameter: as the patient page labels it, and as the API does."""
@@ -54,12 +53,6 @@ Until = Annotated[
 ]
 
 
-def _refuse(field: str, sentence: str) -> HTTPException:
-    return HTTPException(
-        422, detail=[{"type": "value_error", "loc": ["query", field], "msg": sentence}]
-    )
-
-
 def _day(field: str, text: str | None) -> date | None:
     if text is None:
         return None
@@ -68,11 +61,10 @@ def _day(field: str, text: str | None) -> date | None:
     except ValueError:
         day = None
     if day is None or not FIRST_DAY <= day <= LAST_DAY:
-        shown = text if len(text) <= 40 else text[:40] + "…"
-        raise _refuse(
+        raise refuse(
             field,
             f"{_WORDS[field]} must be a date written YYYY-MM-DD between {FIRST_DAY} and "
-            f"{LAST_DAY}, such as 2026-01-31; got {shown!r}",
+            f"{LAST_DAY}, such as 2026-01-31; got {shown(text)!r}",
         )
     return day
 
@@ -83,7 +75,7 @@ def period(since: str | None, until: str | None) -> tuple[date, date]:
     last = last or utcnow().date()
     first = first or last - timedelta(days=DEFAULT_DAYS - 1)
     if first > last:
-        raise _refuse(
+        raise refuse(
             "since",
             f"{_WORDS['since']}, {first}, is after {_WORDS['until']}, {last}: the period "
             "must start on or before the day it ends",

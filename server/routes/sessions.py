@@ -32,6 +32,7 @@ from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.dates import utc_time
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import Recording, read
@@ -90,8 +91,14 @@ async def list_sessions(
     patient_id: Id | None = None,
     station_id: Id | None = None,
     prescription_id: Id | None = None,
-    since: Annotated[datetime | None, Query(description="Started at or after (ISO 8601).")] = None,
-    until: Annotated[datetime | None, Query(description="Started before (ISO 8601).")] = None,
+    since: Annotated[
+        datetime | None,
+        Query(description="Started at or after (ISO 8601; UTC if it names no offset)."),
+    ] = None,
+    until: Annotated[
+        datetime | None,
+        Query(description="Started before (ISO 8601; UTC if it names no offset)."),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[SessionPublic]:
@@ -106,9 +113,9 @@ async def list_sessions(
     if prescription_id is not None:
         q = q.where(Session.prescription_id == prescription_id)
     if since is not None:
-        q = q.where(Session.started_at >= since)
+        q = q.where(Session.started_at >= utc_time("since", since))
     if until is not None:
-        q = q.where(Session.started_at < until)
+        q = q.where(Session.started_at < utc_time("until", until))
     rows = await db.scalars(q.order_by(Session.started_at.desc()).limit(limit).offset(offset))
     return [session_public(r) for r in rows]
 

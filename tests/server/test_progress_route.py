@@ -118,22 +118,69 @@ async def test_progress_over_uploaded_assessments(live: Live, world: World) -> N
     assert r.status_code == 404
 
 
-BAD: list[tuple[dict[str, Any], str]] = [
-    ({"since": "2026-13-01"}, "since '2026-13-01' is not a date"),
-    ({"until": "yesterday"}, "until 'yesterday' is not a date"),
-    ({"since": "2026-03-10", "until": "2026-03-01"}, "since (2026-03-10) must be before until"),
-    ({"kind": "yoga"}, "kind 'yoga' is not an exercise type"),
+BAD: list[tuple[dict[str, Any], str, str]] = [
+    ({"since": "2026-13-01"}, "since", "since '2026-13-01' is not a day or time"),
+    ({"until": "yesterday"}, "until", "until 'yesterday' is not a day or time"),
+    ({"until": "9999-12-31"}, "until", "from 1900-01-01 to 9998-12-31"),
+    ({"since": "0001-01-01T00:00:00+01:00"}, "since", "from 1900-01-01 to 9998-12-31"),
+    ({"since": "2026-03-10", "until": "2026-03-01"}, "since", "since (2026-03-10) must be before"),
+    ({"kind": "yoga"}, "kind", "kind 'yoga' is not an exercise type"),
 ]
 
 
 @pytest.mark.asyncio
-async def test_bad_dates_and_kinds_are_a_sentence(live: Live, world: World) -> None:
-    for params, words in BAD:
+async def test_bad_dates_and_kinds_are_a_sentence_naming_the_parameter(
+    live: Live, world: World
+) -> None:
+    """In the list shape of every 422 (the report's and FHIR's period too); a day past the
+    range the server counts is one of them, not an overflow."""
+    for params, field, words in BAD:
         r = await live.client.get(
             f"/patients/{world.p1}/progress", params=params, headers=bearer(world.t1)
         )
         assert r.status_code == 422, params
-        assert words in r.json()["detail"], r.text
+        (error,) = r.json()["detail"]
+        assert error["loc"] == ["query", field], r.text
+        assert words in error["msg"], r.text
+
+
+@pytest.mark.asyncio
+async def test_the_last_day_the_server_counts_is_a_period_end(live: Live, world: World) -> None:
+    for params in ({"until": "9998-12-31"}, {"since": "1900-01-01", "until": "9998-12-31T12:00"}):
+        r = await live.client.get(
+            f"/patients/{world.p1}/progress", params=params, headers=bearer(world.t1)
+        )
+        assert r.status_code == 200, r.text
+
+
+@pytest.mark.asyncio
+async def test_the_session_list_takes_times_without_an_offset_and_refuses_past_the_range(
+    live: Live, world: World
+) -> None:
+    """A time that names no offset is UTC (it used to reach the store naive: a 500), and one
+    outside the days the server counts is a 422 naming the parameter, as for progress."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    sid = await upload(
+        live,
+        world,
+        assessment_rows([(20.0, 10.0)]),
+        rx,
+        ExerciseKind.ROM_ASSESSMENT,
+        time.time() - DAY,
+    )
+    t1 = bearer(world.t1)
+    day = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(time.time() - 2 * DAY))
+    r = await live.client.get("/sessions", params={"since": day}, headers=t1)
+    assert r.status_code == 200, r.text
+    assert [s["id"] for s in r.json()] == [sid]
+    r = await live.client.get("/sessions", params={"until": day}, headers=t1)
+    assert r.status_code == 200 and r.json() == [], r.text
+    for field, value in (("until", "9999-12-31T00:00:00"), ("since", "0001-01-01T00:00:00+05:00")):
+        r = await live.client.get("/sessions", params={field: value}, headers=t1)
+        assert r.status_code == 422, r.text
+        (error,) = r.json()["detail"]
+        assert error["loc"] == ["query", field]
+        assert "from 1900-01-01 to 9998-12-31" in error["msg"]
 
 
 @pytest.mark.asyncio
