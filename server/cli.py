@@ -34,6 +34,7 @@ from server.routes.stations import revoke
 from server.schemas import UserCreate, UserPublic
 from server.security import HashingSlots, hash_password, new_password, new_token, token_hash
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
+from sessions.private import write_private
 from sessions.wire import error_text
 
 DEMO_EMAIL = "therapist@demo.local"
@@ -286,17 +287,6 @@ async def _seed_demo(db: AsyncSession) -> dict[str, Any]:
     }
 
 
-def _write_private(path: os.PathLike[str], text: str) -> None:
-    tmp = f"{os.fspath(path)}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as f:
-        os.fchmod(f.fileno(), 0o600)  # whatever the umask, or a leftover file, said
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 async def provision_demo_async(settings: Settings) -> dict[str, Any]:
     """The demo's therapist, patient, station and prescription, created on the first call.
 
@@ -310,7 +300,7 @@ async def provision_demo_async(settings: Settings) -> dict[str, Any]:
     else:
         async with _database(settings) as sessionmaker, sessionmaker() as db:
             credentials = await _seed_demo(db)
-        _write_private(path, json.dumps(credentials, indent=2) + "\n")
+        write_private(path, json.dumps(credentials, indent=2) + "\n")
     return {**credentials, "url": settings.public_url}
 
 

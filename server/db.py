@@ -26,6 +26,7 @@ from sqlalchemy.ext.asyncio import (
 )
 
 from server.config import Settings
+from sessions.private import PRIVATE_FILE, private_data_dir
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
@@ -44,19 +45,6 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     for pragma in _SQLITE_PRAGMAS:
         cursor.execute(pragma)
     cursor.close()
-
-
-PRIVATE_DIR = 0o700
-PRIVATE_FILE = 0o600
-"""Patients' data: only the server's own account reads it, whatever the umask says."""
-
-
-def private_data_dir(path: Path) -> None:
-    """Create ``path`` (and missing parents) readable by the owner only. A directory that
-    exists already keeps its mode: an administrator may have chosen it."""
-    if not path.exists():
-        path.mkdir(mode=PRIVATE_DIR, parents=True, exist_ok=True)
-        os.chmod(path, PRIVATE_DIR)  # mkdir's mode is masked by the umask
 
 
 LOCK_SUFFIX = ".migrate-lock"

@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from device.protocol.messages import Telemetry
 from sessions.prescription import REPETITIONS_MAX, SETS_MAX
+from sessions.private import PRIVATE_FILE
 
 MAGIC = b"ANKLREC1"
 FORMAT_VERSION = 1
@@ -304,7 +305,7 @@ class RecordingWriter:
         self.path = path
         self._rows: list[tuple[Any, ...]] = []
         existing = path.exists() and path.stat().st_size > 0
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, PRIVATE_FILE)
         if not existing:
             if header is None:
                 raise RecordingError(f"{path} is new: a header is needed")

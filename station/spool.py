@@ -4,15 +4,18 @@ Every session is written here first, as it runs (``<session uuid>.rec``), and de
 after the server has confirmed the upload with the same checksum. A file without an end
 record is a session the station did not finish (killed, power lost): at start-up it is cut
 back to its whole records, closed as ``interrupted`` and queued like any other.
+
+The spool and everything in it are the station account's alone (folders 0700, files 0600, as
+the server's data).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
+from sessions.private import private_data_dir, write_private
 from sessions.recording import End, RecordingError, RecordingWriter, recover
 
 PRESCRIPTIONS_FILE = "prescriptions.json"
@@ -21,7 +24,7 @@ PRESCRIPTIONS_FILE = "prescriptions.json"
 class Spool:
     def __init__(self, directory: Path) -> None:
         self.dir = directory
-        self.dir.mkdir(parents=True, exist_ok=True)
+        private_data_dir(self.dir)
 
     def path(self, session_id: str) -> Path:
         return self.dir / f"{session_id}.rec"
@@ -61,9 +64,7 @@ class Spool:
 
     def save_prescriptions(self, items: list[dict[str, object]]) -> None:
         """Cache the latest prescriptions so the patient can exercise with no network."""
-        tmp = self.dir / (PRESCRIPTIONS_FILE + ".tmp")
-        tmp.write_text(json.dumps(items))
-        os.replace(tmp, self.dir / PRESCRIPTIONS_FILE)
+        write_private(self.dir / PRESCRIPTIONS_FILE, json.dumps(items))
 
     def load_prescriptions(self) -> list[dict[str, object]]:
         try:

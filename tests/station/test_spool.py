@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import time
 from pathlib import Path
 
@@ -83,3 +84,34 @@ def test_prescriptions_cache_survives_a_restart_and_ignores_garbage(tmp_path: Pa
     assert Spool(tmp_path).load_prescriptions() == [{"id": 3}]
     (tmp_path / "prescriptions.json").write_text("{not json")
     assert Spool(tmp_path).load_prescriptions() == []
+
+
+def mode(path: Path) -> int:
+    return stat.S_IMODE(path.stat().st_mode)
+
+
+def test_the_spool_and_what_it_keeps_are_the_station_accounts_alone(tmp_path: Path) -> None:
+    """Folders 0700 and files 0600 whatever the umask, as the server's data: the spool, the
+    cached prescriptions and the sessions."""
+    old = os.umask(0o022)  # the usual default, which made 0755 folders and 0644 files
+    try:
+        spool = Spool(tmp_path / "station" / "spool")
+        spool.save_prescriptions([{"id": 3}])
+        with RecordingWriter(spool.path("s"), header("s")) as w:
+            w.end(End(ended_at=1.0, reason="completed", sets_completed=1, repetitions_completed=3))
+        assert mode(spool.dir) == 0o700
+        assert mode(spool.dir / "prescriptions.json") == 0o600
+        assert mode(spool.path("s")) == 0o600
+    finally:
+        os.umask(old)
+
+
+def test_cached_prescriptions_from_before_are_made_private_on_the_next_save(
+    tmp_path: Path,
+) -> None:
+    cache = tmp_path / "prescriptions.json"
+    cache.write_text("[]")
+    cache.chmod(0o644)
+    Spool(tmp_path).save_prescriptions([{"id": 4}])
+    assert mode(cache) == 0o600
+    assert Spool(tmp_path).load_prescriptions() == [{"id": 4}]
