@@ -31,9 +31,12 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, create_model, mo
 from sessions.prescription import DAMPING_MAX, STIFFNESS_MAX, Axis, PrescriptionBody
 from sessions.recording import DeviceInfo, SessionEvent
 
-PROTOCOL = 3
+PROTOCOL = 4
 """2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message.
-3: a K/B change's result carries the change the station made (:class:`ImpedanceChange`)."""
+3: a K/B change's result carries the change the station made (:class:`ImpedanceChange`).
+4: the station's status names the sessions the server refused for good (``refused_uploads``)."""
+REFUSED_NAMED = 10
+"""Refused sessions a status names (all are counted)."""
 SUBPROTOCOL = "ankle.v1"
 BEARER_PREFIX = "bearer."
 HEARTBEAT_S = 1.0
@@ -261,6 +264,16 @@ class StatusMsg(BaseModel):
     repetitions: int = 0
     rest_remaining_s: float = 0.0
     pending_uploads: int = 0
+    refused_uploads: int = Field(
+        default=0,
+        description="Sessions the server refused for good (not a valid recording, too "
+        "large): kept aside at the station, in its spool's refused/ folder, and not sent again.",
+    )
+    refused_sessions: list[str] = Field(
+        default_factory=list,
+        max_length=REFUSED_NAMED,
+        description="The ids of the first of them, with the server's reason: '<id>: <reason>'.",
+    )
     overruns: int = 0
     frames_lost: int = Field(default=0, description="Serial frames lost on the host side.")
     message: str = Field(default="", description="Last error or notice, plain words.")

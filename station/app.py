@@ -46,6 +46,9 @@ APPLIES_TEXT: dict[wire.Applies, str] = {
 """The answer to a K/B change, by when the device renders it."""
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
+REASON_MAX = 240
+"""Characters of the server's reason a status gives for each refused session (the whole
+reason is in the spool, beside the session)."""
 
 
 class Station:
@@ -500,6 +503,7 @@ class Station:
         dev, run = self.dev, self.run_
         latest = dev.latest if dev is not None else None
         body = run.body if run else None
+        refused = list(self.uploader.refused.items())
         return wire.StatusMsg(
             sent=time.time(),
             device_link="connected" if dev is not None else "lost",
@@ -515,6 +519,8 @@ class Station:
             repetitions=body.repetitions if body else 0,
             rest_remaining_s=round(run.rest_remaining(), 1) if run else 0.0,
             pending_uploads=self.uploader.pending(),
+            refused_uploads=len(refused),
+            refused_sessions=[f"{sid}: {_cut(why)}" for sid, why in refused[: wire.REFUSED_NAMED]],
             overruns=latest.overruns if latest else 0,
             frames_lost=dev.stats.frames_lost if dev else 0,
             message=(run.message if run and run.message else self.message),
@@ -532,6 +538,10 @@ class Station:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):  # not wait_for: see _telemetry
                     await self._status_dirty.wait()
+
+
+def _cut(text: str, most: int = REASON_MAX) -> str:
+    return text if len(text) <= most else text[: most - 1] + "…"
 
 
 class SessionWriter(RecordingWriter):

@@ -5,6 +5,11 @@ after the server has confirmed the upload with the same checksum. A file without
 record is a session the station did not finish (killed, power lost): at start-up it is cut
 back to its whole records, closed as ``interrupted`` and queued like any other.
 
+A session the server refuses for good (not a valid recording, too large: a 4xx that sending
+it again cannot change) is moved to ``refused/`` with the server's reason beside it
+(``<session uuid>.reason.txt``), and sent no more: never deleted, it is the patient's data.
+Moved back into the spool, it is sent again.
+
 The spool and everything in it are the station account's alone (folders 0700, files 0600, as
 the server's data).
 """
@@ -12,6 +17,7 @@ the server's data).
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -19,12 +25,16 @@ from sessions.private import private_data_dir, write_private
 from sessions.recording import End, RecordingError, RecordingWriter, recover
 
 PRESCRIPTIONS_FILE = "prescriptions.json"
+REFUSED_DIR = "refused"
+"""Beside the sessions waiting: the ones the server refused for good."""
+REASON_SUFFIX = ".reason.txt"
 
 
 class Spool:
     def __init__(self, directory: Path) -> None:
         self.dir = directory
         private_data_dir(self.dir)
+        self.refused_dir = self.dir / REFUSED_DIR
 
     def path(self, session_id: str) -> Path:
         return self.dir / f"{session_id}.rec"
@@ -32,6 +42,27 @@ class Spool:
     def pending(self) -> list[Path]:
         """Finished sessions not yet confirmed by the server, oldest first."""
         return sorted(self.dir.glob("*.rec"), key=lambda p: p.stat().st_mtime)
+
+    def refuse(self, path: Path, reason: str) -> Path:
+        """Set aside a session the server refused for good, with its reason; where it went."""
+        private_data_dir(self.refused_dir)
+        target = self.refused_dir / path.name
+        write_private(self.refused_dir / (path.stem + REASON_SUFFIX), reason + "\n")
+        os.replace(path, target)
+        _fsync_dir(self.refused_dir)
+        _fsync_dir(self.dir)
+        return target
+
+    def refused(self) -> dict[str, str]:
+        """The sessions set aside as refused: session id to the server's reason."""
+        out: dict[str, str] = {}
+        for path in sorted(self.refused_dir.glob("*.rec")):
+            try:
+                reason = (path.parent / (path.stem + REASON_SUFFIX)).read_text().strip()
+            except OSError:
+                reason = "refused by the server (no reason kept)"
+            out[path.stem] = reason
+        return out
 
     def recover_unfinished(self, active: set[Path] | None = None) -> list[str]:
         """Close sessions a crash left open; returns their ids. Skips ``active`` files."""
@@ -72,3 +103,11 @@ class Spool:
         except (FileNotFoundError, ValueError):
             return []
         return data if isinstance(data, list) else []
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

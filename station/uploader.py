@@ -10,6 +10,14 @@ The protocol (served by ``server/routes/uploads.py``), keyed by the session's UU
   server checks both and the recording itself, then files the session. Repeating it returns
   the same session, so a station killed between the answer and deleting its copy uploads
   nothing twice.
+
+What the server answers decides what the station does next. A refusal that sending the same
+bytes again cannot change (400, 413, 422, another 4xx: the file is not a valid recording, too
+large…) sets the file aside in the spool's ``refused/`` folder, logged once and reported in
+the station's status (``refused_uploads``), and it is sent no more. Anything that may pass
+(the server or the network down, 5xx, 429, 408, a 401 or 403 until the station's token is
+put right, a 404 or 409 when the server lost what it held) is tried again after a jittered
+wait that doubles up to a minute.
 """
 
 from __future__ import annotations
@@ -37,8 +45,20 @@ RETRY_MAX_S = 60.0
 """Retries of a failed upload wait a jittered 0..2 s, 0..4 s, … up to 60 s (station/backoff.py)."""
 
 
+RETRYABLE = frozenset({401, 403, 404, 408, 409, 429})
+"""4xx answers that may change: a token put right, a server that lost an upload's bytes
+(404, or 409 with its offset), a session filed meanwhile (409 to a PATCH), or a busy server.
+Every other 4xx refuses the file itself, and so does a 409 to the complete step without an
+offset (this session id was filed with other content); every 5xx is the server's and
+passes."""
+
+
 class UploadError(Exception):
     """The server refused an upload for a reason retrying will not fix."""
+
+
+class UploadRetry(Exception):
+    """The server did not take the upload now; the same bytes may pass later."""
 
 
 def sha256_file(path: Path) -> str:
@@ -58,6 +78,8 @@ class Uploader:
             base_url=server, headers={"Authorization": f"Bearer {token}"}, timeout=30.0
         )
         self.uploaded: list[str] = []
+        self.refused: dict[str, str] = spool.refused()
+        """Sessions the server refused for good, set aside in the spool: id to reason."""
         self.last_error = ""
         self._wake = asyncio.Event()
         self._skip: set[Path] = set()
@@ -116,6 +138,7 @@ class Uploader:
 
     async def upload_all(self) -> int:
         """Upload every finished session; delete each local copy once confirmed."""
+        self.refused = self.spool.refused()  # one moved back by hand is sent again
         count = 0
         for path in self.spool.pending():
             if path in self._skip:
@@ -123,8 +146,14 @@ class Uploader:
             try:
                 await self.upload(path)
             except UploadError as exc:
-                self.last_error = str(exc)
-                log.error("upload of %s refused: %s", path.name, exc)
+                kept = self.spool.refuse(path, str(exc))
+                self.refused[path.stem] = str(exc)
+                log.error(
+                    "session %s refused by the server, kept in %s and not sent again: %s",
+                    path.name,
+                    kept.parent,
+                    exc,
+                )
                 continue
             path.unlink()
             self.uploaded.append(path.stem)
@@ -141,8 +170,11 @@ class Uploader:
                 self.last_error = ""
                 backoff.reset()
                 wait = period
-            except (httpx.HTTPError, OSError) as exc:
-                self.last_error = f"server unreachable ({type(exc).__name__})"
+            except (httpx.HTTPError, OSError, UploadRetry) as exc:
+                if isinstance(exc, UploadRetry):
+                    self.last_error = str(exc)
+                else:
+                    self.last_error = f"server unreachable ({type(exc).__name__})"
                 wait = backoff.next()
                 log.info("upload failed: %s; retrying in %.2f s", self.last_error, wait)
             self._wake.clear()
@@ -160,6 +192,9 @@ def _error(r: httpx.Response) -> Exception:
     except ValueError:
         detail = r.text
     text = f"{r.request.method} {r.request.url.path}: {r.status_code} {detail}"
-    if r.status_code >= 500 or r.status_code == 429:
-        return httpx.HTTPStatusError(text, request=r.request, response=r)
+    filed_otherwise = r.status_code == 409 and r.request.method == "POST"
+    if filed_otherwise and "Upload-Offset" not in r.headers:
+        return UploadError(text)  # this session id was filed with other content
+    if r.status_code >= 500 or r.status_code in RETRYABLE or r.status_code < 400:
+        return UploadRetry(text)
     return UploadError(text)

@@ -92,7 +92,7 @@ def mode(path: Path) -> int:
 
 def test_the_spool_and_what_it_keeps_are_the_station_accounts_alone(tmp_path: Path) -> None:
     """Folders 0700 and files 0600 whatever the umask, as the server's data: the spool, the
-    cached prescriptions and the sessions."""
+    cached prescriptions, the sessions and those the server refused, with their reasons."""
     old = os.umask(0o022)  # the usual default, which made 0755 folders and 0644 files
     try:
         spool = Spool(tmp_path / "station" / "spool")
@@ -102,8 +102,15 @@ def test_the_spool_and_what_it_keeps_are_the_station_accounts_alone(tmp_path: Pa
         assert mode(spool.dir) == 0o700
         assert mode(spool.dir / "prescriptions.json") == 0o600
         assert mode(spool.path("s")) == 0o600
+        kept = spool.refuse(spool.path("s"), "POST …/complete: 422 not a valid recording")
     finally:
         os.umask(old)
+    assert mode(kept.parent) == 0o700
+    assert mode(kept) == 0o600
+    assert mode(kept.parent / "s.reason.txt") == 0o600
+    assert spool.refused() == {"s": "POST …/complete: 422 not a valid recording"}
+    assert spool.pending() == []
+    assert sorted(p.name for p in spool.dir.iterdir()) == ["prescriptions.json", "refused"]
 
 
 def test_cached_prescriptions_from_before_are_made_private_on_the_next_save(

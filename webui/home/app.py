@@ -127,6 +127,7 @@ def page_status(station: PatientStation) -> PageStatus:
     return PageStatus(
         online=station.online,
         pending_uploads=s.pending_uploads,
+        refused_uploads=s.refused_uploads,
         device=s.device_link,
         device_mode=s.device_mode,
         phase=s.phase,

@@ -48,6 +48,10 @@ class PageStatus(BaseModel):
     type: Literal["status"] = "status"
     online: bool = Field(description="The therapist's server is reachable.")
     pending_uploads: int = Field(description="Sessions saved here, waiting to be sent.")
+    refused_uploads: int = Field(
+        default=0,
+        description="Sessions the therapist's server refused: kept here, not sent again.",
+    )
     device: Literal["connected", "lost"]
     device_mode: str
     phase: wire.Phase

@@ -155,6 +155,11 @@ function connectionWords() {
   if (status === null) {
     return ["warn", "Connecting to your station…"];
   }
+  const refused = status.refused_uploads || 0;
+  if (refused > 0) {
+    const which = refused === 1 ? "One session was" : `${refused} sessions were`;
+    return ["warn", `${which} not accepted by your therapist's server. It is kept safe on this station: please tell your therapist`];
+  }
   if (status.online) {
     return ["ok", "Connected to your therapist"];
   }

@@ -187,6 +187,14 @@ function doing(s) {
   return DOING[s.phase] || s.phase;
 }
 
+// Sessions waiting at the station, and those the server refused (kept there, not sent again).
+function uploadWords(s) {
+  const waiting = s.pending_uploads ? `${s.pending_uploads} waiting to be sent` : "none waiting";
+  if (!s.refused_uploads) return waiting;
+  const named = (s.refused_sessions || []).join("; ");
+  return `${waiting}; ${s.refused_uploads} refused by the server, kept at the station: ${named}`;
+}
+
 function showStatus(s) {
   state.status = s;
   $("st-device").textContent = s.device_link === "connected" ? "connected" : "lost";
@@ -201,6 +209,7 @@ function showStatus(s) {
   $("st-overruns").textContent = String(s.overruns);
   $("st-frames").textContent = String(s.frames_lost);
   $("st-message").textContent = s.message || "–";
+  $("st-uploads").textContent = uploadWords(s);
   const rx = state.prescriptions.find((p) => p.id === s.prescription_id);
   if (rx) {
     showActiveAxes(rx.body.axes.map((a) => a.axis));
