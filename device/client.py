@@ -30,6 +30,7 @@ from types import TracebackType
 from typing import Generic, TypeVar
 
 from device.axes import AXES
+from device.limits import SafetyLimits
 from device.protocol import messages as msg
 from device.protocol.framing import HANDSHAKE_TYPE, PROTOCOL_VERSION, Frame, FrameDecoder
 from device.protocol.messages import DeviceMode
@@ -537,7 +538,7 @@ class AxisPlan:
 
 
 def build_segment(
-    hello: msg.DeviceHello,
+    hello: msg.DeviceHello | SafetyLimits,
     segment_id: int,
     duration: float,
     axes: dict[str, AxisPlan],
@@ -546,7 +547,8 @@ def build_segment(
     force_limit: float | None = None,
     torque_limit: float | None = None,
 ) -> msg.StartSegment:
-    """A segment message; unnamed axes hold home, unset limits are the device's own."""
+    """A segment message; unnamed axes hold home, unset limits are the device's own (as its
+    HELLO publishes them, or as :class:`SafetyLimits` has them)."""
     unknown = set(axes) - set(AXES)
     if unknown:
         raise ValueError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")

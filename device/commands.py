@@ -13,16 +13,18 @@ Plain Python and numpy: no compiled code, no I/O.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from device.axes import AXES
-from device.geometry import Geometry
 from device.limits import LEG_HEADROOM, SafetyLimits, to_float32
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, NackCode
@@ -38,10 +40,35 @@ class CommandError(ValueError):
     """A command the device refuses; nothing was changed. The service answers it as a NACK
     with this code, the field at fault and the sentence."""
 
-    def __init__(self, text: str, field: str = "", code: NackCode = NackCode.OUT_OF_RANGE) -> None:
+    def __init__(
+        self,
+        text: str,
+        field: str = "",
+        code: NackCode = NackCode.OUT_OF_RANGE,
+        axis: int | None = None,
+    ) -> None:
         super().__init__(text)
         self.code = code
         self.field = field
+        self.axis = axis
+        """The axis (index into ``AXES``) the refused value belongs to, where there is one:
+        for a host that maps the refusal back onto its own field (not sent in the NACK)."""
+
+
+class Geometry(Protocol):
+    """What the checks need of the platform's geometry: a :class:`device.geometry.Geometry`,
+    or what a ``DeviceHello`` publishes of it (:class:`PublishedGeometry`)."""
+
+    @property
+    def stroke(self) -> float: ...
+    @property
+    def min_length(self) -> float: ...
+    @property
+    def home_pose(self) -> NDArray[np.float64]: ...
+    @property
+    def base_joints(self) -> NDArray[np.float64]: ...
+    @property
+    def platform_joints(self) -> NDArray[np.float64]: ...
 
 
 @dataclass(frozen=True)
@@ -153,6 +180,75 @@ def check(command: msg.Message, ctx: Context) -> Checked:
     raise CommandError(f"{type(command).__name__} is not a command", code=NackCode.UNKNOWN_COMMAND)
 
 
+# -- a host checking before it sends ---------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PublishedGeometry:
+    """The geometry a ``DeviceHello`` publishes."""
+
+    stroke: float
+    min_length: float
+    home_pose: NDArray[np.float64]
+    base_joints: NDArray[np.float64]
+    platform_joints: NDArray[np.float64]
+
+
+def published(hello: msg.DeviceHello) -> tuple[SafetyLimits, PublishedGeometry]:
+    """The limits and the geometry a device publishes in its HELLO, for a host that checks a
+    command with these same functions before it sends it. The stroke margin and the trip
+    margins are not published: they are this software's own (the device's are the same)."""
+    limits = dataclasses.replace(
+        SafetyLimits().published(),
+        rom_low=tuple(hello.rom_low),
+        rom_high=tuple(hello.rom_high),
+        force_limit=hello.force_limit,
+        torque_limit=hello.torque_limit,
+        leg_speed_limit=hello.leg_speed_limit,
+        stiffness_max=tuple(hello.stiffness_max),
+        damping_max=tuple(hello.damping_max),
+        stiffness_slew=tuple(hello.stiffness_slew),
+        damping_slew=tuple(hello.damping_slew),
+        axis_speed_max=tuple(hello.axis_speed_max),
+        envelope_stiffness=tuple(hello.envelope_stiffness),
+        damping_min=tuple(hello.damping_min),
+    )
+    geometry = PublishedGeometry(
+        stroke=hello.stroke,
+        min_length=hello.min_length,
+        home_pose=np.asarray(hello.home_pose, dtype=np.float64),
+        base_joints=np.asarray(hello.base_joints, dtype=np.float64).reshape(6, 3),
+        platform_joints=np.asarray(hello.platform_joints, dtype=np.float64).reshape(6, 3),
+    )
+    return limits, geometry
+
+
+M = TypeVar("M", bound=msg.Message)
+
+
+def as_received(command: M) -> M:
+    """``command`` as the device decodes it: every number through its wire type (float32), so
+    a host checks what the device will check (1e-300 N m arrives as 0)."""
+    try:
+        body = msg.pack(command)
+    except (struct.error, OverflowError) as exc:
+        raise CommandError(
+            f"{type(command).__name__} does not fit its wire types: {exc}",
+            code=NackCode.MALFORMED,
+        ) from None
+    received = msg.unpack(type(command), body)
+    assert isinstance(received, type(command))
+    return received
+
+
+def check_segment_as_received(
+    c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry
+) -> CheckedSegment:
+    """:func:`check_segment` of ``c`` as the device will receive it: what a host runs before
+    it sends (or stores) a segment, so the device's refusal is known in advance."""
+    return check_segment(as_received(c), limits, geometry)
+
+
 # -- modes ---------------------------------------------------------------------------------
 
 
@@ -204,15 +300,21 @@ def check_impedance(
     for k, axis in enumerate(AXES):
         if not 0.0 <= K[k] <= limits.stiffness_max[k]:
             raise CommandError(
-                f"{axis} stiffness {K[k]:g} outside 0..{limits.stiffness_max[k]:g}", "stiffness"
+                f"{axis} stiffness {K[k]:g} outside 0..{limits.stiffness_max[k]:g}",
+                "stiffness",
+                axis=k,
             )
         if not 0.0 <= B[k] <= limits.damping_max[k]:
             raise CommandError(
-                f"{axis} damping {B[k]:g} outside 0..{limits.damping_max[k]:g}", "damping"
+                f"{axis} damping {B[k]:g} outside 0..{limits.damping_max[k]:g}",
+                "damping",
+                axis=k,
             )
         if compliant[k] and K[k] == 0.0 and B[k] == 0.0:
             raise CommandError(
-                f"{axis} is compliant: stiffness and damping cannot both be zero", "stiffness"
+                f"{axis} is compliant: stiffness and damping cannot both be zero",
+                "stiffness",
+                axis=k,
             )
         least = limits.damping_min_at(k, float(K[k]))
         if compliant[k] and to_float32(B[k]) < least:  # as the wire carries it
@@ -220,6 +322,7 @@ def check_impedance(
                 f"{axis} damping {B[k]:g} is below {least:g}, the least the device renders "
                 f"stably at stiffness {K[k]:g}",
                 "damping",
+                axis=k,
             )
 
 
@@ -237,11 +340,13 @@ def check_axis_targets(
         values = (t.center, t.amplitude, t.frequency)
         if not all(math.isfinite(v) for v in values):
             raise CommandError(
-                f"{axis} target must be finite numbers", "center", NackCode.NOT_FINITE
+                f"{axis} target must be finite numbers", "center", NackCode.NOT_FINITE, k
             )
         if t.kind == Waveform.SINE and not 0.0 <= t.frequency <= SINE_HZ_MAX:
             raise CommandError(
-                f"{axis} frequency {t.frequency:g} outside 0..{SINE_HZ_MAX:g} Hz", "frequency"
+                f"{axis} frequency {t.frequency:g} outside 0..{SINE_HZ_MAX:g} Hz",
+                "frequency",
+                axis=k,
             )
         lo, hi = t.extent()
         if lo < rom_low[k] or hi > rom_high[k]:
@@ -249,12 +354,14 @@ def check_axis_targets(
                 f"{axis} waveform spans {lo:.4g}..{hi:.4g}, outside {where} "
                 f"{rom_low[k]:.4g}..{rom_high[k]:.4g}",
                 "center",
+                axis=k,
             )
         speed = t.peak_speed()
         if speed > limits.axis_speed_max[k]:
             raise CommandError(
                 f"{axis} waveform peaks at {speed:.3g}/s, above {limits.axis_speed_max[k]:g}/s",
                 "frequency" if t.kind == Waveform.SINE else "ramp_rate",
+                axis=k,
             )
 
 
@@ -332,6 +439,7 @@ def check_segment(c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry)
                 f"{axis} range {lo:.4g}..{hi:.4g} is not within the device's "
                 f"{limits.rom_low[k]:.4g}..{limits.rom_high[k]:.4g}",
                 "rom_low" if lo < limits.rom_low[k] or lo > hi else "rom_high",
+                axis=k,
             )
     targets = tuple(segment_targets(c))
     check_axis_targets(targets, c.rom_low, c.rom_high, limits, "the segment's range")

@@ -20,13 +20,18 @@ import math
 from enum import StrEnum
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.config import JsonDict
 
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
+from device.client import AxisPlan, build_segment
+from device.commands import CommandError, check_segment_as_received
+from device.geometry import DEFAULT_GEOMETRY
 from device.limits import SafetyLimits, to_float32
+from device.protocol import messages as msg
+from device.waveforms import Waveform as DeviceWaveform
 from sessions.sentences import FieldError, bound_sentence, field_label, number
 
 Axis = RotationAxis
@@ -71,6 +76,12 @@ SEGMENT_S_MAX = 600.0
 SETS_MAX, REPETITIONS_MAX = 20, 100
 """The most sets, and repetitions per set, a prescription asks (a session's end record
 counts no more: ``sessions.recording.End``)."""
+
+
+def plus_zero(value: object) -> object:
+    """-0.0 as 0.0 (a number is stored, shown and sent as the therapist means it); anything
+    else unchanged."""
+    return value + 0.0 if isinstance(value, float) else value
 
 
 class ExerciseKind(StrEnum):
@@ -208,6 +219,8 @@ class AxisPrescription(BaseModel):
         description="Highest angle allowed in this exercise, degrees; default the allowed range.",
         json_schema_extra=_DEG,
     )
+
+    _plus_zero = field_validator("*", mode="after")(plus_zero)
 
     def _label(self, field: str) -> str:
         return field_label(field, type(self).model_fields[field], self.axis)
@@ -360,6 +373,8 @@ class PrescriptionBody(BaseModel):
         "against it.",
     )
 
+    _plus_zero = field_validator("*", mode="after")(plus_zero)
+
     @model_validator(mode="after")
     def _axes_once(self) -> PrescriptionBody:
         names = [a.axis for a in self.axes]
@@ -421,6 +436,82 @@ class PrescriptionInput(PrescriptionBody):
                         "give way in this exercise, so leave it at 0.",
                     )
         return self
+
+    @model_validator(mode="after")
+    def _device_accepts(self) -> PrescriptionInput:
+        """The device's own check of a repetition's segment, on the values as it receives
+        them (float32, radians) and against the limits it publishes: whatever the bounds
+        above let through, a prescription the device would refuse at its start is refused
+        here, beside the field. (A torque limit of 1e-300 N·m reaches the device as 0.)"""
+        segment = device_segment(
+            DEVICE_LIMITS,
+            1,
+            self,
+            {a.axis: a.stiffness for a in self.axes},
+            {a.axis: a.damping for a in self.axes},
+        )
+        try:
+            check_segment_as_received(segment, DEVICE_LIMITS, DEFAULT_GEOMETRY)
+        except CommandError as exc:
+            raise self._device_refusal(exc) from None
+        return self
+
+    def _device_refusal(self, exc: CommandError) -> FieldError:
+        """The device's refusal of this prescription's segment, said of the field it is about."""
+        why = f"the platform refuses it as it receives it (in single precision): {exc}."
+        top = {"duration": "repetition_s", "force_limit": "force_limit"}
+        top["torque_limit"] = "torque_limit"
+        if exc.field in top:
+            name = top[exc.field]
+            label = field_label(name, PrescriptionBody.model_fields[name])
+            return FieldError((name,), f"{label}: {why}")
+        for i, a in enumerate(self.axes):
+            if exc.axis == AXIS_INDEX[a.axis] and exc.field in AxisPrescription.model_fields:
+                return FieldError(("axes", i, exc.field), f"{a._label(exc.field)}: {why}")
+        return FieldError(("axes",), f"These targets together: {why}")
+
+
+_WAVEFORM = {"hold": DeviceWaveform.HOLD, "sine": DeviceWaveform.SINE, "ramp": DeviceWaveform.RAMP}
+
+
+def device_segment(
+    device: msg.DeviceHello | SafetyLimits,
+    segment_id: int,
+    body: PrescriptionBody,
+    stiffness: dict[str, float],
+    damping: dict[str, float],
+) -> msg.StartSegment:
+    """The device segment of one repetition: the prescription in the device's units (radians)
+    with the K and B given, its ranges of motion and limits; unprescribed axes hold home
+    within the device's own range (``device``: its HELLO, or the limits it publishes)."""
+    low, high = list(device.rom_low), list(device.rom_high)
+    plans: dict[str, AxisPlan] = {}
+    compliant = body.compliant()
+    for a in body.axes:
+        lo, hi = a.limits_deg()
+        i = AXIS_INDEX[a.axis]
+        low[i], high[i] = math.radians(lo), math.radians(hi)
+        plans[a.axis] = AxisPlan(
+            waveform=_WAVEFORM[a.waveform],
+            center=math.radians(a.center),
+            amplitude=math.radians(a.amplitude),
+            frequency=a.frequency,
+            ramp_end=math.radians(a.ramp_end),
+            ramp_rate=math.radians(a.ramp_rate),
+            stiffness=stiffness[a.axis],
+            damping=damping[a.axis],
+            compliant=compliant,
+        )
+    return build_segment(
+        device,
+        segment_id,
+        body.repetition_s,
+        plans,
+        rom_low=tuple(low),
+        rom_high=tuple(high),
+        force_limit=body.force_limit,
+        torque_limit=body.torque_limit,
+    )
 
 
 class ExerciseTemplate(BaseModel):

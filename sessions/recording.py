@@ -139,8 +139,8 @@ class SessionEvent(BaseModel):
     kind: str = Field(
         description="rep_done, set_done, rest, mode, limit, fault, watchdog, estop, "
         "supply_low, damping_raised (an axis rang with the foot on it and the device raised "
-        "its damping), impedance, hold, resume, stop, interrupted (held too long), "
-        "game_score, note."
+        "its damping), impedance, hold, resume, stop, interrupted (held too long), refused "
+        "(the device refused the exercise's segment), game_score, note."
     )
     by: str = Field(default="station", description="device, station, patient or therapist:<id>.")
     detail: dict[str, Any] = Field(default_factory=dict)

@@ -26,9 +26,23 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal, cast
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, create_model, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    create_model,
+    model_validator,
+)
 
-from sessions.prescription import DAMPING_MAX, STIFFNESS_MAX, Axis, PrescriptionBody
+from sessions.prescription import (
+    DAMPING_MAX,
+    STIFFNESS_MAX,
+    Axis,
+    PrescriptionBody,
+    plus_zero,
+)
 from sessions.recording import DeviceInfo, SessionEvent
 
 PROTOCOL = 4
@@ -285,8 +299,13 @@ class StatusMsg(BaseModel):
 
 Action = Literal["set_impedance", "hold", "resume", "stop", "start"]
 # Strict: a live K or B must be a JSON number, never true or "40" (see sessions.prescription).
-LiveStiffness = Annotated[float, Field(strict=True, ge=0.0, le=STIFFNESS_MAX)]
-LiveDamping = Annotated[float, Field(strict=True, ge=0.0, le=DAMPING_MAX)]
+# -0.0 is 0.0, as in a prescription (sessions.prescription.plus_zero).
+LiveStiffness = Annotated[
+    float, Field(strict=True, ge=0.0, le=STIFFNESS_MAX), AfterValidator(plus_zero)
+]
+LiveDamping = Annotated[
+    float, Field(strict=True, ge=0.0, le=DAMPING_MAX), AfterValidator(plus_zero)
+]
 
 
 class Command(BaseModel):

@@ -18,10 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from device.client import CommandRefused, DeviceClient, DeviceError
-from device.protocol.messages import Capability, DeviceMode
+from device.commands import CommandError, check_segment_as_received, published
+from device.protocol.messages import Capability, DeviceHello, DeviceMode
 from sessions import wire
 from sessions.home_progress import HomeProgress
-from sessions.recording import Header, RecordingWriter, SessionEvent, sample_row
+from sessions.recording import End, Header, RecordingWriter, SessionEvent, sample_row
 from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import PrescriptionItem
 from station.config import StationConfig
@@ -29,7 +30,7 @@ from station.progress import ProgressWatch
 from station.reasons import Reasons, ends_at, patient_resume_refusal
 from station.server_link import ServerLink
 from station.spool import Spool
-from station.timeline import ExerciseRun
+from station.timeline import ExerciseRun, segment_for
 from station.uploader import Uploader
 
 log = logging.getLogger("ankle.station")
@@ -239,6 +240,10 @@ class Station:
         path = self.spool.path(self.session_id)
         self.writer = SessionWriter(path, header)
         self.uploader.skip(path)
+        refused = self._refusal(item, hello)
+        if refused:
+            self._refused_start(refused)
+            return refused
         self.run_ = ExerciseRun(
             self.dev,
             item.id,
@@ -250,6 +255,47 @@ class Station:
         self._session_task = asyncio.create_task(self._run_session(self.run_), name="exercise")
         self._status_dirty.set()
         return ""
+
+    @staticmethod
+    def _refusal(item: PrescriptionItem, hello: DeviceHello) -> str:
+        """Why the device would refuse this prescription's repetitions, by its own check of
+        the values as it receives them against the limits it published; ``""`` if it would
+        not. (The server refuses such a prescription; one stored before may still hold one.)"""
+        body = item.body
+        k: dict[str, float] = {a.axis: a.stiffness for a in body.axes}
+        b: dict[str, float] = {a.axis: a.damping for a in body.axes}
+        limits, geometry = published(hello)
+        try:
+            check_segment_as_received(segment_for(hello, 1, body, k, b), limits, geometry)
+        except CommandError as exc:
+            return f"the platform refuses this exercise ({exc.code.name} [{exc.field}]: {exc})"
+        return ""
+
+    def _refused_start(self, why: str) -> None:
+        """A start the device would refuse: the session is recorded as ended at once, with the
+        reason, so that the therapist sees it (an early end) and nothing moves."""
+        log.error("exercise not started: %s", why)
+        self._event(
+            SessionEvent(wall=time.time(), kind="refused", by="station", detail={"text": why})
+        )
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            writer.end(
+                End(
+                    ended_at=time.time(),
+                    reason="stopped",
+                    sets_completed=0,
+                    repetitions_completed=0,
+                    text=why,
+                )
+            )
+            writer.close()
+        self.session_id = None
+        self.message = why
+        self._last_phase = "stopped"
+        self.uploader.skip(None)
+        self.uploader.wake()
+        self._status_dirty.set()
 
     async def _run_session(self, run: ExerciseRun) -> None:
         try:
@@ -346,6 +392,9 @@ class Station:
             if cmd.action == "set_impedance":
                 if run is None:
                     return result(False, "REFUSED", "action", "no exercise is running")
+                refused = run.impedance_refusal(cmd.stiffness, cmd.damping)
+                if refused is not None:
+                    return result(False, "REFUSED", *refused)
                 change = await self._set_impedance(dev, run, cmd)
                 self._event(
                     SessionEvent(

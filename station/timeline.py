@@ -8,46 +8,22 @@ reports SEGMENT_DONE). The station only sequences; every limit is enforced by th
 from __future__ import annotations
 
 import asyncio
-import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Literal
 
-from device.client import AxisPlan, CommandRefused, DeviceClient, build_segment
+from device.client import CommandRefused, DeviceClient
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
-from device.waveforms import Waveform
-from sessions.prescription import AXIS_INDEX, Axis, PrescriptionBody
+from sessions.prescription import Axis, PrescriptionBody, device_segment
 from sessions.recording import End, EndReason, SessionEvent
 
 HOMING_TIMEOUT_S = 40.0
 SEGMENT_MARGIN_S = 30.0
 """Beyond ``repetition_s``: the approach and return moves and any pause are added to it."""
-_WAVEFORM = {"hold": Waveform.HOLD, "sine": Waveform.SINE, "ramp": Waveform.RAMP}
 STOPPED_MODES = (DeviceMode.FAULT, DeviceMode.ESTOP)
 
 Phase = Literal["homing", "running", "rest", "paused", "done", "stopped", "fault", "interrupted"]
-
-
-def axis_plans(
-    body: PrescriptionBody, stiffness: dict[str, float], damping: dict[str, float]
-) -> dict[str, AxisPlan]:
-    """The device's per-axis plan (radians) from a prescription and the live K and B."""
-    plans: dict[str, AxisPlan] = {}
-    compliant = body.compliant()
-    for a in body.axes:
-        plans[a.axis] = AxisPlan(
-            waveform=_WAVEFORM[a.waveform],
-            center=math.radians(a.center),
-            amplitude=math.radians(a.amplitude),
-            frequency=a.frequency,
-            ramp_end=math.radians(a.ramp_end),
-            ramp_rate=math.radians(a.ramp_rate),
-            stiffness=stiffness[a.axis],
-            damping=damping[a.axis],
-            compliant=compliant,
-        )
-    return plans
 
 
 def segment_for(
@@ -57,21 +33,8 @@ def segment_for(
     stiffness: dict[str, float],
     damping: dict[str, float],
 ) -> msg.StartSegment:
-    low, high = list(hello.rom_low), list(hello.rom_high)
-    for a in body.axes:
-        lo, hi = a.limits_deg()
-        i = AXIS_INDEX[a.axis]
-        low[i], high[i] = math.radians(lo), math.radians(hi)
-    return build_segment(
-        hello,
-        segment_id,
-        body.repetition_s,
-        axis_plans(body, stiffness, damping),
-        rom_low=tuple(low),
-        rom_high=tuple(high),
-        force_limit=body.force_limit,
-        torque_limit=body.torque_limit,
-    )
+    """The device segment of one repetition (the prescription with the live K and B)."""
+    return device_segment(hello, segment_id, body, stiffness, damping)
 
 
 class ExerciseRun:
@@ -105,6 +68,8 @@ class ExerciseRun:
         self.began = time.time()
         """Unix s: a hold is timed from here at the earliest (see station.reasons.ends_at)."""
         self._interrupted = False
+        self._refused = False
+        """The device refused a repetition's segment: the run ended without it."""
         self._homing_note = ""
         self._segment_id = first_segment_id
         self._after_event: int | None = None
@@ -211,7 +176,7 @@ class ExerciseRun:
             self.phase = "done" if reason == "completed" else reason
             self.set = self.rep = 0
             self._on_change()
-        said = self.message if reason in ("fault", "interrupted") else ""
+        said = self.message if reason in ("fault", "interrupted") or self._refused else ""
         return End(
             ended_at=time.time(),
             reason=reason,
@@ -260,9 +225,21 @@ class ExerciseRun:
             return False
         self._segment_id += 1
         self._segment_done.clear()
-        await self.dev.start_segment(
-            segment_for(self.hello, self._segment_id, self.body, self.stiffness, self.damping)
-        )
+        try:
+            await self.dev.start_segment(
+                segment_for(self.hello, self._segment_id, self.body, self.stiffness, self.damping)
+            )
+        except CommandRefused as exc:
+            # Nothing moves: the run ends here, recorded, with the device's own words.
+            nack = exc.nack
+            self.message = (
+                f"the platform refused the repetition ({nack.code.name} [{nack.field}]: "
+                f"{nack.text})"
+            )
+            self._refused = True
+            self._event("refused", text=self.message)
+            self._stop.set()
+            return False
         done = asyncio.create_task(self._segment_done.wait())
         stop = asyncio.create_task(self._stop.wait())
         try:
@@ -321,6 +298,20 @@ class ExerciseRun:
         self.rest_until = 0.0
 
     # -- live changes -------------------------------------------------------------------
+    def impedance_refusal(
+        self, stiffness: Mapping[Axis, float] | None, damping: Mapping[Axis, float] | None
+    ) -> tuple[str, str] | None:
+        """Why a live K/B change cannot be made, as (field, sentence): it names an axis this
+        exercise does not use (the platform holds it; nothing would change), or none at all.
+        None when it can be made."""
+        for field, asked in (("stiffness", stiffness), ("damping", damping)):
+            for name in asked or {}:
+                if name not in self.stiffness:
+                    return field, f"{name} is not part of this exercise: it is held"
+        if not stiffness and not damping:
+            return "stiffness", "nothing to change: give K or B on an axis of this exercise"
+        return None
+
     def apply_impedance(
         self, stiffness: Mapping[Axis, float] | None, damping: Mapping[Axis, float] | None
     ) -> tuple[tuple[float, ...], tuple[float, ...]]:

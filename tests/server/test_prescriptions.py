@@ -73,6 +73,20 @@ INVALID = [
         id="rom-beyond-anatomy-and-device",
     ),
     pytest.param(
+        as_json({**STRENGTH, "torque_limit": 1e-300}),
+        ["body", "torque_limit"],
+        "Torque limit: the platform refuses it as it receives it (in single precision): "
+        "torque_limit 0 N m outside (0, 60].",
+        id="torque-limit-zero-as-float32",
+    ),
+    pytest.param(
+        as_json({**STRENGTH, "force_limit": 1e-300}),
+        ["body", "force_limit"],
+        "Force limit: the platform refuses it as it receives it (in single precision): "
+        "force_limit 0 N outside (0, 400].",
+        id="force-limit-zero-as-float32",
+    ),
+    pytest.param(
         as_json({**STRENGTH, "surprise": 1}),
         ["body", "surprise"],
         "“surprise” is not a field here.",

@@ -11,6 +11,7 @@ from sessions.prescription import (
     EXERCISE_LIBRARY,
     AxisPrescription,
     PrescriptionBody,
+    PrescriptionInput,
     allowed_range_deg,
 )
 
@@ -85,3 +86,14 @@ def test_the_library_covers_the_clinical_exercises_with_valid_defaults() -> None
     }
     for template in EXERCISE_LIBRARY.values():
         PrescriptionBody.model_validate(template.defaults.model_dump())
+
+
+def test_minus_zero_is_zero() -> None:
+    """-0.0 is stored, shown and sent as 0.0."""
+    body = PrescriptionInput.model_validate(
+        {
+            "exercise": "strength",
+            "axes": [{"axis": "pitch", "stiffness": -0.0, "damping": 2.0, "center": -0.0}],
+        }
+    )
+    assert str(body.axes[0].stiffness) == "0.0" and str(body.axes[0].center) == "0.0"

@@ -389,6 +389,67 @@ async def test_the_patient_starts_pauses_resumes_plays_and_stops(home: Home) -> 
     assert (summary.game.score, summary.game.gates, summary.game.missed) == (2, 3, 1)
 
 
+@pytest.mark.asyncio
+async def test_a_start_the_device_would_refuse_is_refused_and_recorded(home: Home) -> None:
+    """A torque limit of 1e-300 N·m passes "above 0" but reaches the device as float32 0: a
+    prescription stored before the server refused it must not start (ok false, the device's
+    own sentence) and must leave a session that tells the therapist (an early end)."""
+    tiny = PrescriptionBody.model_validate({**BODY.model_dump(mode="json"), "torque_limit": 1e-300})
+    home.station.prescriptions.append(
+        wire.PrescriptionItem(id=PRESCRIPTION_ID + 1, version=1, patient_id=3, body=tiny)
+    )
+    ws = await home.page()
+    try:
+        await status_where(ws, device="connected")
+        result = await ask(ws, {"type": "start", "prescription_id": PRESCRIPTION_ID + 1})
+        assert not result["ok"], result
+        assert "torque_limit 0 N m outside (0, 60]" in result["text"], result
+        status = await status_where(ws, 10.0, phase="stopped", session_id=None)
+        assert "torque_limit" in status["message"], status
+        assert status["device_mode"] != "ACTIVE"
+    finally:
+        await ws.close()
+    (path,) = home.spool.glob("*.rec")
+    rec = read(path)
+    assert rec.end is not None and rec.end.reason == "stopped"
+    assert "torque_limit 0 N m outside" in rec.end.text
+    assert [e.kind for e in rec.events] == ["refused"]
+
+
+@pytest.mark.asyncio
+async def test_a_live_change_that_changes_nothing_is_refused(home: Home) -> None:
+    """Roll is not part of the pitch exercise, and an empty change asks for nothing: both are
+    refused with a sentence, and the session records no impedance change."""
+    ws = await home.page()
+    try:
+        await status_where(ws, device="connected")
+        result = await ask(ws, {"type": "start", "prescription_id": PRESCRIPTION_ID})
+        assert result["ok"], result
+        await status_where(ws, phase="running", device_mode="ACTIVE")
+        asks = {
+            "roll": ({"roll": 500.0}, {"roll": 50.0}, "roll is not part of this exercise"),
+            "empty": ({}, {}, "nothing to change"),
+        }
+        for rid, (k, b, said) in asks.items():
+            cmd = wire.Command.model_validate(
+                {"request_id": rid, "action": "set_impedance", "stiffness": k, "damping": b}
+            )
+            answer = await home.station.command(cmd)
+            assert not answer.ok and answer.code == "REFUSED", answer
+            assert said in answer.text and answer.change is None, answer
+        # -0.0 is 0.0 on the way in.
+        zero = wire.Command.model_validate_json(
+            '{"request_id": "z", "action": "set_impedance", "stiffness": {"pitch": -0.0}}'
+        )
+        assert str(zero.stiffness) == "{'pitch': 0.0}"
+        assert (await ask(ws, {"type": "stop"}))["ok"]
+        await status_where(ws, 60.0, phase="stopped", session_id=None)
+    finally:
+        await ws.close()
+    (path,) = home.spool.glob("*.rec")
+    assert not [e for e in read(path).events if e.kind == "impedance"]
+
+
 # -- serving ---------------------------------------------------------------------------------
 @pytest.mark.asyncio
 async def test_a_port_that_is_taken_is_an_error_for_the_caller(home: Home) -> None:
