@@ -156,9 +156,9 @@ class End(BaseModel):
         ge=0.0, lt=UNIX_TIME_MAX, allow_inf_nan=False, description="Unix time, s."
     )
     reason: EndReason
-    # No more than a prescription can ask: a count past it is not what the station ran.
-    sets_completed: int = Field(ge=0, le=SETS_MAX)
-    repetitions_completed: int = Field(ge=0, le=SETS_MAX * REPETITIONS_MAX, description="All sets.")
+    # Bounded at upload (check_session), not here: a session filed earlier still reads.
+    sets_completed: int
+    repetitions_completed: int = Field(description="All sets.")
     text: str = Field(
         default="", description="Why it ended, in words, when not simply completed or stopped."
     )
@@ -244,8 +244,9 @@ def decode(data: bytes | memoryview) -> Recording:
     return Recording(header, samples, events, end, valid, damaged)
 
 
-def check_session_times(rec: Recording) -> None:
-    """A finished recording's times must describe one session: it ends no earlier than it
+def check_session(rec: Recording) -> None:
+    """A finished recording must describe one session a station ran: its end's counts are
+    no more than a prescription can ask (and not negative); it ends no earlier than it
     starts, its samples were received within it (station clock, ``wall``), and the device's
     clock covers no more time than the session lasted (the sum of its forward steps ``t``,
     so that a device restarted mid-session, its clock back at 0, still counts right). Each
@@ -258,6 +259,15 @@ def check_session_times(rec: Recording) -> None:
     reads."""
     if rec.end is None:
         raise RecordingError("it is cut off: it has no end record")
+    for name, count, most in (
+        ("sets_completed", rec.end.sets_completed, SETS_MAX),
+        ("repetitions_completed", rec.end.repetitions_completed, SETS_MAX * REPETITIONS_MAX),
+    ):
+        if not 0 <= count <= most:
+            raise RecordingError(
+                f"the end record's {name} ({count}) is outside 0 to {most}, what a "
+                "prescription can ask"
+            )
     samples = rec.samples
     start, stop = rec.header.started_at, rec.end.ended_at
     if stop < start:

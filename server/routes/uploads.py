@@ -40,7 +40,7 @@ from sessions.recording import (
     Recording,
     RecordingError,
     RecordType,
-    check_session_times,
+    check_session,
     decode,
     iter_records,
 )
@@ -330,7 +330,7 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
         rec = decode(part.read_bytes())
         if rec.damaged or rec.end is None:
             raise RecordingError("it is cut off: it has no end record")
-        check_session_times(rec)
+        check_session(rec)
     except ValueError as exc:  # RecordingError, or a record's ValidationError
         raise Refused(
             f"not a valid recording: {error_text(exc, 300)}; upload the session again"

@@ -227,6 +227,22 @@ async def test_impossible_end_counts_or_an_end_before_the_start_are_a_422(
 
 
 @pytest.mark.asyncio
+async def test_a_session_filed_before_the_count_bounds_still_reads(
+    live: Live, world: World
+) -> None:
+    """The counts are bounded where an upload is checked, not where a recording is read: a
+    session already filed with such counts still opens (its download, its charts), and
+    only a new upload of it is refused."""
+    from sessions.recording import RecordingError, check_session, decode
+
+    sid = str(uuid.uuid4())
+    rec = decode(recording_with(sid, world, {}, {"repetitions_completed": -(2**62)}))
+    assert rec.end is not None and rec.end.repetitions_completed == -(2**62)
+    with pytest.raises(RecordingError, match="repetitions_completed"):
+        check_session(rec)
+
+
+@pytest.mark.asyncio
 @pytest.mark.parametrize("field", ["prescription_id", "patient_id", "station_id"])
 async def test_an_id_past_what_the_store_holds_is_refused_with_the_first_chunk(
     live: Live, world: World, field: str
