@@ -26,11 +26,11 @@ from pydantic.config import JsonDict
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
-from device.client import AxisPlan, build_segment
 from device.commands import CommandError, check_segment_as_received
 from device.geometry import DEFAULT_GEOMETRY
 from device.limits import SafetyLimits, to_float32
 from device.protocol import messages as msg
+from device.segments import AxisPlan, build_segment
 from device.waveforms import Waveform as DeviceWaveform
 from sessions.sentences import FieldError, bound_sentence, field_label, number
 
