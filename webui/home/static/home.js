@@ -158,7 +158,8 @@ function connectionWords() {
   const refused = status.refused_uploads || 0;
   if (refused > 0) {
     const which = refused === 1 ? "One session was" : `${refused} sessions were`;
-    return ["warn", `${which} not accepted by your therapist's server. It is kept safe on this station: please tell your therapist`];
+    const kept = refused === 1 ? "It is" : "They are";
+    return ["warn", `${which} not accepted by your therapist's server. ${kept} kept safe on this station: please tell your therapist`];
   }
   if (status.online) {
     return ["ok", "Connected to your therapist"];
