@@ -33,3 +33,12 @@ def write_private(path: os.PathLike[str] | str, text: str) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def fsync_dir(directory: Path) -> None:
+    """Put a directory's entries (a file created, renamed or moved in it) on the disk."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from device.protocol.messages import Telemetry
 from sessions.prescription import REPETITIONS_MAX, SETS_MAX
-from sessions.private import PRIVATE_FILE
+from sessions.private import PRIVATE_FILE, fsync_dir
 
 MAGIC = b"ANKLREC1"
 FORMAT_VERSION = 1
@@ -321,7 +321,7 @@ class RecordingWriter:
                 raise RecordingError(f"{path} is new: a header is needed")
             os.write(self._fd, MAGIC + encode_json(RecordType.HEADER, header))
             self.flush()
-            _fsync_dir(path.parent)
+            fsync_dir(path.parent)
         self.samples_written = 0
 
     def add(self, row: tuple[Any, ...]) -> None:
@@ -371,11 +371,3 @@ def recover(path: Path) -> Recording:
             os.fsync(f.fileno())
         rec.damaged = False
     return rec
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

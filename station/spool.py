@@ -21,7 +21,7 @@ import os
 import time
 from pathlib import Path
 
-from sessions.private import private_data_dir, write_private
+from sessions.private import PRIVATE_FILE, fsync_dir, private_data_dir, write_private
 from sessions.recording import End, RecordingError, RecordingWriter, recover
 
 PRESCRIPTIONS_FILE = "prescriptions.json"
@@ -49,8 +49,9 @@ class Spool:
         target = self.refused_dir / path.name
         write_private(self.refused_dir / (path.stem + REASON_SUFFIX), reason + "\n")
         os.replace(path, target)
-        _fsync_dir(self.refused_dir)
-        _fsync_dir(self.dir)
+        os.chmod(target, PRIVATE_FILE)  # a file put in the spool by hand may have come 0644
+        fsync_dir(self.refused_dir)
+        fsync_dir(self.dir)
         return target
 
     def refused(self) -> dict[str, str]:
@@ -103,11 +104,3 @@ class Spool:
         except (FileNotFoundError, ValueError):
             return []
         return data if isinstance(data, list) else []
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
