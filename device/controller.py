@@ -2547,12 +2547,8 @@ def hold_service(s: ControllerState, c: int) -> None:
     device needs service already) and held at its pressure by either of its own valves
     (``HOLD_BOTH``: which path moves its air, a leak, an intake or an exhaust stuck open, is
     not known here)."""
-    trip(s, Trip.VALVE, c)
-    for v in range(24):
-        s.valves[v] = 0
-    s.trip_air[0] = math.nan
+    hold_stuck(s, c, False, False)
     s.istate[I_BLEED] = HOLD_BOTH + c
-    s.p_desired[c] = s.pressure[c]
 
 
 @njit_inline
@@ -2571,7 +2567,7 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     n = int(s.monitor[m + 24]) + 1
     s.monitor[m + 24] = n
     service = s.counters[supervision.C_SERVICE]
-    if n == 1 and service > 0 and s.istate[I_MODE] != Mode.FAULT:
+    if n == 1 and service > 0:  # IDLE here (controller_tick): no trip is latched
         hold_service(s, int(service) - 1)
         return
     if n < q.shut_settle_reads:
