@@ -2376,6 +2376,7 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
             bleed(
                 s.istate, s.pressure, s.p_desired, s.valves, s.trip_air, s.leg_x,
                 p.dead_volume, p.area_cap, p.area_annulus, p.stroke, s.sensors[12], p.sup,
+                int(s.counters[supervision.C_SERVICE]) - 1,
             )  # fmt: skip
     s.istate[I_TICK] = tick + 1
 
@@ -2647,6 +2648,7 @@ def bleed(
     stroke: float,
     supply_abs: float,
     sup: supervision.SupervisionParams,
+    service: int = -1,
 ) -> None:
     """After a trip, a chamber whose air changes with every valve shut has a valve stuck open,
     and a valve of its own holds it at its pressure at the trip (kept in ``p_desired``):
@@ -2668,7 +2670,17 @@ def bleed(
     supply is above the chamber, never on a supply transducer the trip named. An e-stop
     after the trip does not close them either: de-energising the coils would not stop the
     stuck valve's air.
-    An e-stop itself starts no hold: it closes every valve, as the protocol promises.
+
+    A chamber the air checks had already named while the loop ran (``service``, from
+    ``supervision.C_SERVICE``: a leak or a valve stuck open that the loop outran) is held
+    from the first tick after any trip, an e-stop's too, by either of its own valves
+    (``HOLD_BOTH``, as :func:`hold_service` holds it when the valves shut under control):
+    measured mid-exercise, an e-stop 0.2 s after the chamber was named let a cap or rod side
+    with its exhaust stuck open turn the platform 5.4-8.0 deg and drop it 7.6-13.0 mm in
+    2 s, a leak of half a valve's conductance up to 11.8 deg and 17.1 mm (a healthy e-stop
+    there: 0.36 deg, 0.41 mm). Not when the trip names that chamber's transducer. Otherwise
+    an e-stop starts no hold: a chamber found moving only after it is left as the protocol
+    promises, every valve closed.
 
     A release stopped by a stuck intake (``HOLD_BALANCE``, ``SupervisionConfig.
     release_balance``) is different: its leg's other chamber was half vented, so the exhaust
@@ -2681,6 +2693,14 @@ def bleed(
         return
     code, named = istate[I_TRIP], istate[I_TRIP_CHANNEL]
     record = math.isnan(trip_air[0])
+    if (
+        record
+        and c == -1
+        and service >= 0
+        and not (code == Trip.PRESSURE_SENSOR and named == service)
+    ):
+        c = HOLD_BOTH + service
+        p_desired[service] = pressure[service]  # held where the trip found it
     if record or (c == -1 and code != Trip.ESTOP):  # once the chamber is found, only hold it
         for k in range(12):
             leg = k // 2

@@ -160,9 +160,13 @@ class ModeMachine:
         self._end_segment()
         self.homed = False
         if self.mode != DeviceMode.ESTOP:
-            self._set_mode(
-                DeviceMode.ESTOP, "emergency stop", kind=EventKind.ESTOP, code=Trip.ESTOP
-            )
+            text = "emergency stop"
+            chamber = self.rig.service_chamber
+            if chamber >= 0 and self.mode != DeviceMode.FAULT:
+                # ctl.bleed holds it from the next tick: every valve closed would let it run.
+                part = where(Trip.AIR_BALANCE, chamber)
+                text += f"; {part} held by its own valves (a leak or a stuck valve: service)"
+            self._set_mode(DeviceMode.ESTOP, text, kind=EventKind.ESTOP, code=Trip.ESTOP)
 
     def rearm(self) -> None:
         self.rig.rearm()

@@ -94,7 +94,7 @@ class EventKind(IntEnum):
     """A chamber's air does not add up (code AIR_BALANCE, a leak or a stuck valve): the
     running segment (or homing) finishes under control, nothing new starts until a re-arm.
     When it ends and the valves shut, the chamber is named by a VALVE fault at once and
-    held by its own valves."""
+    held by its own valves; after an e-stop or any other trip too."""
     DAMPING_RAISED = 10
     """A compliant axis rang with the foot on it and the ring guard raised the damping the
     law renders there (code: the axis 0-5; value: the factor now on its damping); it holds
@@ -429,7 +429,7 @@ class Resume(Message, type_=22, sender="host"):
 
 
 class EStop(Message, type_=23, sender="host"):
-    """Any mode -> ESTOP, latched; valves closed."""
+    """Any mode -> ESTOP, latched; valves closed (a SERVICE chamber's own hold it)."""
 
 
 class Rearm(Message, type_=24, sender="host"):

@@ -619,6 +619,68 @@ def test_the_loops_service_chamber_is_held_the_moment_the_valves_shut(
     assert math.degrees(moved[3:].max()) <= 1.2 and 1e3 * moved[:3].max() <= 1.5, moved
 
 
+@pytest.mark.parametrize(
+    ("kind", "channel"),
+    [
+        (FaultKind.VALVE_STUCK_OPEN, 7),  # leg 2's rod-side exhaust
+        (FaultKind.VALVE_STUCK_OPEN, 14),  # leg 4's rod-side intake
+        (FaultKind.CHAMBER_LEAK, 9),
+    ],
+)
+def test_an_estop_holds_the_chamber_the_air_checks_named(kind: FaultKind, channel: int) -> None:
+    """A leak or a valve stuck open mid-exercise, named by the air checks (the loop outruns
+    it), then the patient presses the e-stop: every valve closed let the fault alone turn
+    the platform 5.4-11.8 deg and drop it 7.6-17.1 mm in 2 s. The e-stop's event names the
+    chamber, and its own valves hold it: the platform gives no more than a healthy one's
+    e-stop there (0.36 deg, 0.41 mm) and the fault's worst (0.88 deg, 1.05 mm)."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode, EventKind
+
+    rig, *_ = safety._run(kind, "exercise", 1, channel, after=0.3)
+    c = channel // 2 if kind == FaultKind.VALVE_STUCK_OPEN else channel
+    before = rig.trip
+    assert rig.service_chamber == c and before == Trip.NONE
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    start = hw.state.pose.copy()
+    machine.estop()
+    assert machine.mode == DeviceMode.ESTOP and events[-1][0] == EventKind.ESTOP
+    part = trips.where(Trip.AIR_BALANCE, c)
+    assert str(events[-1][5]).startswith(f"emergency stop; {part} held by its own valves")
+    rig.run(0.002, log_hz=0)
+    assert rig.trip == Trip.ESTOP
+    assert rig.state.istate[ctl.I_BLEED] == ctl.HOLD_BOTH + c
+    moved = np.zeros(6)
+    opened = 0
+    for _ in range(1000):
+        rig.run(0.002, log_hz=0)
+        moved = np.maximum(moved, np.abs(hw.state.pose - start))
+        others = [v for v in range(24) if v // 2 != c]
+        assert rig.state.valves[others].sum() == 0
+        opened += int(rig.state.valves[2 * c : 2 * c + 2].sum())
+    assert opened > 0, "the chamber's own valves never opened: the fault ran alone"
+    assert math.degrees(moved[3:].max()) <= 1.2 and 1e3 * moved[:3].max() <= 1.5, moved
+
+
+def test_an_estop_with_no_chamber_named_closes_every_valve() -> None:
+    """The protocol's promise stands where nothing was named: a healthy e-stop mid-exercise
+    opens no valve afterwards, and its event says only that it stopped."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode
+
+    rig, *_ = safety._run(None, "exercise", 1, after=0.3)
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.estop()
+    assert machine.mode == DeviceMode.ESTOP and events[-1][5] == "emergency stop"
+    for _ in range(250):
+        rig.run(0.002, log_hz=0)
+        assert rig.state.valves.sum() == 0
+    assert rig.state.istate[ctl.I_BLEED] == -1
+
+
 def test_homing_with_a_leaking_chamber_ends_in_a_valve_fault_that_holds_it() -> None:
     """A leak of half a valve's conductance on chamber 5 struck while homing lifted the
     platform off its stops: the air checks name it (SERVICE), homing finishes under control,
