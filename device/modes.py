@@ -62,6 +62,9 @@ FAULT_TRIPS = (
     Trip.FOLLOWING,
 )
 """Trips reported as FAULT events; the others are limits the motion reached (LIMIT)."""
+_AT_REST = (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD)
+"""Modes in which a low supply is said without a hold (the valves are shut already; after a
+stop the stop's own event is what a technician reads first)."""
 
 EventSink = Callable[[EventKind, DeviceMode, DeviceMode, int, float, str], None]
 """``(kind, mode_from, mode_to, code, value, text)``."""
@@ -90,6 +93,7 @@ class ModeMachine:
         self.homed = False
         self.segment: Segment | None = None
         self._service_reported = False
+        self._supply_reported = False
         self._release_reported = False
         self._rings = np.zeros(6)
         self._factors = np.ones(6)
@@ -221,18 +225,41 @@ class ModeMachine:
         elif chamber < 0:
             self._service_reported = False
         self._report_rings()
-        if self.rig.supply_low and self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING):
-            supply = float(self.rig.state.sensors[12]) - self.rig.config.atmosphere
-            self.hold(
-                EventKind.SUPPLY_LOW,
-                f"air supply low ({supply / 1e5:.1f} bar): held until it recovers",
-                supply,
-            )
+        if self._supply_step():
             return
         if self.mode == DeviceMode.HOMING:
             self._homing_step()
         elif self.mode == DeviceMode.ACTIVE and self.segment is not None:
             self._segment_step(self.segment)
+
+    def _supply_step(self) -> bool:
+        """A low air supply holds what moves (ACTIVE -> HOLD, HOMING -> IDLE); at rest it is
+        said once each time it falls, so that the station can tell the patient before an
+        exercise is refused for it. Whether the pass stops here."""
+        if not self.rig.supply_low:
+            self._supply_reported = False
+            return False
+        supply = float(self.rig.state.sensors[12]) - self.rig.config.atmosphere
+        if self.mode in (DeviceMode.ACTIVE, DeviceMode.HOMING):
+            self._supply_reported = True
+            self.hold(
+                EventKind.SUPPLY_LOW,
+                f"air supply low ({supply / 1e5:.1f} bar): held until it recovers",
+                supply,
+            )
+            return True
+        if not self._supply_reported and self.mode in _AT_REST:
+            self._supply_reported = True
+            self.on_event(
+                EventKind.SUPPLY_LOW,
+                self.mode,
+                self.mode,
+                0,
+                supply,
+                f"air supply low ({supply / 1e5:.1f} bar): nothing starts until it recovers; "
+                "check the compressor and its hose",
+            )
+        return False
 
     def _report_release(self) -> None:
         """An event when the controller stopped a release (ctl.watch_release), once."""

@@ -384,6 +384,8 @@ class DeviceService:
             flags |= msg.TelemetryFlags.VENTING
         if seg is not None:
             flags |= msg.TelemetryFlags.SEGMENT
+        if self.rig.supply_low:
+            flags |= msg.TelemetryFlags.SUPPLY_LOW
         lags = self.pacing.lags_ms
         return msg.Telemetry(
             time=self.time,

@@ -27,7 +27,7 @@ from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import PrescriptionItem
 from station.config import StationConfig
 from station.progress import ProgressWatch
-from station.reasons import Reasons, ends_at, patient_resume_refusal
+from station.reasons import Reasons, ends_at, patient_resume_refusal, supply_notice
 from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun, segment_for
@@ -240,9 +240,13 @@ class Station:
         path = self.spool.path(self.session_id)
         self.writer = SessionWriter(path, header)
         self.uploader.skip(path)
-        refused = self._refusal(item, hello)
+        # Refused here, with the reason the patient can act on, rather than by the device's
+        # NACK of the homing a moment later. The status says it while it lasts (not kept as
+        # this start's notice, which would outlive the air coming back).
+        low = supply_notice(self.dev.latest)
+        refused = low or self._refusal(item, hello)
         if refused:
-            self._refused_start(refused)
+            self._refused_start(refused, keep=not low)
             return refused
         self.run_ = ExerciseRun(
             self.dev,
@@ -271,9 +275,10 @@ class Station:
             return f"the platform refuses this exercise ({exc.code.name} [{exc.field}]: {exc})"
         return ""
 
-    def _refused_start(self, why: str) -> None:
+    def _refused_start(self, why: str, keep: bool = True) -> None:
         """A start the device would refuse: the session is recorded as ended at once, with the
-        reason, so that the therapist sees it (an early end) and nothing moves."""
+        reason, so that the therapist sees it (an early end) and nothing moves. ``keep``: the
+        reason stays the status's notice until the next start."""
         log.error("exercise not started: %s", why)
         self._event(
             SessionEvent(wall=time.time(), kind="refused", by="station", detail={"text": why})
@@ -291,7 +296,7 @@ class Station:
             )
             writer.close()
         self.session_id = None
-        self.message = why
+        self.message = why if keep else ""
         self._last_phase = "stopped"
         self.uploader.skip(None)
         self.uploader.wake()
@@ -572,7 +577,7 @@ class Station:
             refused_sessions=[f"{sid}: {_cut(why)}" for sid, why in refused[: wire.REFUSED_NAMED]],
             overruns=latest.overruns if latest else 0,
             frames_lost=dev.stats.frames_lost if dev else 0,
-            message=(run.message if run and run.message else self.message),
+            message=(run.message if run and run.message else supply_notice(latest) or self.message),
             hold=self._hold(),
             fault=self.reasons.fault(latest.mode if latest else None, latest.trip if latest else 0),
         )

@@ -63,6 +63,17 @@ def ends_at(hold: HoldInfo, began: float, limit_s: float) -> float:
     return max(hold.since, began) + limit_s
 
 
+def supply_notice(latest: msg.Telemetry | None) -> str:
+    """What to tell the patient and the therapist while the device says its air supply is
+    low (the telemetry's SUPPLY_LOW flag), ``""`` otherwise: nothing can start until then."""
+    if latest is None or not latest.flags & msg.TelemetryFlags.SUPPLY_LOW:
+        return ""
+    return (
+        f"the platform's air supply is low ({latest.supply / 1e5:.1f} bar): check that the "
+        "compressor is on and its hose is connected; exercises can start once it is back"
+    )
+
+
 def patient_resume_refusal(hold: HoldInfo) -> str:
     """Why the patient's page may not continue this hold (only a pause is theirs)."""
     if hold.code == "therapist":

@@ -58,6 +58,9 @@ class TelemetryFlags(IntFlag):
     """Release in progress: exhaust valves pulse, the platform sinks slowly."""
     SEGMENT = 4
     """A segment is loaded (running in ACTIVE, paused in HOLD)."""
+    SUPPLY_LOW = 8
+    """The air supply is below its low mark: homing, a segment and a resume are refused until
+    it has stayed above its resume mark for a while (the SUPPLY_LOW event says when it fell)."""
 
 
 class Capability(IntFlag):
@@ -88,8 +91,9 @@ class EventKind(IntEnum):
     HOMED = 6
     ESTOP = 7
     SUPPLY_LOW = 8
-    """The air supply fell below its low mark: ACTIVE went to HOLD (value: supply, Pa gauge);
-    motion is refused until it recovers."""
+    """The air supply fell below its low mark (value: supply, Pa gauge): ACTIVE went to HOLD
+    (HOMING to IDLE); at rest the mode stays. Motion is refused until it recovers (the
+    telemetry's SUPPLY_LOW flag clears). Once each time it falls."""
     SERVICE = 9
     """A chamber's air does not add up (code AIR_BALANCE, a leak or a stuck valve): the
     running segment (or homing) finishes under control, nothing new starts until a re-arm.

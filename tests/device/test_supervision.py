@@ -1058,6 +1058,73 @@ def test_through_the_service_a_fault_event_names_the_part_and_low_air_holds() ->
     assert not thread.is_alive()
 
 
+def test_a_supply_lost_at_rest_is_said_once_each_time_and_flagged_until_it_recovers() -> None:
+    """READY at home and the compressor stops: nothing moves, so nothing is held, but the
+    device says so once (a SUPPLY_LOW event, the mode unchanged) and flags it in every
+    telemetry message until the air is back, so that the station can tell the patient
+    before an exercise is refused for it; a second loss is said again."""
+    import asyncio
+
+    from device.client import CommandRefused, DeviceClient, build_segment
+    from device.protocol import messages as m
+    from device.protocol.messages import DeviceMode, EventKind, NackCode
+    from device.service import WATCHDOG_MS_MAX, ServiceConfig
+    from tests.device.service_thread import service_in_thread
+    from tests.device.test_service import PITCH
+
+    hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=5)
+    config = ServiceConfig(watchdog_ms=WATCHDOG_MS_MAX)
+
+    async def main(path: str) -> None:
+        dev = await DeviceClient.connect(path)
+        seen: list[m.Event] = []
+
+        async def collect() -> None:
+            async for event in dev.events():
+                seen.append(event)
+
+        async def flagged(low: bool, timeout: float) -> None:
+            deadline = asyncio.get_running_loop().time() + timeout
+            while True:
+                latest = dev.latest
+                if latest is not None and bool(latest.flags & m.TelemetryFlags.SUPPLY_LOW) == low:
+                    return
+                assert asyncio.get_running_loop().time() < deadline, f"flag never {low}"
+                await asyncio.sleep(0.02)
+
+        def lows() -> list[m.Event]:
+            return [e for e in seen if e.kind == EventKind.SUPPLY_LOW]
+
+        collector = asyncio.create_task(collect())
+        try:
+            assert dev.hello is not None
+            await dev.arm_home()
+            await dev.wait_for_mode(DeviceMode.READY, timeout=20.0)
+            await flagged(False, 1.0)
+            for episode in (1, 2):
+                hardware.inject(Fault(FaultKind.SUPPLY_LOSS, float(hardware.state.time[0]), -1))
+                await flagged(True, 5.0)
+                await asyncio.sleep(0.5)  # long low: still said once
+                assert len(lows()) == episode, seen
+                e = lows()[-1]
+                assert e.mode_from == e.mode_to == DeviceMode.READY
+                assert "nothing starts until it recovers" in e.text and e.value < 4.5e5, e
+                with pytest.raises(CommandRefused) as err:
+                    await dev.start_segment(
+                        build_segment(dev.hello, episode, 5.0, {"pitch": PITCH})
+                    )
+                assert err.value.nack.code == NackCode.SUPPLY_LOW
+                hardware.clear_faults()
+                await flagged(False, 10.0)
+                assert dev.mode == DeviceMode.READY
+        finally:
+            collector.cancel()
+            await dev.close()
+
+    with service_in_thread(hardware, config) as link:
+        asyncio.run(main(link.name))
+
+
 def test_a_leg_resting_short_of_a_still_target_is_not_taken_for_a_stuck_sensor() -> None:
     """Draw 2 of the ensemble, ROM assessment against a resisting foot: stiff seals hold a
     leg 1.0-1.1 mm short of its target for longer than the stuck rule's 33 reads while the

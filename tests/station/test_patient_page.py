@@ -26,6 +26,7 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.typing import Origin
 
 from device.hardware import SimulatedHardware
+from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_SINE
 from device.plant.params import PlantConfig
 from device.service import WATCHDOG_MS_MAX, ServiceConfig
@@ -64,9 +65,15 @@ def free_port() -> int:
 
 
 @pytest.fixture
-def device() -> Iterator[PtyLink]:
+def plant() -> SimulatedHardware:
+    """The simulated platform (a test may inject a fault into it)."""
+    return SimulatedHardware(PlantConfig(patient="relaxed"), seed=9)
+
+
+@pytest.fixture
+def device(plant: SimulatedHardware) -> Iterator[PtyLink]:
     """The simulated device in a thread; the patient's foot pushes in pitch, 4 N·m, 0.5 Hz."""
-    hardware = SimulatedHardware(PlantConfig(patient="relaxed"), seed=9)
+    hardware = plant
     hardware.script_torque(4, SCRIPT_SINE, 0.0, PATIENT_TORQUE_NM, PATIENT_HZ)
     # The longest watchdog the device allows: the test shares its process, and its machine,
     # with the device; a stall there is not what it tests.
@@ -414,6 +421,40 @@ async def test_a_start_the_device_would_refuse_is_refused_and_recorded(home: Hom
     assert rec.end is not None and rec.end.reason == "stopped"
     assert "torque_limit 0 N m outside" in rec.end.text
     assert [e.kind for e in rec.events] == ["refused"]
+
+
+@pytest.mark.asyncio
+async def test_a_supply_lost_at_rest_is_told_and_forgotten_once_it_is_back(
+    home: Home, plant: SimulatedHardware
+) -> None:
+    """The compressor is off before any exercise: the device flags its low supply, and the
+    page's status says so in words the patient can act on; a start is refused; once the
+    air is back the notice goes."""
+    ws = await home.page()
+    try:
+        await status_where(ws, device="connected")
+        plant.inject(Fault(FaultKind.SUPPLY_LOSS, float(plant.state.time[0]), -1))
+        deadline = time.monotonic() + 20.0
+        while True:
+            status = await next_msg(ws, "status")
+            if "air supply is low" in status["message"]:
+                break
+            assert time.monotonic() < deadline, status
+        assert "check that the compressor is on" in status["message"], status
+        result = await ask(ws, {"type": "start", "prescription_id": PRESCRIPTION_ID})
+        assert not result["ok"] and "air supply is low" in result["text"], result
+        (path,) = home.spool.glob("*.rec")  # the therapist sees the attempt, as an early end
+        rec = read(path)
+        assert rec.end is not None and "air supply is low" in rec.end.text
+        plant.clear_faults()
+        deadline = time.monotonic() + 20.0
+        while True:
+            status = await next_msg(ws, "status")
+            if "air supply is low" not in status["message"]:
+                break
+            assert time.monotonic() < deadline, status
+    finally:
+        await ws.close()
 
 
 @pytest.mark.asyncio
