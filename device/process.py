@@ -40,11 +40,28 @@ class ServiceStartError(RuntimeError):
     """The device service did not come up."""
 
 
-class ServiceProcess:
-    """``python -m device device --sim ...`` started and waited for until it serves."""
+START_BUSY_SHARE = 0.05
+"""Past its start timeout a service still not serving is waited for while, over each slice
+of the wait, it used at least this share of a core: it is compiling (numba, a cold cache: on
+an idle machine 133-161 s, more on a busy one), not hung."""
+START_SLICE_S = 10.0
+"""...judged over slices this long (s)."""
 
-    def __init__(self, *args: str, start_timeout: float = 180.0) -> None:
-        self.argv = [sys.executable, "-m", "device", "device", "--sim", *args]
+
+class ServiceProcess:
+    """``python -m device device --sim ...`` started and waited for until it serves: for
+    ``start_timeout`` seconds, and past it for as long as it is busy (``START_BUSY_SHARE``),
+    up to ``start_limit`` in all. ``argv`` replaces the command (a test's stand-in child)."""
+
+    def __init__(
+        self,
+        *args: str,
+        start_timeout: float = 180.0,
+        start_limit: float = 900.0,
+        slice_s: float = START_SLICE_S,
+        argv: list[str] | None = None,
+    ) -> None:
+        self.argv = argv or [sys.executable, "-m", "device", "device", "--sim", *args]
         # The signal is tied to the thread that forks: only from the main thread, whose
         # end is the process's.
         main = threading.current_thread() is threading.main_thread()
@@ -68,7 +85,7 @@ class ServiceProcess:
             target=self._read_on, name="device-output", daemon=True
         )
         self._reader.start()
-        self.link = self._wait_for_link(start_timeout)
+        self.link = self._wait_for_link(start_timeout, max(start_limit, start_timeout), slice_s)
 
     def _read_on(self) -> None:
         assert self.proc.stdout is not None
@@ -81,21 +98,33 @@ class ServiceProcess:
                 self._serving.put(found.group(1))
         self._serving.put(None)  # its output closed: it has exited
 
-    def _wait_for_link(self, timeout: float) -> str:
+    def _wait_for_link(self, timeout: float, limit: float, slice_s: float) -> str:
         start = time.monotonic()
-        try:
-            link = self._serving.get(timeout=timeout)
-        except queue.Empty:  # still running, not serving
-            pass
-        else:
-            if link is not None:
-                return link
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                self.proc.wait(5.0)  # its output has closed: it is exiting
+        cpu = self._cpu_or_zero()
+        idle = False
+        while True:
+            now = time.monotonic()
+            left = (start + timeout if now < start + timeout else start + limit) - now
+            try:
+                link = self._serving.get(timeout=max(0.0, min(slice_s, left)))
+            except queue.Empty:  # still running, not serving
+                was, cpu = cpu, self._cpu_or_zero()
+                elapsed = time.monotonic() - start
+                idle = cpu - was < START_BUSY_SHARE * slice_s
+                if elapsed < timeout or (elapsed < limit and not idle):
+                    continue
+                break
+            else:
+                if link is not None:
+                    return link
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self.proc.wait(5.0)  # its output has closed: it is exiting
+                break
         waited = time.monotonic() - start
         if self.proc.poll() is None:
             # Hung: its faulthandler prints every thread's stack on SIGABRT.
-            how = f"still not serving after {waited:.0f} s; its stack when stopped:"
+            why = "idle" if idle else "still busy at the limit"
+            how = f"still not serving after {waited:.0f} s, {why}; its stack when stopped:"
             self.proc.send_signal(signal.SIGABRT)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 self.proc.wait(10.0)
@@ -115,6 +144,12 @@ class ServiceProcess:
     @property
     def pid(self) -> int:
         return self.proc.pid
+
+    def _cpu_or_zero(self) -> float:
+        try:
+            return self.cpu_seconds()
+        except (OSError, IndexError, ValueError):  # gone, or not Linux
+            return 0.0
 
     def cpu_seconds(self) -> float:
         """User + system CPU time the service has used (Linux ``/proc``)."""

@@ -84,3 +84,30 @@ def test_nothing_compiles_once_the_service_serves(monkeypatch: pytest.MonkeyPatc
     assert any("[cache]" in line for line in lines[:serving])  # the log is on
     late = [line for line in lines[serving:] if "[cache]" in line]
     assert not late, late
+
+
+BUSY = "import time\nend = time.monotonic() + 120\nwhile time.monotonic() < end:\n    pass\n"
+IDLE = "import time\ntime.sleep(120)\n"
+
+
+def test_a_start_still_busy_is_waited_for_past_its_timeout_an_idle_one_is_not() -> None:
+    """A cold cache on a busy machine compiled for longer than ``ankle run``'s 180 s, and the
+    whole system stopped with a stack dump of numba's compiler. Past its timeout a child
+    that keeps using the CPU (compiling) is waited for, up to the limit; one that uses none
+    (hung) is stopped at the timeout, and the error says which."""
+    from device.process import ServiceStartError
+
+    t0 = time.monotonic()
+    with pytest.raises(ServiceStartError, match="idle; its stack"):
+        ServiceProcess(
+            start_timeout=1.0, start_limit=60.0, slice_s=0.5, argv=[sys.executable, "-c", IDLE]
+        )
+    idle_waited = time.monotonic() - t0
+    t0 = time.monotonic()
+    with pytest.raises(ServiceStartError, match="still busy at the limit"):
+        ServiceProcess(
+            start_timeout=1.0, start_limit=4.0, slice_s=0.5, argv=[sys.executable, "-c", BUSY]
+        )
+    busy_waited = time.monotonic() - t0
+    assert 1.0 <= idle_waited < 45.0, idle_waited  # stopped at a slice past its timeout
+    assert busy_waited >= 4.0, busy_waited  # waited for past its timeout, to the limit
