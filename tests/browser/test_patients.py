@@ -98,7 +98,9 @@ def test_patient_list_and_adding_a_patient(
     form.get_by_label("Birth year").fill("1961")
     form.get_by_label("Affected side").select_option("left")
     form.get_by_label("Body weight").fill("68.5")
-    form.get_by_label("Notes").fill("Lateral sprain, grade II.")
+    # A pasted link is one long word: it must wrap, not widen the page.
+    notes = "Lateral sprain, grade II. Imaging: https://pacs.example/" + "A1b2C3d4E5" * 40
+    form.get_by_label("Notes").fill(notes)
     form.get_by_role("button", name="Add patient").click()
     expect(page.get_by_role("status").filter(has_text="Added “R. K.”")).to_be_visible()
     expect(error_beside(page, "display_name")).to_be_empty()
@@ -107,7 +109,7 @@ def test_patient_list_and_adding_a_patient(
     assert len(after) == len(before) + 1
     new = after[-1]
     assert (new["display_name"], new["reference"], new["birth_year"]) == ("R. K.", "RK-2031", 1961)
-    assert (new["affected_side"], new["notes"]) == ("left", "Lateral sprain, grade II.")
+    assert (new["affected_side"], new["notes"]) == ("left", notes)
     assert new["weight_kg"] == 68.5
     row = page.locator(f'tr[data-patient-id="{new["id"]}"]')
     expect(row).to_contain_text("RK-2031")
@@ -121,6 +123,8 @@ def test_patient_list_and_adding_a_patient(
     expect(page.get_by_role("heading", level=1)).to_have_text("R. K.")
     expect(page.locator("#details")).to_contain_text("Lateral sprain, grade II.")
     expect(page.locator("#details")).to_contain_text("68.5 kg")
+    wide = page.evaluate("() => document.documentElement.scrollWidth - window.innerWidth")
+    assert wide <= 0, f"the notes' long word widened the page by {wide} px"
     expect(page.locator("#rx-active")).to_contain_text("No active prescription")
     expect(page.locator("#history-status")).to_have_text("No sessions recorded yet.")
 
