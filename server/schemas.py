@@ -28,12 +28,14 @@ from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
 from sessions.anatomy import direction_table
 from sessions.prescription import AxisPrescription, PrescriptionBody, PrescriptionInput
 from sessions.sentences import FieldError, field_label, setting_parts
+from sessions.text import Line, Lines, one_line
 
 Email = Annotated[
     str,
     StringConstraints(
         strip_whitespace=True, to_lower=True, max_length=254, pattern=r"^[^@\s]+@[^@\s]+$"
     ),
+    AfterValidator(one_line),
     Field(description="Login name; stored lower-case.", examples=["therapist@clinic.example"]),
 ]
 Password = Annotated[
@@ -44,7 +46,11 @@ Password = Annotated[
         description=f"At least {PASSWORD_MIN_LENGTH} characters; a passphrase is best.",
     ),
 ]
-Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=120)]
+Name = Annotated[
+    str,
+    StringConstraints(strip_whitespace=True, min_length=1, max_length=120),
+    AfterValidator(one_line),  # after the strip: a pasted name's trailing line break is dropped
+]
 
 
 def _not_in_future(year: int | None) -> int | None:
@@ -83,7 +89,7 @@ _FROM_ORM = ConfigDict(from_attributes=True)
 class LoginRequest(BaseModel):
     model_config = _STRICT
 
-    email: str = Field(max_length=254, description="The account's email address.")
+    email: Line = Field(max_length=254, description="The account's email address.")
     password: str = Field(max_length=PASSWORD_MAX_LENGTH)
 
 
@@ -167,13 +173,13 @@ class PatientCreate(BaseModel):
         description="How the therapist and the patient's station name "
         "the patient (initials or a first name suffice)."
     )
-    reference: str | None = Field(
+    reference: Line | None = Field(
         default=None, max_length=64, description="The clinic's own identifier, if any."
     )
     birth_year: BirthYear = None
     affected_side: Side | None = Field(default=None, description="The ankle being treated.")
     weight_kg: WeightKg = None
-    notes: str = Field(default="", max_length=5000, description="Free text for the therapist.")
+    notes: Lines = Field(default="", max_length=5000, description="Free text for the therapist.")
 
 
 _REQUIRED_ON_UPDATE = ("display_name", "notes")
@@ -185,11 +191,11 @@ class PatientUpdate(BaseModel):
     model_config = _STRICT
 
     display_name: Name | None = None
-    reference: str | None = Field(default=None, max_length=64)
+    reference: Line | None = Field(default=None, max_length=64)
     birth_year: BirthYear = None
     affected_side: Side | None = None
     weight_kg: WeightKg = None
-    notes: str | None = Field(default=None, max_length=5000)
+    notes: Lines | None = Field(default=None, max_length=5000)
 
     @model_validator(mode="after")
     def _no_null_for_required(self) -> PatientUpdate:

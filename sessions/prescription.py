@@ -33,6 +33,7 @@ from device.protocol import messages as msg
 from device.segments import AxisPlan, build_segment
 from device.waveforms import Waveform as DeviceWaveform
 from sessions.sentences import FieldError, bound_sentence, field_label, number
+from sessions.text import lines, one_line
 
 Axis = RotationAxis
 """A prescribed axis: one of the ankle's rotations (``device.axes``, the project's one table)."""
@@ -419,8 +420,12 @@ class PrescriptionInput(PrescriptionBody):
     """A prescription as a therapist writes it (new, or a new version). Besides the body's
     checks, an exercise in which the platform does not yield (isometric, passive range of
     motion) takes no stiffness or damping: a K or B there would be a number on the record
-    that nothing renders, so it is refused rather than silently kept. Stored prescriptions
-    are read back as :class:`PrescriptionBody` and load whatever they hold."""
+    that nothing renders, so it is refused rather than silently kept. The title and the
+    instructions hold no control characters (``sessions.text``). Stored prescriptions are
+    read back as :class:`PrescriptionBody` and load whatever they hold."""
+
+    _title_one_line = field_validator("title")(one_line)
+    _instructions_text = field_validator("instructions")(lines)
 
     @model_validator(mode="after")
     def _only_used_settings(self) -> PrescriptionInput:

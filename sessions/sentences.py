@@ -25,6 +25,8 @@ from typing import Any, Literal
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
+from sessions.text import CONTROL_CHARACTER
+
 Loc = tuple[str | int, ...]
 Op = Literal["ge", "gt", "le", "lt"]
 
@@ -227,6 +229,8 @@ _SIMPLE: dict[str, str] = {
     "datetime_parsing": "{label} must be a date and time (ISO 8601).",
     "datetime_type": "{label} must be a date and time (ISO 8601).",
     "datetime_from_date_parsing": "{label} must be a date and time (ISO 8601).",
+    CONTROL_CHARACTER: "{label} must not contain control characters ({char} at character "
+    "{at}): type it again without them.",
 }
 
 
