@@ -2,12 +2,14 @@
 
 Bytes are appended to ``data_dir/uploads/<session uuid>.part`` and reach the disk (fsync)
 before the answer leaves, so an acknowledged byte is never lost and never asked for again.
-``complete`` checks size, SHA-256 and the recording itself (its header must name this
-station's patient, it must end with an end record, every record's CRC must hold, its times
-must be those of one session, its summary must come out in finite numbers), files the
-session under ``data_dir/sessions/`` with its summary, and answers the same way if asked
-again. A recording refused there is discarded (:class:`Refused`), and an upload no chunk has
-reached for ``upload_expire_s`` is removed (:func:`expire_uploads`).
+The first chunk must start with the recording's header, naming this station's patient and
+this station (:func:`_check_recorder`). ``complete`` checks size, SHA-256 and the recording
+itself (its header must name this station's patient, it must end with an end record, every
+record's CRC must hold, its times must be those of one session, its summary must come out in
+finite numbers), files the session under ``data_dir/sessions/`` with its summary, and
+answers the same way if asked again. A recording refused there is discarded
+(:class:`Refused`), and an upload no chunk has reached for ``upload_expire_s`` is removed
+(:func:`expire_uploads`).
 """
 
 from __future__ import annotations
@@ -29,10 +31,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
 from server.deps import CurrentStation, Db
-from server.models import Prescription, Session, Upload, utcnow
+from server.models import Prescription, Session, Station, Upload, utcnow
 from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses
 from server.routes.sessions import SessionPublic, session_public
 from sessions.recording import (
@@ -188,7 +191,8 @@ async def upload_append(
                 409, f"the server holds {held} bytes", headers={"Upload-Offset": str(held)}
             )
         if held == 0:
-            _check_start(data, station.patient_id, sid)
+            header = _check_start(data, station.patient_id, sid)
+            await _check_recorder(db, header.station_id, station)
         limit = request.app.state.settings.upload_max_bytes
         if held + len(data) > limit:
             raise HTTPException(413, f"a session may be at most {limit} bytes")
@@ -201,7 +205,7 @@ async def upload_append(
         return Response(status_code=204, headers={"Upload-Offset": str(up.received_bytes)})
 
 
-def _check_start(data: bytes, patient_id: int, sid: str) -> None:
+def _check_start(data: bytes, patient_id: int, sid: str) -> RecordingHeader:
     """The first chunk must hold the header: a station uploads only its own patient's."""
     try:
         records, _, _ = iter_records(data)
@@ -217,6 +221,25 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> None:
         raise HTTPException(422, "the header's session_id differs from the upload's")
     if header.patient_id != patient_id:
         raise HTTPException(422, "the recording is for another patient than this station's")
+    return header
+
+
+async def _check_recorder(db: AsyncSession, named: int, station: Station) -> None:
+    """A station uploads only what it recorded: the header names this station, or 0 (it
+    recorded before it first connected and learnt its id), or a revoked station of the same
+    patient (this one's predecessor: a station provisioned again sends what it recorded
+    under its old token, which nothing else can send any more). The session is filed under
+    the uploading station; a header naming another would contradict it in every download."""
+    if named in (0, station.id):
+        return
+    before = await db.get(Station, named)
+    if before is not None and before.revoked and before.patient_id == station.patient_id:
+        return
+    raise HTTPException(
+        422,
+        f"the recording names station {named}, but this upload comes from station "
+        f"{station.id}: a station uploads only the sessions it recorded",
+    )
 
 
 @router.post(

@@ -432,3 +432,38 @@ def test_the_recordings_used_here_are_valid() -> None:
     assert rec.header.started_at == STARTED_AT and rec.end is not None
     assert rec.end.ended_at == STARTED_AT + N / 100.0
     assert len(rec.samples) == 200 and np.all(rec.samples["t"][:2] == [42.0, 42.01])
+
+
+@pytest.mark.asyncio
+async def test_a_recording_naming_another_station_is_refused_with_the_first_chunk(
+    live: Live, world: World
+) -> None:
+    """A station uploads only what it recorded: a header naming the patient's other station,
+    or another patient's, is a 422 and nothing is held or filed. Taken: this station, 0 (a
+    session recorded before the station first connected) and a revoked station of the same
+    patient (its predecessor, provisioned again)."""
+    t1 = bearer(world.t1)
+    for named in (world.s1_spare_id, world.s2_id):
+        sid = str(uuid.uuid4())
+        bad = recording_with(sid, world, {"station_id": named}, {})
+        r = await live.client.patch(
+            f"/uploads/{sid}", content=bad, headers={**bearer(world.s1), "Upload-Offset": "0"}
+        )
+        assert r.status_code == 422, r.text
+        assert r.json()["detail"] == (
+            f"the recording names station {named}, but this upload comes from station "
+            f"{world.s1_id}: a station uploads only the sessions it recorded"
+        )
+        assert await held(live, world, sid) is None
+        assert (await complete(live, world, sid, bad)).status_code == 404
+    assert (await live.client.get("/sessions", headers=t1)).json() == []
+
+    r = await live.client.post(f"/stations/{world.s1_spare_id}/revoke", headers=t1)
+    assert r.status_code == 200, r.text
+    for named in (world.s1_id, 0, world.s1_spare_id):
+        sid = str(uuid.uuid4())
+        good = recording_with(sid, world, {"station_id": named}, {})
+        assert await put(live, world, sid, good) == 204, named
+        r = await complete(live, world, sid, good)
+        assert r.status_code == 201, (named, r.text)
+        assert r.json()["station_id"] == world.s1_id
