@@ -29,6 +29,7 @@ from server.config import Settings
 from server.db import create_engine, create_sessionmaker, prepare
 from server.logs import uvicorn_log_config
 from server.models import Patient, Prescription, Role, Station, User
+from server.protocols import protocols
 from server.routes import API_PREFIX
 from server.routes.stations import revoke
 from server.schemas import UserCreate, UserPublic
@@ -96,6 +97,7 @@ def serve(
         "log_config": uvicorn_log_config(settings.log_format),
         "ws_per_message_deflate": False,
         "timeout_keep_alive": settings.keep_alive_s,
+        **protocols(settings),
     }
     if workers > 1:
         uvicorn.run(worker_factory, factory=True, workers=workers, **options)

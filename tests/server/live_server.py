@@ -30,6 +30,7 @@ from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from server.app import create_app
 from server.cli import ensure_user_async
 from server.config import Settings
+from server.protocols import protocols
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from tests.server.postgres import Cluster
 
@@ -60,9 +61,11 @@ async def running(
     settings: Settings, factory: Callable[[Settings], FastAPI] = create_app
 ) -> AsyncIterator[Live]:
     """Serve ``factory(settings)`` (the API, or the dashboard that wraps it) with uvicorn on
-    a free port until the block ends."""
+    a free port until the block ends, with the server's own protocols (``server.protocols``)."""
     app = factory(settings)
-    config = uvicorn.Config(app, host="127.0.0.1", port=0, lifespan="on", log_level="warning")
+    config = uvicorn.Config(
+        app, host="127.0.0.1", port=0, lifespan="on", log_level="warning", **protocols(settings)
+    )
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())
     while not server.started:

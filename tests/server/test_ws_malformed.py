@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import re
 import time
 from typing import Any
@@ -153,7 +154,44 @@ async def test_a_bad_message_closes_the_station_link(
         seen = await drain(viewer, 0.3)
     assert not [m for m in seen if isinstance(m, wire.TelemetryBatch)], seen
     presence = [m.online for m in seen if isinstance(m, wire.Presence)]
-    assert presence == [True, False], seen
+    assert presence == [True, False]
+
+
+@pytest.mark.asyncio
+async def test_a_text_frame_that_is_not_utf8_is_closed_with_one_log_line(
+    live: Live, world: World, caplog: pytest.LogCaptureFixture
+) -> None:
+    """1007 with a reason and one warning, not uvicorn's ERROR with a traceback; the
+    station's viewer and another station's link go on, and the station may come back."""
+    caplog.set_level(logging.INFO)
+    uvicorn_log = logging.getLogger("uvicorn")  # it does not propagate to the root logger
+    uvicorn_log.addHandler(caplog.handler)
+    try:
+        async with (
+            station_ws(live, world.s2) as other,
+            viewer_ws(live, world.t1, world.s1_id) as viewer,
+        ):
+            await welcomed(other)
+            async with station_ws(live, world.s1) as ws:
+                await welcomed(ws)
+                await asyncio.wait_for(ws.recv(), 5)  # its prescriptions: it is online now
+                await ws.send(b'{"type": "heartbeat", "sent": 1.0, "x": "\xff"}', text=True)
+                code, reason = await closed_with(ws)
+            assert (code, reason) == (wire.CLOSE_MALFORMED, "text messages must be UTF-8")
+            await assert_offline(live, world, world.s1_id)
+            seen = await drain(viewer, 0.3)
+            assert [m.online for m in seen if isinstance(m, wire.Presence)] == [True, False]
+            assert await close_of(viewer, 0.1) is None, "the viewer's link closed too"
+            await other.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+            assert await close_of(other, 0.3) is None, "another station's link closed too"
+            assert await online(live, world, world.s2_id)
+            async with station_ws(live, world.s1) as again:
+                await welcomed(again)
+    finally:
+        uvicorn_log.removeHandler(caplog.handler)
+    assert not [r for r in caplog.records if r.exc_info or r.levelno >= logging.ERROR]
+    (line,) = [r.getMessage() for r in caplog.records if "UTF-8" in r.getMessage()]
+    assert "(1007): a text message is not UTF-8 (byte " in line, line
 
 
 @pytest.mark.asyncio
