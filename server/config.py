@@ -74,6 +74,15 @@ class Settings(BaseSettings):
         "proxies after 60 s; browsers keep theirs longer but send again a request that a "
         "reused connection closed on unanswered. uvicorn's own default is 5 s.",
     )
+    header_timeout_s: float = Field(
+        default=30.0,
+        gt=0,
+        le=3600,
+        description="How long a client may take to send a request's headers, from their "
+        "first byte, seconds; the connection is closed after it (server.protocols). A "
+        "client or proxy sends them at once; one that trickles them holds a connection "
+        "for nothing. A new connection that sends nothing is closed after keep_alive_s.",
+    )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="Browser origins allowed to call the API and open WebSockets. Empty: "

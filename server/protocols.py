@@ -1,18 +1,31 @@
-"""The protocols the server runs uvicorn with: uvicorn's own (websockets' sans-I/O, the one
-it picks here), with a gap closed.
+"""The protocols the server runs uvicorn with: uvicorn's own (h11 and websockets' sans-I/O,
+the ones it picks here), with two gaps closed.
 
+- Time to send a request, which matters where no reverse proxy (``deploy/``) bounds it in
+  front. uvicorn bounds only the idle time between one request's answer and the next
+  request (``timeout_keep_alive``). A connection that sends nothing, or a request whose
+  headers never end (a byte now and then: "slowloris"), stayed open for good, and enough
+  of them take every file descriptor the process has. Here a new connection that sends
+  nothing is closed after the same keep-alive time, and a request's headers must all
+  arrive within ``header_timeout_s`` of their first byte (nginx's
+  ``client_header_timeout``); the connection is closed otherwise. A request's body is not
+  timed here: the routes that read one bound its size (``server.guard``).
 - A WebSocket text frame that is not UTF-8. uvicorn closes the link with 1007, as the
   protocol says, but logs it as a server failure: an ERROR and a traceback for each. Here
   it is one line, and the close says why.
 
-:func:`protocols` gives uvicorn.Config's ``ws`` for a server's settings.
+:func:`protocols` gives uvicorn.Config's ``http`` and ``ws`` for a server's settings.
 """
 
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
 from typing import Any
 
+import h11
+from uvicorn.protocols.http.h11_impl import H11Protocol
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
 from server.config import Settings
@@ -23,6 +36,52 @@ log = logging.getLogger("ankle.server")
 
 def _peer(client: tuple[str, int] | None) -> str:
     return f"{client[0]}:{client[1]}" if client else "a client"
+
+
+class TimedH11Protocol(H11Protocol):
+    """uvicorn's h11 protocol, closing a connection whose request headers are late."""
+
+    def __init__(self, *args: Any, header_timeout_s: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.header_timeout_s = header_timeout_s
+        self._header_timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        # Idle before its first request as between two: uvicorn's keep-alive timer (the
+        # first byte cancels it, as it does between requests).
+        self.timeout_keep_alive_task = self.loop.call_later(
+            self.timeout_keep_alive, self.timeout_keep_alive_handler
+        )
+
+    def data_received(self, data: bytes) -> None:
+        super().data_received(data)
+        if self.conn.their_state is h11.IDLE and not self.transport.is_closing():
+            if self._header_timer is None:  # the first byte of a request's headers
+                self._header_timer = self.loop.call_later(self.header_timeout_s, self._headers_late)
+        else:  # the headers are in (or the request was refused, or became a WebSocket)
+            self._stop_header_timer()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._stop_header_timer()
+        super().connection_lost(exc)
+
+    def _stop_header_timer(self) -> None:
+        if self._header_timer is not None:
+            self._header_timer.cancel()
+            self._header_timer = None
+
+    def _headers_late(self) -> None:
+        self._header_timer = None
+        if self.transport.is_closing() or self.conn.their_state is not h11.IDLE:
+            return
+        log.warning(
+            "closed the connection of %s: its request headers did not all arrive within %g s",
+            _peer(self.client),
+            self.header_timeout_s,
+        )
+        self.conn.send(h11.ConnectionClosed())
+        self.transport.close()
 
 
 class Utf8WebSocketProtocol(WebSocketsSansIOProtocol):
@@ -48,5 +107,9 @@ class Utf8WebSocketProtocol(WebSocketsSansIOProtocol):
 
 
 def protocols(settings: Settings) -> dict[str, Any]:
-    """uvicorn.Config's ``ws`` for ``settings``."""
-    return {"ws": Utf8WebSocketProtocol}
+    """uvicorn.Config's ``http`` and ``ws`` for ``settings`` (a partial, not a class made
+    on the fly: worker processes receive the configuration pickled)."""
+    return {
+        "http": functools.partial(TimedH11Protocol, header_timeout_s=settings.header_timeout_s),
+        "ws": Utf8WebSocketProtocol,
+    }
