@@ -17,6 +17,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
+from server.deps import hold
 from server.models import AuthToken, User
 from server.schemas import UserCreate
 from server.security import HashingSlots, hash_password, new_password
@@ -107,12 +108,15 @@ async def reset_password(
 ) -> str:
     """A new one-time password for ``user``, returned to be shown once: it must be changed
     at the next sign-in, and every login of the account ends now. ``by``, the admin asking
-    (None on the command line), may not reset their own. Audited as user.password_reset."""
+    (None on the command line), may not reset their own. Audited as user.password_reset.
+    The account is held for the change (``server.deps.hold``)."""
     if by is not None and by.id == user.id:
         raise AccountRefused(RESET_YOURSELF)
     password = new_password()
+    password_hash = await hashing.run(hash_password, password)  # slow: before the hold
+    await hold(db, user)
     before = user.must_change_password
-    user.password_hash = await hashing.run(hash_password, password)
+    user.password_hash = password_hash
     user.must_change_password = True
     ended = await end_logins(db, user.id)
     audit.record(
@@ -137,22 +141,30 @@ async def set_active(db: AsyncSession, by: User, user: User, active: bool) -> bo
     admin (the active admins' rows are locked, then counted in the statement that
     deactivates, so two admins deactivating each other at once cannot leave none).
     Reactivation ends the logins from before, so a token from then does not come back to
-    life. Audited as user.deactivate / user.reactivate.
+    life. Audited as user.deactivate / user.reactivate. The account is held for the change
+    (``server.deps.hold``): two requests at once take turns, and the second finds the
+    change made (one audit row, not two).
     """
+    if not active and user.role == "admin":  # a role never changes: no need to hold first
+        # Lock the active admins' rows first, in one order, before holding the account
+        # (holding it first, two admins deactivating each other would each hold one row
+        # and wait for the other's). On PostgreSQL (read committed) the statement below
+        # alone is not enough: two admins deactivating each other each saw the other still
+        # active and both went through. The second now waits for the first to commit, and
+        # its statement then counts afresh. SQLite takes its one write lock anyway (FOR
+        # UPDATE is not rendered there).
+        await db.execute(
+            select(User.id)
+            .where(User.role == "admin", User.active.is_(True))
+            .order_by(User.id)
+            .with_for_update()
+        )
+    await hold(db, user)
     if user.active == active:
         return False
     if not active:
         if user.id == by.id:
             raise AccountRefused(NOT_YOURSELF)
-        if user.role == "admin":
-            # Lock the active admins' rows first. On PostgreSQL (read committed) the
-            # statement below alone is not enough: two admins deactivating each other each
-            # saw the other still active and both went through. The second now waits for
-            # the first to commit, and its statement then counts afresh. SQLite takes its
-            # one write lock anyway (FOR UPDATE is not rendered there).
-            await db.execute(
-                select(User.id).where(User.role == "admin", User.active.is_(True)).with_for_update()
-            )
         other_admins = (
             select(func.count())
             .select_from(User)

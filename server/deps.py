@@ -253,9 +253,9 @@ def require_current(patient: Patient) -> None:
         raise conflict(PATIENT_ARCHIVED.replace("{id}", str(patient.id)))
 
 
-async def hold(db: AsyncSession, patient: Patient) -> None:
-    """Hold ``patient`` for a change in ``db``'s transaction and read them again as they
-    are now.
+async def hold(db: AsyncSession, row: Patient | User) -> None:
+    """Hold ``row`` (a patient, or a user's account) for a change in ``db``'s transaction
+    and read it again as it is now.
 
     A change is read, checked, written and audited in one transaction; two at once must
     take turns, or both would start from the same old value: one change lost, and two
@@ -264,16 +264,19 @@ async def hold(db: AsyncSession, patient: Patient) -> None:
     (``patient_for`` with ``write``, ``prescription_for``, the station routes), so an edit,
     a cancellation and an archiving of one patient take turns: whoever holds the patient
     first goes on, the other waits until that transaction ends and then reads what it
-    stored. PostgreSQL locks the row (``FOR NO KEY UPDATE``: rows naming the patient may
-    still be inserted). SQLite locks no rows, only the whole database for writing: a write
-    that changes nothing takes that lock (waiting for any other writer up to its busy
-    timeout) before the row is read again. The lock goes at commit or rollback, when the
-    request's session ends."""
+    stored. An admin's change of an account (``server.accounts``: deactivating,
+    reactivating, resetting its password) holds the account the same way. PostgreSQL
+    locks the row (``FOR NO KEY UPDATE``: rows naming it, a patient's sessions or a
+    user's logins, may still be inserted). SQLite locks no rows, only the whole database
+    for writing: a write that changes nothing takes that lock (waiting for any other
+    writer up to its busy timeout) before the row is read again. The lock goes at commit
+    or rollback, when the request's session ends."""
     if db.get_bind().dialect.name == "sqlite":
-        await db.execute(text("UPDATE patients SET id = id WHERE id = :id"), {"id": patient.id})
-        await db.refresh(patient)
+        table = type(row).__tablename__  # a model's name, never a request's
+        await db.execute(text(f"UPDATE {table} SET id = id WHERE id = :id"), {"id": row.id})
+        await db.refresh(row)
     else:
-        await db.refresh(patient, with_for_update={"key_share": True})
+        await db.refresh(row, with_for_update={"key_share": True})
 
 
 async def patient_for(
