@@ -11,6 +11,7 @@ from server.deps import Db, Id, TherapistOrAdmin
 from server.models import AuditEntry, Patient
 from server.routes.common import UNAUTHORIZED
 from server.schemas import AuditPublic
+from sessions.text import Line
 
 router = APIRouter(prefix="/audit", tags=["audit"])
 
@@ -26,14 +27,14 @@ async def list_audit(
     db: Db,
     patient_id: Annotated[Id | None, Query(description="Only this patient's rows.")] = None,
     action: Annotated[
-        str | None, Query(max_length=64, description="Only this action, e.g. patient.update.")
+        Line | None, Query(max_length=64, description="Only this action, e.g. patient.update.")
     ] = None,
     station_id: Annotated[
         Id | None,
         Query(description="Only rows about this station: its live commands, provisioning."),
     ] = None,
     request_id: Annotated[
-        str | None,
+        Line | None,
         Query(
             max_length=64,
             description="Only the rows of one live command: its request and its outcome.",

@@ -1,6 +1,7 @@
 """Control characters in what a clinician or an admin types (names, emails, references,
-notes, a prescription's title and instructions): a 422 naming the field and the character,
-nothing stored, on both stores (PostgreSQL answered a NUL with a 500). Notes and
+notes, a prescription's title and instructions, the audit log's text filters): a 422 naming
+the field and the character, nothing stored, on both stores (PostgreSQL answered a NUL with
+a 500). Notes and
 instructions keep their line breaks and tabs."""
 
 from __future__ import annotations
@@ -110,3 +111,20 @@ async def test_line_breaks_and_tabs_stay_where_text_has_several_lines(
     )
     assert r.status_code == 200, r.text
     assert r.json()["body"]["instructions"] == instructions
+
+
+@pytest.mark.asyncio
+async def test_a_control_character_in_an_audit_filter_is_a_422(live: Live, world: World) -> None:
+    """The audit log's text filters reach the database too (PostgreSQL: a 500 for a NUL)."""
+    for name in ("action", "request_id"):
+        r = await live.client.get(
+            "/audit", params={name: "patient.update\x00"}, headers=bearer(world.admin)
+        )
+        assert r.status_code == 422, (name, r.text)
+        (error,) = r.json()["detail"]
+        label = name.replace("_", " ").capitalize()
+        assert (error["loc"], error["msg"]) == (["query", name], refused(label, "U+0000", 15))
+    r = await live.client.get(
+        "/audit", params={"action": "patient.update"}, headers=bearer(world.admin)
+    )
+    assert r.status_code == 200, r.text
