@@ -75,6 +75,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     metrics.watch_database(engine)
     relay = open_relay(settings.relay_url, settings.relay_lease_s, VIEW_HZ)
     hub = Hub(recheck_s=settings.live_recheck_s, relay=relay)
+    hub.writer.backlog_max = settings.audit_backlog_max
     expiry: asyncio.Task[None] | None = None
     try:
         await prepare(engine, settings.migrate_on_start)

@@ -8,16 +8,23 @@ or an entry for a change that was rolled back. Nothing in the API updates or del
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
+import itertools
+import json
 import logging
+import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import insert
-from sqlalchemy.exc import DBAPIError
+from sqlalchemy.exc import DataError, DBAPIError, IntegrityError, StatementError
 from sqlalchemy.ext.asyncio import AsyncConnection, AsyncEngine, AsyncSession, async_sessionmaker
+from tenacity import AsyncRetrying, RetryCallState, retry_if_exception_type, wait_random_exponential
 
-from server.models import AuditEntry, Station, User
+from server import metrics
+from server.models import AuditEntry, Station, User, utcnow
 
 log = logging.getLogger("ankle.server.audit")
 
@@ -78,7 +85,64 @@ async def export(
     await db.commit()
 
 
-_Queued = tuple[dict[str, Any], "asyncio.Future[None] | None"]
+BACKLOG_MAX = 10_000
+"""Rows the live writer keeps while the database is away (``Settings.audit_backlog_max``):
+a few megabytes. Past it a row is not kept: it goes to the log in full, at ERROR."""
+BATCH_MAX = 500
+"""Rows committed in one transaction: a backlog is written in several."""
+RETRY_FIRST_S = 0.5
+"""The first wait before trying the database again; each wait is drawn from 0 up to twice
+the one before (full jitter, so the processes of a site do not all come back at once)."""
+RETRY_MAX_S = 15.0
+"""The longest wait between tries: rows arrive at most this long after the database."""
+CLOSING_RETRY_S = 0.5
+"""The longest wait between tries while the server shuts down."""
+
+
+class AuditBacklogFull(Exception):
+    """``AuditWriter.write`` found ``backlog_max`` rows already waiting for the database."""
+
+
+class _Away(Exception):
+    """The database could not take the rows now (``error``); they are kept and tried again."""
+
+    def __init__(self, error: Exception) -> None:
+        super().__init__(error)
+        self.error = error
+
+
+REFUSED_SQLSTATES = ("22", "23")
+"""SQLSTATE classes of a statement refused for its values: data exception (a value its
+column cannot take), integrity constraint violation (a patient that does not exist)."""
+
+
+def refused(exc: BaseException) -> bool:
+    """Whether the database refused rows for what they hold, or the driver could not even
+    send them (a number past 64 bits, not JSON): no retry can change that. Anything else (a
+    connection refused or lost, a server starting or shutting down, a lock held past its
+    timeout, a full disk) may pass, and the rows are kept.
+
+    SQLAlchemy names only some of these: PostgreSQL's data exceptions reach it as a bare
+    ``DBAPIError`` and asyncpg's values it cannot encode as an ``InterfaceError``, so the
+    causes are read too."""
+    if isinstance(exc, IntegrityError | DataError):
+        return True
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, ValueError | TypeError | OverflowError):
+            return True
+        if str(getattr(e, "sqlstate", None) or "").startswith(REFUSED_SQLSTATES):
+            return True
+        e = e.orig if isinstance(e, DBAPIError) else e.__cause__  # raised from, not during
+    return isinstance(exc, StatementError) and not isinstance(exc, DBAPIError)
+
+
+@dataclass(eq=False)
+class _Row:
+    values: dict[str, Any]
+    done: asyncio.Future[None] | None  # a waiter (``write``), or None (``write_soon``)
 
 
 class AuditWriter:
@@ -93,65 +157,213 @@ class AuditWriter:
     rollback on its return, each a round trip to the driver's thread that waits its turn
     on a busy event loop: a K/B change, sent only once its row is committed, was answered
     in 8-37 ms at the median at 100 stations, a HOLD (not waiting for its row) in 2 ms.
-    A connection that is lost is dropped and the batch tried once more on a new one (the
-    database restarted; a commit whose answer was lost on the way may then be stored
-    twice: a duplicate row rather than a missing one).
+    A kept connection that is found lost is replaced and the batch tried once more at once
+    (the database restarted while the writer was idle).
+
+    A HOLD or Stop is sent without waiting for its rows (``write_soon``), so the database
+    may be away when they are written. Those rows are then kept, in order, and tried again
+    with backoff (tenacity: ``RETRY_FIRST_S`` doubling up to ``RETRY_MAX_S``) until the
+    database takes them; a row the database refuses for what it holds (:func:`refused`) is
+    logged and skipped, so it does not hold the rows behind it. A row stored only in memory
+    is lost if the process dies, so the writer says what it holds: a WARNING at each try,
+    ``backlog`` (``ankle_audit_backlog_rows`` in ``/metrics``), and every row it could not
+    keep (past ``backlog_max``, refused, or still waiting at shutdown) logged in full at
+    ERROR and counted (``ankle_audit_rows_lost_total``). A waiter (``write``: a command that
+    is sent only once its row is stored) is never kept waiting for the database: the try
+    that fails tells it, and its command is refused.
+
+    Each row's time is when it was queued, not when the database took it. A commit whose
+    answer was lost with its connection may be stored and then tried again: a duplicate
+    row rather than a missing one.
     """
 
-    def __init__(self, sessionmaker: async_sessionmaker[AsyncSession] | None = None) -> None:
+    def __init__(
+        self,
+        sessionmaker: async_sessionmaker[AsyncSession] | None = None,
+        backlog_max: int = BACKLOG_MAX,
+    ) -> None:
         self.sessionmaker = sessionmaker
-        self._queue: asyncio.Queue[_Queued] = asyncio.Queue()
+        self.backlog_max = backlog_max
+        self.retry_max_s = RETRY_MAX_S
+        self.failed_tries = 0
+        """Tries in a row that found the database away (0: the last one worked)."""
+        self._rows: collections.deque[_Row] = collections.deque()
+        self._more = asyncio.Event()  # a row was queued
+        self._wake = asyncio.Event()  # try now: a waiter arrived, or shutdown
+        self._drained = asyncio.Event()  # nothing is waiting
+        self._drained.set()
+        self._closing = False
+        self._full_since: float | None = None  # monotonic time the backlog filled up
+        self._away_since: float | None = None
         self._task: asyncio.Task[None] | None = None
         self._conn: AsyncConnection | None = None
         self._engine: AsyncEngine | None = None
 
+    @property
+    def backlog(self) -> int:
+        """Rows queued and not yet stored."""
+        return len(self._rows)
+
     async def write(self, **row: Any) -> None:
-        """Write one row (``record``'s arguments); returns once it is committed."""
+        """Write one row (``record``'s arguments); returns once it is committed, raises if
+        it could not be (the database is away or refused it, or ``AuditBacklogFull``)."""
+        if len(self._rows) >= self.backlog_max:
+            raise AuditBacklogFull(
+                f"{len(self._rows)} audit rows already wait for the database to come back"
+            )
         done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._put(row, done)
+        self._put(_Row(_queued(row), done))
+        self._wake.set()  # do not wait out a backoff: the command waits for this answer
         await done
 
     def write_soon(self, row: dict[str, Any]) -> None:
         """Queue one row without waiting for it: rows queued before it are written before it
-        or in its transaction. A row that cannot be written is logged."""
-        self._put(row, None)
+        or in its transaction, however long the database is away. Past ``backlog_max`` rows
+        the row is not kept: it is logged in full, at ERROR."""
+        values = _queued(row)
+        if len(self._rows) >= self.backlog_max:
+            if self._full_since is None:
+                self._full_since = time.monotonic()
+                log.error(
+                    "audit backlog full: %d rows wait for the database; the rows that follow "
+                    "are not kept, each is logged here instead (ANKLE_AUDIT_BACKLOG_MAX)",
+                    len(self._rows),
+                )
+            _lose(values, "backlog_full")
+            return
+        self._put(_Row(values, None))
 
     async def close(self, flush_s: float) -> None:
-        """Wait up to ``flush_s`` for the queued rows to be written, then stop."""
+        """Write the queued rows, trying the database every ``CLOSING_RETRY_S`` for up to
+        ``flush_s``, then stop; each row still not written is logged in full, at ERROR."""
         task = self._task
         if task is not None and not task.done():
+            self._closing = True
+            self._wake.set()
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(flush_s):
-                    await self._queue.join()
+                    await self._drained.wait()
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
+        self._closing = False
+        left, self._rows = list(self._rows), collections.deque()
+        if left:
+            log.error(
+                "%d audit rows were not written before shutdown (the database was away for "
+                "%.0f s); each follows in full",
+                len(left),
+                0.0 if self._away_since is None else time.monotonic() - self._away_since,
+            )
+        for row in left:
+            _lose(row.values, "shutdown")
+            if row.done is not None and not row.done.done():
+                row.done.set_exception(RuntimeError("the server shut down before it was written"))
+        self._drained.set()
+        self.failed_tries, self._away_since, self._full_since = 0, None, None
         await self._drop()
 
-    def _put(self, row: dict[str, Any], done: asyncio.Future[None] | None) -> None:
+    def _put(self, row: _Row) -> None:
         if self._task is None or self._task.done():
             self._task = asyncio.create_task(self._writer())
-        self._queue.put_nowait((row, done))
+        self._rows.append(row)
+        self._drained.clear()
+        self._more.set()
 
     async def _writer(self) -> None:
+        retrying = AsyncRetrying(
+            retry=retry_if_exception_type(_Away),
+            wait=self._wait,
+            sleep=self._sleep,
+            before_sleep=self._waiting,
+        )
         while True:
-            batch = [await self._queue.get()]
-            while not self._queue.empty():
-                batch.append(self._queue.get_nowait())
-            try:
-                error = await self._commit(batch)
-                failed = [] if error is None else [(batch[0], error)]
-                if error is not None and len(batch) > 1:
-                    # One row the database refuses must not take the others: one at a time.
-                    failed = [(one, e) for one in batch if (e := await self._commit([one]))]
-                for (row, done), exc in failed:  # its waiter hears of it; the writer goes on
-                    if done is None:
-                        log.error("audit row %s %s not written: %s", row["action"], row["new"], exc)
-                    elif not done.done():
-                        done.set_exception(exc)
-            finally:
-                for _ in batch:
-                    self._queue.task_done()
+            while not self._rows:
+                self._drained.set()
+                self._more.clear()
+                await self._more.wait()
+            await retrying(self._write_all)
+
+    async def _write_all(self) -> None:
+        """Write every queued row, oldest first; raise _Away (the rows kept) if the database
+        cannot take them."""
+        self._wake.clear()
+        while self._rows:
+            batch = list(itertools.islice(self._rows, BATCH_MAX))
+            error = await self._commit(batch)
+            if error is None:
+                self._stored(len(batch))
+                continue
+            if not refused(error):
+                raise self._away(error)
+            for row in batch:  # one row the database refuses must not take the others
+                error = await self._commit([row])
+                if error is None:
+                    self._stored(1)
+                elif refused(error):
+                    self._rows.popleft()
+                    if row.done is None:
+                        _lose(row.values, "refused", error)
+                    elif not row.done.done():
+                        row.done.set_exception(error)
+                else:
+                    raise self._away(error)
+        if self.failed_tries:
+            assert self._away_since is not None
+            log.warning(
+                "audit rows written again: the database was away for %.0f s (%d tries)",
+                time.monotonic() - self._away_since,
+                self.failed_tries,
+            )
+            self.failed_tries, self._away_since = 0, None
+
+    def _stored(self, count: int) -> None:
+        for _ in range(count):
+            row = self._rows.popleft()
+            if row.done is not None and not row.done.done():
+                row.done.set_result(None)
+        if self._full_since is not None and len(self._rows) < self.backlog_max:
+            log.error(
+                "audit backlog has room again after %.0f s; the rows logged as not kept in "
+                "that time are not in the audit log",
+                time.monotonic() - self._full_since,
+            )
+            self._full_since = None
+
+    def _away(self, error: Exception) -> _Away:
+        """The database cannot take rows now: every waiter is told at once (its command is
+        refused, rather than kept waiting out the backoff); the other rows stay, in order."""
+        if any(row.done is not None for row in self._rows):
+            for row in self._rows:
+                if row.done is not None and not row.done.done():
+                    row.done.set_exception(error)
+            self._rows = collections.deque(r for r in self._rows if r.done is None)
+        self.failed_tries += 1
+        if self._away_since is None:
+            self._away_since = time.monotonic()
+        return _Away(error)
+
+    def _wait(self, state: RetryCallState) -> float:
+        wait = wait_random_exponential(multiplier=RETRY_FIRST_S, max=self.retry_max_s)
+        return float(wait(state))
+
+    async def _sleep(self, seconds: float) -> None:
+        """Wait ``seconds``, or less if a waiter or shutdown wakes the writer."""
+        if self._closing:
+            seconds = min(seconds, CLOSING_RETRY_S)
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(seconds):
+                await self._wake.wait()
+
+    def _waiting(self, state: RetryCallState) -> None:
+        away = state.outcome.exception() if state.outcome is not None else None
+        error = away.error if isinstance(away, _Away) else away
+        log.warning(
+            "%d audit rows wait for the database (%s); trying again within %.1f s",
+            len(self._rows),
+            _short(error),
+            state.upcoming_sleep,
+        )
 
     async def _connection(self) -> AsyncConnection:
         assert self.sessionmaker is not None
@@ -168,9 +380,9 @@ class AuditWriter:
             with contextlib.suppress(Exception):
                 await conn.close()
 
-    async def _commit(self, batch: list[_Queued]) -> Exception | None:
-        """Write ``batch`` in one transaction and tell its waiters; the error if it failed."""
-        rows = [_values(**row) for row, _ in batch]
+    async def _commit(self, batch: list[_Row]) -> Exception | None:
+        """Write ``batch`` in one transaction; the error if it failed."""
+        rows = [row.values for row in batch]
         error: Exception | None = None
         for _ in range(2):  # a second time on a new connection if this one was lost
             reused = self._conn is not None
@@ -178,24 +390,44 @@ class AuditWriter:
                 conn = await self._connection()
                 await conn.execute(insert(AuditEntry), rows)
                 await conn.commit()
-                error = None
-                break
+                return None
             except Exception as exc:
                 error = exc
+                if refused(exc):  # the rows, not the connection
+                    if self._conn is not None:
+                        with contextlib.suppress(Exception):
+                            await self._conn.rollback()
+                    break
+                await self._drop()  # whatever else went wrong, the next try starts afresh
                 lost = not isinstance(exc, DBAPIError) or exc.connection_invalidated
-                if lost:
-                    await self._drop()
-                elif self._conn is not None:  # the rows were refused; the connection is good
-                    with contextlib.suppress(Exception):
-                        await self._conn.rollback()
                 if not (lost and reused):
                     break
-        if error is not None:
-            return error
-        for _, done in batch:
-            if done is not None and not done.done():
-                done.set_result(None)
-        return None
+        return error
+
+
+def _queued(row: Mapping[str, Any]) -> dict[str, Any]:
+    """``row``'s columns (``record``'s arguments), timed now: a row written late keeps the
+    time it happened."""
+    return {**_values(**row), "at": utcnow()}
+
+
+def _short(error: BaseException | None) -> str:
+    """The first line of ``error``: SQLAlchemy's add the statement and a link."""
+    if error is None:
+        return "no error"
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0][:200] if text else ''}"
+
+
+def _lose(values: Mapping[str, Any], reason: str, error: Exception | None = None) -> None:
+    """Say, in full, that a row will not be in the audit log, and count it."""
+    metrics.audit_row_lost(reason)
+    log.error(
+        "audit row NOT WRITTEN (%s%s): %s",
+        reason,
+        f": {_short(error)}" if error is not None else "",
+        json.dumps(values, default=str, sort_keys=True),
+    )
 
 
 def _values(

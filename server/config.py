@@ -14,6 +14,7 @@ from limits import parse
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from server.audit import BACKLOG_MAX
 from server.logs import LogFormat
 from server.tickets import TICKET_TTL_S
 
@@ -122,6 +123,14 @@ class Settings(BaseSettings):
         le=300.0,
         description="With a relay: a station stays online this long after its server process "
         "stopped answering (a lease refreshed every third of it), seconds.",
+    )
+    audit_backlog_max: int = Field(
+        default=BACKLOG_MAX,
+        ge=1,
+        description="Audit rows of live commands kept in memory, in order, while the database "
+        "is away (a HOLD or Stop never waits for it); they are written when it is back. Past "
+        "it a row is not kept: it is logged in full at ERROR and counted in /metrics "
+        "(ankle_audit_rows_lost_total), and a K/B change, Resume or Start is refused.",
     )
     view_ticket_ttl_s: float = Field(
         default=TICKET_TTL_S,

@@ -72,6 +72,22 @@ COMMAND_SECONDS = Histogram(
     buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),
     registry=REGISTRY,
 )
+AUDIT_BACKLOG = Gauge(
+    "ankle_audit_backlog_rows",
+    "Audit rows of live commands (a HOLD's, a Stop's, outcomes) waiting for the database: "
+    "above 0 for more than a few seconds, the database is away and the rows are only in "
+    "this process's memory.",
+    registry=REGISTRY,
+)
+AUDIT_LOST = Counter(
+    "ankle_audit_rows_lost",
+    "Audit rows that will not be in the audit log (each is logged in full at ERROR): "
+    "'backlog_full' (ANKLE_AUDIT_BACKLOG_MAX rows already waited for the database), "
+    "'refused' (the database refused what the row holds), 'shutdown' (still waiting when "
+    "the server stopped).",
+    ["reason"],
+    registry=REGISTRY,
+)
 
 _sent_at: dict[str, tuple[str, float]] = {}
 """request_id -> (action, when it was sent): commands awaiting their answer."""
@@ -113,6 +129,11 @@ def command_answered(request_id: str, outcome: str) -> None:
     if started is not None:
         action, at = started
         COMMAND_SECONDS.labels(action, outcome).observe(time.perf_counter() - at)
+
+
+def audit_row_lost(reason: str) -> None:
+    """One audit row will not be stored, for ``reason`` (see ``AUDIT_LOST``)."""
+    AUDIT_LOST.labels(reason).inc()
 
 
 def watch_database(engine: AsyncEngine) -> None:
@@ -205,4 +226,5 @@ async def metrics(request: Request) -> Response:
     hub = request.app.state.hub
     STATIONS.set(len(hub.stations))
     VIEWERS.set(sum(len(v) for v in hub.viewers.values()))
+    AUDIT_BACKLOG.set(hub.writer.backlog)
     return Response(generate_latest(REGISTRY), media_type=CONTENT_TYPE_LATEST)
