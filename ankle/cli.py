@@ -123,9 +123,9 @@ def _db(args: argparse.Namespace) -> int:
     import asyncio
 
     from server import db
-    from server.config import Settings
+    from server.config import load_settings
 
-    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    settings = load_settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
     if args.db_command == "sql":
         print(db.migration_sql(settings.database_url, args.start), end="")
         return 0
@@ -152,13 +152,40 @@ def _db(args: argparse.Namespace) -> int:
     return 0
 
 
+def _server(args: argparse.Namespace) -> int:
+    from server.cli import serve, settings_into_environment
+    from server.config import load_settings
+    from webui.app import create_app
+
+    if args.workers < 1:
+        print("error: --workers must be 1 or more", file=sys.stderr)
+        return device_cli.USAGE_ERROR
+    overrides = {
+        k: v
+        for k, v in (("data_dir", args.data_dir), ("host", args.host), ("port", args.port))
+        if v is not None
+    }
+    settings = load_settings(**overrides)
+    if args.workers > 1 and not settings.relay_url:
+        print(
+            "error: --workers above 1 needs the live relay (ANKLE_RELAY_URL=redis://...):"
+            " without it a station and its viewers on different processes would not"
+            " see each other",
+            file=sys.stderr,
+        )
+        return device_cli.USAGE_ERROR
+    settings_into_environment(settings, overrides)
+    serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
+    return 0
+
+
 def _admin(args: argparse.Namespace) -> int:
     import asyncio
 
     from server.cli import AdminError, create_user_async, reset_password_async
-    from server.config import Settings
+    from server.config import load_settings
 
-    settings = Settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    settings = load_settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
     try:
         if args.admin_command == "create-user":
             password = None
@@ -206,10 +233,15 @@ def _main(argv: Sequence[str] | None) -> int:
         except device_cli.UsageError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return device_cli.USAGE_ERROR
-        if args.command == "admin":
-            return _admin(args)
-        if args.command == "db":
-            return _db(args)
+        if args.command in ("admin", "db", "server"):
+            from server.config import SettingsError
+
+            command = {"admin": _admin, "db": _db, "server": _server}[args.command]
+            try:
+                return command(args)
+            except SettingsError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return device_cli.USAGE_ERROR
         if args.command == "console":
             from device.console import run_console
 
@@ -220,31 +252,6 @@ def _main(argv: Sequence[str] | None) -> int:
             return run_system(
                 args.data_dir, args.host, args.port, args.seconds, page_port=args.page_port
             )
-        if args.command == "server":
-            from server.cli import serve, settings_into_environment
-            from server.config import Settings
-            from webui.app import create_app
-
-            if args.workers < 1:
-                print("error: --workers must be 1 or more", file=sys.stderr)
-                return device_cli.USAGE_ERROR
-            overrides = {
-                k: v
-                for k, v in (("data_dir", args.data_dir), ("host", args.host), ("port", args.port))
-                if v is not None
-            }
-            settings = Settings(**overrides)
-            if args.workers > 1 and not settings.relay_url:
-                print(
-                    "error: --workers above 1 needs the live relay (ANKLE_RELAY_URL=redis://...):"
-                    " without it a station and its viewers on different processes would not"
-                    " see each other",
-                    file=sys.stderr,
-                )
-                return device_cli.USAGE_ERROR
-            settings_into_environment(settings, overrides)
-            serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
-            return 0
         from station.cli import run as run_station
         from webui.home.app import serve_patient_page
 

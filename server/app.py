@@ -97,6 +97,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             with contextlib.suppress(asyncio.CancelledError):
                 await expiry
         await hub.close()
+        if hasattr(app.state, "login_throttle"):
+            await app.state.login_throttle.close()
         if hasattr(app.state, "hashing"):
             app.state.hashing.close()
         await engine.dispose()

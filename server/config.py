@@ -11,11 +11,12 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from limits import parse
-from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic import Field, SecretStr, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from server.audit import BACKLOG_MAX
 from server.logs import LogFormat
+from server.throttle import open_storage
 from server.tickets import TICKET_TTL_S
 
 MiB = 1024 * 1024
@@ -186,8 +187,9 @@ class Settings(BaseSettings):
     )
     login_throttle_storage: str = Field(
         default="memory://",
-        description="Where failed sign-ins are counted: a limits storage URI; memory:// is "
-        "this process, redis://host:6379 would share counts between server processes.",
+        description="Where failed sign-ins are counted: memory:// is this process; "
+        "redis://host:6379/db (or rediss://, redis+unix://, redis+cluster://, "
+        "redis+sentinel://) shares the counts between server processes.",
     )
     password_hash_concurrency: int = Field(
         default=2,
@@ -232,6 +234,12 @@ class Settings(BaseSettings):
             )
         return value
 
+    @field_validator("login_throttle_storage")
+    @classmethod
+    def _counts(cls, value: str) -> str:
+        open_storage(value)  # its ValueError names what works
+        return value
+
     @field_validator("relay_url")
     @classmethod
     def _relay(cls, value: str) -> str:
@@ -269,6 +277,25 @@ class Settings(BaseSettings):
     @property
     def is_sqlite(self) -> bool:
         return self.database_url.startswith("sqlite")
+
+
+class SettingsError(ValueError):
+    """Settings that cannot work: one line naming each wrong ``ANKLE_*`` variable."""
+
+
+def load_settings(**overrides: Any) -> Settings:
+    """``Settings(**overrides)`` for the command line: a setting that cannot work is a
+    SettingsError in one line (which variable, what is wrong, what works), where pydantic's
+    own report is several lines that quote the value, which may hold a password."""
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:
+        wrong = []
+        for error in exc.errors():
+            name = "_".join(str(part) for part in error["loc"]).upper()
+            text = str(error["msg"]).removeprefix("Value error, ")
+            wrong.append(f"ANKLE_{name}: {text}" if name else text)
+        raise SettingsError("; ".join(wrong)) from None
 
 
 def _origin(url: str) -> str:

@@ -8,10 +8,12 @@ checked; at the limit the answer is 429 with ``Retry-After`` until the oldest fa
 leaves the window, and the password is not checked at all. A successful sign-in clears its
 account's count (not its address's: one good account must not reset a guesser's address).
 
-Counts live in a ``limits`` storage (``login_throttle_storage``): memory for one process,
-Redis for several. Sign-ins in progress are capped per key in this process
-(``login_pending_max``) so that one address sending a hundred at once queues four for the
-password hasher, not a hundred, and a colleague's sign-in is not stuck behind them.
+Counts live in a ``limits`` storage (``login_throttle_storage``, :func:`open_storage`):
+memory for one process, Redis for several. A Redis that does not answer refuses sign-ins
+(503) rather than letting them through uncounted. Sign-ins in progress are capped per key
+in this process (``login_pending_max``) so that one address sending a hundred at once
+queues four for the password hasher, not a hundred, and a colleague's sign-in is not stuck
+behind them.
 
 Keys are the SHA-256 of the normalised email (no addresses in a shared store) and the
 client address as uvicorn reports it (behind a proxy: the forwarded one it trusts).
@@ -20,26 +22,87 @@ client address as uvicorn reports it (behind a proxy: the forwarded one it trust
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import math
 import time
 from collections import Counter
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeVar
+from urllib.parse import urlsplit
 
 from limits import RateLimitItem, parse
+from limits.aio.storage import MovingWindowSupport, Storage
 from limits.aio.strategies import MovingWindowRateLimiter
+from limits.errors import ConfigurationError, StorageError
 from limits.storage import storage_from_string
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from server.config import Settings
 from server.guard import answer
+
+if TYPE_CHECKING:
+    from server.config import Settings
 
 DELAY_START_S = 0.25
 """The first delay; each further failure doubles it."""
 BUSY_RETRY_S = 1
 """Retry-After when too many sign-ins of one key are in progress at once."""
+STORAGE_AWAY_RETRY_S = 5
+"""Retry-After when the storage of the counts does not answer."""
+REDIS_SCHEMES = ("redis", "rediss", "redis+unix", "redis+cluster", "redis+sentinel")
+"""Storages that count in Redis, through the ``redis`` package the live relay uses too.
+limits' asyncio Redis storage uses ``coredis`` unless told otherwise, which the server does
+not install."""
+STORAGES_SAID = "memory:// (this process) or redis://host:port/db (shared by server processes)"
+
+T = TypeVar("T")
+
+
+def open_storage(uri: str) -> Storage:
+    """The asyncio ``limits`` storage that ``uri`` (``login_throttle_storage``) names;
+    ValueError, in one sentence, for one that cannot count sign-ins here.
+
+    Only storages that work with what the server installs and that keep a moving window:
+    memory, and Redis (``REDIS_SCHEMES``, ``async+`` in front or not). limits' memcached
+    storage has no moving window; its MongoDB and Valkey storages need packages the server
+    does not have. Nothing is connected here: a Redis that is away is found at the first
+    sign-in, and answered 503. The URI is never quoted back (it may hold a password)."""
+    scheme = urlsplit(uri).scheme.lower().removeprefix("async+")
+    if scheme != "memory" and scheme not in REDIS_SCHEMES:
+        raise ValueError(
+            f"{scheme + '://' if scheme else 'a URI without a scheme'} cannot count failed "
+            f"sign-ins: use {STORAGES_SAID}"
+        )
+    options: dict[str, Any] = {"implementation": "redispy"} if scheme in REDIS_SCHEMES else {}
+    plain = f"{scheme}://{uri.strip().split('://', 1)[1]}"  # limits reads the scheme as cased
+    try:
+        storage = storage_from_string(f"async+{plain}", wrap_exceptions=True, **options)
+    except (ConfigurationError, ValueError) as exc:
+        said = str(exc).replace(f"async+{plain}", plain).replace(plain, f"{scheme}://...")
+        raise ValueError(f"{scheme}:// storage cannot be used: {said}") from None
+    assert isinstance(storage, Storage) and isinstance(storage, MovingWindowSupport)
+    return storage
+
+
+class CountsAway(Exception):
+    """The storage of the counts did not answer: refuse this sign-in (503), uncounted
+    sign-ins would let a guesser past the limits."""
+
+    detail = (
+        "sign-in is unavailable for a moment: failed sign-ins cannot be counted (their store "
+        f"does not answer); try again in {STORAGE_AWAY_RETRY_S} s"
+    )
+    retry_after = STORAGE_AWAY_RETRY_S
+
+
+async def _counted(call: Awaitable[T]) -> T:
+    """``call`` to the storage of the counts; CountsAway if it does not answer."""
+    try:
+        return await call
+    except StorageError as exc:
+        raise CountsAway(str(exc)) from exc
 
 
 class Throttled(Exception):
@@ -72,23 +135,34 @@ class Attempt:
 
     async def failed(self) -> None:
         for key in self._keys:
-            await self._throttle.limiter.hit(key.limit, key.storage_key)
+            await _counted(self._throttle.limiter.hit(key.limit, key.storage_key))
 
     async def succeeded(self) -> None:
         account = self._keys[0]
-        await self._throttle.limiter.clear(account.limit, account.storage_key)
+        await _counted(self._throttle.limiter.clear(account.limit, account.storage_key))
 
 
 class LoginThrottle:
     def __init__(self, settings: Settings) -> None:
-        uri = settings.login_throttle_storage
-        self.storage = storage_from_string(uri if uri.startswith("async+") else f"async+{uri}")
+        self.storage = open_storage(settings.login_throttle_storage)
         self.limiter = MovingWindowRateLimiter(self.storage)
         self.account_limit = parse(settings.login_account_limit)
         self.address_limit = parse(settings.login_address_limit)
         self.delay_max_s = settings.login_delay_max_s
         self.pending_max = settings.login_pending_max
         self._pending: Counter[str] = Counter()
+
+    async def close(self) -> None:
+        """Close the storage's connections (Redis): limits' storages have no close of their
+        own, so the clients its Redis bridge holds are closed here."""
+        bridge: Any = getattr(self.storage, "bridge", None)
+        sentinel = getattr(bridge, "sentinel", None)
+        clients = [getattr(bridge, "storage", None), getattr(bridge, "storage_replica", None)]
+        clients += list(getattr(sentinel, "sentinels", []))
+        for client in clients:
+            if client is not None:
+                with contextlib.suppress(Exception):
+                    await client.aclose()
 
     def _keys(self, email: str, address: str) -> tuple[_Key, _Key]:
         digest = hashlib.sha256(email.encode("utf-8", "backslashreplace")).hexdigest()[:32]
@@ -114,7 +188,7 @@ class LoginThrottle:
         """Raise Throttled at a limit; else the delay this attempt waits, s."""
         over = -1
         for key in keys:
-            stats = await self.limiter.get_window_stats(key.limit, key.storage_key)
+            stats = await _counted(self.limiter.get_window_stats(key.limit, key.storage_key))
             if stats.remaining <= 0:
                 wait = max(1, math.ceil(stats.reset_time - time.time()))
                 raise Throttled(
@@ -128,7 +202,8 @@ class LoginThrottle:
     @asynccontextmanager
     async def attempt(self, email: str, address: str) -> AsyncIterator[Attempt]:
         """Admit one sign-in (or raise Throttled), wait its delay, and hold its place among
-        those in progress until the block ends."""
+        those in progress until the block ends. CountsAway, here or from the Attempt, when
+        the storage of the counts does not answer."""
         keys = self._keys(email, address)
         for key in keys:
             self._check_busy(key)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from datetime import timedelta
 
 from fastapi import APIRouter, HTTPException, Request, status
@@ -23,9 +24,10 @@ from server.security import (
     token_hash,
     verify_password,
 )
-from server.throttle import LoginThrottle, Throttled
+from server.throttle import CountsAway, LoginThrottle, Throttled
 
 router = APIRouter(prefix="/auth", tags=["auth"])
+log = logging.getLogger("ankle.server.auth")
 
 # One message for an unknown email, a wrong password and a deactivated account: the answer
 # must not tell an attacker which addresses have accounts.
@@ -44,6 +46,15 @@ THROTTLED: Responses = {
 def _too_many(exc: Throttled) -> HTTPException:
     return HTTPException(
         status.HTTP_429_TOO_MANY_REQUESTS,
+        detail=exc.detail,
+        headers={"Retry-After": str(exc.retry_after)},
+    )
+
+
+def _uncounted(exc: CountsAway) -> HTTPException:
+    log.warning("sign-in refused: the store of failed sign-ins does not answer (%s)", exc)
+    return HTTPException(
+        status.HTTP_503_SERVICE_UNAVAILABLE,
         detail=exc.detail,
         headers={"Retry-After": str(exc.retry_after)},
     )
@@ -92,6 +103,8 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
             await attempt.succeeded()
     except Throttled as exc:
         raise _too_many(exc) from None
+    except CountsAway as exc:
+        raise _uncounted(exc) from None
     if needs_rehash(user.password_hash):
         user.password_hash = await hashing.run(hash_password, body.password, key=address)
     audit.record(
@@ -173,6 +186,8 @@ async def change_password(
             await attempt.succeeded()
     except Throttled as exc:
         raise _too_many(exc) from None
+    except CountsAway as exc:
+        raise _uncounted(exc) from None
     await accounts.change_password(
         db, hashing, user, body.new_password, token_hash(credentials.credentials)
     )

@@ -9,6 +9,9 @@ A second client address is real: the loopback network is 127.0.0.0/8, so a clien
 from __future__ import annotations
 
 import asyncio
+import os
+import subprocess
+import sys
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -17,9 +20,12 @@ from typing import Any
 
 import httpx
 import pytest
+import redis
 
 from server.config import Settings
+from server.throttle import STORAGE_AWAY_RETRY_S
 from tests.server.live_server import PASSWORD, Live, World, bearer, copy_seeded, running
+from tests.server.redis_server import spawned_redis
 
 
 @asynccontextmanager
@@ -212,3 +218,100 @@ async def test_sign_ins_are_in_the_audit_log(live: Live, world: World) -> None:
 def test_a_rate_that_is_not_one_is_refused_in_the_settings() -> None:
     with pytest.raises(ValueError, match="is not a rate such as"):
         Settings(login_account_limit="lots")
+
+
+@pytest.mark.asyncio
+async def test_two_servers_on_one_redis_share_an_accounts_failed_sign_ins(
+    seeded: tuple[Path, World], tmp_path: Path, redis_server: str
+) -> None:
+    """As the README sets it for several server processes: ten wrong passwords spread over
+    two servers reach the account's limit of ten on both."""
+    storage = f"{redis_server}/3"
+    with redis.Redis.from_url(storage) as client:
+        client.flushdb()
+    settings = Settings(
+        data_dir=copy_seeded(seeded[0], tmp_path / "data"),  # the servers share the database
+        login_throttle_storage=storage,
+        login_account_limit="10 per 15 minutes",
+        login_delay_max_s=0.05,
+    )
+    async with running(settings) as a, running(settings) as b:
+        for i in range(10):
+            r = await sign_in((a, b)[i % 2].client, "t1@clinic.test", "wrong password")
+            assert r.status_code == 401, r.text
+        for live in (a, b):
+            r = await sign_in(live.client, "t1@clinic.test", PASSWORD)
+            assert r.status_code == 429, r.text
+            assert "too many failed sign-ins for this account" in r.json()["detail"]
+            assert 1 <= int(r.headers["retry-after"]) <= 900
+        # Another account is not affected, on either.
+        assert (await sign_in(b.client, "t2@clinic.test", PASSWORD)).status_code == 200
+
+
+@pytest.mark.asyncio
+async def test_a_redis_that_is_away_refuses_sign_ins_with_a_sentence(
+    seeded: tuple[Path, World], tmp_path: Path
+) -> None:
+    """Uncounted sign-ins would let a guesser past the limits: 503, not a 500 or a pass."""
+    world = seeded[1]
+    with spawned_redis(tmp_path / "redis") as (proc, url):
+        settings = Settings(
+            data_dir=copy_seeded(seeded[0], tmp_path / "data"), login_throttle_storage=f"{url}/0"
+        )
+        async with running(settings) as live:
+            assert (
+                await sign_in(live.client, "t1@clinic.test", "wrong password")
+            ).status_code == 401
+            proc.kill()
+            proc.wait()
+            for password in ("wrong password", PASSWORD):
+                r = await sign_in(live.client, "t1@clinic.test", password)
+                assert r.status_code == 503, r.text
+                assert r.json()["detail"].startswith("sign-in is unavailable for a moment")
+                assert r.headers["retry-after"] == str(STORAGE_AWAY_RETRY_S)
+            change = {"current_password": "wrong password", "new_password": "x" * 12}
+            r = await live.client.post("/auth/password", json=change, headers=bearer(world.t1))
+            assert r.status_code == 503, r.text  # checked like a sign-in, so refused alike
+            assert (await live.client.get("/health")).status_code == 200  # the rest goes on
+
+
+@pytest.mark.parametrize(
+    ("storage", "said"),
+    [
+        ("memcached://cache:11211", "memcached:// cannot count failed sign-ins: use memory://"),
+        ("mongodb://cache", "mongodb:// cannot count failed sign-ins"),
+        ("cache:6379", "cannot count failed sign-ins"),
+        ("redis+sentinel://cache:26379", "'service_name' not provided"),
+        ("redis://:s3cret@cache:port", "redis:// storage cannot be used"),
+    ],
+)
+def test_a_storage_that_cannot_count_is_refused_in_the_settings(storage: str, said: str) -> None:
+    with pytest.raises(ValueError, match="login_throttle_storage") as refused:
+        Settings(login_throttle_storage=storage)
+    assert said in str(refused.value)
+
+
+def test_the_storages_that_count_are_taken() -> None:
+    for works in ("memory://", "redis://cache:6379/1", "async+redis://cache:6379", "rediss://c:1"):
+        assert Settings(login_throttle_storage=works).login_throttle_storage == works
+
+
+def test_ankle_server_says_a_storage_that_cannot_count_in_one_line(tmp_path: Path) -> None:
+    """Not a traceback, and no password quoted back."""
+    env = {
+        **os.environ,
+        "ANKLE_LOGIN_THROTTLE_STORAGE": "redis://:s3cret@cache:port",
+        "ANKLE_DATA_DIR": str(tmp_path),
+    }
+    r = subprocess.run(
+        [sys.executable, "-m", "ankle.cli", "server"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert r.returncode == 2, r.stderr
+    (line,) = r.stderr.splitlines()
+    assert line.startswith("error: ANKLE_LOGIN_THROTTLE_STORAGE: redis:// storage cannot be used")
+    assert "s3cret" not in line
