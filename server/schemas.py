@@ -28,7 +28,7 @@ from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
 from sessions.anatomy import direction_table
 from sessions.prescription import AxisPrescription, PrescriptionBody, PrescriptionInput
 from sessions.sentences import FieldError, field_label, setting_parts
-from sessions.text import Line, Lines, one_line
+from sessions.text import Line, Lines, one_line, visible_name
 
 Email = Annotated[
     str,
@@ -49,7 +49,7 @@ Password = Annotated[
 Name = Annotated[
     str,
     StringConstraints(strip_whitespace=True, min_length=1, max_length=120),
-    AfterValidator(one_line),  # after the strip: a pasted name's trailing line break is dropped
+    AfterValidator(visible_name),  # after the strip: a pasted name's trailing line break is dropped
 ]
 
 

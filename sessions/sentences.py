@@ -25,7 +25,13 @@ from typing import Any, Literal
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
-from sessions.text import CONTROL_CHARACTER
+from sessions.text import (
+    CONTROL_CHARACTER,
+    DIRECTION_CONTROL,
+    INVISIBLE_CHARACTER,
+    NOTHING_VISIBLE,
+    STACKED_MARKS,
+)
 
 Loc = tuple[str | int, ...]
 Op = Literal["ge", "gt", "le", "lt"]
@@ -231,6 +237,16 @@ _SIMPLE: dict[str, str] = {
     "datetime_from_date_parsing": "{label} must be a date and time (ISO 8601).",
     CONTROL_CHARACTER: "{label} must not contain control characters ({char} at character "
     "{at}): type it again without them.",
+    DIRECTION_CONTROL: "{label} must not contain text-direction controls ({char} at character "
+    "{at}): they make text show in another order than it is written. Type it again without "
+    "them.",
+    INVISIBLE_CHARACTER: "{label} must not contain invisible characters ({char} at character "
+    "{at}): type it again without them.",
+    NOTHING_VISIBLE: "{label} has nothing visible in it (only blanks, invisible characters or "
+    "combining marks): type letters or digits.",
+    STACKED_MARKS: "{label} puts {count} combining marks on character {at}, which draws over "
+    "the lines around it: at most {most} are allowed on one character. Type it again without "
+    "the extra marks.",
 }
 
 
