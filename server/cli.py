@@ -36,6 +36,7 @@ from server.schemas import UserCreate, UserPublic
 from server.security import HashingSlots, hash_password, new_password, new_token, token_hash
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
 from sessions.private import write_private
+from sessions.text import normal_address
 from sessions.wire import error_text
 
 DEMO_EMAIL = "therapist@demo.local"
@@ -179,7 +180,7 @@ async def reset_password_async(settings: Settings, email: str) -> tuple[UserPubl
     once), to be changed at the next sign-in; every login of the account ends (a running
     server closes their live views at its next periodic re-check). Raises AdminError for
     an unknown email."""
-    wanted = email.strip().lower()
+    wanted = normal_address(email)
     async with _database(settings) as sessionmaker, sessionmaker() as db:
         user = (await db.execute(select(User).where(User.email == wanted))).scalar_one_or_none()
         if user is None:

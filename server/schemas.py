@@ -28,15 +28,25 @@ from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
 from sessions.anatomy import direction_table
 from sessions.prescription import AxisPrescription, PrescriptionBody, PrescriptionInput
 from sessions.sentences import FieldError, field_label, setting_parts
-from sessions.text import Line, Lines, one_line, visible_name
+from sessions.text import (
+    EMAIL_MAX_LENGTH,
+    EMAIL_PATTERN,
+    Line,
+    Lines,
+    email_address,
+    sign_in_address,
+    visible_name,
+)
 
 Email = Annotated[
     str,
-    StringConstraints(
-        strip_whitespace=True, to_lower=True, max_length=254, pattern=r"^[^@\s]+@[^@\s]+$"
+    StringConstraints(strip_whitespace=True),
+    AfterValidator(email_address),  # length and shape once NFKC-normal: "ｔａ＠x" is "ta@x"
+    Field(
+        description="Login name; stored NFKC-normalised and lower-case (sessions.text).",
+        examples=["therapist@clinic.example"],
+        json_schema_extra={"maxLength": EMAIL_MAX_LENGTH, "pattern": EMAIL_PATTERN},
     ),
-    AfterValidator(one_line),
-    Field(description="Login name; stored lower-case.", examples=["therapist@clinic.example"]),
 ]
 Password = Annotated[
     str,
@@ -89,7 +99,9 @@ _FROM_ORM = ConfigDict(from_attributes=True)
 class LoginRequest(BaseModel):
     model_config = _STRICT
 
-    email: Line = Field(max_length=254, description="The account's email address.")
+    email: Annotated[str, AfterValidator(sign_in_address)] = Field(
+        max_length=EMAIL_MAX_LENGTH, description="The account's email address."
+    )
     password: str = Field(max_length=PASSWORD_MAX_LENGTH)
 
 

@@ -29,6 +29,7 @@ from sessions.text import (
     CONTROL_CHARACTER,
     DIRECTION_CONTROL,
     INVISIBLE_CHARACTER,
+    MIXED_SCRIPTS,
     NOTHING_VISIBLE,
     STACKED_MARKS,
 )
@@ -247,6 +248,8 @@ _SIMPLE: dict[str, str] = {
     STACKED_MARKS: "{label} puts {count} combining marks on character {at}, which draws over "
     "the lines around it: at most {most} are allowed on one character. Type it again without "
     "the extra marks.",
+    MIXED_SCRIPTS: "{label} mixes scripts in “{part}” ({char} at character {at} among "
+    "{script} letters), so it could pass for another address: type it in one script.",
 }
 
 

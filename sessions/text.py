@@ -1,4 +1,5 @@
-"""Free text a person types: a name or a title on one line, notes or instructions on several.
+"""Free text a person types: a name or a title on one line, notes or instructions on several,
+and the e-mail address an account signs in with.
 
 All typed text:
 
@@ -25,10 +26,23 @@ clicked by, so it
   four (decomposed Vietnamese two, pointed Hebrew with an accent four), while a hundred
   draw a column over the rows above and below.
 
+An e-mail address is an account's identity, so the same text must be the same account:
+:func:`normal_address` is the one form addresses are stored and looked up in (NFKC, which
+makes a composed and a decomposed "á" and a fullwidth "ｔ" the same text as what most
+keyboards send, then lower case, as ever). A new address is refused if it holds any Cf
+character (nothing invisible may make two addresses look alike) or if its local part, or
+a label of its domain, mixes letters of two scripts (a Cyrillic "а" among Latin letters).
+Chinese, Japanese and Korean characters count as one script there. A whole address in
+another script (all Cyrillic) stays allowed, as do the internationalised addresses of
+RFC 6531: refusing confusables across whole scripts needs Unicode's confusables table,
+and accounts are made by an admin, who sees the address.
+
 This module is the one check: the models a clinician writes into (``server.schemas``,
 ``sessions.prescription``) type their text fields with :data:`Line`, :data:`Lines` and
-:func:`visible_name`. Each refusal is a 422 whose type is one of the constants below and
-that ``sessions.sentences`` words with the field's label.
+:func:`visible_name`; ``server.schemas.Email`` uses :func:`email_address`, sign-in
+:func:`sign_in_address`, the admin command line :func:`normal_address`. Each refusal is a
+422 whose type is one of the constants below and that ``sessions.sentences`` words with the
+field's label.
 """
 
 from __future__ import annotations
@@ -38,7 +52,7 @@ import unicodedata
 from typing import Annotated
 
 from pydantic import AfterValidator
-from pydantic_core import PydanticCustomError
+from pydantic_core import PydanticCustomError, PydanticKnownError
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
 """Unicode's control characters (category Cc) and lone surrogates (Cs)."""
@@ -54,11 +68,20 @@ _DRAWS_NOTHING = frozenset("\u115f\u1160\u3164\uffa0\u2800")
 MAX_MARKS = 4
 """The most combining marks (Mn, Me) a name may put on one character."""
 
+EMAIL_MAX_LENGTH = 254
+EMAIL_PATTERN = r"^[^@\s]+@[^@\s]+$"
+_EMAIL_SHAPE = re.compile(EMAIL_PATTERN)
+_EAST_ASIAN = frozenset(
+    {"CJK", "IDEOGRAPHIC", "HIRAGANA", "KATAKANA", "HENTAIGANA", "HANGUL", "BOPOMOFO"}
+)
+"""First words of the names of Chinese, Japanese and Korean letters: one script here."""
+
 CONTROL_CHARACTER = "control_character"
 DIRECTION_CONTROL = "direction_control"
 INVISIBLE_CHARACTER = "invisible_character"
 NOTHING_VISIBLE = "nothing_visible"
 STACKED_MARKS = "stacked_marks"
+MIXED_SCRIPTS = "mixed_scripts"
 """The error types of the refusals."""
 
 
@@ -133,6 +156,69 @@ def visible_name(text: str) -> str:
                 {"count": run, "at": base + 1, "most": MAX_MARKS},
             )
     return text
+
+
+def normal_address(text: str) -> str:
+    """The one form of an e-mail address, stored and looked up: NFKC, no surrounding blanks,
+    lower case (NFKC once more: lower-casing may leave a pair that composes)."""
+    return unicodedata.normalize("NFKC", unicodedata.normalize("NFKC", text).strip().lower())
+
+
+def sign_in_address(text: str) -> str:
+    """An address someone signs in with, in the form it is stored in; refused only for a
+    control character (PostgreSQL would refuse a NUL): every stored address, made before
+    the rules of :func:`email_address` or not, must still find its account."""
+    _refuse_control(text, _CONTROL)
+    return normal_address(text)
+
+
+def _script(ch: str) -> str | None:
+    """The script of a letter, by the first word of its Unicode name (Python's tables have
+    no script property), or None for what is no letter of a script (digits, signs, marks,
+    modifier letters)."""
+    if unicodedata.category(ch) not in ("Lu", "Ll", "Lt", "Lo"):
+        return None
+    first = unicodedata.name(ch, "").split(" ")[0].split("-")[0]
+    return "CJK" if first in _EAST_ASIAN else first
+
+
+def _refuse_mixed_scripts(address: str) -> None:
+    local, _, domain = address.rpartition("@")
+    start = 0
+    for part in (local, *domain.split(".")):
+        first: str | None = None
+        for i, ch in enumerate(part):
+            script = _script(ch)
+            if script is None:
+                continue
+            if first is None:
+                first = script
+            elif script != first:
+                raise PydanticCustomError(
+                    MIXED_SCRIPTS,
+                    "mixes scripts in “{part}”: {char} at character {at} among {script} letters",
+                    {
+                        "part": part,
+                        "char": _char(ch),
+                        "at": start + i + 1,
+                        "script": first.capitalize(),
+                    },
+                )
+        start += len(part) + 1
+
+
+def email_address(text: str) -> str:
+    """A new account's address in its :func:`normal_address` form, if it is one: nothing
+    invisible, at most 254 characters and one "@" once normal, one script a part."""
+    _refuse_control(text, _CONTROL)
+    _refuse_invisible(text)
+    address = normal_address(text)
+    if len(address) > EMAIL_MAX_LENGTH:
+        raise PydanticKnownError("string_too_long", {"max_length": EMAIL_MAX_LENGTH})
+    if not _EMAIL_SHAPE.fullmatch(address):
+        raise PydanticKnownError("string_pattern_mismatch", {"pattern": EMAIL_PATTERN})
+    _refuse_mixed_scripts(address)
+    return address
 
 
 Line = Annotated[str, AfterValidator(one_line)]

@@ -84,7 +84,7 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
     settings: Settings = request.app.state.settings
     throttle: LoginThrottle = request.app.state.login_throttle
     hashing: HashingSlots = request.app.state.hashing
-    email = body.email.strip().lower()
+    email = body.email  # in its stored form (sessions.text.sign_in_address)
     address = _client(request)
     try:
         async with throttle.attempt(email, address) as attempt:
