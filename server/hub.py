@@ -5,9 +5,15 @@ A station's telemetry comes in batches of samples and is never queued for a view
 keeps the newest few batches per station, and each viewer is sent every batch while it keeps
 up and the newest one when it falls behind (a slow browser sees fresh data late, never a
 growing backlog). Events, status and command results are never dropped, and a viewer is sent
-them before any telemetry waiting with them. A command is claimed, timed and audited by
-the process that holds the station's link, wherever its viewer is; its result reaches the
-station's viewers on every process.
+them before any telemetry waiting with them.
+
+A command is judged, timed and its outcome audited by the process that holds the station's
+link, wherever its viewer is; its result reaches the station's viewers on every process. A
+command from a viewer on another process is recorded (its request row) on the viewer's
+process, which also keeps a timer of its own: if the station's process does not answer
+within ``COMMAND_TIMEOUT_S`` (it died, or the relay lost a message), the viewer's process
+ends the command itself (TIMEOUT, audited), and tells the station's process, which records
+an answer that still comes as late.
 """
 
 from __future__ import annotations
@@ -45,6 +51,11 @@ VIEW_HZ = 50.0
 watching them, per second (a station sends 25 batches a second)."""
 COMMAND_TIMEOUT_S = 3.0
 """A command with no answer from the station by then is reported as TIMEOUT."""
+RELAY_SLACK_S = 0.5
+"""Of a command forwarded from another process, what the station's process leaves of
+COMMAND_TIMEOUT_S for the relay: it waits this much less for the station, so that its own
+outcome (the answer, or its TIMEOUT) reaches the asking process before that process's timer
+ends the command as unanswered by the station's server."""
 LATE_KEPT = 1000
 """Timed-out commands remembered so that a late answer still has its outcome audited."""
 AUDIT_FLUSH_S = 5.0
@@ -146,6 +157,19 @@ class InFlight:
     conn: StationConn
     timer: asyncio.TimerHandle | None = None
     """Runs from the moment it is sent."""
+    asked_on: str | None = None
+    """The process of the viewer that sent it, if another: told when it ends, and may give
+    up on it first."""
+
+
+@dataclass(eq=False)
+class Forwarded:
+    """A command of a viewer here sent on to the process that holds its station: ended here
+    (TIMEOUT) unless that process says it ended within COMMAND_TIMEOUT_S."""
+
+    asked: live_audit.Asked
+    owner: str
+    timer: asyncio.TimerHandle | None = None
 
 
 async def close_link(ws: WebSocket, code: int, reason: str) -> None:
@@ -206,6 +230,7 @@ class Hub:
         self.viewers: dict[int, set[Viewer]] = collections.defaultdict(set)
         self._pending: dict[str, InFlight] = {}
         self._late: collections.OrderedDict[str, InFlight] = collections.OrderedDict()
+        self._forwarded: dict[str, Forwarded] = {}
         self.writer = AuditWriter()
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
@@ -457,18 +482,30 @@ class Hub:
             asker = Asker(**message["asker"])
             cmd = wire.Command.model_validate(message["command"])
             process, key = message["reply_to"], asker.viewer
+            budget = float(message.get("timeout_s", COMMAND_TIMEOUT_S))
 
             def reply(text: str) -> None:
                 self.relay.send(
                     process,
-                    {"type": "reply", "station_id": station_id, "viewer": key, "text": text},
+                    {
+                        "type": "reply",
+                        "station_id": station_id,
+                        "viewer": key,
+                        "request_id": cmd.request_id,
+                        "text": text,
+                    },
                 )
 
-            await self._command_here(asker, cmd, reply)
+            await self._command_here(asker, cmd, reply, asked_on=process, timeout_s=budget)
         elif kind == "reply" and isinstance(station_id, int):
+            self._settled(station_id, message.get("request_id"))
             for v in self.viewers.get(station_id, ()):
                 if v.key == message["viewer"]:
                     v.push(message["text"])
+        elif kind == "settled" and isinstance(station_id, int):
+            self._settled(station_id, message.get("request_id"))
+        elif kind == "gave_up" and isinstance(station_id, int):
+            self._given_up(station_id, message.get("request_id"), message.get("from"))
         elif kind == "prescriptions" and station_id in self.stations:
             assert isinstance(station_id, int)
             await self.prescriptions_changed(station_id)
@@ -483,6 +520,9 @@ class Hub:
         """Close every live connection (at shutdown), after writing every queued audit row."""
         for request_id in list(self._pending):
             self._unanswered(request_id, "OFFLINE", "the server shut down before an answer came")
+        for request_id in list(self._forwarded):
+            text = "the server shut down before the station's server answered"
+            self._give_up(request_id, "OFFLINE", text)
         await self.writer.close(AUDIT_FLUSH_S)
         if self._recheck_task is not None:
             self._recheck_task.cancel()
@@ -503,86 +543,167 @@ class Hub:
         if asker.station_id not in self.stations:
             owner = await self._ask("owner", self.relay.owner(asker.station_id), None)
             if owner is not None and owner != self.relay.process:
-                forward = {
-                    "type": "command",
-                    "station_id": asker.station_id,
-                    "asker": dataclasses.asdict(asker),
-                    "command": cmd.model_dump(mode="json"),
-                    "reply_to": self.relay.process,
-                }
-                self.relay.send(owner, forward)
+                await self._forward(owner, asker, cmd, reply)
                 return
         await self._command_here(asker, cmd, reply)
 
-    async def _command_here(
-        self, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]
+    async def _forward(
+        self, owner: str, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]
     ) -> None:
-        """Judge, audit and send a command to a station connected here (or refuse it)."""
-        conn = self.stations.get(asker.station_id)
-        cmd = cmd.model_copy(update={"by": f"therapist:{asker.user_id}"})
-        asked = live_audit.Asked(
-            actor=f"user:{asker.user_id}",
-            station_id=asker.station_id,
-            patient_id=asker.patient_id,
-            command=cmd,
-        )
-
-        def refuse(code: str, text: str, field: str = "") -> None:
-            result = wire.CommandResult(
-                request_id=cmd.request_id, ok=False, code=code, field=field, text=text
-            )
-            reply(result.model_dump_json())
-            self.writer.write_soon(asked.outcome_row("refused", result))
-
+        """Record a command here and send it on to the process ``owner`` that holds its
+        station; end it here if that process does not say within COMMAND_TIMEOUT_S that it
+        ended (it may have died, or the relay lost a message)."""
+        asked = _asked(asker, cmd)
+        request_id = asked.command.request_id
         if not asker.may_command:
-            refuse("FORBIDDEN", "only the patient's therapist may change a running exercise")
+            _refuse(asked, reply, self.writer, "FORBIDDEN", FORBIDDEN)
+            return
+        if request_id in self._forwarded:
+            _refuse(asked, reply, self.writer, "DUPLICATE", DUPLICATE, "request_id")
+            return
+        entry = self._forwarded[request_id] = Forwarded(asked, owner)
+        if not await self._record_request(asked, reply):
+            del self._forwarded[request_id]
+            return
+        forward = {
+            "type": "command",
+            "station_id": asker.station_id,
+            "asker": dataclasses.asdict(asker),
+            "command": cmd.model_dump(mode="json"),
+            "reply_to": self.relay.process,
+            "timeout_s": COMMAND_TIMEOUT_S - RELAY_SLACK_S,
+        }
+        try:
+            self.relay.send(owner, forward)
+        except Exception as exc:  # the in-process relay has nobody to send to
+            log.warning("a command could not be sent to the station's server: %s", exc)
+            del self._forwarded[request_id]
+            text = "this server cannot reach the station's server, so the command was not sent"
+            _refuse(asked, reply, self.writer, "OFFLINE", text)
+            return
+        loop = asyncio.get_running_loop()
+        entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._forward_timeout, request_id)
+
+    def _forward_timeout(self, request_id: str) -> None:
+        text = (
+            f"the station's server did not answer within {COMMAND_TIMEOUT_S:g} s (it may have "
+            "stopped, or the message was lost): whether the device acted is not known"
+        )
+        self._give_up(request_id, "TIMEOUT", text)
+
+    def _give_up(self, request_id: str, code: str, text: str) -> None:
+        """End a forwarded command here, as unanswered; the station's process records an
+        answer that still comes as late."""
+        entry = self._forwarded.pop(request_id, None)
+        if entry is None:
+            return
+        if entry.timer is not None:
+            entry.timer.cancel()
+        result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
+        self.writer.write_soon(entry.asked.outcome_row("unanswered", result))
+        station_id = entry.asked.station_id
+        self.broadcast(station_id, result.model_dump_json())
+        gave_up = {
+            "type": "gave_up",
+            "station_id": station_id,
+            "request_id": request_id,
+            "from": self.relay.process,
+        }
+        with contextlib.suppress(Exception):
+            self.relay.send(entry.owner, gave_up)
+
+    def _settled(self, station_id: int, request_id: object) -> None:
+        """The station's process ended a command forwarded from here (it answered, refused
+        or timed it out, and audited that): no timer here any more."""
+        if not isinstance(request_id, str):
+            return
+        entry = self._forwarded.get(request_id)
+        if entry is not None and entry.asked.station_id == station_id:
+            del self._forwarded[request_id]
+            if entry.timer is not None:
+                entry.timer.cancel()
+
+    def _given_up(self, station_id: int, request_id: object, process: object) -> None:
+        """The viewer's process ended a command it forwarded here (TIMEOUT): an answer that
+        still comes is recorded as late, and no outcome of this process's own is."""
+        if not isinstance(request_id, str):
+            return
+        entry = self._pending.get(request_id)
+        if entry is None or entry.asked.station_id != station_id or entry.asked_on != process:
+            return
+        del self._pending[request_id]
+        metrics.command_answered(request_id, "TIMEOUT")
+        if entry.timer is not None:
+            entry.timer.cancel()
+        self._keep_late(request_id, entry)
+
+    async def _record_request(self, asked: live_audit.Asked, reply: Callable[[str], None]) -> bool:
+        """Write a command's request row: at once for a HOLD or Stop, which never wait;
+        awaited for the rest, which are refused (AUDIT) and not sent if it cannot be."""
+        if asked.command.action in live_audit.SAFE_ACTIONS:
+            self.writer.write_soon(asked.request_row())
+            return True
+        try:
+            await self.writer.write(**asked.request_row())
+        except Exception as exc:  # a command that cannot be audited is not sent
+            log.error("audit of a live command failed: %s", exc)
+            _refuse(asked, reply, self.writer, "AUDIT", NOT_RECORDED)
+            return False
+        return True
+
+    async def _command_here(
+        self,
+        asker: Asker,
+        cmd: wire.Command,
+        reply: Callable[[str], None],
+        asked_on: str | None = None,
+        timeout_s: float = COMMAND_TIMEOUT_S,
+    ) -> None:
+        """Judge, audit and send a command to a station connected here (or refuse it).
+        ``asked_on``: the process it was forwarded from, which recorded its request."""
+        conn = self.stations.get(asker.station_id)
+        asked = _asked(asker, cmd)
+        cmd = asked.command
+        if not asker.may_command:
+            _refuse(asked, reply, self.writer, "FORBIDDEN", FORBIDDEN)
             return
         if conn is None:
-            refuse("OFFLINE", "the station is not connected")
+            _refuse(asked, reply, self.writer, "OFFLINE", "the station is not connected")
             return
-        if not self.claim(asked, conn):
-            refuse(
-                "DUPLICATE",
-                "a command sent with this request_id may still be answered",
-                "request_id",
-            )
+        if not self.claim(asked, conn, asked_on):
+            _refuse(asked, reply, self.writer, "DUPLICATE", DUPLICATE, "request_id")
             return
-        if cmd.action in live_audit.SAFE_ACTIONS:
-            self.writer.write_soon(asked.request_row())  # a HOLD or Stop never waits
-        else:
-            try:
-                await self.writer.write(**asked.request_row())
-            except Exception as exc:  # a command that cannot be audited is not sent
-                log.error("audit of a live command failed: %s", exc)
-                self.release(cmd.request_id)
-                refuse("AUDIT", "the command could not be recorded, so it was not sent; try again")
-                return
-        self.sent(cmd.request_id)
+        if asked_on is None and not await self._record_request(asked, reply):
+            self.release(cmd.request_id)
+            return
+        self.sent(cmd.request_id, timeout_s)
         try:
             await conn.ws.send_text(cmd.model_dump_json())
             metrics.sent("station", "command")
         except Exception:
             self.link_lost(conn, cmd.request_id)
 
-    def claim(self, asked: live_audit.Asked, conn: StationConn) -> bool:
+    def claim(
+        self, asked: live_audit.Asked, conn: StationConn, asked_on: str | None = None
+    ) -> bool:
         """Hold ``asked``'s request_id until its outcome; False if a command sent with it may
         still be answered (the answers could not be told apart)."""
         request_id = asked.command.request_id
         if request_id in self._pending or request_id in self._late:
             return False
-        self._pending[request_id] = InFlight(asked, conn)
+        self._pending[request_id] = InFlight(asked, conn, asked_on=asked_on)
         return True
 
     def release(self, request_id: str) -> None:
         """Forget a claimed command that was not sent."""
         self._pending.pop(request_id, None)
 
-    def sent(self, request_id: str) -> None:
-        """The command is on its way: TIMEOUT unless answered within COMMAND_TIMEOUT_S."""
+    def sent(self, request_id: str, timeout_s: float = COMMAND_TIMEOUT_S) -> None:
+        """The command is on its way: TIMEOUT unless answered within ``timeout_s``."""
         entry = self._pending.get(request_id)
         if entry is not None:
             loop = asyncio.get_running_loop()
-            entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._timeout, request_id)
+            entry.timer = loop.call_later(timeout_s, self._timeout, request_id, timeout_s)
             metrics.command_sent(request_id, entry.asked.command.action)
 
     def result(self, station_id: int, result: wire.CommandResult) -> None:
@@ -598,6 +719,7 @@ class Hub:
                     live_audit.outcome_of(result), result, late=book is self._late
                 )
                 self.writer.write_soon(row)
+                self._tell_asker(entry)
                 break
         self.broadcast(station_id, result.model_dump_json())
 
@@ -610,15 +732,33 @@ class Hub:
             result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
             self.writer.write_soon(entry.asked.outcome_row("unanswered", result))
             self.broadcast(entry.asked.station_id, result.model_dump_json())
+            self._tell_asker(entry)
         return entry
 
-    def _timeout(self, request_id: str) -> None:
-        text = f"no answer from the station within {COMMAND_TIMEOUT_S:g} s"
+    def _tell_asker(self, entry: InFlight) -> None:
+        """A command forwarded from another process has its outcome: that process stops
+        its own timer."""
+        if entry.asked_on is not None:
+            settled = {
+                "type": "settled",
+                "station_id": entry.asked.station_id,
+                "request_id": entry.asked.command.request_id,
+            }
+            with contextlib.suppress(Exception):
+                self.relay.send(entry.asked_on, settled)
+
+    def _timeout(self, request_id: str, timeout_s: float = COMMAND_TIMEOUT_S) -> None:
+        text = f"no answer from the station within {timeout_s:g} s"
         entry = self._unanswered(request_id, "TIMEOUT", text)
         if entry is not None:
-            self._late[request_id] = entry
-            while len(self._late) > LATE_KEPT:
-                self._late.popitem(last=False)
+            self._keep_late(request_id, entry)
+
+    def _keep_late(self, request_id: str, entry: InFlight) -> None:
+        """Remember a command that ended unanswered, so that a late answer is audited."""
+        entry.timer = None
+        self._late[request_id] = entry
+        while len(self._late) > LATE_KEPT:
+            self._late.popitem(last=False)
 
     def link_lost(self, conn: StationConn, request_id: str | None = None) -> None:
         """The link ``conn`` ended: its commands sent and not answered (or just
@@ -626,3 +766,34 @@ class Hub:
         for rid, entry in list(self._pending.items()):
             if entry.conn is conn and (rid == request_id or (request_id is None and entry.timer)):
                 self._unanswered(rid, "OFFLINE", "the station's link closed before it answered")
+
+
+FORBIDDEN = "only the patient's therapist may change a running exercise"
+DUPLICATE = "a command sent with this request_id may still be answered"
+NOT_RECORDED = "the command could not be recorded, so it was not sent; try again"
+
+
+def _asked(asker: Asker, cmd: wire.Command) -> live_audit.Asked:
+    """The command as its audit rows tell it, sent by ``asker``'s therapist."""
+    return live_audit.Asked(
+        actor=f"user:{asker.user_id}",
+        station_id=asker.station_id,
+        patient_id=asker.patient_id,
+        command=cmd.model_copy(update={"by": f"therapist:{asker.user_id}"}),
+    )
+
+
+def _refuse(
+    asked: live_audit.Asked,
+    reply: Callable[[str], None],
+    writer: AuditWriter,
+    code: str,
+    text: str,
+    field: str = "",
+) -> None:
+    """Refuse a command before it is sent: the asking viewer is told, the refusal audited."""
+    result = wire.CommandResult(
+        request_id=asked.command.request_id, ok=False, code=code, field=field, text=text
+    )
+    reply(result.model_dump_json())
+    writer.write_soon(asked.outcome_row("refused", result))

@@ -13,9 +13,14 @@ than one row that is later corrected:
   very values the session's event log records, and say when it applies), ``<kind>.refused``
   with the code, field and reason of whoever refused it (the device's NACK, the station, or
   the server itself: ``FORBIDDEN``, ``OFFLINE``, ``DUPLICATE``, ``AUDIT``; a command the
-  server refuses is never sent and has no request row), or ``<kind>.unanswered``
-  (``TIMEOUT``, the station's link lost, the server shut down): what the device did is not
-  known. An answer that arrives after its TIMEOUT still writes its outcome, marked ``late``.
+  server refuses is never sent and has no request row, unless the viewer's process had sent
+  it on to the station's, which refused it), or ``<kind>.unanswered`` (``TIMEOUT``, the
+  station's link lost, the server shut down; or the station's process never said that the
+  command ended, and the viewer's process ended it): what the device did is not known. An
+  answer that arrives after its TIMEOUT still writes its outcome, marked ``late``.
+
+A command from a viewer on another server process has its request row written by that
+process and its outcome by the station's (:mod:`server.hub`).
 
 ``kind`` is ``impedance`` (``set_impedance``), ``hold``, ``resume``, ``stop`` or ``start``.
 Rows go through the hub's batched writer; outcomes are queued, never awaited, so a station's

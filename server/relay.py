@@ -9,9 +9,9 @@ another process must see goes through a :class:`Relay`:
   process watches it, gathered into one pipeline every ``1 / view_hz`` s);
 - events, status (the last one kept for a viewer's welcome), presence changes and command
   results, for the station's viewers on every process;
-- messages addressed to one process (a command for the station it holds, and its refusal
-  back; a prescription push; "your station connected elsewhere") or to all of them (re-check
-  every link's credentials);
+- messages addressed to one process (a command for the station it holds, its refusal back,
+  word that it ended, or that its asker gave up on it; a prescription push; "your station
+  connected elsewhere") or to all of them (re-check every link's credentials);
 - what must be found on any process: a 3D view's ticket (``share``, ``look_up``).
 
 :class:`LocalRelay` is the only-one-process engine, the embedded default: every call is a

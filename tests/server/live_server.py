@@ -58,13 +58,14 @@ class Live:
 
 @asynccontextmanager
 async def running(
-    settings: Settings, factory: Callable[[Settings], FastAPI] = create_app
+    settings: Settings, factory: Callable[[Settings], FastAPI] = create_app, port: int = 0
 ) -> AsyncIterator[Live]:
     """Serve ``factory(settings)`` (the API, or the dashboard that wraps it) with uvicorn on
-    a free port until the block ends, with the server's own protocols (``server.protocols``)."""
+    ``port`` (a free one if 0) until the block ends, with the server's own protocols
+    (``server.protocols``)."""
     app = factory(settings)
     config = uvicorn.Config(
-        app, host="127.0.0.1", port=0, lifespan="on", log_level="warning", **protocols(settings)
+        app, host="127.0.0.1", port=port, lifespan="on", log_level="warning", **protocols(settings)
     )
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())

@@ -19,7 +19,9 @@ import pytest
 from sqlalchemy import text
 from websockets.asyncio.client import ClientConnection
 
+from server import live_audit
 from server.hub import COMMAND_TIMEOUT_S
+from server.relay import LocalRelay, Message
 from sessions import wire
 from sessions.prescription import AXIS_INDEX
 from tests.server.live_server import Live, World, bearer
@@ -391,3 +393,71 @@ async def test_a_command_that_cannot_be_audited_is_not_sent_but_a_hold_always_is
     assert (refused["action"], refused["new"]["code"]) == ("resume.refused", "AUDIT")
     (accepted,) = await rows_of(live, world, "hold-1", 1)
     assert accepted["action"] == "hold.accepted"
+
+
+class Elsewhere(LocalRelay):
+    """The in-process relay, as if another server process held every station that is not
+    connected here: what is sent to that process is lost (there is none). ``send`` as the
+    in-process relay's (nobody to send to: LookupError) unless ``lose``."""
+
+    def __init__(self, lose: bool) -> None:
+        self.lose = lose
+        self.lost: list[Message] = []
+
+    async def owners(self, station_ids: list[int]) -> dict[int, str]:
+        return dict.fromkeys(station_ids, "elsewhere")
+
+    def send(self, process: str, message: Message) -> None:
+        if not self.lose:
+            super().send(process, message)
+        self.lost.append(message)
+
+
+@pytest.mark.asyncio
+async def test_a_command_sent_on_to_another_process_ends_here_if_it_is_lost(
+    live: Live, world: World
+) -> None:
+    """The viewer's process times a command it sends on to the station's process, whatever
+    the relay: lost, it ends as TIMEOUT here, and is audited here."""
+    relay = Elsewhere(lose=True)
+    live.app.state.hub.relay = relay
+    async with viewer(live, world.t1, world.s1_id) as v:
+        assert v.welcome.online  # held "elsewhere"
+        for request_id, action, fields in (
+            ("hold-lost", "hold", {}),
+            ("kb-lost", "set_impedance", {"stiffness": {"pitch": 50.0}}),
+        ):
+            t0 = time.monotonic()
+            await v.send(request_id, action, **fields)
+            result = await v.next_of(wire.CommandResult, request_id)
+            assert time.monotonic() - t0 >= COMMAND_TIMEOUT_S - 0.1
+            assert (result.ok, result.code) == (False, "TIMEOUT")
+            assert "the station's server did not answer" in result.text
+            request, outcome = await rows_of(live, world, request_id, 2)
+            kind = live_audit.KIND[action]
+            assert (request["action"], outcome["action"]) == (
+                f"{kind}.request",
+                f"{kind}.unanswered",
+            )
+            assert outcome["new"]["code"] == "TIMEOUT"
+    sent = [(m["type"], m.get("request_id") or m["command"]["request_id"]) for m in relay.lost]
+    assert sent == [
+        ("command", "hold-lost"),
+        ("gave_up", "hold-lost"),
+        ("command", "kb-lost"),
+        ("gave_up", "kb-lost"),
+    ]
+
+
+@pytest.mark.asyncio
+async def test_a_command_that_cannot_be_sent_on_is_refused_at_once(
+    live: Live, world: World
+) -> None:
+    live.app.state.hub.relay = Elsewhere(lose=False)
+    async with viewer(live, world.t1, world.s1_id) as v:
+        await v.send("hold-nowhere", "hold")
+        result = await v.next_of(wire.CommandResult, "hold-nowhere")
+        assert (result.ok, result.code) == (False, "OFFLINE")
+        assert "cannot reach the station's server" in result.text
+    request, outcome = await rows_of(live, world, "hold-nowhere", 2)
+    assert (request["action"], outcome["action"]) == ("hold.request", "hold.refused")

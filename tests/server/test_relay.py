@@ -23,9 +23,11 @@ from typing import Any
 
 import httpx
 import pytest
+import redis.asyncio as aioredis
 from websockets.asyncio.client import ClientConnection
 
 from server.config import Settings
+from server.hub import COMMAND_TIMEOUT_S, RELAY_SLACK_S
 from sessions import wire
 from sessions.recording import SessionEvent
 from tests.server.live_server import (
@@ -321,17 +323,40 @@ async def test_the_station_connecting_to_another_process_replaces_its_old_link(
                     streaming.cancel()
 
 
-def _spawn_server(data_dir: Path, relay_url: str, port: int) -> subprocess.Popen[bytes]:
+@asynccontextmanager
+async def served_apart(
+    beside: Live, relay_url: str, lease_s: float = LEASE_S
+) -> AsyncIterator[tuple[subprocess.Popen[bytes], Live]]:
+    """A server in a process of its own (so that it can be killed) on ``beside``'s data
+    directory and ``relay_url``: the process, and a client of it (its ``app`` is
+    ``beside``'s: only the client is its own)."""
+    port = free_port()
     code = "from server.cli import serve; serve()"
     env = os.environ | {
-        "ANKLE_DATA_DIR": str(data_dir),
+        "ANKLE_DATA_DIR": str(beside.settings.data_dir),
         "ANKLE_RELAY_URL": relay_url,
-        "ANKLE_RELAY_LEASE_S": str(LEASE_S),
+        "ANKLE_RELAY_LEASE_S": str(lease_s),
         "ANKLE_PORT": str(port),
     }
-    return subprocess.Popen(
+    proc = subprocess.Popen(
         [sys.executable, "-c", code], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT
     )
+    try:
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}/api/v1") as client:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    if (await client.get("/health")).status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                assert proc.poll() is None and time.monotonic() < deadline, "B did not start"
+                await asyncio.sleep(0.1)
+            yield proc, Live(beside.app, client, beside.settings)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 @pytest.mark.asyncio
@@ -340,40 +365,21 @@ async def test_a_killed_process_s_stations_go_offline_within_the_lease(
 ) -> None:
     world = seeded[1]
     data_dir = copy_seeded(seeded[0], tmp_path / "data")
-    port = free_port()
-    proc = _spawn_server(data_dir, relay_url, port)
-    try:
-        async with running(settings(data_dir, relay_url)) as a:
-            other = Live(
-                a.app, httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}/api/v1"), a.settings
-            )
-            deadline = time.monotonic() + 60
-            while True:
-                try:
-                    if (await other.client.get("/health")).status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                assert proc.poll() is None and time.monotonic() < deadline, "B did not start"
-                await asyncio.sleep(0.1)
-            async with (
-                viewer_ws(a, world.t1, world.s1_id) as view,
-                station_ws(other, world.s1) as ws,
-            ):
-                await next_where(view, is_(wire.Welcome))
-                await welcomed(ws)
-                assert (await next_where(view, is_(wire.Presence))).online
-                await until_online(a, world.t1, world.s1_id, True)
-                proc.send_signal(signal.SIGKILL)
-                proc.wait(10)
-                took = await until_online(a, world.t1, world.s1_id, False)
-                assert took < LEASE_S + 2.0, took
-                await next_where(view, lambda m: isinstance(m, wire.Presence) and not m.online)
-            await other.client.aclose()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    async with (
+        running(settings(data_dir, relay_url)) as a,
+        served_apart(a, relay_url) as (proc, other),
+        viewer_ws(a, world.t1, world.s1_id) as view,
+        station_ws(other, world.s1) as ws,
+    ):
+        await next_where(view, is_(wire.Welcome))
+        await welcomed(ws)
+        assert (await next_where(view, is_(wire.Presence))).online
+        await until_online(a, world.t1, world.s1_id, True)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        took = await until_online(a, world.t1, world.s1_id, False)
+        assert took < LEASE_S + 2.0, took
+        await next_where(view, lambda m: isinstance(m, wire.Presence) and not m.online)
 
 
 @pytest.mark.asyncio
@@ -467,3 +473,233 @@ async def _beat(ws: ClientConnection) -> None:
     while True:
         await ws.send(wire.Heartbeat(sent=time.time()).model_dump_json())
         await asyncio.sleep(wire.HEARTBEAT_S)
+
+
+async def audit_rows(live: Live, token: str, request_id: str) -> list[dict[str, Any]]:
+    r = await live.client.get("/audit", params={"request_id": request_id}, headers=bearer(token))
+    assert r.status_code == 200, r.text
+    rows: list[dict[str, Any]] = r.json()
+    return rows
+
+
+def result_of(request_id: str) -> Callable[[Any], bool]:
+    return lambda m: isinstance(m, wire.CommandResult) and m.request_id == request_id
+
+
+@pytest.mark.asyncio
+async def test_a_command_whose_station_s_process_died_ends_on_the_viewer_s_process(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """B dies holding the station: until its lease runs out A still names it the station's
+    server and sends it the viewer's HOLD and K/B change, which nobody will answer. A's own
+    timer ends each with TIMEOUT, and audits it (the request, then unanswered)."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    lease_s = 120.0  # longer than the test: B stays the station's named server once dead
+    long = Settings(data_dir=data_dir, relay_url=relay_url, relay_lease_s=lease_s)
+    async with (
+        running(long) as a,
+        served_apart(a, relay_url, lease_s) as (proc, b),
+        viewer_ws(a, world.t1, world.s1_id) as view,
+        station_ws(b, world.s1) as station,
+    ):
+        await next_where(view, is_(wire.Welcome))
+        await welcomed(station)
+        assert (await next_where(view, is_(wire.Presence))).online
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        beat = asyncio.create_task(_beat(view))
+        try:
+            for request_id, action, asked in (
+                ("hold-dead", "hold", wire.Command(request_id="hold-dead", action="hold")),
+                ("kb-dead", "impedance", wire.Command.model_validate_json(command("kb-dead"))),
+            ):
+                began = time.monotonic()
+                await view.send(asked.model_dump_json())
+                result = await next_where(view, result_of(request_id))
+                assert time.monotonic() - began >= COMMAND_TIMEOUT_S - 0.05
+                assert (result.ok, result.code) == (False, "TIMEOUT")
+                assert "the station's server did not answer" in result.text
+                await until_audited(
+                    a, world.admin, request_id, [f"{action}.request", f"{action}.unanswered"]
+                )
+                rows = await audit_rows(a, world.admin, request_id)
+                outcome = next(r for r in rows if r["action"] == f"{action}.unanswered")
+                assert outcome["new"]["code"] == "TIMEOUT"
+                assert outcome["actor"] == f"user:{world.t1_id}"
+        finally:
+            beat.cancel()
+
+
+@dataclass
+class Ghost:
+    """A make-believe server process on the relay, named ``ghost``: a Redis client that
+    hears what is sent to it, and sends what the test writes, as a server process would."""
+
+    redis: aioredis.Redis
+    pubsub: Any
+
+    async def publish(self, channel: str, text: str) -> None:
+        await self.redis.publish(f"ankle:{channel}", text)
+
+    async def heard(self, kind: str) -> dict[str, Any]:
+        """The next message of type ``kind`` sent to it, reading past the others."""
+        deadline = time.monotonic() + WAIT_S
+        while True:
+            left = deadline - time.monotonic()
+            assert left > 0, f"no {kind} came"
+            item = await self.pubsub.get_message(timeout=min(left, 1.0))
+            if item is not None and item["type"] == "message":
+                message: dict[str, Any] = json.loads(item["data"])
+                if message["type"] == kind:
+                    return message
+
+
+@asynccontextmanager
+async def ghost(relay_url: str) -> AsyncIterator[Ghost]:
+    client = aioredis.Redis.from_url(relay_url, decode_responses=True)
+    pubsub = client.pubsub(ignore_subscribe_messages=True)
+    await pubsub.subscribe("ankle:proc:ghost")
+    try:
+        yield Ghost(client, pubsub)
+    finally:
+        await pubsub.aclose()
+        await client.aclose()
+
+
+@pytest.mark.asyncio
+async def test_the_viewer_s_process_gives_up_on_an_unanswered_command_and_says_so(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """The station is held by a process that hears but never answers (as if the answer was
+    lost): A ends the command at COMMAND_TIMEOUT_S and tells that process it gave up. A
+    command whose end that process reports in time is not ended again, and an answer after
+    A gave up is no second outcome on A."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    async with (
+        running(settings(data_dir, relay_url)) as a,
+        ghost(relay_url) as owner,
+        viewer_ws(a, world.t1, world.s1_id) as view,
+    ):
+        await owner.redis.set(f"ankle:station:{world.s1_id}", "ghost", px=120_000)
+        assert (await next_where(view, is_(wire.Welcome))).online
+        process = a.app.state.hub.relay.process
+        beat = asyncio.create_task(_beat(view))
+        try:
+            await view.send(wire.Command(request_id="h-lost", action="hold").model_dump_json())
+            forward = await owner.heard("command")
+            assert forward["command"]["request_id"] == "h-lost"
+            assert forward["reply_to"] == process
+            assert forward["timeout_s"] == COMMAND_TIMEOUT_S - RELAY_SLACK_S
+            # A K/B change the owner answers, as a station's process does: to the viewers,
+            # and to the asking process that it ended.
+            await view.send(command("kb-done"))
+            assert (await owner.heard("command"))["command"]["request_id"] == "kb-done"
+            done = wire.CommandResult(request_id="kb-done", ok=True, text="acknowledged")
+            await owner.publish(f"view:{world.s1_id}", f"ghost {done.model_dump_json()}")
+            settled = {"type": "settled", "station_id": world.s1_id, "request_id": "kb-done"}
+            await owner.publish(f"proc:{process}", json.dumps(settled))
+            assert (await next_where(view, result_of("kb-done"))).ok
+
+            lost = await next_where(view, result_of("h-lost"))
+            assert (lost.ok, lost.code) == (False, "TIMEOUT")
+            assert "the station's server did not answer" in lost.text
+            gave_up = await owner.heard("gave_up")
+            assert (gave_up["request_id"], gave_up["from"]) == ("h-lost", process)
+            # The owner's answer after that: shown to the viewers, but no outcome of A's.
+            late = wire.CommandResult(request_id="h-lost", ok=True, text="acknowledged")
+            await owner.publish(f"view:{world.s1_id}", f"ghost {late.model_dump_json()}")
+            settled |= {"request_id": "h-lost"}
+            await owner.publish(f"proc:{process}", json.dumps(settled))
+            assert (await next_where(view, result_of("h-lost"))).ok
+
+            # A later command's TIMEOUT comes after any of kb-done's would have, and its row
+            # after any A would have written for either.
+            await view.send(wire.Command(request_id="h-last", action="hold").model_dump_json())
+            seen: list[str] = []
+
+            def last(m: Any) -> bool:
+                if isinstance(m, wire.CommandResult):
+                    seen.append(f"{m.request_id} {m.code}")
+                return result_of("h-last")(m)
+
+            assert (await next_where(view, last)).code == "TIMEOUT"
+            assert seen == ["h-last TIMEOUT"]
+        finally:
+            beat.cancel()
+        await until_audited(a, world.admin, "h-last", ["hold.request", "hold.unanswered"])
+        assert sorted(r["action"] for r in await audit_rows(a, world.admin, "h-lost")) == [
+            "hold.request",
+            "hold.unanswered",
+        ]
+        # The owner writes the outcome of what it answered; A, only the request.
+        assert [r["action"] for r in await audit_rows(a, world.admin, "kb-done")] == [
+            "impedance.request"
+        ]
+
+
+@pytest.mark.asyncio
+async def test_the_station_s_process_records_an_answer_after_the_asker_gave_up_as_late(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """A forwarded command: the station's process waits for the station the time the asking
+    process gives it, tells that process when the command ended, and once told that the
+    asking process gave up, writes no outcome of its own but the late answer's, marked so."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    async with (
+        running(settings(data_dir, relay_url)) as b,
+        ghost(relay_url) as asker,
+        station_ws(b, world.s1) as station,
+    ):
+        await welcomed(station)
+        await until_online(b, world.t1, world.s1_id, True)
+        process = b.app.state.hub.relay.process
+        by = {
+            "user_id": world.t1_id,
+            "station_id": world.s1_id,
+            "patient_id": world.p1,
+            "may_command": True,
+            "viewer": 7,
+        }
+
+        async def forward(request_id: str, timeout_s: float) -> wire.Command:
+            message = {
+                "type": "command",
+                "station_id": world.s1_id,
+                "asker": by,
+                "command": {"request_id": request_id, "action": "hold"},
+                "reply_to": "ghost",
+                "timeout_s": timeout_s,
+            }
+            await asker.publish(f"proc:{process}", json.dumps(message))
+            got: wire.Command = await next_where(station, is_(wire.Command), wire.STATION_DOWN)
+            assert got.request_id == request_id
+            return got
+
+        beat = asyncio.create_task(_beat(station))
+        try:
+            await forward("h-given-up", 60.0)
+            gave_up = {
+                "type": "gave_up",
+                "station_id": world.s1_id,
+                "request_id": "h-given-up",
+                "from": "ghost",
+            }
+            await asker.publish(f"proc:{process}", json.dumps(gave_up))
+            # Relayed messages are handled in order: once this one reaches the station,
+            # the word that the asker gave up has been.
+            await forward("h-short", 0.5)
+            ended = await asker.heard("settled")
+            assert ended["request_id"] == "h-short"  # its own TIMEOUT, at the time given
+            answer = wire.CommandResult(request_id="h-given-up", ok=True, text="acknowledged")
+            await station.send(answer.model_dump_json())
+            await until_audited(b, world.admin, "h-given-up", ["hold.accepted"])
+            (row,) = await audit_rows(b, world.admin, "h-given-up")
+            assert row["new"]["late"] is True
+            (short,) = await audit_rows(b, world.admin, "h-short")
+            assert (short["action"], short["new"]["code"]) == ("hold.unanswered", "TIMEOUT")
+            assert "within 0.5 s" in short["new"]["text"]
+        finally:
+            beat.cancel()

@@ -335,7 +335,9 @@ function onResult(r) {
     numbersAt = 0; // show the pending change at the next frame
     drawSoon();
   } else {
-    p.ackNode.textContent = `${p.label}: refused, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
+    // TIMEOUT: nobody answered, so nothing was refused (the device may have acted).
+    const how = r.code === "TIMEOUT" ? "no answer" : "refused";
+    p.ackNode.textContent = `${p.label}: ${how}, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
     p.ackNode.className = "small ack-bad";
   }
   p.ackNode.dataset.code = r.ok ? r.code || "ACK" : r.code;

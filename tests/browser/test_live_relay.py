@@ -1,0 +1,135 @@
+"""The live page on one server process, its station on another: what it shows when the
+station's process never answers a HOLD.
+
+The two servers (dashboards on one SQLite file and a real Redis) and a raw station link run
+in an event loop of their own, in a thread: Playwright's sync API holds this thread's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from collections.abc import Coroutine, Iterator
+from contextlib import AsyncExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+import redis
+from playwright.sync_api import Page, expect
+
+from server.config import Settings
+from sessions import wire
+from tests.server.live_server import PASSWORD, Live, World, copy_seeded, running, seeded
+from tests.server.redis_server import free_port, spawned_redis
+from tests.server.ws_client import station_ws, telemetry, welcomed
+from webui.app import create_app
+
+__all__ = ["seeded"]  # a fixture shared with the server tests
+
+T = TypeVar("T")
+START_S = 60.0
+
+
+class Loop:
+    """An event loop running in a thread of its own."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+
+    def run(self, coroutine: Coroutine[Any, Any, T]) -> T:
+        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(START_S)
+
+    def stop(self) -> None:
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+@dataclass
+class Apart:
+    """The therapist's server (``url``), the station's, and the Redis between them."""
+
+    url: str
+    world: World
+    redis_url: str
+
+
+async def exercising(ws: Any) -> None:
+    """A station running an exercise: its status every second, telemetry 25 times."""
+    status = wire.StatusMsg(
+        sent=time.time(),
+        device_link="connected",
+        device_mode="ACTIVE",
+        phase="running",
+        exercise="strength",
+        sets=2,
+        repetitions=4,
+        set=1,
+        rep=2,
+    )
+    n = 0
+    while True:
+        if n % 25 == 0:
+            await ws.send(status.model_copy(update={"sent": time.time()}).model_dump_json())
+        await ws.send(json.dumps(telemetry(t=n * 0.04, mode="ACTIVE")))
+        n += 1
+        await asyncio.sleep(0.04)
+
+
+@pytest.fixture
+def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    port = free_port()
+    loop = Loop()
+    stack = AsyncExitStack()
+    with spawned_redis(tmp_path / "redis") as (_, url):
+        base = Settings(data_dir=data_dir, relay_url=f"{url}/0", relay_lease_s=1.5)
+        viewing = base.model_copy(update={"allowed_origins": [f"http://127.0.0.1:{port}"]})
+
+        async def start() -> None:
+            await stack.enter_async_context(running(viewing, create_app, port))
+            b: Live = await stack.enter_async_context(running(base, create_app))
+            ws = await stack.enter_async_context(station_ws(b, world.s1))
+            await welcomed(ws)
+            streaming = asyncio.create_task(exercising(ws))
+            stack.callback(streaming.cancel)
+
+        try:
+            loop.run(start())
+            yield Apart(f"http://127.0.0.1:{port}", world, f"{url}/0")
+        finally:
+            loop.run(stack.aclose())
+            loop.stop()
+
+
+def open_live(page: Page, apart: Apart, station_id: int) -> None:
+    page.add_init_script("localStorage.setItem('ankle.live.scene', 'off')")  # not tested here
+    page.goto(f"{apart.url}/app/live/{station_id}")
+    if page.get_by_label("Email").count():
+        page.get_by_label("Email").fill("t1@clinic.test")
+        page.get_by_label("Password").fill(PASSWORD)
+        page.get_by_role("button", name="Sign in").click()
+    expect(page).to_have_url(f"{apart.url}/app/live/{station_id}")
+
+
+def test_the_live_page_says_when_the_station_s_server_never_answers(
+    page: Page, apart: Apart
+) -> None:
+    """The spare station is named held by a server process that never answers (as one that
+    died is until its lease runs out): the HOLD ends in TIMEOUT, not "waiting" for good."""
+    station_id = apart.world.s1_spare_id
+    with redis.Redis.from_url(apart.redis_url) as client:
+        client.set(f"ankle:station:{station_id}", "a-process-that-died", px=120_000)
+    open_live(page, apart, station_id)
+    expect(page.locator("#st-link")).to_have_text("station online")
+    page.get_by_role("button", name="HOLD").click()
+    expect(page.locator("#ack")).to_contain_text(
+        "HOLD: no answer, TIMEOUT: the station's server did not answer within 3 s"
+    )
