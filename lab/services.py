@@ -40,13 +40,14 @@ class Redis:
 
 
 @contextmanager
-def spawned_redis(workdir: Path) -> Iterator[Redis]:
-    """A redis-server of its own in ``workdir``, answering PING, until the context ends."""
+def spawned_redis(workdir: Path, port: int | None = None) -> Iterator[Redis]:
+    """A redis-server of its own in ``workdir``, answering PING, until the context ends; on
+    ``port`` (one a stopped one used, to start it again) or a free one."""
     binary = shutil.which("redis-server")
     if binary is None:
         raise ServiceError("redis-server is not installed: apt-get install redis-server (Debian)")
     workdir.mkdir(parents=True, exist_ok=True)
-    port = free_port()
+    port = free_port() if port is None else port
     args = [binary, "--port", str(port), "--bind", "127.0.0.1", "--dir", str(workdir)]
     args += ["--save", "", "--appendonly", "no"]
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)

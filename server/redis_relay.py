@@ -13,6 +13,10 @@ Channels: ``view:<id>`` (events, status, presence, results: ``"<process> <json>"
 Telemetry is published only while another process watches the station: a watcher says so
 to the holder (``watch``), the holder counts the subscribers when it claims a station, and
 stops publishing once a publish reaches nobody.
+
+Redis away, each process goes on with the links it holds. Each kind of call logs once when
+it starts failing and once when it works again, with how much was lost, not at every
+failure (one station's telemetry alone is 25 publishes a second).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import logging
 import os
 import secrets
 import socket
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -55,6 +60,31 @@ for i = 1, #KEYS, 2 do
 end
 return 0
 """
+
+
+class _Outage:
+    """One kind of call to Redis: logged when it starts failing and when it works again,
+    with how many of its messages were lost meanwhile; not at each failure."""
+
+    def __init__(self, what: str, unit: str = "") -> None:
+        self.what = what
+        self.unit = unit
+        self.since: float | None = None
+        self.lost = 0
+
+    def failed(self, exc: Exception, lost: int = 0) -> None:
+        self.lost += lost
+        if self.since is None:
+            self.since = time.monotonic()
+            log.warning("%s failed: %s (not logged again until it works)", self.what, exc)
+
+    def worked(self) -> None:
+        if self.since is None:
+            return
+        took = time.monotonic() - self.since
+        lost = f"; {self.lost} {self.unit} were lost" if self.unit else ""
+        log.warning("%s works again after %.1f s%s", self.what, took, lost)
+        self.since, self.lost = None, 0
 
 
 def _name(kind: str, what: object) -> str:
@@ -87,6 +117,10 @@ class RedisRelay(Relay):
         self._handling: set[asyncio.Task[None]] = set()
         self._release = self.redis.register_script(_RELEASE)
         self._refresh = self.redis.register_script(_REFRESH)
+        self._listening = _Outage("the relay's subscription")
+        self._leases = _Outage("refreshing the relay's leases")
+        self._messages = _Outage("publishing live messages", "messages")
+        self._batches = _Outage("publishing telemetry", "telemetry batches")
 
     # -- life ------------------------------------------------------------------------------
     async def start(self, listener: Listener) -> None:
@@ -154,7 +188,9 @@ class RedisRelay(Relay):
                     await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
                 await self._check_watched()
             except Exception as exc:  # Redis is away: the next beat tries again
-                log.warning("refreshing the relay's leases failed: %s", exc)
+                self._leases.failed(exc)
+            else:
+                self._leases.worked()
 
     async def _check_watched(self) -> None:
         watched = [s for s in self._watching if s not in self._mine]
@@ -244,7 +280,9 @@ class RedisRelay(Relay):
                         pipe.publish(channel, payload)
                     await pipe.execute()
             except Exception as exc:
-                log.warning("publishing %d live message(s) failed: %s", len(batch), exc)
+                self._messages.failed(exc, len(batch))
+            else:
+                self._messages.worked()
             finally:
                 for _ in batch:
                     self._out.task_done()
@@ -263,8 +301,9 @@ class RedisRelay(Relay):
                             pipe.publish(_name("tele", station_id), raw)
                     heard = await pipe.execute()
             except Exception as exc:
-                log.warning("publishing telemetry failed: %s", exc)
+                self._batches.failed(exc, sum(len(raws) for raws in dirty.values()))
                 continue
+            self._batches.worked()
             counts = [heard[i - 1] for i in itertools.accumulate(len(r) for r in dirty.values())]
             for station_id, count in zip(dirty, counts, strict=True):
                 if not count:  # nobody listens any more
@@ -280,9 +319,23 @@ class RedisRelay(Relay):
                         self._dispatch(listener, item["channel"], item["data"])
             except asyncio.CancelledError:
                 raise
-            except Exception as exc:  # the connection dropped: redis-py reconnects on a read
-                log.warning("the relay's subscription failed (%s); listening again", exc)
-                await asyncio.sleep(RETRY_S)
+            except Exception as exc:  # the connection dropped
+                self._listening.failed(exc)
+                await self._listen_again()
+
+    async def _listen_again(self) -> None:
+        """Until the subscription's connection is back (redis-py subscribes it again to every
+        channel it had when it reconnects)."""
+        assert self._pubsub is not None
+        while True:
+            await asyncio.sleep(RETRY_S)
+            try:
+                await self._pubsub.ping()
+            except Exception as exc:
+                self._listening.failed(exc)
+            else:
+                self._listening.worked()
+                return
 
     def _dispatch(self, listener: Listener, channel: str, data: str) -> None:
         kind, _, name = channel[len(PREFIX) :].partition(":")

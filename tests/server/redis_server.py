@@ -20,10 +20,13 @@ from lab.services import free_port as free_port
 
 
 @contextmanager
-def spawned_redis(workdir: Path) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
-    """A redis-server of its own in ``workdir``, answering: the process and its URL."""
+def spawned_redis(
+    workdir: Path, port: int | None = None
+) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
+    """A redis-server of its own in ``workdir`` (on ``port``, or a free one), answering: the
+    process and its URL."""
     try:
-        with services.spawned_redis(workdir) as server:
+        with services.spawned_redis(workdir, port) as server:
             yield server.proc, server.url
     except services.ServiceError as exc:
         pytest.fail(str(exc))

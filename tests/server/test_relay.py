@@ -9,14 +9,17 @@ viewer watches from the other.
 from __future__ import annotations
 
 import asyncio
+import collections
 import json
+import logging
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
-from contextlib import AsyncExitStack, asynccontextmanager
+from contextlib import AsyncExitStack, ExitStack, asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,8 @@ from websockets.asyncio.client import ClientConnection
 
 from server.config import Settings
 from server.hub import COMMAND_TIMEOUT_S, RELAY_SLACK_S
+from server.redis_relay import RedisRelay
+from server.relay import Message
 from sessions import wire
 from sessions.recording import SessionEvent
 from tests.server.live_server import (
@@ -703,3 +708,83 @@ async def test_the_station_s_process_records_an_answer_after_the_asker_gave_up_a
             assert "within 0.5 s" in short["new"]["text"]
         finally:
             beat.cancel()
+
+
+class Heard:
+    """A hub as a relay sees it (``server.relay.Listener``): the batches it was told of."""
+
+    def __init__(self) -> None:
+        self.batches = 0
+
+    def deliver(self, station_id: int, text: str) -> None:
+        return None
+
+    def telemetry_came(self, station_id: int) -> None:
+        self.batches += 1
+
+    def gone(self, station_id: int) -> None:
+        return None
+
+    async def on_message(self, message: Message) -> None:
+        return None
+
+
+async def until(done: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not done():
+        assert time.monotonic() < deadline, what
+        await asyncio.sleep(0.05)
+
+
+@pytest.mark.asyncio
+async def test_a_redis_outage_is_logged_when_it_begins_and_ends_not_per_message(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A station's telemetry is 25 publishes a second: while Redis is away each kind of
+    call logs once that it fails, and once that it works again with how much was lost."""
+    port = free_port()
+    with ExitStack() as first, ExitStack() as again:
+        _, url = first.enter_context(spawned_redis(tmp_path / "redis", port))
+        holder = RedisRelay(f"{url}/0", lease_s=LEASE_S)
+        watcher = RedisRelay(f"{url}/0", lease_s=LEASE_S)
+        heard = Heard()
+        await holder.start(Heard())
+        await watcher.start(heard)
+        raw = wire.TelemetryBatch.model_validate(telemetry(t=1.0)).model_dump_json()
+
+        async def station() -> None:
+            while True:
+                holder.telemetry(1, raw)
+                await asyncio.sleep(0.04)
+
+        feeding = asyncio.create_task(station())
+        try:
+            await holder.claim(1)
+            await watcher.watch(1)
+            await until(lambda: heard.batches > 0, "the watcher heard no telemetry")
+            caplog.set_level(logging.WARNING, logger="ankle.server.relay")
+            caplog.clear()
+
+            def logged(start: str) -> int:
+                return sum(r.getMessage().startswith(start) for r in caplog.records)
+
+            first.close()
+            await until(lambda: logged("publishing telemetry failed") > 0, "nothing logged")
+            sent = heard.batches
+            await asyncio.sleep(1.0)  # about 25 batches that cannot be published
+            again.enter_context(spawned_redis(tmp_path / "redis", port))
+            await until(lambda: logged("publishing telemetry works") > 0, "nothing logged")
+            await until(lambda: heard.batches > sent, "the watcher heard no telemetry again")
+        finally:
+            feeding.cancel()
+            await holder.close()
+            await watcher.close()
+    lines = collections.Counter(r.getMessage().partition(":")[0] for r in caplog.records)
+    assert lines["publishing telemetry failed"] == 1, lines
+    assert lines["the relay's subscription failed"] <= 2, lines  # once by each relay
+    assert lines["refreshing the relay's leases failed"] <= 2, lines
+    (works,) = [
+        r.getMessage() for r in caplog.records if "publishing telemetry works" in r.getMessage()
+    ]
+    lost = re.search(r"; (\d+) telemetry batches were lost", works)
+    assert lost is not None and int(lost[1]) >= 1, works
