@@ -13,7 +13,8 @@ command from a viewer on another process is recorded (its request row) on the vi
 process, which also keeps a timer of its own: if the station's process does not answer
 within ``COMMAND_TIMEOUT_S`` (it died, or the relay lost a message), the viewer's process
 ends the command itself (TIMEOUT, audited), and tells the station's process, which records
-an answer that still comes as late.
+an answer that still comes as late. While this process cannot reach the relay, the viewers
+of stations held elsewhere are told that whether the station is online is not known.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ import itertools
 import json
 import logging
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from fastapi import WebSocket
 from sqlalchemy import select
@@ -69,6 +70,12 @@ LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
     "must_change": (wire.CLOSE_MUST_CHANGE, "change your password first"),
 }
 NO_ACCESS = "you may no longer see this patient"
+RELAY_LOST = "this server has lost its link to the other server processes (the relay is down)"
+"""Told to the viewers of a station held elsewhere while the relay cannot be reached."""
+RELAY_REFUSED = (
+    "this server cannot reach the other server processes (the relay is down), so the command "
+    "could not be sent to the station; try again when the station shows online"
+)
 
 _viewer_keys = itertools.count(1)
 T = TypeVar("T")
@@ -231,6 +238,7 @@ class Hub:
         self._pending: dict[str, InFlight] = {}
         self._late: collections.OrderedDict[str, InFlight] = collections.OrderedDict()
         self._forwarded: dict[str, Forwarded] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
         self.writer = AuditWriter()
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
@@ -411,7 +419,9 @@ class Hub:
         try:
             return await call
         except Exception as exc:
-            log.warning("the relay is unreachable (%s): %s", what, exc)
+            # Once the relay knows it is away, it has said so: not again for each look-up.
+            level = logging.WARNING if self.relay.reachable else logging.DEBUG
+            log.log(level, "the relay is unreachable (%s): %s", what, exc)
             return away
 
     # -- 3D views' tickets ------------------------------------------------------------------
@@ -441,6 +451,8 @@ class Hub:
     async def viewer_joined(self, viewer: Viewer) -> None:
         self.viewers[viewer.station_id].add(viewer)
         await self.watch(viewer.station_id)
+        if not self.relay.reachable and viewer.station_id not in self.stations:
+            viewer.push(wire.Presence(online=False, text=RELAY_LOST).model_dump_json())
 
     async def viewer_left(self, viewer: Viewer) -> None:
         self.viewers[viewer.station_id].discard(viewer)
@@ -473,6 +485,41 @@ class Hub:
     def gone(self, station_id: int) -> None:
         if station_id not in self.stations:
             self.deliver(station_id, wire.Presence(online=False).model_dump_json())
+
+    def back(self, station_id: int) -> None:
+        if station_id not in self.stations:
+            self._soon(self._tell_presence([station_id]))
+
+    def relay_reachable(self, up: bool) -> None:
+        """The relay stopped answering (or answers again): the viewers of stations held
+        elsewhere are told that their presence is not known (or what it is now)."""
+        away = [s for s, viewers in self.viewers.items() if viewers and s not in self.stations]
+        if up:
+            self._soon(self._tell_presence(away))
+            return
+        unknown = wire.Presence(online=False, text=RELAY_LOST).model_dump_json()
+        for station_id in away:
+            self.deliver(station_id, unknown)
+
+    async def _tell_presence(self, station_ids: list[int]) -> None:
+        """Tell the viewers of these stations held elsewhere whether they are online, and
+        the last status of those that are."""
+        held = await self._ask("owners", self.relay.owners(station_ids), None)
+        if held is None:
+            return  # away again: the relay says so
+        for station_id in station_ids:
+            if station_id in self.stations:
+                continue
+            online = station_id in held
+            self.deliver(station_id, wire.Presence(online=online).model_dump_json())
+            status = await self._ask("status", self.relay.last_status(station_id), None)
+            if online and status is not None:
+                self.deliver(station_id, status)
+
+    def _soon(self, work: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.create_task(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     async def on_message(self, message: Message) -> None:
         kind, station_id = message["type"], message.get("station_id")
@@ -523,6 +570,8 @@ class Hub:
         for request_id in list(self._forwarded):
             text = "the server shut down before the station's server answered"
             self._give_up(request_id, "OFFLINE", text)
+        for task in list(self._tasks):
+            task.cancel()
         await self.writer.close(AUDIT_FLUSH_S)
         if self._recheck_task is not None:
             self._recheck_task.cancel()
@@ -541,7 +590,13 @@ class Hub:
         """A viewer's command to its station, wherever the station is connected; ``reply``
         takes a refusal meant for that viewer alone."""
         if asker.station_id not in self.stations:
-            owner = await self._ask("owner", self.relay.owner(asker.station_id), None)
+            try:
+                owner = await self.relay.owner(asker.station_id)
+            except Exception as exc:
+                level = logging.WARNING if self.relay.reachable else logging.DEBUG
+                log.log(level, "the relay is unreachable (command): %s", exc)
+                _refuse(_asked(asker, cmd), reply, self.writer, "OFFLINE", RELAY_REFUSED)
+                return
             if owner is not None and owner != self.relay.process:
                 await self._forward(owner, asker, cmd, reply)
                 return

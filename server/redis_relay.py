@@ -14,9 +14,12 @@ Telemetry is published only while another process watches the station: a watcher
 to the holder (``watch``), the holder counts the subscribers when it claims a station, and
 stops publishing once a publish reaches nobody.
 
-Redis away, each process goes on with the links it holds. Each kind of call logs once when
-it starts failing and once when it works again, with how much was lost, not at every
-failure (one station's telemetry alone is 25 publishes a second).
+Redis away, each process goes on with the links it holds. The first failed call makes the
+relay unreachable for the hub (its viewers of stations held elsewhere are told that their
+presence is not known); the heartbeat, every ``RETRY_S`` meanwhile, makes it reachable
+again once the leases are refreshed and the subscription is heard again. Each kind of call
+logs once when it starts failing and once when it works again, with how much was lost, not
+at every failure (one station's telemetry alone is 25 publishes a second).
 """
 
 from __future__ import annotations
@@ -107,6 +110,9 @@ class RedisRelay(Relay):
         self._dirty: dict[int, list[str]] = {}
         """Batches of this process's watched stations waiting for the next pipeline, in order."""
         self._watching: collections.Counter[int] = collections.Counter()
+        self._unheard: set[int] = set()
+        """Stations watched here whose channels could not be subscribed to (Redis was away):
+        the heartbeat subscribes once it is back."""
         self._holder: dict[int, str | None] = {}
         """The process each station watched here was last seen on."""
         self._recent: dict[int, collections.deque[tuple[int, str]]] = {}
@@ -117,10 +123,17 @@ class RedisRelay(Relay):
         self._handling: set[asyncio.Task[None]] = set()
         self._release = self.redis.register_script(_RELEASE)
         self._refresh = self.redis.register_script(_REFRESH)
+        self.reachable = True
         self._listening = _Outage("the relay's subscription")
         self._leases = _Outage("refreshing the relay's leases")
         self._messages = _Outage("publishing live messages", "messages")
         self._batches = _Outage("publishing telemetry", "telemetry batches")
+
+    def _set_reachable(self, up: bool) -> None:
+        if up != self.reachable:
+            self.reachable = up
+            if self._listener is not None:
+                self._listener.relay_reachable(up)
 
     # -- life ------------------------------------------------------------------------------
     async def start(self, listener: Listener) -> None:
@@ -179,18 +192,27 @@ class RedisRelay(Relay):
         return max(1, round(self.lease_s * 1000))
 
     async def _heartbeat(self) -> None:
-        """Refresh this process's leases; notice watched stations whose process vanished."""
+        """Refresh this process's leases; notice watched stations whose process vanished or
+        came back. While Redis is away, every RETRY_S: the first beat that works makes the
+        relay reachable again."""
         while True:
-            await asyncio.sleep(self.lease_s / 3)
+            beat = self.lease_s / 3
+            await asyncio.sleep(beat if self.reachable else min(beat, RETRY_S))
             try:
                 keys = [k for s in self._mine for k in (_name("station", s), _name("status", s))]
                 if keys:
                     await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
                 await self._check_watched()
+                for station_id in list(self._unheard):
+                    if self._watching[station_id]:
+                        await self._hear(station_id)
             except Exception as exc:  # Redis is away: the next beat tries again
                 self._leases.failed(exc)
+                self._set_reachable(False)
             else:
                 self._leases.worked()
+                if self._listening.since is None:
+                    self._set_reachable(True)
 
     async def _check_watched(self) -> None:
         watched = [s for s in self._watching if s not in self._mine]
@@ -202,6 +224,8 @@ class RedisRelay(Relay):
                 if self._listener is not None:
                     self._listener.gone(station_id)
             elif holder is not None:
+                if self._holder.get(station_id) is None and self._listener is not None:
+                    self._listener.back(station_id)
                 self.send(holder, {"type": "watch", "station_id": station_id})
             self._holder[station_id] = holder
 
@@ -223,16 +247,19 @@ class RedisRelay(Relay):
 
     async def watch(self, station_id: int) -> None:
         self._watching[station_id] += 1
-        if self._watching[station_id] > 1:
-            return
+        if self._watching[station_id] == 1:
+            await self._hear(station_id)
+
+    async def _hear(self, station_id: int) -> None:
+        """Subscribe to a station watched here and tell its holder; if Redis is away, the
+        heartbeat does so once it is back."""
         assert self._pubsub is not None
         try:
             await self._pubsub.subscribe(_name("view", station_id), _name("tele", station_id))
         except Exception:
-            self._watching[station_id] -= 1  # the next watcher tries again
-            if not self._watching[station_id]:
-                del self._watching[station_id]
+            self._unheard.add(station_id)
             raise
+        self._unheard.discard(station_id)
         holder = await self.owner(station_id)
         self._holder[station_id] = holder
         if holder is not None and holder != self.process:
@@ -243,6 +270,7 @@ class RedisRelay(Relay):
         if self._watching[station_id] > 0:
             return
         del self._watching[station_id]
+        self._unheard.discard(station_id)
         self._holder.pop(station_id, None)
         self._recent.pop(station_id, None)
         if self._pubsub is not None:
@@ -281,6 +309,7 @@ class RedisRelay(Relay):
                     await pipe.execute()
             except Exception as exc:
                 self._messages.failed(exc, len(batch))
+                self._set_reachable(False)
             else:
                 self._messages.worked()
             finally:
@@ -302,6 +331,7 @@ class RedisRelay(Relay):
                     heard = await pipe.execute()
             except Exception as exc:
                 self._batches.failed(exc, sum(len(raws) for raws in dirty.values()))
+                self._set_reachable(False)
                 continue
             self._batches.worked()
             counts = [heard[i - 1] for i in itertools.accumulate(len(r) for r in dirty.values())]
@@ -321,6 +351,7 @@ class RedisRelay(Relay):
                 raise
             except Exception as exc:  # the connection dropped
                 self._listening.failed(exc)
+                self._set_reachable(False)
                 await self._listen_again()
 
     async def _listen_again(self) -> None:

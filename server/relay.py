@@ -48,6 +48,14 @@ class Listener(Protocol):
     def gone(self, station_id: int) -> None:
         """A watched station's process stopped holding its lease without saying goodbye."""
 
+    def back(self, station_id: int) -> None:
+        """A watched station is held again by a process, unannounced (its lease came back
+        after the relay was away)."""
+
+    def relay_reachable(self, up: bool) -> None:
+        """The relay stopped answering (False), or answers again (True): meanwhile what this
+        process knows of the others' stations is not known."""
+
     async def on_message(self, message: Message) -> None:
         """A message sent to this process, or to every process."""
 
@@ -57,6 +65,8 @@ class Relay(abc.ABC):
 
     process: str
     """This process's name among the others."""
+    reachable: bool = True
+    """False from the first call that failed until the relay answers again."""
 
     @abc.abstractmethod
     async def start(self, listener: Listener) -> None:

@@ -410,9 +410,17 @@ class Prescriptions(BaseModel):
 
 
 class Presence(BaseModel):
+    """Whether the station is connected to the server, told to its viewers when it changes."""
+
     model_config = _STRICT
     type: Literal["presence"] = "presence"
     online: bool
+    text: str = Field(
+        default="",
+        description="Why the station cannot be reached, when it is not simply that it is not "
+        "connected: its viewer's server cannot reach the station's (online is then false, "
+        "and whether the station is connected is not known).",
+    )
 
 
 StationUp = Annotated[

@@ -1,5 +1,6 @@
-"""The live page on one server process, its station on another: what it shows when the
-station's process never answers a HOLD.
+"""The live page on one server process, its station on another: what it shows when its
+process loses the relay (Redis) and gets it back, and when the station's process never
+answers a HOLD.
 
 The two servers (dashboards on one SQLite file and a real Redis) and a raw station link run
 in an event loop of their own, in a thread: Playwright's sync API holds this thread's.
@@ -12,7 +13,7 @@ import json
 import threading
 import time
 from collections.abc import Coroutine, Iterator
-from contextlib import AsyncExitStack
+from contextlib import AsyncExitStack, ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,6 +23,7 @@ import redis
 from playwright.sync_api import Page, expect
 
 from server.config import Settings
+from server.hub import RELAY_LOST
 from sessions import wire
 from tests.server.live_server import PASSWORD, Live, World, copy_seeded, running, seeded
 from tests.server.redis_server import free_port, spawned_redis
@@ -58,6 +60,9 @@ class Apart:
     url: str
     world: World
     redis_url: str
+    redis_port: int
+    redis: ExitStack
+    """Closed, Redis is stopped; a new one may be entered in its place."""
 
 
 async def exercising(ws: Any) -> None:
@@ -86,10 +91,11 @@ async def exercising(ws: Any) -> None:
 def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
     world = seeded[1]
     data_dir = copy_seeded(seeded[0], tmp_path / "data")
-    port = free_port()
+    redis_port, port = free_port(), free_port()
     loop = Loop()
     stack = AsyncExitStack()
-    with spawned_redis(tmp_path / "redis") as (_, url):
+    with ExitStack() as first:
+        _, url = first.enter_context(spawned_redis(tmp_path / "redis", redis_port))
         base = Settings(data_dir=data_dir, relay_url=f"{url}/0", relay_lease_s=1.5)
         viewing = base.model_copy(update={"allowed_origins": [f"http://127.0.0.1:{port}"]})
 
@@ -103,7 +109,7 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
 
         try:
             loop.run(start())
-            yield Apart(f"http://127.0.0.1:{port}", world, f"{url}/0")
+            yield Apart(f"http://127.0.0.1:{port}", world, f"{url}/0", redis_port, first)
         finally:
             loop.run(stack.aclose())
             loop.stop()
@@ -117,6 +123,27 @@ def open_live(page: Page, apart: Apart, station_id: int) -> None:
         page.get_by_label("Password").fill(PASSWORD)
         page.get_by_role("button", name="Sign in").click()
     expect(page).to_have_url(f"{apart.url}/app/live/{station_id}")
+
+
+def test_the_live_page_says_when_its_server_lost_the_station_s_server(
+    page: Page, apart: Apart, tmp_path: Path
+) -> None:
+    open_live(page, apart, apart.world.s1_id)
+    expect(page.locator("#st-link")).to_have_text("station online")
+    expect(page.locator("#st-doing")).to_have_text("exercising")
+    expect(page.locator("#st-mode")).to_have_text("ACTIVE")
+
+    apart.redis.close()  # Redis gone: this page's server cannot reach the station's
+    expect(page.locator("#st-link")).to_have_text("station not reachable")
+    expect(page.locator("#st-doing")).to_have_text(f"unknown: {RELAY_LOST}")
+    expect(page.locator("#st-mode")).to_have_text("–")
+    page.get_by_role("button", name="HOLD").click()
+    expect(page.locator("#ack")).to_contain_text("HOLD: refused, OFFLINE: this server cannot")
+
+    apart.redis.enter_context(spawned_redis(tmp_path / "redis", apart.redis_port))
+    expect(page.locator("#st-link")).to_have_text("station online")
+    expect(page.locator("#st-doing")).to_have_text("exercising")
+    expect(page.locator("#st-mode")).to_have_text("ACTIVE")
 
 
 def test_the_live_page_says_when_the_station_s_server_never_answers(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import json
 import logging
 import os
@@ -30,7 +31,7 @@ import redis.asyncio as aioredis
 from websockets.asyncio.client import ClientConnection
 
 from server.config import Settings
-from server.hub import COMMAND_TIMEOUT_S, RELAY_SLACK_S
+from server.hub import COMMAND_TIMEOUT_S, RELAY_LOST, RELAY_REFUSED, RELAY_SLACK_S
 from server.redis_relay import RedisRelay
 from server.relay import Message
 from sessions import wire
@@ -710,6 +711,67 @@ async def test_the_station_s_process_records_an_answer_after_the_asker_gave_up_a
             beat.cancel()
 
 
+@pytest.mark.asyncio
+async def test_while_the_relay_is_away_the_other_process_s_viewers_are_told_it_is_unknown(
+    seeded: tuple[Path, World], tmp_path: Path
+) -> None:
+    """Redis dies: A cannot tell whether B's station is online, and says so to its viewer
+    (not "online" with frozen values), and refuses a command saying why; B's own viewer
+    is told nothing. Redis back, A's viewer is told the station is online, and its
+    telemetry comes again."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    port = free_port()
+    with ExitStack() as first, ExitStack() as again:
+        proc, url = first.enter_context(spawned_redis(tmp_path / "redis", port))
+        relayed = settings(data_dir, f"{url}/0")
+        async with (
+            running(relayed) as a,
+            running(relayed) as b,
+            station_ws(b, world.s1) as station,
+            viewer_ws(a, world.t1, world.s1_id) as view,
+            viewer_ws(b, world.t1, world.s1_id) as near,
+        ):
+            await welcomed(station)
+            await next_where(view, lambda m: isinstance(m, wire.Presence) and m.online)
+            streaming = asyncio.create_task(stream(station, t=3.0))
+            beats = [asyncio.create_task(_beat(ws)) for ws in (view, near)]
+            try:
+                await next_where(view, is_(wire.TelemetryBatch))
+                proc.kill()
+                proc.wait(10)
+                unknown = await next_where(
+                    view, lambda m: isinstance(m, wire.Presence) and not m.online
+                )
+                assert unknown.text == RELAY_LOST
+                await view.send(command("kb-away"))
+                refused = await next_where(view, result_of("kb-away"))
+                assert (refused.ok, refused.code, refused.text) == (False, "OFFLINE", RELAY_REFUSED)
+
+                first.close()
+                again.enter_context(spawned_redis(tmp_path / "redis", port))
+                back = await next_where(view, lambda m: isinstance(m, wire.Presence) and m.online)
+                assert back.text == ""
+                # Heard again: telemetry sent from now on reaches A's viewer.
+                streaming.cancel()
+                streaming = asyncio.create_task(stream(station, t=4.0))
+                await next_where(
+                    view, lambda m: isinstance(m, wire.TelemetryBatch) and m.newest().t == 4.0
+                )
+            finally:
+                streaming.cancel()
+                for task in beats:
+                    task.cancel()
+            # B's viewer, beside the station, was never told it went away.
+            told: list[Any] = []
+            with contextlib.suppress(TimeoutError):
+                while True:
+                    told.append(
+                        wire.VIEWER_DOWN.validate_json(await asyncio.wait_for(near.recv(), 0.2))
+                    )
+            assert not [m for m in told if isinstance(m, wire.Presence) and not m.online]
+
+
 class Heard:
     """A hub as a relay sees it (``server.relay.Listener``): the batches it was told of."""
 
@@ -723,6 +785,12 @@ class Heard:
         self.batches += 1
 
     def gone(self, station_id: int) -> None:
+        return None
+
+    def back(self, station_id: int) -> None:
+        return None
+
+    def relay_reachable(self, up: bool) -> None:
         return None
 
     async def on_message(self, message: Message) -> None:

@@ -16,6 +16,7 @@ const WINDOW_S = 10;
 const $ = (id) => document.getElementById(id);
 const state = {
   online: false,
+  unreachable: "", // why the server cannot tell whether the station is online (the relay is down)
   status: null,
   prescriptions: [],
   activeAxes: AXES,
@@ -134,7 +135,19 @@ function showLink() {
   const badge = $("st-link");
   if (!linkOpen) setBadge(badge, "server connection lost", "bad");
   else if (state.online) setBadge(badge, "station online", "online");
+  else if (state.unreachable) setBadge(badge, "station not reachable", "bad");
   else setBadge(badge, "station offline", "offline");
+  if (!linkOpen) return;
+  if (!state.online) showUnknown();
+  else if (!state.status) $("st-doing").textContent = "–"; // online, no status yet
+}
+
+// Offline or out of reach, the last status and sample are not what the patient is doing now:
+// say so rather than show "exercising" and "ACTIVE" for a station nobody hears.
+function showUnknown() {
+  $("st-doing").textContent = `unknown: ${state.unreachable || "the station is not connected"}`;
+  showMode("");
+  for (const id of ["st-pose", "st-torque"]) $(id).textContent = "–";
 }
 
 function showMode(mode) {
@@ -201,6 +214,7 @@ function showStatus(s) {
   showMode(s.device_mode);
   showWhy();
   $("st-doing").textContent = doing(s);
+  if (linkOpen && !state.online) showUnknown();
   $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
   $("st-phase").textContent = s.phase;
   $("st-device-mode").textContent = s.device_mode || "–";
@@ -233,7 +247,8 @@ let numbersAt = 0;
 function showNewest() {
   const m = state.lastTelemetry;
   const now = performance.now();
-  if (!m || now - numbersAt < NUMBERS_EVERY_MS) return;
+  // Offline, the newest sample is an old one: the status card says the state is unknown.
+  if (!m || !state.online || now - numbersAt < NUMBERS_EVERY_MS) return;
   numbersAt = now;
   showMode(m.mode);
   $("st-pose").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.pose[AXIS_INDEX[a]] * RAD2DEG, 1)}°`).join(" · ");
@@ -440,12 +455,15 @@ function onMessage(m) {
       break;
     case "welcome":
       state.online = m.online;
+      state.unreachable = "";
       if (m.status) showStatus(m.status);
       showLink();
       break;
     case "presence":
       state.online = m.online;
+      state.unreachable = m.online ? "" : m.text || "";
       showLink();
+      if (m.online && state.status) showStatus(state.status);
       break;
     case "event":
       addEvent(m);
