@@ -159,15 +159,16 @@ class ModeMachine:
             self._set_mode(DeviceMode.IDLE, f"{why}: homing stopped", kind=kind, value=value)
 
     def estop(self) -> None:
+        # The e-stop is the trip (none latched before it): ctl.bleed then holds a chamber
+        # the air checks named from the next tick, which the event says.
+        chamber = self.rig.service_chamber if self.rig.trip == Trip.NONE else -1
         self.rig.estop()
         self.rig.set_vent(False)
         self._end_segment()
         self.homed = False
         if self.mode != DeviceMode.ESTOP:
             text = "emergency stop"
-            chamber = self.rig.service_chamber
-            if chamber >= 0 and self.mode != DeviceMode.FAULT:
-                # ctl.bleed holds it from the next tick: every valve closed would let it run.
+            if chamber >= 0:
                 part = where(Trip.AIR_BALANCE, chamber)
                 text += f"; {part} held by its own valves (a leak or a stuck valve: service)"
             self._set_mode(DeviceMode.ESTOP, text, kind=EventKind.ESTOP, code=Trip.ESTOP)
