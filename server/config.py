@@ -245,7 +245,10 @@ class Settings(BaseSettings):
     def _relay(cls, value: str) -> str:
         scheme = urlsplit(value).scheme.lower()
         if value and scheme not in ("redis", "rediss", "unix"):
-            raise ValueError(f"{value!r} is not a relay: use redis://host:port/db, or nothing")
+            # The scheme alone: the URL may hold a password, and this reaches the log.
+            raise ValueError(
+                f"{scheme or 'no'} scheme is not a relay: use redis://host:port/db, or nothing"
+            )
         return value
 
     @model_validator(mode="before")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from server.config import Settings
+from server.config import Settings, SettingsError, load_settings
 
 
 def test_defaults_follow_data_dir_and_port(tmp_path: Path) -> None:
@@ -75,6 +75,11 @@ def test_the_relay_is_redis_or_nothing() -> None:
     with pytest.raises(ValueError, match="relay_url") as refused:
         Settings(relay_url="http://cache:6379")
     assert "redis://host:port/db" in str(refused.value)
+    # The line reaches the log: the scheme is named, the URL and its password are not.
+    with pytest.raises(SettingsError) as refused_line:
+        load_settings(relay_url="https://ops:s3cret@cache:6379/0")
+    assert str(refused_line.value).startswith("ANKLE_RELAY_URL: https scheme is not a relay")
+    assert "s3cret" not in str(refused_line.value)
     with pytest.raises(ValueError, match="relay_lease_s"):
         Settings(relay_lease_s=0)
 
