@@ -395,3 +395,9 @@ class HealthPublic(BaseModel):
     database: bool = Field(description="The database answered a query.")
     disk_free_bytes: int = Field(description="Free space where the data directory is, bytes.")
     disk_ok: bool = Field(description="At least the configured minimum of it is free.")
+    audit_backlog: int = Field(
+        default=0,
+        description="Live audit rows waiting for the database (a HOLD or Stop never waits "
+        "for it): written in order once it answers, 0 normally. Not a reason for a restart: "
+        "they are held in this process's memory.",
+    )

@@ -36,7 +36,9 @@ async def health(db: Db, request: Request, response: Response) -> HealthPublic:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
     if not database:
         response.headers["Retry-After"] = str(RETRY_AFTER_S)
+    hub = getattr(request.app.state, "hub", None)
     return HealthPublic(
+        audit_backlog=hub.writer.backlog if hub is not None else 0,
         status="ok" if database and disk else "degraded",
         version=server_version(),
         database=database,

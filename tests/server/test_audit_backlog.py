@@ -158,7 +158,11 @@ async def test_a_hold_sent_while_postgresql_is_stopped_is_audited_once_it_is_bac
                 lambda: any(r.name == "ankle.server.audit" for r in caplog.records),
                 "the writer has found the database away",
             )
+            health = (await live.client.get("/health")).json()
+            assert (health["database"], health["audit_backlog"]) == (False, 2), health
         rows = await rows_of(live, world, "hold-pg-away", 2)
+        health = (await live.client.get("/health")).json()
+        assert (health["database"], health["audit_backlog"]) == (True, 0), health
     assert [r["action"] for r in rows] == ["hold.request", "hold.accepted"]
     assert rows[0]["actor"] == f"user:{world.t1_id}"
 
