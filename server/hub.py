@@ -654,13 +654,10 @@ class Hub:
             return
         if entry.timer is not None:
             entry.timer.cancel()
-        result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
-        self.writer.write_soon(entry.asked.outcome_row("unanswered", result))
-        station_id = entry.asked.station_id
-        self.broadcast(station_id, result.model_dump_json())
+        self._end_unanswered(entry.asked, code, text)
         gave_up = {
             "type": "gave_up",
-            "station_id": station_id,
+            "station_id": entry.asked.station_id,
             "request_id": request_id,
             "from": self.relay.process,
         }
@@ -784,11 +781,17 @@ class Hub:
             metrics.command_answered(request_id, code)
             if entry.timer is not None:
                 entry.timer.cancel()
-            result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
-            self.writer.write_soon(entry.asked.outcome_row("unanswered", result))
-            self.broadcast(entry.asked.station_id, result.model_dump_json())
+            self._end_unanswered(entry.asked, code, text)
             self._tell_asker(entry)
         return entry
+
+    def _end_unanswered(self, asked: live_audit.Asked, code: str, text: str) -> None:
+        """A command ends with no answer from the station: its viewers are told, and it is
+        audited as unanswered."""
+        request_id = asked.command.request_id
+        result = wire.CommandResult(request_id=request_id, ok=False, code=code, text=text)
+        self.writer.write_soon(asked.outcome_row("unanswered", result))
+        self.broadcast(asked.station_id, result.model_dump_json())
 
     def _tell_asker(self, entry: InFlight) -> None:
         """A command forwarded from another process has its outcome: that process stops
