@@ -198,6 +198,14 @@ def plant_config(args: argparse.Namespace, patient: str = "relaxed") -> Any:
     return base.changed(tuple(getattr(args, "plant", ())))
 
 
+def _fault_words(fault: Any) -> str:
+    """``fault`` for the person who asked for it: when, and the part in the numbering the
+    device's events use (from 1), beside the channel as ``--fault`` counts it (from 0)."""
+    from device.plant.faults import describe
+
+    return str(describe(fault))
+
+
 def fault_spec(text: str) -> Any:
     """argparse type of ``--fault``: a :class:`device.plant.faults.Fault`."""
     from device.plant.faults import parse_fault
@@ -299,6 +307,7 @@ def _device(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return USAGE_ERROR
+        print(f"ankle device: fault to inject {_fault_words(fault)}")
     if args.uncalibrated:
         print("ankle device: uncalibrated (--uncalibrated): sensor zeros are not subtracted")
     else:
@@ -369,6 +378,7 @@ def _identify(args: argparse.Namespace) -> int:
             hardware.close()
             print(f"error: {exc}", file=sys.stderr)
             return USAGE_ERROR
+        print(f"ankle device: fault to inject {_fault_words(fault)}")
     print("ankle device: identifying the unit; nobody may stand on the plate...", flush=True)
     try:
         calibration = identify(hardware)

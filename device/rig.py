@@ -55,6 +55,9 @@ class Rig:
         self.state = ctl.new_state(geometry)
         self._log: list[NDArray[np.float64]] = []
         self._hardware_loop: tickloop.HardwareLoop | None = None
+        self.tripped_at: float | None = None
+        """When the latched trip struck (s, the log's simulated clock): the first logged row
+        that shows it, in a run that began untripped; None if none, or not logged then."""
 
     def _on_hardware(self) -> tickloop.HardwareLoop:
         """The Python loop for hardware that is not the simulation, resolved once."""
@@ -71,6 +74,7 @@ class Rig:
     def run(self, seconds: float, log_hz: float = 1000.0) -> NDArray[np.float64]:
         """Advance by ``seconds``; returns the log rows taken (also kept in :attr:`log`)."""
         n = round(seconds * TICK_HZ)
+        untripped = self.trip == Trip.NONE
         decimation = max(1, round(TICK_HZ / log_hz)) if log_hz > 0 else 0
         rows = np.zeros((n // decimation + 1 if decimation else 0, tickloop.N_LOG))
         if isinstance(self.hardware, SimulatedHardware):
@@ -81,6 +85,10 @@ class Rig:
             self._on_hardware().run(self.hardware, n)
             rows = rows[:0]
         self._log.append(rows)
+        if untripped and rows.shape[0]:
+            hit = np.flatnonzero(rows[:, tickloop.COL["trip"]])
+            if hit.size:
+                self.tripped_at = float(rows[hit[0], tickloop.COL["t"]])
         return rows
 
     def compile(self) -> None:
@@ -344,6 +352,7 @@ class Rig:
         s = self.state
         s.istate[ctl.I_TRIP] = 0
         s.istate[ctl.I_TRIP_CHANNEL] = -1
+        self.tripped_at = None
         s.istate[ctl.I_BLEED] = -1
         s.istate[ctl.I_RELEASE_STOP] = 0
         s.trip_air[:] = np.nan

@@ -340,7 +340,15 @@ def _health(h: Any) -> dict[str, Any]:
         "valid": h.valid,
         "invalid_reason": h.reason,
         "warning": h.warning,
+        "faults": [f.as_json() for f in h.faults],
     }
+
+
+def _fault_lines(outcomes: Sequence[Any]) -> str:
+    """One line a fault injected with ``--fault``, in the device's numbering, and its fate:
+    a user who injected leg 2 (``:2``) reads which leg the device calls it, and whether and
+    how soon it noticed (nothing at all in the result otherwise)."""
+    return "".join(f"\nfault {o.words()}" for o in outcomes)
 
 
 def _nulled(data: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]:
@@ -504,11 +512,16 @@ def _experiment(args: argparse.Namespace) -> int:
         try:
             return _run_experiment(args)
         except ex.TrippedBeforeMeasurement as exc:
+            health = ex.Health(
+                True, exc.trip, None, (), False, str(exc), part=exc.part, faults=exc.faults
+            )
             if args.json:
-                health = ex.Health(True, exc.trip, None, (), False, str(exc), part=exc.part)
-                print(json.dumps(_health(health) | {"plant": choice.describe()}))
+                print(json.dumps(_jsonable(_health(health) | {"plant": choice.describe()})))
             else:
-                print(f"INVALID: {exc} (on {choice.describe()}); no measurement")
+                print(
+                    f"INVALID: {exc} (on {choice.describe()}); no measurement"
+                    + _fault_lines(health.faults)
+                )
             return INVALID
 
 
@@ -740,10 +753,14 @@ def _run_experiment(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(_jsonable(_nulled(data, measured) | _health(health))))
         else:
-            print(invalid_text or f"INVALID: {health.words()} ({what}); no measurement")
+            print(
+                (invalid_text or f"INVALID: {health.words()} ({what}); no measurement")
+                + _fault_lines(health.faults)
+            )
         return INVALID
     if health.words() and args.experiment != "sweep":
         text += f" [{health.words()}]"
+    text += _fault_lines(health.faults)
     print(json.dumps(_jsonable(data | _health(health))) if args.json else text)
     if getattr(args, "csv", None) and trace is not None:
         _write_csv(args.csv, trace[0], trace[1])

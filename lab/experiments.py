@@ -44,7 +44,7 @@ from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
 from device.identify import identify_simulated
-from device.plant.faults import Fault
+from device.plant.faults import Fault, describe, format_fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig, draw_plant
 from device.rig import AxisTarget, CommandError, Rig, leg_index
@@ -115,6 +115,9 @@ class Health:
     part: str | None = None
     """The part the trip names, in a technician's words ("supply transducer", "force along
     z"; device.trips.where), None if it names none or the device did not trip."""
+    faults: tuple[FaultOutcome, ...] = ()
+    """What became of each fault injected into the run (``--fault``): struck or not, and
+    what the device did about it."""
 
     def words(self) -> str:
         """What happened, for a person: empty when nothing did."""
@@ -140,6 +143,75 @@ class Health:
         if not parts and self.reason:
             parts.append(self.reason)  # invalid for a reason of the experiment's own
         return "; ".join(parts)
+
+
+@dataclass(frozen=True)
+class FaultOutcome:
+    """One injected fault and what the device did about it (:func:`fault_outcomes`)."""
+
+    fault: Fault
+    struck: bool
+    """Its time came before the run ended."""
+    noticed: str | None
+    """What the device did once it struck, in words ("tripped LEG_SENSOR (leg 3)", "asked
+    for service: ..."); None if nothing, or only before it struck."""
+    noticed_ms: float | None
+    """How long after it struck the device tripped (ms); None when not known (a warning, or
+    a trip the run's log does not cover) or when nothing was noticed."""
+    before: bool = False
+    """The device had tripped before the fault struck: nothing after it can be told."""
+    run_end_s: float = 0.0
+    """When the run ended (s of simulated time, the settle at home included)."""
+
+    def words(self) -> str:
+        """One line for a person: the fault in the device's own numbering, then its fate."""
+        said = describe(self.fault)
+        if not self.struck:
+            return f"{said}: never struck (the run ended at {self.run_end_s:.2f} s)"
+        if self.before:
+            return f"{said}: struck after the device had already tripped"
+        if self.noticed is None:
+            return f"{said}: struck; the device noticed nothing"
+        after = (
+            f" ({self.noticed_ms:.0f} ms after it struck)" if self.noticed_ms is not None else ""
+        )
+        return f"{said}: struck; the device then {self.noticed}{after}"
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "fault": format_fault(self.fault),
+            "words": describe(self.fault),
+            "struck": self.struck,
+            "noticed": self.noticed,
+            "noticed_ms": self.noticed_ms,
+            "after_trip": self.before,
+        }
+
+
+def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
+    """What became of each injected fault (:func:`injected`) in ``rig``'s run: whether it
+    struck, and what the device then did (its warning, then its trip, timed from the fault
+    where the run's log shows when it tripped: :attr:`Rig.tripped_at`)."""
+    trip, end, trip_at_s = rig.trip, rig.time, rig.tripped_at
+    said = []
+    warning = device_warning(rig)
+    if warning is not None:
+        said.append(warning.removeprefix("the device "))
+    if trip != Trip.NONE:
+        named = trips.where(trip, rig.trip_channel)
+        said.append(f"tripped {trip.name}" + (f" ({named})" if named else ""))
+    notice = "; then ".join(said) or None
+    out = []
+    for f in _FAULTS:
+        struck = f.time <= end
+        before = trip != Trip.NONE and trip_at_s is not None and trip_at_s < f.time
+        after = None
+        if trip != Trip.NONE and trip_at_s is not None and not before:
+            after = (trip_at_s - f.time) * 1e3
+        out.append(
+            FaultOutcome(f, struck, notice if struck and not before else None, after, before, end)
+        )
+    return tuple(out)
 
 
 class Checked:
@@ -196,11 +268,11 @@ def assess(
     """
     trip = rig.trip
     tripped = trip != Trip.NONE
-    trip_time = None
+    trip_in_window = None
     if tripped and log.shape[0]:
         hit = np.nonzero(log[:, COL["trip"]] != 0)[0]
         if hit.size and hit[0] > 0:  # a trip already latched at the first row came before
-            trip_time = float(log[hit[0], 0] - log[0, 0])
+            trip_in_window = float(log[hit[0], 0] - log[0, 0])
     saturated: list[str] = []
     task = log[:, COL["mode"]] == int(Mode.TASK)
     rom = trip == Trip.RANGE_OF_MOTION
@@ -238,12 +310,13 @@ def assess(
     return Health(
         tripped,
         trip.name if tripped else None,
-        trip_time,
+        trip_in_window,
         tuple(saturated),
         reason is None,
         reason,
         warning,
         (trips.where(trip, rig.trip_channel) or None) if tripped else None,
+        fault_outcomes(rig),
     )
 
 
@@ -387,11 +460,18 @@ class TrippedBeforeMeasurement(RuntimeError):
     """The device tripped while it was being put in place for an experiment (e.g. holding
     at home): there is no measurement, and no command could have been refused for it."""
 
-    def __init__(self, trip: str, where: str, part: str | None = None) -> None:
+    def __init__(
+        self,
+        trip: str,
+        where: str,
+        part: str | None = None,
+        faults: tuple[FaultOutcome, ...] = (),
+    ) -> None:
         named = f" ({part})" if part else ""
         super().__init__(f"tripped {trip}{named} {where}, before the measurement")
         self.trip = trip
         self.part = part
+        self.faults = faults
 
 
 def _settle_at_home(rig: Rig) -> None:
@@ -399,7 +479,8 @@ def _settle_at_home(rig: Rig) -> None:
     rig.run(SETTLE_S)
     if rig.trip != Trip.NONE:
         part = trips.where(rig.trip, rig.trip_channel) or None
-        raise TrippedBeforeMeasurement(rig.trip.name, "while settling at home", part)
+        faults = fault_outcomes(rig)
+        raise TrippedBeforeMeasurement(rig.trip.name, "while settling at home", part, faults)
     rig.clear_log()
 
 

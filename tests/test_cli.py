@@ -310,9 +310,45 @@ def test_a_fault_timed_after_the_run_ends_makes_it_invalid_not_a_healthy_figure(
     assert data["invalid_reason"].startswith("the leg_stuck fault at 3 s never struck"), data
     r = ankle("sim", "step", "--fault", "leg_stuck@3:2")
     assert r.returncode == 1 and "never struck: the run ended at 1.50 s" in r.stdout, r.stdout
+    assert "fault at 3 s, channel 2, the length sensor of leg 3: stuck at its reading: never" in (
+        r.stdout
+    )
     # Within the run it strikes: whatever it does, it is not reported as never struck.
     r = ankle("sim", "step", "--fault", "leg_stuck@0.7:2", "--json")
     assert "never struck" not in r.stdout and r.returncode in (0, 1), r.stdout
+
+
+def test_each_injected_fault_is_said_in_the_devices_numbering_with_what_became_of_it() -> None:
+    # ``--fault`` counts a leg from 0, the device's events and ``--leg`` from 1: the result
+    # says which leg the fault struck as the device names it, and what the device did.
+    r = ankle("sim", "step", "--leg", "2", "--mm", "5", "--fault", "leg_stuck@0.51:1")
+    assert r.returncode == 1, r.stderr
+    line = r.stdout.splitlines()[-1]
+    assert line.startswith("fault at 0.51 s, channel 1, the length sensor of leg 2: stuck"), line
+    assert "then tripped LEG_SENSOR (leg 2) (" in line and "ms after it struck)" in line, line
+    r = ankle("sim", "step", "--leg", "2", "--mm", "5", "--fault", "leg_stuck@0.51:1", "--json")
+    (fault,) = json.loads(r.stdout)["faults"]
+    assert fault["fault"] == "leg_stuck@0.51:1" and fault["struck"] is True, fault
+    assert "LEG_SENSOR (leg 2)" in fault["noticed"] and 0 < fault["noticed_ms"] < 500, fault
+    # One the device cannot notice (two counts of a leg sensor): the run measures, and says so.
+    r = ankle("sim", "step", "--fault", "leg_offset@0.6:2=0.05", "--json")
+    data = json.loads(r.stdout)
+    assert r.returncode == 0 and data["valid"] is True, r.stdout
+    assert data["faults"] == [
+        {
+            "fault": "leg_offset@0.6:2=0.05",
+            "words": "at 0.6 s, channel 2, the length sensor of leg 3: offset by +0.05 mm",
+            "struck": True,
+            "noticed": None,
+            "noticed_ms": None,
+            "after_trip": False,
+        }
+    ]
+    r = ankle("sim", "step", "--fault", "leg_offset@0.6:2=0.05")
+    assert r.stdout.splitlines()[-1].endswith("struck; the device noticed nothing"), r.stdout
+    # A fault before the settle's end trips while settling: timed from the fault as well.
+    r = ankle("sim", "step", "--fault", "ft_offset@0.2:4=3")
+    assert "offset by +3 N m: struck; the device then tripped FORCE_SENSOR" in r.stdout, r.stdout
 
 
 def test_a_run_that_trips_before_the_measurement_is_invalid_not_refused() -> None:
@@ -339,6 +375,11 @@ def test_identifying_a_simulated_unit_with_a_fault_refuses_it_by_its_part(
     assert len(lines) == 1 and "identification failed" in lines[0], r.stderr
     assert "chamber 6 (leg 3, rod side) lost" in lines[0] and "leak" in lines[0], r.stderr
     assert not path.exists()
+    # What was asked for, in the device's numbering, before anything runs.
+    assert (
+        "ankle device: fault to inject at 0 s, channel 5, chamber 6 (leg 3, rod side): leaks"
+        in r.stdout
+    ), r.stdout
 
 
 def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(

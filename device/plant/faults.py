@@ -299,7 +299,7 @@ _WHAT: dict[FaultKind, str] = {
     FaultKind.LEG_NOISE: "{v:g} mm rms of extra noise",
     FaultKind.FT_DEAD: "dead: reads zero",
     FaultKind.FT_SATURATED: "saturated: reads full scale",
-    FaultKind.FT_OFFSET: "offset by {v:+g} (N or N m)",
+    FaultKind.FT_OFFSET: "offset by {v:+g} {unit}",
     FaultKind.VALVE_STUCK_OPEN: "armature stuck open",
     FaultKind.VALVE_STUCK_CLOSED: "armature stuck closed",
     FaultKind.CHAMBER_LEAK: "leaks to atmosphere ({v:g} of a valve's conductance)",
@@ -311,5 +311,7 @@ def describe(fault: Fault) -> str:
     when = f"at {fault.time:g} s"
     if math.isfinite(fault.duration):
         when = f"from {fault.time:g} s for {fault.duration:g} s"
-    what = _WHAT[fault.kind].format(v=fault.value)
+    # An offset on every channel at once is in N on the forces and N m on the torques.
+    unit = {-1: "N or N m"}.get(fault.channel, "N" if fault.channel < 3 else "N m")
+    what = _WHAT[fault.kind].format(v=fault.value, unit=unit)
     return f"{when}, {_channel_words(fault)}: {what}"
