@@ -27,7 +27,13 @@ from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import PrescriptionItem
 from station.config import StationConfig
 from station.progress import ProgressWatch
-from station.reasons import Reasons, ends_at, patient_resume_refusal, supply_notice
+from station.reasons import (
+    Reasons,
+    ends_at,
+    patient_resume_refusal,
+    supply_is_low,
+    supply_notice,
+)
 from station.server_link import ServerLink
 from station.spool import Spool
 from station.timeline import ExerciseRun, segment_for
@@ -502,6 +508,12 @@ class Station:
     def online(self) -> bool:
         """Whether the server is reachable now (sessions upload later when it is not)."""
         return self.link.connected.is_set()
+
+    @property
+    def supply_low(self) -> bool:
+        """Whether the device says its air supply is low now (what the status's message
+        tells, from the same telemetry): the patient's page shows it on its platform light."""
+        return supply_is_low(self.dev.latest if self.dev is not None else None)
 
     # -- status --------------------------------------------------------------------------
     def _hello(self) -> wire.StationHello:

@@ -63,10 +63,16 @@ def ends_at(hold: HoldInfo, began: float, limit_s: float) -> float:
     return max(hold.since, began) + limit_s
 
 
+def supply_is_low(latest: msg.Telemetry | None) -> bool:
+    """Whether the device says its air supply is low (the telemetry's SUPPLY_LOW flag, in any
+    mode); False before any telemetry."""
+    return latest is not None and bool(latest.flags & msg.TelemetryFlags.SUPPLY_LOW)
+
+
 def supply_notice(latest: msg.Telemetry | None) -> str:
     """What to tell the patient and the therapist while the device says its air supply is
-    low (the telemetry's SUPPLY_LOW flag), ``""`` otherwise: nothing can start until then."""
-    if latest is None or not latest.flags & msg.TelemetryFlags.SUPPLY_LOW:
+    low (:func:`supply_is_low`), ``""`` otherwise: nothing can start until then."""
+    if latest is None or not supply_is_low(latest):
         return ""
     return (
         f"the platform's air supply is low ({latest.supply / 1e5:.1f} bar): check that the "

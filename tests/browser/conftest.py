@@ -23,9 +23,19 @@ from playwright.sync_api import (
 )
 
 from tests.server.redis_server import redis_server, relay_url
-from tests.system.harness import stack, system
+from tests.system.harness import device_args, stack, system
 
-__all__ = ["browser", "context", "page", "redis_server", "relay_url", "shots", "stack", "system"]
+__all__ = [
+    "browser",
+    "context",
+    "device_args",
+    "page",
+    "redis_server",
+    "relay_url",
+    "shots",
+    "stack",
+    "system",
+]
 
 ROOT = Path(__file__).resolve().parents[2]
 WAIT_MS = 15_000

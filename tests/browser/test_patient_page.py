@@ -278,3 +278,27 @@ def test_start_the_game_and_stop_are_in_view_on_every_screen(
     expect(todo).to_have_text(
         "The exercise was stopped. You can start again when you are ready.", timeout=MINUTE_MS
     )
+
+
+SUPPLY_LOW_WORDS = "The platform's air supply is low: check that the compressor is on"
+
+
+@pytest.mark.parametrize("device_args", [("--fault", "supply_droop@0")], ids=["compressor-off"])
+def test_a_low_air_supply_is_on_the_platform_light_not_ready(
+    system: System, page: Page, shots: Path
+) -> None:
+    """The compressor is off from the start (the regulator sags to 3.5 bar, under the
+    device's low mark): the platform's light warns of it instead of "ready", agreeing with
+    the station's notice under it, and still does after the start it refuses."""
+    system.start_station()
+    wait_for_page(system)
+    page.goto(system.page_url)
+    platform = page.locator("#platform")
+    expect(platform).to_have_text(SUPPLY_LOW_WORDS, timeout=MINUTE_MS)
+    expect(platform).to_have_attribute("data-level", "warn")
+    expect(page.locator("#message")).to_contain_text("air supply is low")
+    page.screenshot(path=shots / "patient-supply-low.png")
+
+    page.locator("button.start").first.click()  # the demo's own prescription
+    expect(page.locator("#feedback")).to_contain_text("air supply is low")
+    expect(platform).to_have_text(SUPPLY_LOW_WORDS)

@@ -428,19 +428,23 @@ async def test_a_supply_lost_at_rest_is_told_and_forgotten_once_it_is_back(
     home: Home, plant: SimulatedHardware
 ) -> None:
     """The compressor is off before any exercise: the device flags its low supply, and the
-    page's status says so in words the patient can act on; a start is refused; once the
-    air is back the notice goes."""
+    page's status says so in words the patient can act on, and flags it for the platform's
+    light; a start is refused; once the air is back the notice and the flag go."""
     ws = await home.page()
     try:
-        await status_where(ws, device="connected")
+        status = await status_where(ws, device="connected")
+        assert status["supply_low"] is False, status
         plant.inject(Fault(FaultKind.SUPPLY_LOSS, float(plant.state.time[0]), -1))
         deadline = time.monotonic() + 20.0
         while True:
             status = await next_msg(ws, "status")
-            if "air supply is low" in status["message"]:
+            # The flag and the notice come from the same telemetry: never one without the other.
+            assert status["supply_low"] == ("air supply is low" in status["message"]), status
+            if status["supply_low"]:
                 break
             assert time.monotonic() < deadline, status
         assert "check that the compressor is on" in status["message"], status
+        assert status["device_mode"] in ("IDLE", "READY", "HOLD"), status
         result = await ask(ws, {"type": "start", "prescription_id": PRESCRIPTION_ID})
         assert not result["ok"] and "air supply is low" in result["text"], result
         (path,) = home.spool.glob("*.rec")  # the therapist sees the attempt, as an early end
@@ -450,7 +454,8 @@ async def test_a_supply_lost_at_rest_is_told_and_forgotten_once_it_is_back(
         deadline = time.monotonic() + 20.0
         while True:
             status = await next_msg(ws, "status")
-            if "air supply is low" not in status["message"]:
+            assert status["supply_low"] == ("air supply is low" in status["message"]), status
+            if not status["supply_low"]:
                 break
             assert time.monotonic() < deadline, status
     finally:

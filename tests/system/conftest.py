@@ -7,9 +7,9 @@ unless it is marked ``sqlite_only``.
 import pytest
 
 from tests.server.redis_server import redis_server, relay_url
-from tests.system.harness import STACKS, stack, system, therapist
+from tests.system.harness import STACKS, device_args, stack, system, therapist
 
-__all__ = ["redis_server", "relay_url", "stack", "system", "therapist"]
+__all__ = ["device_args", "redis_server", "relay_url", "stack", "system", "therapist"]
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

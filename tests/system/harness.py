@@ -210,7 +210,16 @@ def _server_env(stack: Stack, request: pytest.FixtureRequest) -> dict[str, str]:
 
 
 @pytest.fixture
-def system(tmp_path: Path, stack: Stack, request: pytest.FixtureRequest) -> Iterator[System]:
+def device_args() -> tuple[str, ...]:
+    """More options for the simulated device; a test parametrizes this to change it, e.g.
+    ``("--fault", "supply_droop@0=3")`` for a platform whose compressor is off from the start."""
+    return ()
+
+
+@pytest.fixture
+def system(
+    tmp_path: Path, stack: Stack, device_args: tuple[str, ...], request: pytest.FixtureRequest
+) -> Iterator[System]:
     port = free_port()
     station_port = free_port() if stack == "pg-redis-2proc" else port
     server_env = _server_env(stack, request)
@@ -235,6 +244,7 @@ def system(tmp_path: Path, stack: Stack, request: pytest.FixtureRequest) -> Iter
                 "3",
                 "--watchdog-ms",
                 str(WATCHDOG_MS),
+                *device_args,
                 start_timeout=600.0,  # generous: a cold cache compiles, slowly when loaded
             )
             servers.result()

@@ -81,6 +81,9 @@ class PatientStation(Protocol):
     @property
     def online(self) -> bool: ...
 
+    @property
+    def supply_low(self) -> bool: ...
+
     def status(self) -> wire.StatusMsg: ...
 
     async def command(self, cmd: wire.Command) -> wire.CommandResult: ...
@@ -143,6 +146,7 @@ def page_status(station: PatientStation) -> PageStatus:
         message=s.message,
         starts_again_at=station.starts_again_at,
         hold=s.hold,
+        supply_low=station.supply_low,
     )
 
 

@@ -74,6 +74,10 @@ class PageStatus(BaseModel):
         description="Why the platform holds: the patient's own pause, or something else that "
         "only the therapist (or the station's limit) ends."
     )
+    supply_low: bool = Field(
+        description="The device says the platform's air supply is low (its telemetry's "
+        "SUPPLY_LOW flag): nothing starts or carries on until it is back.",
+    )
 
 
 class Foot(BaseModel):

@@ -178,6 +178,13 @@ function platformWords() {
   if (SAFETY_STOPPED.includes(mode)) {
     return ["bad", "The platform is stopped for safety: ask for help or call your therapist"];
   }
+  // Nothing starts or carries on without air: the light says so, never "ready".
+  if (status.supply_low) {
+    if (mode === "HOLD") {
+      return ["warn", "The platform is holding still because its air supply is low: check that the compressor is on"];
+    }
+    return ["warn", "The platform's air supply is low: check that the compressor is on"];
+  }
   if (mode === "ACTIVE") {
     return ["ok", "The platform is moving with you"];
   }
