@@ -289,7 +289,8 @@ def test_a_low_air_supply_is_on_the_platform_light_not_ready(
 ) -> None:
     """The compressor is off from the start (the regulator sags to 3.5 bar, under the
     device's low mark): the platform's light warns of it instead of "ready", agreeing with
-    the station's notice under it, and still does after the start it refuses."""
+    the station's notice under it, and no exercise offers to start (the station would
+    refuse it with the same sentence: tests/station/test_patient_page.py)."""
     system.start_station()
     wait_for_page(system)
     page.goto(system.page_url)
@@ -299,6 +300,9 @@ def test_a_low_air_supply_is_on_the_platform_light_not_ready(
     expect(page.locator("#message")).to_contain_text("air supply is low")
     page.screenshot(path=shots / "patient-supply-low.png")
 
-    page.locator("button.start").first.click()  # the demo's own prescription
-    expect(page.locator("#feedback")).to_contain_text("air supply is low")
+    start = page.locator("button.start").first  # the demo's own prescription
+    expect(start).to_be_disabled()
+    # ...and nothing asks the patient to press it.
+    expect(page.locator("#todo")).to_contain_text("You can start once the air is back")
+    expect(page.locator("#todo")).not_to_contain_text("press Start")
     expect(platform).to_have_text(SUPPLY_LOW_WORDS)

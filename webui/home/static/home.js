@@ -243,6 +243,13 @@ function todoWords() {
       "The platform stopped for safety. Take your foot off gently and call your therapist.",
     ];
   }
+  if (status.supply_low && !["homing", "running", "rest", "paused"].includes(status.phase)) {
+    // Start is off until the air is back: nothing here may say to press it.
+    return [
+      "warn",
+      "The platform's air supply is low. Check that the compressor is switched on and its hose is connected. You can start once the air is back.",
+    ];
+  }
   const ex = currentExercise();
   switch (status.phase) {
     case "homing":
@@ -378,6 +385,7 @@ function render() {
     status !== null &&
     status.device === "connected" &&
     !SAFETY_STOPPED.includes(status.device_mode) &&
+    !status.supply_low && // the light says why; the station would refuse the start anyway
     !running();
   document.querySelector("main").toggleAttribute("data-running", running());
   for (const card of document.querySelectorAll(".exercise-card")) {
