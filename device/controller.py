@@ -2612,6 +2612,13 @@ BLEED_AIR = 0.1
 air only a stuck valve moves. A leg that sinks onto its air after the trip compresses one
 chamber and expands the other without changing either's air, and the leaks past a piston
 move about 1 % of a chamber's air a second."""
+BLEED_NEW = 0.5
+"""...and at least this share of it is air its leg as a whole gained or lost (both chambers
+together): a valve stuck open or a leak to the room. Air that leaks past a worn piston seal
+from one side to the other keeps the leg's sum: measured after healthy e-stops, a resisting
+foot in the passive range-of-motion exercise on drawn builds 1, 2 and 5 moved 10 % of a rod
+side's air past its piston in about 3 s, which a hold would have vented and answered with
+a false VALVE event."""
 SUPPLY_CHANNEL = 12
 """The supply transducer's channel (sensor 12): named by a PRESSURE_SENSOR trip, no intake
 feeds on its reading."""
@@ -2678,9 +2685,16 @@ def bleed(
     measured mid-exercise, an e-stop 0.2 s after the chamber was named let a cap or rod side
     with its exhaust stuck open turn the platform 5.4-8.0 deg and drop it 7.6-13.0 mm in
     2 s, a leak of half a valve's conductance up to 11.8 deg and 17.1 mm (a healthy e-stop
-    there: 0.36 deg, 0.41 mm). Not when the trip names that chamber's transducer. Otherwise
-    an e-stop starts no hold: a chamber found moving only after it is left as the protocol
-    promises, every valve closed.
+    there: 0.36 deg, 0.41 mm). Not when the trip names that chamber's transducer.
+
+    An e-stop, like any other trip, also holds a chamber found moving after it (a valve that
+    sticks open, a leak that starts, with every valve shut): the safe state is "every valve
+    shut, pressures held", and against a stuck valve only the chamber's own other valve
+    holds its pressure. Measured while holding at home, e-stopped 0.3 s before the fault
+    and watched 3 s, a cap or rod side's intake or exhaust stuck open turned the platform
+    3.5-9.7 deg and dropped or lifted it 4.7-20.0 mm, a leak of half a valve's conductance
+    8.4 deg and 15.0 mm, where the same faults after any other trip moved it 0.4-1.3 deg
+    and 0.7-2.0 mm. A healthy e-stop opens nothing: a leg sinking onto its air moves no air.
 
     A release stopped by a stuck intake (``HOLD_BALANCE``, ``SupervisionConfig.
     release_balance``) is different: its leg's other chamber was half vented, so the exhaust
@@ -2701,11 +2715,14 @@ def bleed(
     ):
         c = HOLD_BOTH + service
         p_desired[service] = pressure[service]  # held where the trip found it
-    if record or (c == -1 and code != Trip.ESTOP):  # once the chamber is found, only hold it
+    if record or c == -1:  # once the chamber is found, only hold it
+        airs = np.empty(12)
+        for k in range(12):
+            volume = chamber_volume(k, leg_x[k // 2], dead_volume, area_cap, area_annulus, stroke)
+            airs[k] = (pressure[k] + sup.atm) * volume
         for k in range(12):
             leg = k // 2
-            volume = chamber_volume(k, leg_x[leg], dead_volume, area_cap, area_annulus, stroke)
-            air = (pressure[k] + sup.atm) * volume
+            air = airs[k]
             if record:
                 trip_air[k] = air
                 if k != c and k != c - HOLD_FEED and k != c - HOLD_BOTH:  # set by the hold
@@ -2715,9 +2732,24 @@ def bleed(
                 or (code == Trip.LEG_SENSOR and named == leg)
             ):
                 rise = pressure[k] - p_desired[k]
-                if rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]:
+                moved = air - trip_air[k]
+                # Air the leg gained or lost, not air its piston let from one side to the
+                # other (its other chamber's reading, unless the trip named that transducer).
+                o = k ^ 1
+                new_air = moved
+                if not (code == Trip.PRESSURE_SENSOR and named == o):
+                    new_air = moved + airs[o] - trip_air[o]
+                if (
+                    rise > BLEED_RISE
+                    and air > (1.0 + BLEED_AIR) * trip_air[k]
+                    and new_air > BLEED_NEW * moved
+                ):
                     c = k
-                elif rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]:
+                elif (
+                    rise < -BLEED_RISE
+                    and air < (1.0 - BLEED_AIR) * trip_air[k]
+                    and new_air < BLEED_NEW * moved
+                ):
                     c = HOLD_FEED + k
         istate[I_BLEED] = c
     supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL

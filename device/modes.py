@@ -95,6 +95,8 @@ class ModeMachine:
         self._service_reported = False
         self._supply_reported = False
         self._release_reported = False
+        self._held = -1
+        """The chamber a valve of its own holds after the stop (ctl.bleed) that is said."""
         self._rings = np.zeros(6)
         self._factors = np.ones(6)
         self._homing_start = 0.0
@@ -162,6 +164,8 @@ class ModeMachine:
         # The e-stop is the trip (none latched before it): ctl.bleed then holds a chamber
         # the air checks named from the next tick, which the event says.
         chamber = self.rig.service_chamber if self.rig.trip == Trip.NONE else -1
+        if chamber >= 0:
+            self._held = chamber  # this event says so
         self.rig.estop()
         self.rig.set_vent(False)
         self._end_segment()
@@ -175,6 +179,7 @@ class ModeMachine:
 
     def rearm(self) -> None:
         self.rig.rearm()
+        self._held = -1
         if self.mode in (DeviceMode.ESTOP, DeviceMode.FAULT):
             self._set_mode(DeviceMode.IDLE, "re-armed; home before moving")
 
@@ -206,9 +211,12 @@ class ModeMachine:
             self.homed = False
             kind = EventKind.FAULT if trip in FAULT_TRIPS else EventKind.LIMIT
             text = event_text(trip, self.rig.trip_channel)
+            if trip == Trip.VALVE:
+                self._held = self.rig.trip_channel  # the trip's event names its chamber
             self._set_mode(DeviceMode.FAULT, text, kind=kind, code=trip)
             return
         self._report_release()
+        self._report_held()
         chamber = self.rig.service_chamber
         if chamber >= 0 and not self._service_reported:
             self._service_reported = True
@@ -286,6 +294,26 @@ class ModeMachine:
             int(Trip.VALVE),
             float(chamber),
             f"VALVE on {where(Trip.VALVE, chamber)}: release stopped, {why}",
+        )
+
+    def _report_held(self) -> None:
+        """An event, once, when after a trip or an e-stop the controller holds a chamber by a
+        valve of its own (ctl.bleed: its air moved with every valve shut, a valve stuck open
+        or a leak); not again for a chamber the stop's own event named."""
+        if self.mode not in (DeviceMode.ESTOP, DeviceMode.FAULT):
+            return
+        chamber = self.rig.held_chamber
+        if chamber < 0 or chamber == self._held or chamber == self.rig.release_stopped[0]:
+            return
+        self._held = chamber
+        self.on_event(
+            EventKind.FAULT,
+            self.mode,
+            self.mode,
+            int(Trip.VALVE),
+            float(chamber),
+            f"VALVE on {where(Trip.VALVE, chamber)}: its air moved with every valve shut "
+            "(stuck valve, leak): its own valves hold it",
         )
 
     def _report_rings(self) -> None:

@@ -288,6 +288,18 @@ class Rig:
         return (code - 1) % 12, ("gained", "kept", "lost")[(code - 1) // 12]
 
     @property
+    def held_chamber(self) -> int:
+        """The chamber a valve of its own holds after a trip or an e-stop (ctl.bleed: its air
+        moved with every valve shut, or the air checks had named it), -1 if none."""
+        c = int(self.state.istate[ctl.I_BLEED])
+        if c < 0:
+            return -1
+        for base in (ctl.HOLD_BOTH, ctl.HOLD_BALANCE, ctl.HOLD_FEED):
+            if c >= base:
+                return c - base
+        return c
+
+    @property
     def venting(self) -> bool:
         return bool(self.state.istate[ctl.I_VENT])
 

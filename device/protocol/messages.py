@@ -433,7 +433,8 @@ class Resume(Message, type_=22, sender="host"):
 
 
 class EStop(Message, type_=23, sender="host"):
-    """Any mode -> ESTOP, latched; valves closed (a SERVICE chamber's own hold it)."""
+    """Any mode -> ESTOP, latched; valves closed (a chamber named for service, or whose air
+    moves afterwards, is held by its own valves)."""
 
 
 class Rearm(Message, type_=24, sender="host"):
@@ -540,7 +541,7 @@ def markdown_table() -> str:
     ]
     everything = [*DEVICE_MESSAGES.values(), *HOST_MESSAGES.values()]
     for cls in everything:
-        doc = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
+        doc = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
         doc = doc.replace(":class:", "")
         lines.append(f"| {cls.TYPE} | {cls.SENDER} | `{cls.__name__}` | {cls.size()} | {doc} |")
     for cls in everything:
