@@ -287,14 +287,15 @@ class ModeMachine:
             "kept": "it kept its air (exhaust stuck shut, tube blocked): held",
             "lost": "it emptied first (exhaust stuck open, leak): its intake holds it",
         }[why]
+        self._valve_event(chamber, f"release stopped, {why}")
+
+    def _valve_event(self, chamber: int, what: str) -> None:
+        """A FAULT event (code VALVE) on ``chamber`` that leaves the mode as it is."""
+        part = where(Trip.VALVE, chamber)
         self.on_event(
-            EventKind.FAULT,
-            self.mode,
-            self.mode,
-            int(Trip.VALVE),
-            float(chamber),
-            f"VALVE on {where(Trip.VALVE, chamber)}: release stopped, {why}",
-        )
+            EventKind.FAULT, self.mode, self.mode, int(Trip.VALVE), float(chamber),
+            f"VALVE on {part}: {what}",
+        )  # fmt: skip
 
     def _report_held(self) -> None:
         """An event, once, when after a trip or an e-stop the controller holds a chamber by a
@@ -306,14 +307,9 @@ class ModeMachine:
         if chamber < 0 or chamber == self._held or chamber == self.rig.release_stopped[0]:
             return
         self._held = chamber
-        self.on_event(
-            EventKind.FAULT,
-            self.mode,
-            self.mode,
-            int(Trip.VALVE),
-            float(chamber),
-            f"VALVE on {where(Trip.VALVE, chamber)}: its air moved with every valve shut "
-            "(stuck valve, leak): its own valves hold it",
+        self._valve_event(
+            chamber,
+            "its air moved with every valve shut (stuck valve, leak): its own valves hold it",
         )
 
     def _report_rings(self) -> None:
