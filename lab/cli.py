@@ -345,9 +345,9 @@ def _health(h: Any) -> dict[str, Any]:
 
 
 def _fault_lines(outcomes: Sequence[Any]) -> str:
-    """One line a fault injected with ``--fault``, in the device's numbering, and its fate:
-    a user who injected leg 2 (``:2``) reads which leg the device calls it, and whether and
-    how soon it noticed (nothing at all in the result otherwise)."""
+    """A line for each fault injected with ``--fault``, in the device's numbering, and its
+    fate: a user who wrote ``leg_stuck@1:2`` reads that the device calls that part leg 3,
+    and whether and how soon it noticed (nothing at all in the result otherwise)."""
     return "".join(f"\nfault {o.words()}" for o in outcomes)
 
 
