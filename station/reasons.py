@@ -96,6 +96,8 @@ class Reasons:
     def __init__(self) -> None:
         self._hold: HoldInfo | None = None
         self._fault = ""
+        self._stopped_by = ""
+        """The words of the event that stopped the device (an e-stop, a trip)."""
         self._unheard_since: float | None = None
         self._stall: tuple[float, float] | None = None
         self._silence_ms = 0.0
@@ -121,10 +123,16 @@ class Reasons:
         """A device event that happened at ``at`` (Unix s)."""
         if event.mode_to in _STOPPED:
             self._hold = None
-            self._fault = event.text or describe(event.code)
+            words = event.text or describe(event.code)
+            if event.mode_from == event.mode_to and self._stopped_by:
+                # A later word on a stop already latched (a chamber its own valves now
+                # hold): what stopped it stays, beside the newest thing found since.
+                self._fault = f"{self._stopped_by}; then {words}"
+            else:
+                self._fault = self._stopped_by = words
             return
         if event.mode_from in _STOPPED and event.mode_to != event.mode_from:
-            self._fault = ""
+            self._fault = self._stopped_by = ""
         if event.mode_to == DeviceMode.HOLD and event.mode_from != DeviceMode.HOLD:
             if event.kind == EventKind.WATCHDOG:
                 self._silence_ms = event.value

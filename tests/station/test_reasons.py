@@ -89,6 +89,29 @@ def test_a_supply_hold_carries_the_devices_words_and_a_fault_replaces_any_hold()
     assert reasons.fault(DeviceMode.IDLE, 0) == ""
 
 
+def test_what_the_device_finds_after_a_stop_is_told_beside_what_stopped_it() -> None:
+    # The patient's e-stop, then a valve that sticks open after it: the therapist reads
+    # both, the stop's cause first; a third word replaces the second, never the first.
+    reasons = Reasons()
+    reasons.device_event(
+        event(EventKind.ESTOP, A, DeviceMode.ESTOP, int(Trip.ESTOP), text="emergency stop"), 1.0
+    )
+    held = "VALVE on chamber 2 (leg 1, rod side): its air moved with every valve shut"
+    later = event(EventKind.FAULT, DeviceMode.ESTOP, DeviceMode.ESTOP, int(Trip.VALVE), text=held)
+    reasons.device_event(later, 2.0)
+    assert reasons.fault(DeviceMode.ESTOP, int(Trip.ESTOP)) == f"emergency stop; then {held}"
+    other = event(EventKind.FAULT, DeviceMode.ESTOP, DeviceMode.ESTOP, int(Trip.VALVE), text="x")
+    reasons.device_event(other, 3.0)
+    assert reasons.fault(DeviceMode.ESTOP, int(Trip.ESTOP)) == "emergency stop; then x"
+    # Re-armed, then a new stop: only its own words.
+    reasons.device_event(event(EventKind.MODE_CHANGE, DeviceMode.ESTOP, DeviceMode.IDLE), 4.0)
+    fault = "FOLLOWING on pitch"
+    reasons.device_event(
+        event(EventKind.FAULT, A, DeviceMode.FAULT, int(Trip.FOLLOWING), text=fault), 5.0
+    )
+    assert reasons.fault(DeviceMode.FAULT, int(Trip.FOLLOWING)) == fault
+
+
 def test_a_fault_the_station_never_heard_of_is_told_from_its_trip_code() -> None:
     assert Reasons().fault(DeviceMode.ESTOP, int(Trip.ESTOP)) == describe(Trip.ESTOP)
 
