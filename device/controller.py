@@ -2690,11 +2690,12 @@ def bleed(
     An e-stop, like any other trip, also holds a chamber found moving after it (a valve that
     sticks open, a leak that starts, with every valve shut): the safe state is "every valve
     shut, pressures held", and against a stuck valve only the chamber's own other valve
-    holds its pressure. Measured while holding at home, e-stopped 0.3 s before the fault
-    and watched 3 s, a cap or rod side's intake or exhaust stuck open turned the platform
-    3.5-9.7 deg and dropped or lifted it 4.7-20.0 mm, a leak of half a valve's conductance
-    8.4 deg and 15.0 mm, where the same faults after any other trip moved it 0.4-1.3 deg
-    and 0.7-2.0 mm. A healthy e-stop opens nothing: a leg sinking onto its air moves no air.
+    holds its pressure. Measured e-stopped 0.3 s before the fault and watched 3 s (held at
+    home, mid-exercise, the patient pushing), every exhaust stuck open and every leak of
+    half a valve's conductance turned the platform 8.2-15.6 deg and moved it 13.2-23.6 mm,
+    every intake 1.5-4.6 deg and 2.4-7.7 mm; held, 0.4-1.3 deg and 0.6-1.5 mm, and
+    0.5-2.0 deg and 0.8-3.8 mm. A healthy e-stop opens nothing: a leg sinking onto its air
+    moves no air.
 
     A release stopped by a stuck intake (``HOLD_BALANCE``, ``SupervisionConfig.
     release_balance``) is different: its leg's other chamber was half vented, so the exhaust

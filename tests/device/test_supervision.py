@@ -691,9 +691,10 @@ def test_an_estop_with_no_chamber_named_closes_every_valve() -> None:
 )
 def test_a_valve_that_fails_after_an_estop_is_held_and_said(kind: FaultKind, channel: int) -> None:
     """The e-stop shut every valve; 0.3 s later a valve sticks open or a chamber starts to
-    leak, with the patient's foot still on the plate. Left so, measured over 3 s: 3.5-9.7
-    deg and 4.7-20.0 mm. The chamber is held by its own valves, as after any other trip, and
-    an event names it for the technician."""
+    leak, with the patient's foot still on the plate. Left so, measured over 3 s at home:
+    exhausts and leaks 8.2-15.1 deg and 14.4-20.2 mm, intakes 2.5-4.6 deg and 3.7-7.7 mm.
+    The chamber is held by its own valves, as after any other trip, and an event names it
+    for the technician."""
     from device.modes import ModeMachine
     from device.protocol.messages import DeviceMode, EventKind
 
