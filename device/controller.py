@@ -2642,6 +2642,22 @@ emptied on purpose, and nothing holds them at their trip pressures any more."""
 
 
 @njit_inline
+def _bleed_air(
+    k: int,
+    pressure: NDArray[np.float64],
+    leg_x: NDArray[np.float64],
+    dead_volume: NDArray[np.float64],
+    area_cap: float,
+    area_annulus: float,
+    stroke: float,
+    sup: supervision.SupervisionParams,
+) -> float:
+    """Chamber ``k``'s air as the post-trip hold judges it: p V (absolute, V from its piston)."""
+    volume = chamber_volume(k, leg_x[k // 2], dead_volume, area_cap, area_annulus, stroke)
+    return float((pressure[k] + sup.atm) * volume)
+
+
+@njit_inline
 def bleed(
     istate: NDArray[np.int64],
     pressure: NDArray[np.float64],
@@ -2717,13 +2733,9 @@ def bleed(
         c = HOLD_BOTH + service
         p_desired[service] = pressure[service]  # held where the trip found it
     if record or c == -1:  # once the chamber is found, only hold it
-        airs = np.empty(12)
-        for k in range(12):
-            volume = chamber_volume(k, leg_x[k // 2], dead_volume, area_cap, area_annulus, stroke)
-            airs[k] = (pressure[k] + sup.atm) * volume
         for k in range(12):
             leg = k // 2
-            air = airs[k]
+            air = _bleed_air(k, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup)
             if record:
                 trip_air[k] = air
                 if k != c and k != c - HOLD_FEED and k != c - HOLD_BOTH:  # set by the hold
@@ -2733,24 +2745,23 @@ def bleed(
                 or (code == Trip.LEG_SENSOR and named == leg)
             ):
                 rise = pressure[k] - p_desired[k]
-                moved = air - trip_air[k]
+                gained = rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]
+                lost = rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]
+                if not (gained or lost):
+                    continue
                 # Air the leg gained or lost, not air its piston let from one side to the
                 # other (its other chamber's reading, unless the trip named that transducer).
-                o = k ^ 1
+                moved = air - trip_air[k]
                 new_air = moved
+                o = k ^ 1
                 if not (code == Trip.PRESSURE_SENSOR and named == o):
-                    new_air = moved + airs[o] - trip_air[o]
-                if (
-                    rise > BLEED_RISE
-                    and air > (1.0 + BLEED_AIR) * trip_air[k]
-                    and new_air > BLEED_NEW * moved
-                ):
+                    other = _bleed_air(
+                        o, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup
+                    )
+                    new_air = moved + other - trip_air[o]
+                if gained and new_air > BLEED_NEW * moved:
                     c = k
-                elif (
-                    rise < -BLEED_RISE
-                    and air < (1.0 - BLEED_AIR) * trip_air[k]
-                    and new_air < BLEED_NEW * moved
-                ):
+                elif lost and new_air < BLEED_NEW * moved:
                     c = HOLD_FEED + k
         istate[I_BLEED] = c
     supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL
