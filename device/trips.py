@@ -123,7 +123,10 @@ def where(trip: int, channel: int) -> str:
     if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
         return _WRENCH_PARTS[channel]
     if trip == Trip.SUPPLY_LOSS and channel == SUPPLY_BY_AIR:
-        return "the air of two legs or more (the supply transducer did not see it: check it too)"
+        return (
+            "the air of two legs or more (a supply its transducer missed, or a fault on each: "
+            "see SERVICE)"
+        )
     if trip == Trip.FOLLOWING:
         if channel < len(AXES):
             return AXES[channel]

@@ -2022,3 +2022,15 @@ def test_a_supply_lost_behind_a_frozen_supply_transducer_is_found_by_the_legs_ai
     rig.run(0.1, log_hz=0)
     assert rig.trip == Trip.SUPPLY_LOSS, (rig.trip, rig.service_chamber)
     assert "two legs" in trips.where(rig.trip, rig.trip_channel)
+
+
+def test_every_fault_event_names_its_part_within_the_wire_s_120_bytes() -> None:
+    """The FAULT event's text travels in 120 bytes and is cut there: the part a trip names
+    (``trips.where``), on any channel a trip gives, always fits with the code before it
+    (the sentence after it only when that fits too)."""
+    for trip in Trip:
+        for channel in range(-1, 20):
+            text = trips.event_text(trip, channel)
+            assert len(text.encode()) <= 120, text
+            part = trips.where(trip, channel)
+            assert text.startswith(trip.name + (f" on {part}" if part else "")), text
