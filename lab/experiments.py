@@ -44,7 +44,7 @@ from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
 from device.identify import identify_simulated
-from device.plant.faults import Fault, describe, format_fault
+from device.plant.faults import Fault, FaultKind, describe, format_fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig, draw_plant
 from device.rig import AxisTarget, CommandError, Rig, leg_index
@@ -162,6 +162,13 @@ class FaultOutcome:
     """The device had tripped before the fault struck: nothing after it can be told."""
     run_end_s: float = 0.0
     """When the run ended (s of simulated time, the settle at home included)."""
+    names_it: bool | None = None
+    """The device's trip after it struck names a part this fault acts on (its sensor, its
+    chamber, its leg: :func:`fault_parts`); None when the trip names no part, or nothing
+    tripped after it struck. With several faults, which one the device answered."""
+    others: bool = False
+    """Another fault struck before the trip as well: the words then say whose part the trip
+    names."""
 
     def words(self) -> str:
         """One line for a person: the fault in the device's own numbering, then its fate."""
@@ -175,7 +182,10 @@ class FaultOutcome:
         after = (
             f" ({self.noticed_ms:.0f} ms after it struck)" if self.noticed_ms is not None else ""
         )
-        return f"{said}: struck; the device then {self.noticed}{after}"
+        whose = ""
+        if self.others and self.names_it is not None:
+            whose = ", which names this fault's part" if self.names_it else ", naming another part"
+        return f"{said}: struck; the device then {self.noticed}{after}{whose}"
 
     def as_json(self) -> dict[str, object]:
         return {
@@ -185,7 +195,46 @@ class FaultOutcome:
             "noticed": self.noticed,
             "noticed_ms": self.noticed_ms,
             "after_trip": self.before,
+            "names_its_part": self.names_it,
         }
+
+
+_PRESSURE_KINDS = (
+    FaultKind.PRESSURE_OPEN,
+    FaultKind.PRESSURE_SHORT,
+    FaultKind.PRESSURE_STUCK,
+    FaultKind.PRESSURE_OFFSET,
+)
+_LEG_KINDS = (FaultKind.LEG_STUCK, FaultKind.LEG_OFFSET, FaultKind.LEG_NOISE)
+_FT_KINDS = (FaultKind.FT_DEAD, FaultKind.FT_SATURATED, FaultKind.FT_OFFSET)
+_SUPPLY = "the supply"
+
+
+def fault_parts(fault: Fault) -> frozenset[str]:
+    """The parts a trip may name for ``fault``, in the words of :func:`device.trips.where`:
+    its own sensor, chamber or force/torque channel, and the leg (or chambers) a fault of a
+    leg's sensor, valves or air shows in."""
+    k, ch = fault.kind, fault.channel
+    chamber, leg = Trip.VALVE, Trip.LEG_SENSOR
+    if k in (FaultKind.SUPPLY_LOSS, FaultKind.SUPPLY_DROOP):
+        return frozenset({_SUPPLY})
+    if k in _PRESSURE_KINDS and ch == 12:
+        return frozenset({trips.where(Trip.PRESSURE_SENSOR, 12), _SUPPLY})
+    if k in _FT_KINDS:
+        channels = range(6) if ch < 0 else (ch,)
+        return frozenset(trips.where(Trip.FORCE_SENSOR, c) for c in channels)
+    if k in _LEG_KINDS:
+        sides = (trips.where(chamber, 2 * ch + side) for side in (0, 1))
+        return frozenset({trips.where(leg, ch), *sides})
+    c = ch // 2 if k in (FaultKind.VALVE_STUCK_OPEN, FaultKind.VALVE_STUCK_CLOSED) else ch
+    return frozenset({trips.where(chamber, c), trips.where(leg, c // 2)})
+
+
+def trip_part(trip: Trip, channel: int) -> str:
+    """The part a trip names, as :func:`fault_parts` says it ('' for none)."""
+    if trip in (Trip.SUPPLY_LOSS, Trip.SUPPLY_HIGH):
+        return _SUPPLY
+    return trips.where(trip, channel)
 
 
 def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
@@ -201,6 +250,7 @@ def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
         named = trips.where(trip, rig.trip_channel)
         said.append(f"tripped {trip.name}" + (f" ({named})" if named else ""))
     notice = "; then ".join(said) or None
+    part = trip_part(trip, rig.trip_channel) if trip != Trip.NONE else ""
     out = []
     for f in _FAULTS:
         struck = f.time <= end
@@ -208,9 +258,17 @@ def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
         after = None
         if trip != Trip.NONE and trip_at_s is not None and not before:
             after = (trip_at_s - f.time) * 1e3
-        out.append(
-            FaultOutcome(f, struck, notice if struck and not before else None, after, before, end)
+        names_it = part in fault_parts(f) if part and struck and not before else None
+        others = any(
+            g is not f and g.time <= end and (trip_at_s is None or g.time <= trip_at_s)
+            for g in _FAULTS
         )
+        out.append(
+            FaultOutcome(
+                f, struck, notice if struck and not before else None, after, before, end,
+                names_it, others,
+            )
+        )  # fmt: skip
     return tuple(out)
 
 

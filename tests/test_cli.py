@@ -342,10 +342,19 @@ def test_each_injected_fault_is_said_in_the_devices_numbering_with_what_became_o
             "noticed": None,
             "noticed_ms": None,
             "after_trip": False,
+            "names_its_part": None,
         }
     ]
     r = ankle("sim", "step", "--fault", "leg_offset@0.6:2=0.05")
     assert r.stdout.splitlines()[-1].endswith("struck; the device noticed nothing"), r.stdout
+    # Two faults before the trip: the device's answer is beside each, with whose part it names.
+    two = ("--fault", "leg_offset@0.5:4=0.05", "--fault", "leg_stuck@0.51:1")
+    r = ankle("sim", "step", "--leg", "2", "--mm", "5", *two)
+    harmless, stuck = r.stdout.splitlines()[-2:]
+    assert "LEG_SENSOR (leg 2)" in harmless and harmless.endswith(", naming another part"), r.stdout
+    assert stuck.endswith("ms after it struck), which names this fault's part"), r.stdout
+    r = ankle("sim", "step", "--leg", "2", "--mm", "5", *two, "--json")
+    assert [f["names_its_part"] for f in json.loads(r.stdout)["faults"]] == [False, True], r.stdout
     # A fault before the settle's end trips while settling: timed from the fault as well.
     r = ankle("sim", "step", "--fault", "ft_offset@0.2:4=3")
     assert "offset by +3 N m: struck; the device then tripped FORCE_SENSOR" in r.stdout, r.stdout
