@@ -27,9 +27,11 @@ run: setup
 	$(BIN)/ankle run
 
 # Test files are shared out over TEST_WORKERS processes (pytest-xdist), a whole file to one
-# worker so that a module's server, browser or built wheel is made once. 2 fits CI's 2 cores.
-# Files go out in the order tests/conftest.py sorts them, not by their number of tests.
-TEST_WORKERS ?= 2
+# worker so that a module's server, browser or built wheel is made once. Three on CI's 2
+# cores: many tests wait on real time (an exercise's seconds, a timeout, a page), and two
+# workers left the cores a third idle (README, Running it). Files go out in the order
+# tests/conftest.py sorts them, not by their number of tests.
+TEST_WORKERS ?= 3
 test: setup
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
