@@ -583,57 +583,56 @@ async def test_the_viewer_s_process_gives_up_on_an_unanswered_command_and_says_s
     A gave up is no second outcome on A."""
     world = seeded[1]
     data_dir = copy_seeded(seeded[0], tmp_path / "data")
-    async with (
-        running(settings(data_dir, relay_url)) as a,
-        ghost(relay_url) as owner,
-        viewer_ws(a, world.t1, world.s1_id) as view,
-    ):
+    async with running(settings(data_dir, relay_url)) as a, ghost(relay_url) as owner:
+        # The ghost holds the station before the viewer comes, so the welcome says online
+        # (set once the viewer's socket was open, it raced the welcome on a busy machine).
         await owner.redis.set(f"ankle:station:{world.s1_id}", "ghost", px=120_000)
-        assert (await next_where(view, is_(wire.Welcome))).online
-        process = a.app.state.hub.relay.process
-        beat = asyncio.create_task(_beat(view))
-        try:
-            await view.send(wire.Command(request_id="h-lost", action="hold").model_dump_json())
-            forward = await owner.heard("command")
-            assert forward["command"]["request_id"] == "h-lost"
-            assert forward["reply_to"] == process
-            assert forward["timeout_s"] == COMMAND_TIMEOUT_S - RELAY_SLACK_S
-            # A K/B change the owner answers, as a station's process does: to the viewers,
-            # and to the asking process that it ended.
-            await view.send(command("kb-done"))
-            assert (await owner.heard("command"))["command"]["request_id"] == "kb-done"
-            done = wire.CommandResult(request_id="kb-done", ok=True, text="acknowledged")
-            await owner.publish(f"view:{world.s1_id}", f"ghost {done.model_dump_json()}")
-            settled = {"type": "settled", "station_id": world.s1_id, "request_id": "kb-done"}
-            await owner.publish(f"proc:{process}", json.dumps(settled))
-            assert (await next_where(view, result_of("kb-done"))).ok
+        async with viewer_ws(a, world.t1, world.s1_id) as view:
+            assert (await next_where(view, is_(wire.Welcome))).online
+            process = a.app.state.hub.relay.process
+            beat = asyncio.create_task(_beat(view))
+            try:
+                await view.send(wire.Command(request_id="h-lost", action="hold").model_dump_json())
+                forward = await owner.heard("command")
+                assert forward["command"]["request_id"] == "h-lost"
+                assert forward["reply_to"] == process
+                assert forward["timeout_s"] == COMMAND_TIMEOUT_S - RELAY_SLACK_S
+                # A K/B change the owner answers, as a station's process does: to the viewers,
+                # and to the asking process that it ended.
+                await view.send(command("kb-done"))
+                assert (await owner.heard("command"))["command"]["request_id"] == "kb-done"
+                done = wire.CommandResult(request_id="kb-done", ok=True, text="acknowledged")
+                await owner.publish(f"view:{world.s1_id}", f"ghost {done.model_dump_json()}")
+                settled = {"type": "settled", "station_id": world.s1_id, "request_id": "kb-done"}
+                await owner.publish(f"proc:{process}", json.dumps(settled))
+                assert (await next_where(view, result_of("kb-done"))).ok
 
-            lost = await next_where(view, result_of("h-lost"))
-            assert (lost.ok, lost.code) == (False, "TIMEOUT")
-            assert "the station's server did not answer" in lost.text
-            gave_up = await owner.heard("gave_up")
-            assert (gave_up["request_id"], gave_up["from"]) == ("h-lost", process)
-            # The owner's answer after that: shown to the viewers, but no outcome of A's.
-            late = wire.CommandResult(request_id="h-lost", ok=True, text="acknowledged")
-            await owner.publish(f"view:{world.s1_id}", f"ghost {late.model_dump_json()}")
-            settled |= {"request_id": "h-lost"}
-            await owner.publish(f"proc:{process}", json.dumps(settled))
-            assert (await next_where(view, result_of("h-lost"))).ok
+                lost = await next_where(view, result_of("h-lost"))
+                assert (lost.ok, lost.code) == (False, "TIMEOUT")
+                assert "the station's server did not answer" in lost.text
+                gave_up = await owner.heard("gave_up")
+                assert (gave_up["request_id"], gave_up["from"]) == ("h-lost", process)
+                # The owner's answer after that: shown to the viewers, but no outcome of A's.
+                late = wire.CommandResult(request_id="h-lost", ok=True, text="acknowledged")
+                await owner.publish(f"view:{world.s1_id}", f"ghost {late.model_dump_json()}")
+                settled |= {"request_id": "h-lost"}
+                await owner.publish(f"proc:{process}", json.dumps(settled))
+                assert (await next_where(view, result_of("h-lost"))).ok
 
-            # A later command's TIMEOUT comes after any of kb-done's would have, and its row
-            # after any A would have written for either.
-            await view.send(wire.Command(request_id="h-last", action="hold").model_dump_json())
-            seen: list[str] = []
+                # A later command's TIMEOUT comes after any of kb-done's would have, and its row
+                # after any A would have written for either.
+                await view.send(wire.Command(request_id="h-last", action="hold").model_dump_json())
+                seen: list[str] = []
 
-            def last(m: Any) -> bool:
-                if isinstance(m, wire.CommandResult):
-                    seen.append(f"{m.request_id} {m.code}")
-                return result_of("h-last")(m)
+                def last(m: Any) -> bool:
+                    if isinstance(m, wire.CommandResult):
+                        seen.append(f"{m.request_id} {m.code}")
+                    return result_of("h-last")(m)
 
-            assert (await next_where(view, last)).code == "TIMEOUT"
-            assert seen == ["h-last TIMEOUT"]
-        finally:
-            beat.cancel()
+                assert (await next_where(view, last)).code == "TIMEOUT"
+                assert seen == ["h-last TIMEOUT"]
+            finally:
+                beat.cancel()
         await until_audited(a, world.admin, "h-last", ["hold.request", "hold.unanswered"])
         assert sorted(r["action"] for r in await audit_rows(a, world.admin, "h-lost")) == [
             "hold.request",
