@@ -231,9 +231,12 @@ def fault_parts(fault: Fault) -> frozenset[str]:
 
 
 def trip_part(trip: Trip, channel: int) -> str:
-    """The part a trip names, as :func:`fault_parts` says it ('' for none)."""
+    """The part a trip names, as :func:`fault_parts` says it ('' for none, and for an axis:
+    a FOLLOWING trip of the platform's pose names no part)."""
     if trip in (Trip.SUPPLY_LOSS, Trip.SUPPLY_HIGH):
         return _SUPPLY
+    if trip == Trip.FOLLOWING and channel < len(AXES):
+        return ""
     return trips.where(trip, channel)
 
 
