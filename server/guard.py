@@ -12,7 +12,9 @@ more than a route's limit:
   string is stored by one layer and cannot be encoded by the next: a 500 after a change.
 
 What the server sends while refusing is small and fixed; the rest of a refused body is
-read and dropped by uvicorn so that the client sees the answer.
+read and dropped by uvicorn so that the client sees the answer. A client that leaves before
+its body is whole gets nothing, as there is no one to answer, and nothing is logged as an
+error: a route reads its whole body before it changes anything.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import re
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 _SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")
@@ -180,15 +183,18 @@ class RequestGuard:
         size = 0
         over = False
         started = False
+        left = False
 
         async def counted() -> Message:
-            nonlocal size, over
+            nonlocal size, over, left
             message = await receive()
             if message["type"] == "http.request":
                 size += len(message.get("body", b""))
                 if size > limit:
                     over = True
                     raise BodyTooLarge(too_large_text(limit))
+            elif message["type"] == "http.disconnect":
+                left = True
             return message
 
         async def watched(message: Message) -> None:
@@ -198,7 +204,15 @@ class RequestGuard:
             started = started or message["type"] == "http.response.start"
             await send(message)
 
-        with contextlib.suppress(BodyTooLarge):  # raised by counted(), answered here
-            await self.app(scope, counted, watched)
+        try:
+            with contextlib.suppress(BodyTooLarge):  # raised by counted(), answered here
+                await self.app(scope, counted, watched)
+        except ClientDisconnect:
+            if not left:
+                raise
+            # The client left before its body was whole (a station stopped mid-chunk): the
+            # route read no body, so it did nothing, and there is no one to answer. Let out,
+            # the exception was logged as an error of the application, with its traceback.
+            return
         if over and not started:
             await answer(send, 413, {"detail": too_large_text(limit)})

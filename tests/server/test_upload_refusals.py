@@ -7,6 +7,7 @@ import asyncio
 import errno
 import hashlib
 import json
+import logging
 import math
 import os
 import struct
@@ -371,6 +372,45 @@ async def test_a_full_disk_while_appending_is_a_507_and_loses_nothing_acknowledg
         f"/sessions/{r.json()['id']}/download/rec", headers=bearer(world.t1)
     )
     assert got.content == data
+
+
+@pytest.mark.asyncio
+async def test_a_chunk_its_station_cuts_off_changes_nothing_and_is_no_error(
+    live: Live, world: World, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A station stopped while it sends a chunk: the server holds what it held before, logs
+    no error (it logged an ASGI traceback), and the station's next try completes the upload."""
+    sid = str(uuid.uuid4())
+    data = recording_bytes(sid, samples(), world.s1_id, world.p1, world.rx1)
+    station = bearer(world.s1)
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=data[:CHUNK], headers={**station, "Upload-Offset": "0"}
+    )
+    assert r.status_code == 204
+    chunk = data[CHUNK : 2 * CHUNK]
+    head = (
+        f"PATCH /api/v1/uploads/{sid} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        f"Authorization: Bearer {world.s1}\r\nUpload-Offset: {CHUNK}\r\n"
+        "Content-Type: application/offset+octet-stream\r\n"
+        f"Content-Length: {len(chunk)}\r\n\r\n"
+    )
+    port = live.client.base_url.port
+    assert port is not None
+    for _ in range(3):
+        _, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(head.encode() + chunk[: len(chunk) // 2])
+        await writer.drain()
+        await asyncio.sleep(0.3)  # the route is reading the body when the station goes
+        writer.close()
+        await writer.wait_closed()
+    await asyncio.sleep(0.3)
+    assert (await live.client.get("/health")).status_code == 200
+    assert await held(live, world, sid) == CHUNK
+    errors = [rec.getMessage() for rec in caplog.records if rec.levelno >= logging.ERROR]
+    assert not errors, errors
+    assert await put_from(live, world, sid, data, CHUNK) == 204
+    r = await complete(live, world, sid, data)
+    assert r.status_code == 201, r.text
 
 
 async def put_from(live: Live, world: World, sid: str, data: bytes, start: int) -> int:
