@@ -60,6 +60,8 @@ def ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], 
 
 def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     """Register ``protocol`` and ``device`` on a parent parser's subcommands."""
+    from device.commands import WATCHDOG_MS_MAX, WATCHDOG_MS_MIN  # what HELLO publishes
+
     sub.add_parser("protocol", help="print the serial protocol's messages (Markdown)")
     dev = sub.add_parser(
         "device",
@@ -88,7 +90,10 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         "--telemetry-hz", type=ranged(int, 1, 250), default=100, help="1..250 (default 100)"
     )
     dev.add_argument(
-        "--watchdog-ms", type=ranged(int, 50, 2000), default=200, help="50..2000 (default 200)"
+        "--watchdog-ms",
+        type=ranged(int, WATCHDOG_MS_MIN, WATCHDOG_MS_MAX),
+        default=200,
+        help=f"{WATCHDOG_MS_MIN}..{WATCHDOG_MS_MAX} (default 200)",
     )
     dev.add_argument("--patient", choices=PATIENTS, default="relaxed", help="simulated patient")
     dev.add_argument(
@@ -249,7 +254,7 @@ def _device(args: argparse.Namespace) -> int:
     from device.plant.model import SCRIPT_SINE
     from device.rig import Rig
     from device.service import DeviceService, ServiceConfig, serve
-    from device.transport import LinkError, open_link
+    from device.transport import LinkError, LinkSpecError, open_link
 
     if args.hardware != "sim" and (args.plant or args.plant_draw is not None):
         print(
@@ -279,7 +284,7 @@ def _device(args: argparse.Namespace) -> int:
         return 1
     except LinkError as exc:
         print(f"error: {exc.args[-1]}", file=sys.stderr)
-        return 1
+        return USAGE_ERROR if isinstance(exc, LinkSpecError) else 1
     try:
         if args.calibration is None and args.hardware == "sim" and not args.uncalibrated:
             # As a deployed unit was identified before its first patient: the simulated

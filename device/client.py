@@ -44,6 +44,10 @@ STALL_S = 0.1
 of this host: half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
 log = logging.getLogger("ankle.host")
 T = TypeVar("T")
+HEARTBEATS_PER_WATCHDOG = 4
+"""Heartbeats sent at least this often within the device's watchdog (the one it publishes in
+HELLO, then the one configured): a heartbeat late or unanswered leaves room for the next.
+The device's least watchdog (``watchdog_ms_min``) makes this 25 ms at most."""
 EARLY_MAX = 1024
 """Events held back past a gap at most (the device keeps its latest 64 for replay)."""
 
@@ -145,6 +149,9 @@ class DeviceClient:
         self.command_timeout = command_timeout
         self.retries = retries
         self.heartbeat_period = heartbeat_period
+        """The longest wait between heartbeats (:attr:`heartbeat_interval` is the one used)."""
+        self.watchdog_ms: int | None = None
+        """The device's watchdog as its HELLO said, then as this host configured it."""
         self.heartbeats = True
         """Clear to stop feeding the device's watchdog (to test it)."""
         self.decoder = FrameDecoder()
@@ -215,6 +222,7 @@ class DeviceClient:
                 remaining = max(0.0, min(0.25, deadline - loop.time()))
                 async with asyncio.timeout(remaining):
                     self.hello = await asyncio.shield(self._hello)
+                self.watchdog_ms = self.hello.watchdog_ms
                 return self.hello
             except TimeoutError:
                 if loop.time() >= deadline:
@@ -295,7 +303,17 @@ class DeviceClient:
         return reply
 
     async def configure(self, telemetry_hz: int, watchdog_ms: int) -> msg.Ack:
-        return await self.command(msg.Configure(telemetry_hz=telemetry_hz, watchdog_ms=watchdog_ms))
+        ack = await self.command(msg.Configure(telemetry_hz=telemetry_hz, watchdog_ms=watchdog_ms))
+        self.watchdog_ms = watchdog_ms  # the heartbeats follow from the next one on
+        return ack
+
+    @property
+    def heartbeat_interval(self) -> float:
+        """Seconds between heartbeats: :attr:`heartbeat_period`, or less, so that
+        :data:`HEARTBEATS_PER_WATCHDOG` fit in the device's watchdog."""
+        if self.watchdog_ms is None:
+            return self.heartbeat_period
+        return min(self.heartbeat_period, self.watchdog_ms / 1e3 / HEARTBEATS_PER_WATCHDOG)
 
     async def arm_home(self) -> msg.Ack:
         return await self.command(msg.ArmHome())
@@ -377,8 +395,8 @@ class DeviceClient:
     async def _heartbeat_loop(self) -> None:
         # Each wait is bounded (the sleep by its period, the ACK by its timeout): a wait that
         # ends later than that is this host standing still, whichever of the two it hit.
-        period = self.heartbeat_period
         while not self._closed.is_set():
+            period = self.heartbeat_interval  # a configure changes it
             start = time.perf_counter()
             await asyncio.sleep(period)
             self._check_stall(time.perf_counter() - start - period)

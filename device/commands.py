@@ -33,7 +33,10 @@ from device.waveforms import SINE_HZ_MAX, AxisTarget, Waveform
 
 SEGMENT_DURATION_MAX = 3600.0
 """Longest segment (s)."""
-WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = 50, 2000
+WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = 100, 2000
+"""The watchdogs the device accepts (published in HELLO). The least leaves a host room for
+several heartbeats (the client sends four per watchdog, 25 ms apart at the least) and for a
+short stall it counts (``device.client.STALL_S``, 100 ms) before the device holds."""
 
 
 class CommandError(ValueError):

@@ -59,7 +59,16 @@ EVENTS_KEPT = 64
 REPLIES_KEPT = 256
 """Replies remembered by sequence number: a repeated command is answered, not re-run."""
 MAX_CATCH_UP = 1.0
-"""Behind the wall clock by more than this (s, a stopped process), the clock is re-anchored."""
+"""Behind the wall clock by more than this (s, a stopped process), the clock is re-anchored:
+the time lost is skipped, and counted (``Telemetry.clock_resets``)."""
+FRAMES_PER_PASS = 4
+"""Most frames acted on (each answered) per pass: a host sending frames back to back takes
+a small, bounded share of a pass, never the control chunk's time. Far above what a station
+sends (tens of frames a second); the rest wait for the next passes."""
+READ_PER_PASS = 256
+"""Most bytes read per pass from a link with no line rate (TCP, a pty): some 20 short frames,
+a quarter of the largest (a segment arrives in a few passes). What is not read stays in the
+host's socket and slows a flooding host down, as a serial line's rate would."""
 
 __all__ = [
     "SEGMENT_DURATION_MAX",
@@ -84,6 +93,9 @@ class PacingStats:
     )
     overruns: int = 0
     """Episodes of falling more than one control period behind the wall clock."""
+    clock_resets: int = 0
+    """Passes that found the loop over :data:`MAX_CATCH_UP` behind and skipped the time lost
+    (each also ends an overrun episode, so the next pass behind starts another)."""
     steps: int = 0
     behind: bool = False
 
@@ -105,6 +117,9 @@ class DeviceService:
         self.clock = clock
         self.out = out
         self.decoder = FrameDecoder()
+        self._frames: collections.deque[Frame] = collections.deque()
+        """Frames read but not yet acted on (:data:`FRAMES_PER_PASS`)."""
+        self.read_per_pass = self._read_per_pass()
         self.modes = ModeMachine(rig, self._on_event)
         self.telemetry_hz_max = self._telemetry_hz_max()
         self.telemetry_hz = min(config.telemetry_hz, self.telemetry_hz_max)
@@ -142,6 +157,13 @@ class DeviceService:
             return TELEMETRY_HZ_MAX
         frame = msg.Telemetry.size() + 12  # header, CRC, COBS overhead and delimiter
         return max(1, min(TELEMETRY_HZ_MAX, int(0.8 * bps / 10.0 / frame)))
+
+    def _read_per_pass(self) -> int:
+        bps = self.link.bits_per_second
+        if bps is None:
+            return READ_PER_PASS
+        # Twice what the line delivers in a pass: the loop never falls behind the line.
+        return max(64, int(2 * bps / 10.0 * CHUNK_TICKS / TICK_HZ))
 
     # -- the loop ------------------------------------------------------------------------
     def step(self) -> None:
@@ -209,7 +231,11 @@ class DeviceService:
                 self.pacing.overruns += 1  # one per episode, however many passes catch up
             self.pacing.behind = behind
             if lag > MAX_CATCH_UP:
+                # The time lost is given up, not caught up; counted, and the episode ends
+                # here, so a loop kept behind counts an overrun per second lost.
                 wall0 = self.clock() - (self.time - sim0)
+                self.pacing.clock_resets += 1
+                self.pacing.behind = False
 
     def stop(self) -> None:
         self._stop = True
@@ -232,13 +258,29 @@ class DeviceService:
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
 
     def _receive(self) -> None:
-        for _ in range(4):  # bounded: a flood cannot starve the control chunk
-            data = self.link.read()
-            if not data:
-                return
-            for frame in self.decoder.feed(data):
-                self._last_rx = self.clock()
-                self._on_frame(frame.type, frame.seq, frame.body, frame.version)
+        """Act on at most :data:`FRAMES_PER_PASS` frames, reading at most
+        :attr:`read_per_pass` bytes, and only once those read before are done: a host that
+        floods the link (valid frames or garbage) cannot starve the control chunk."""
+        if not self._frames:
+            data = self.link.read(self.read_per_pass)
+            if self.link.take_new_peer():
+                self._on_new_peer()
+            if data:
+                self._frames.extend(self.decoder.feed(data))
+        for _ in range(min(FRAMES_PER_PASS, len(self._frames))):
+            frame = self._frames.popleft()
+            self._last_rx = self.clock()
+            self._on_frame(frame.type, frame.seq, frame.body, frame.version)
+
+    def _on_new_peer(self) -> None:
+        """A new connection took the link over (TCP): the same as a new HELLO nonce. Nobody
+        on it commanded the motion under way, and the host that did can no longer stop it:
+        held, as if the old link had gone silent. The bytes of a frame the old host left
+        half sent are not the start of the new host's first frame."""
+        self.decoder.reset()
+        self._nonce = None  # its HELLO is a first one: held already
+        self._replies.clear()  # its sequence numbers are its own
+        self.modes.hold(EventKind.WATCHDOG, "a new host connection (the link was taken over)")
 
     def _on_frame(self, mtype: int, seq: int, body: bytes, version: int) -> None:
         if version != self.decoder.version:  # a handshake from another protocol version
@@ -407,6 +449,7 @@ class DeviceService:
             frames_dropped=self.decoder.stats.dropped & 0xFFFFFFFF,
             commands_refused=self.commands_refused & 0xFFFFFFFF,
             overruns=self.pacing.overruns & 0xFFFFFFFF,
+            clock_resets=self.pacing.clock_resets & 0xFFFFFFFF,
             pacing_lag_ms=lags[-1] if lags else 0.0,
             last_event_id=self._event_id,
         )

@@ -34,7 +34,16 @@ def ankle(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str
         (["sim", "sine", "--axis", "knee"], "invalid choice"),
         (["sim", "sine", "--hz", "100"], "frequency"),
         (["bench", "speed"], "invalid choice"),
-        (["bench", "link", "--watchdog-ms", "20"], "--watchdog-ms: 20 outside 50..2000"),
+        (["bench", "link", "--watchdog-ms", "20"], "--watchdog-ms: 20 outside 100..2000"),
+        # The device's least watchdog leaves a host room for several heartbeats: the bench
+        # and the service refuse the same values (what HELLO publishes).
+        (["bench", "link", "--watchdog-ms", "50"], "--watchdog-ms: 50 outside 100..2000"),
+        (["device", "--sim", "--watchdog-ms", "50"], "--watchdog-ms: 50 outside 100..2000"),
+        # A link misspelt is an argument error, not a link that failed to open.
+        (["device", "--sim", "--link", "tcp://nohost"], "expected tcp://HOST:PORT"),
+        (["device", "--sim", "--link", "tcp://127.0.0.1:99999"], "bad TCP link"),
+        (["device", "--sim", "--link", "tcp://127.0.0.1:abc"], "bad TCP link"),
+        (["device", "--sim", "--link", "tcp://[::1"], "bad TCP link"),
         # Degenerate requests: nothing a sensor could resolve, or nothing at all.
         (["sim", "step", "--mm", "1e-9"], "leg sensor"),
         (["sim", "sine", "--amplitude", "1e-9"], "leg sensor counts"),
@@ -182,7 +191,6 @@ def test_console_shows_live_telemetry_from_the_service_and_stops_cleanly() -> No
     ("args", "needle"),
     [
         (["device", "--link", "pty", "--uncalibrated"], "no I/O board driver"),
-        (["device", "--sim", "--link", "tcp://nohost"], "expected tcp://HOST:PORT"),
         (["device", "--sim", "--link", "/dev/does-not-exist"], "cannot open serial port"),
     ],
 )

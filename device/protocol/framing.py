@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 
 from cobs import cobs
 
-PROTOCOL_VERSION = 2
-"""2: trip SOFTWARE, NACK DEVICE_FAULT, events of 120 bytes of text."""
+PROTOCOL_VERSION = 3
+"""2: trip SOFTWARE, NACK DEVICE_FAULT, events of 120 bytes of text. 3: telemetry's
+``clock_resets``."""
 HANDSHAKE_TYPE = 1
 """Message type of the handshake in every protocol version. A frame of this type is delivered
 whatever its version, so each side can tell the other which version it speaks instead of
@@ -99,6 +100,11 @@ class FrameDecoder:
                     frames.append(frame)
             self._buffer.clear()
             start = end + 1
+
+    def reset(self) -> None:
+        """Forget a frame half received (its sender has gone); the counts stay."""
+        self._buffer.clear()
+        self._discarding = False
 
     def _append(self, chunk: bytes) -> None:
         if self._discarding:

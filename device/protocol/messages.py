@@ -326,6 +326,9 @@ class Telemetry(Message, type_=2, sender="device"):
     frames_dropped: int = wire("I", doc="Frames dropped (CRC, length, COBS, version).")
     commands_refused: int = wire("I", doc="Commands answered with NACK.")
     overruns: int = wire("I", doc="Times the loop fell over a control period behind.")
+    clock_resets: int = wire(
+        "I", doc="Times the loop fell over 1 s behind and skipped the time lost."
+    )
     pacing_lag_ms: float = wire("f", unit="ms", doc="How far device time trails wall time.")
     last_event_id: int = wire("I", doc="Id of the latest event (to notice a lost one).")
 

@@ -25,7 +25,7 @@ from device.protocol import messages as m
 from device.protocol.messages import DeviceMode, EventKind, NackCode
 from device.rig import Rig
 from device.service import WATCHDOG_MS_MAX, DeviceService, ServiceConfig
-from device.transport import PtyLink
+from device.transport import READ_MAX, PtyLink
 from device.trips import Trip
 from tests.device.test_service import PITCH
 
@@ -50,10 +50,10 @@ class BreakingLink(PtyLink):
         self.breaker = breaker
         self.where = where
 
-    def read(self) -> bytes:
+    def read(self, limit: int = READ_MAX) -> bytes:
         if self.where == "read":
             self.breaker("link read")
-        return super().read()
+        return super().read(limit)
 
     def flush(self) -> None:
         if self.where == "flush":

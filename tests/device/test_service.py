@@ -12,7 +12,15 @@ import numpy as np
 import pytest
 
 from device import controller as ctl
-from device.client import AxisPlan, ClientStats, CommandRefused, DeviceClient, build_segment
+from device.client import (
+    HEARTBEATS_PER_WATCHDOG,
+    STALL_S,
+    AxisPlan,
+    ClientStats,
+    CommandRefused,
+    DeviceClient,
+    build_segment,
+)
 from device.controller import Mode, Waveform
 from device.hardware import SimulatedHardware
 from device.plant.model import SCRIPT_SINE
@@ -22,8 +30,15 @@ from device.protocol.framing import Frame, encode_frame
 from device.protocol.messages import DeviceMode, EventKind, NackCode
 from device.rig import Rig
 from device.safety import SafetyLimits, Trip
-from device.service import EVENTS_KEPT, WATCHDOG_MS_MAX, DeviceService, ServiceConfig
+from device.service import (
+    EVENTS_KEPT,
+    WATCHDOG_MS_MAX,
+    WATCHDOG_MS_MIN,
+    DeviceService,
+    ServiceConfig,
+)
 from device.transport import PtyLink
+from tests.device.service_thread import service_in_thread
 
 
 @dataclass
@@ -589,3 +604,62 @@ def test_a_host_that_connects_after_more_events_than_the_device_keeps_hears_the_
             await other.close()
 
     drive(device, body)
+
+
+def test_the_client_beats_several_times_in_any_watchdog_the_device_accepts(
+    device: Running,
+) -> None:
+    """The least watchdog the device publishes, configured or set at its start, leaves the
+    client room for several heartbeats (it used to equal the client's fixed 50 ms, and a
+    segment held with no host stall)."""
+
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        least = dev.hello.watchdog_ms_min
+        assert dev.watchdog_ms == dev.hello.watchdog_ms  # from HELLO
+        await dev.configure(100, least)
+        assert dev.heartbeat_interval * HEARTBEATS_PER_WATCHDOG <= least / 1e3
+        assert dev.heartbeat_interval * 2 < STALL_S  # a stall the client counts comes first
+        await dev.configure(100, 400)
+        assert dev.heartbeat_interval == dev.heartbeat_period  # 50 ms: four fit in 400
+
+    drive(device, body)
+    with service_in_thread(
+        SimulatedHardware(PlantConfig(), seed=3), ServiceConfig(100, WATCHDOG_MS_MIN)
+    ) as link:
+
+        async def started() -> None:  # ankle device --watchdog-ms at its least
+            dev = await DeviceClient.connect(link.name, command_timeout=0.3, retries=5)
+            try:
+                assert dev.hello is not None and dev.hello.watchdog_ms == WATCHDOG_MS_MIN
+                assert dev.heartbeat_interval * HEARTBEATS_PER_WATCHDOG <= WATCHDOG_MS_MIN / 1e3
+            finally:
+                await dev.close()
+
+        asyncio.run(started())
+
+
+def test_a_loop_that_fell_over_a_second_behind_counts_the_time_it_gave_up() -> None:
+    """A process stopped 2.5 s (here: a clock that jumps) gives the time up rather than
+    racing to catch it up, and says so in telemetry; it used to hide in one overrun."""
+    calls = 0
+
+    def clock() -> float:
+        nonlocal calls
+        calls += 1
+        return time.perf_counter() + (2.5 if calls > 300 else 0.0)
+
+    service = DeviceService(
+        Rig(SimulatedHardware(PlantConfig(), seed=3)), PtyLink(), ServiceConfig(), clock=clock
+    )
+    try:
+        assert service.telemetry().clock_resets == 0
+        service.run(0.3)
+        assert calls > 300  # the jump came
+        assert service.pacing.clock_resets == 1
+        assert service.pacing.overruns >= 1
+        assert service.telemetry().clock_resets == 1
+        # The time lost was given up once: the passes after it kept pace.
+        assert service.pacing.lags_ms[-1] < 1000.0
+    finally:
+        service.shutdown()
