@@ -2080,9 +2080,14 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             if component >= 0:
                 # The wrench the legs and the sensor disagree on is one leg's alone: that
                 # leg's force is wrong, not the sensor (supervision.leg_alone).
+                # And a leg whose reading is frozen while driven puts the model's platform
+                # where it is not: the wrench that shows is that leg sensor's fault.
                 alone = supervision.leg_alone(s.monitor, p.sup)
+                frozen = supervision.leg_frozen(s.counters, p.sup)
                 if alone >= 0:
                     trip(s, Trip.FORCE_BALANCE, alone)
+                elif frozen >= 0:
+                    trip(s, Trip.LEG_SENSOR, frozen)
                 else:
                     trip(s, Trip.FORCE_SENSOR, component)
                 return

@@ -338,6 +338,17 @@ class SupervisionConfig:
     for up to about 30 ms: 25 reads (the wave-1 rule) tripped two of twelve drawn plants in
     a 2 deg pitch sweep, 33 none; each read more lets a frozen reading move the platform
     further before the trip (lab/safety.py measures how far)."""
+    leg_stuck_blame_reads: int = 10
+    """A trip of the force/torque sensor found by the legs' force balance (the wrench, the
+    sideways force, the moment or the lift the legs and the sensor disagree on) is named as a
+    leg's length sensor instead while that leg's reading has stayed bit for bit the same
+    through this many reads of the rule above (driven, 10 ms): the pose the model puts the
+    platform in comes from that frozen reading, so the platform's true motion shows as a
+    force the sensor reads and the model does not. A sensor frozen while the platform
+    rested, then a 10 mm step of its leg: the sideways check tripped 18 ms into the step,
+    with the leg 18 reads into the rule, and sent the technician to the force plate.
+    Healthy legs stayed within 3 such reads in pitch, roll and heave sines with a relaxed,
+    a resisting and an absent foot; the trip itself is the same, only the part it names."""
     leg_blind_reads: int = 33
     """A leg whose reading has stayed bit for bit the same for this many reads (33 ms, as
     long as the stuck rule counts) in motion is blind: the load compensation (eq. 15's G_p)
@@ -1024,6 +1035,7 @@ class SupervisionParams(NamedTuple):
     leg_stuck_error: float
     leg_stuck_target_move: float
     leg_stuck_reads: int
+    leg_stuck_blame_reads: int
     leg_blind_reads: int
     leg_blind_band: float
     pressure_frozen_periods: int
@@ -1213,6 +1225,7 @@ def build(
         leg_stuck_error=config.leg_stuck_error,
         leg_stuck_target_move=config.leg_stuck_target_move,
         leg_stuck_reads=config.leg_stuck_reads,
+        leg_stuck_blame_reads=config.leg_stuck_blame_reads,
         leg_blind_reads=config.leg_blind_reads,
         leg_blind_band=config.leg_blind_band,
         pressure_frozen_periods=config.pressure_frozen_periods,
@@ -2142,6 +2155,17 @@ def one_leg(monitor: NDArray[np.float64], leg: int) -> bool:
     force/torque reading spreads over several legs instead."""
     worst, share = residual_share(monitor)
     return bool(worst == leg and share > 0.5)
+
+
+@njit_inline
+def leg_frozen(counters: NDArray[np.int64], q: SupervisionParams) -> int:
+    """The leg whose reading has stayed the same longest while driven, if that is
+    ``leg_stuck_blame_reads`` or more; -1 if none."""
+    found, longest = -1, q.leg_stuck_blame_reads - 1
+    for i in range(6):
+        if counters[C_LEG_SAME + i] > longest:
+            found, longest = i, counters[C_LEG_SAME + i]
+    return found
 
 
 @njit_inline

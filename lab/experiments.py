@@ -319,13 +319,29 @@ def _full_duty_runs(t: NDArray[np.float64], slots: NDArray[np.float64], full: in
     return longest
 
 
+def never_struck(rig: Rig) -> str | None:
+    """Why ``rig``'s finished run is not what was asked for when a fault injected into it
+    (``--fault``) was timed after it ended: what was measured is a healthy unit."""
+    late = [f for f in _FAULTS if f.time > rig.time]
+    if not late:
+        return None
+    return (
+        f"the {late[0].kind.name.lower()} fault at {late[0].time:g} s never struck: the "
+        f"run ended at {rig.time:.2f} s of simulated time (the settle at home included)"
+    )
+
+
 def assess(
-    rig: Rig, log: NDArray[np.float64], invalidating: frozenset[str] = frozenset()
+    rig: Rig,
+    log: NDArray[np.float64],
+    invalidating: frozenset[str] = frozenset(),
+    final: bool = True,
 ) -> Health:
     """The :class:`Health` of a run whose measured window is ``log``.
 
     ``invalidating`` names the saturations that make this experiment's number meaningless;
-    a trip always does.
+    a trip always does. ``final``: the run has ended (False for one window of a run that
+    goes on, where a fault timed later may still strike: :func:`never_struck`).
     """
     trip = rig.trip
     tripped = trip != Trip.NONE
@@ -361,13 +377,8 @@ def assess(
         bad = [k for k in saturated if k in invalidating]
         if bad:
             reason = "saturated: " + ", ".join(b.replace("_", " ") for b in bad)
-    late = [f for f in _FAULTS if f.time > rig.time]
-    if reason is None and late:
-        # Asked for, never struck: what was measured is a healthy unit.
-        reason = (
-            f"the {late[0].kind.name.lower()} fault at {late[0].time:g} s never struck: the "
-            f"run ended at {rig.time:.2f} s of simulated time (the settle at home included)"
-        )
+    if reason is None and final:
+        reason = never_struck(rig)
     return Health(
         tripped,
         trip.name if tripped else None,
@@ -744,6 +755,22 @@ def speed_limit_hz(axis: str, amplitude: float, limits: SafetyLimits | None = No
     return lim.axis_speed_max[k] / (2.0 * math.pi * a) if a > 0 else math.inf
 
 
+def _sine_lead_s(hz: float) -> float:
+    """How long :func:`sine` runs its sine before it measures (s): the start-up transient."""
+    return max(1.0 / hz, 0.3)
+
+
+def _sweep_cycles(hz: float) -> int:
+    """Cycles :func:`sweep` measures at ``hz``."""
+    return max(3, min(12, int(2 * hz)))
+
+
+def _sweep_run_s(hz: float) -> float:
+    """How long one frequency's run of :func:`sweep` lasts, in the simulated time that
+    ``--fault`` times count (s): the settle at home, the lead, the measured cycles."""
+    return SETTLE_S + _sine_lead_s(hz) + _sweep_cycles(hz) / hz
+
+
 def sine(
     axis: str = "pitch",
     amplitude: float = 2.0,
@@ -760,8 +787,7 @@ def sine(
     rig = _rig(patient, True, seed, limits=limits)
     _settle_at_home(rig)
     rig.track({axis: AxisTarget(Waveform.SINE, 0.0, amplitude * scale, hz)})
-    lead = max(1.0 / hz, 0.3)  # let the start-up transient die
-    rig.run(lead)
+    rig.run(_sine_lead_s(hz))  # let the start-up transient die
     rig.clear_log()
     log = rig.run(cycles / hz)
     home = rig.geometry.home_pose[k]
@@ -822,13 +848,25 @@ def sweep(
     frequencies = tuple(f for f in frequencies if f <= fastest)
     for f in frequencies:
         check_sine(axis, amplitude, f, limits)
+    if frequencies and _FAULTS:
+        # Each frequency runs on a fresh unit, with every fault at its time in that run.
+        shortest = min(frequencies, key=_sweep_run_s)
+        ends = _sweep_run_s(shortest)
+        late = [f for f in _FAULTS if f.time > ends]
+        if late:
+            raise CommandError(
+                f"a sweep runs each frequency on a fresh unit, each fault at its time in every "
+                f"run: the {shortest:g} Hz run ends at {ends:.2f} s, so the "
+                f"{late[0].kind.name.lower()} fault at {late[0].time:g} s would strike in "
+                f"some runs only; time it before {ends:.2f} s"
+            )
     done: list[float] = []
     gains: list[float] = []
     phases: list[float] = []
     health: Health | None = None
     stopped: float | None = None
     for f in frequencies:
-        r = sine(axis, amplitude, f, cycles=max(3, min(12, int(2 * f))), seed=seed, limits=limits)
+        r = sine(axis, amplitude, f, cycles=_sweep_cycles(f), seed=seed, limits=limits)
         done.append(f)
         gains.append(r.gain_db)
         phases.append(r.phase_deg)
@@ -1053,7 +1091,7 @@ def impedance_dynamic(
         rig.clear_log()
         cycles = max(3, math.ceil(2.0 * f))
         log = rig.run(cycles / f)
-        health = assess(rig, log, frozenset({"range_of_motion"}))
+        health = assess(rig, log, frozenset({"range_of_motion"}), final=False)
         if not health.valid:
             hw.script_torque(ax, 0, 0.0, 0.0, 0.0)
             return DynamicImpedanceResult(axis, k, b, torque, (), health)
@@ -1094,5 +1132,8 @@ def impedance_dynamic(
     )
     saturated = sorted({s for w in windows for s in w[5].saturated})
     warned = next((w[5].warning for w in windows if w[5].warning), None)
-    health = with_warning(Health(False, None, None, tuple(saturated), True, None), warned)
-    return DynamicImpedanceResult(axis, k, b, torque, tuple(fits), health)
+    late = never_struck(rig)
+    health = Health(
+        False, None, None, tuple(saturated), late is None, late, faults=fault_outcomes(rig)
+    )
+    return DynamicImpedanceResult(axis, k, b, torque, tuple(fits), with_warning(health, warned))

@@ -458,3 +458,24 @@ def test_a_unit_identified_once_serves_calibrated_and_says_so_in_its_hello(
     r = ankle("device", "--sim", "--calibration", str(bad), "--link", "tcp://127.0.0.1:0")
     assert r.returncode == 1 and "leg 1 sensor reads +10.00 mm" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_fault_in_a_sweep_strikes_in_every_run_or_is_refused() -> None:
+    # Each frequency of a sweep runs on a fresh unit with the faults at their times: one
+    # timed after the shortest run (8 Hz, 2.30 s) would strike in some only.
+    r = ankle("sim", "sweep", "--axis", "pitch", "--fault", "leg_offset@5:0=0.01")
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "the 8 Hz run ends at 2.30 s" in r.stderr and "time it before 2.30 s" in r.stderr
+
+
+def test_a_fault_timed_into_a_later_window_of_the_dynamic_impedance_strikes_there() -> None:
+    # The dynamic impedance runs its frequencies one after the other on one unit (about
+    # 15 s): a fault at 10 s strikes in a later window, not "never" at the first one's end.
+    r = ankle(
+        *("sim", "impedance", "--mode", "dynamic", "--k", "50", "--b", "1"),
+        *("--fault", "leg_offset@10:0=0.01", "--json"),
+    )
+    data = json.loads(r.stdout)
+    assert "never struck" not in (data["invalid_reason"] or ""), data
+    (fault,) = data["faults"]
+    assert fault["struck"] is True, fault

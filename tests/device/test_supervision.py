@@ -28,6 +28,7 @@ from device.supervision import SupervisionConfig
 from device.supervision import build as build_supervision
 from device.tickloop import COL
 from device.trips import Trip
+from lab import experiments as ex
 from lab import safety
 from sessions.prescription import ExerciseKind
 
@@ -192,6 +193,16 @@ def test_a_stuck_leg_sensor_mid_exercise_is_caught_on_every_leg(leg: int) -> Non
     run = safety.run_fault(FaultKind.LEG_STUCK, "exercise", channel=leg)
     assert run.detected and run.trip == Trip.LEG_SENSOR.name and run.channel == leg, run
     assert run.excursion_deg <= 2.0 and run.excursion_mm <= 3.0, run
+
+
+@pytest.mark.parametrize(("leg", "mm"), [(0, 10.0), (1, 10.0), (0, -10.0), (3, 3.0)])
+def test_a_leg_sensor_frozen_at_rest_is_named_when_its_leg_is_stepped(leg: int, mm: float) -> None:
+    """Frozen while the platform rests, then its leg is stepped: the model's platform stands
+    where the frozen reading puts it, and the sideways force check tripped first (18 ms into
+    the step), naming the force plate (force along x). The trip now names the leg."""
+    with ex.injected((Fault(FaultKind.LEG_STUCK, 0.0, leg),)):
+        r = ex.step(leg=leg + 1, mm=mm)
+    assert r.health.trip == Trip.LEG_SENSOR.name and r.health.part == f"leg {leg + 1}", r.health
 
 
 @pytest.mark.parametrize(
