@@ -91,6 +91,12 @@ CLOSE_NO_ACCESS = 4007
 """The viewer may no longer see this station's patient."""
 CLOSE_MUST_CHANGE = 4008
 """The viewer's password was printed or reset: it must be changed before anything else."""
+CLOSE_TOO_SLOW = 4009
+"""The viewer fell too far behind the events, status and results sent to it (the server's
+``CONTROL_QUEUE_MAX``): it reconnects and is sent the station's state afresh."""
+CLOSE_TOO_FAST = 4010
+"""The viewer sent commands faster than its link's budget (the server's ``COMMAND_BURST``
+at once, ``COMMANDS_PER_S`` after): no person at a dashboard does."""
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
