@@ -5,7 +5,7 @@ A station's telemetry comes in batches of samples and is never queued for a view
 keeps the newest few batches per station, and each viewer is sent every batch while it keeps
 up and the newest one when it falls behind (a slow browser sees fresh data late, never a
 growing backlog). Events, status and command results are never dropped, and a viewer is sent
-them before any telemetry waiting with them.
+them before any telemetry waiting with them; one ``CONTROL_QUEUE_MAX`` behind is closed.
 
 A command is judged, timed and its outcome audited by the process that holds the station's
 link, wherever its viewer is; its result reaches the station's viewers on every process. A
@@ -29,6 +29,7 @@ import logging
 import time
 from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 from fastapi import WebSocket
@@ -62,7 +63,27 @@ LATE_KEPT = 1000
 AUDIT_FLUSH_S = 5.0
 """How long shutdown waits for queued audit rows to be written."""
 CONTROL_QUEUE_MAX = 1000
-"""Events and status a viewer may fall behind by before it is closed as too slow."""
+"""Events, status and results a viewer may fall behind by: at the next one it is closed at
+once (:data:`~sessions.wire.CLOSE_TOO_SLOW`) rather than sent some and not others."""
+CONTROL_QUEUE_BYTES = 8 * 1024 * 1024
+"""The same in bytes: a thousand events of 60 KB held for one viewer that reads nothing
+were 60 MB of the server's memory."""
+COMMAND_BURST = 30
+"""Commands a viewer's link may send at once; then ``COMMANDS_PER_S``. The dashboard sends
+one per click of HOLD, Resume, Stop, Start or "Set K/B": a therapist clicking as fast as a
+person can (some 7 a second) never meets it. Past it the link is closed
+(:data:`~sessions.wire.CLOSE_TOO_FAST`)."""
+COMMANDS_PER_S = 10.0
+REFUSAL_ROWS_BURST = 5
+"""Of the commands the server itself refuses (never sent: FORBIDDEN, OFFLINE, DUPLICATE,
+AUDIT), those of one user to one station that get an audit row each: this many at once,
+then ``REFUSAL_ROWS_PER_S``; the rest are counted into one ``command.refusals`` row per
+``REFUSAL_SUMMARY_S``. Each refusal costs nothing on the device, but its row is kept for
+good: one browser tab sending 1,000 K/B changes a second to an offline station wrote a row
+for each (2,850 in 3 s)."""
+REFUSAL_ROWS_PER_S = 1.0
+REFUSAL_SUMMARY_S = 10.0
+REFUSALS_ACTION = "command.refusals"
 LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
     "unknown": (wire.CLOSE_SIGNED_OUT, "signed out; sign in again"),
     "expired": (wire.CLOSE_EXPIRED, "the sign-in expired; sign in again"),
@@ -81,6 +102,32 @@ _viewer_keys = itertools.count(1)
 T = TypeVar("T")
 
 
+class Budget:
+    """A token bucket: ``burst`` at once, then ``per_s`` a second."""
+
+    def __init__(self, burst: float, per_s: float) -> None:
+        self.burst = burst
+        self.per_s = per_s
+        self.tokens = burst
+        self.at = time.monotonic()
+
+    def take(self) -> bool:
+        """Spend one if there is one."""
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.per_s)
+        self.at = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+    def full(self) -> bool:
+        return self.tokens + (time.monotonic() - self.at) * self.per_s >= self.burst
+
+
+TOO_SLOW = "the viewer fell too far behind the events sent to it; reconnect"
+
+
 @dataclass(eq=False)
 class Viewer:
     ws: WebSocket
@@ -95,10 +142,41 @@ class Viewer:
     seq: int = 0
     key: int = field(default_factory=lambda: next(_viewer_keys))
     """Names it to this process, for an answer that comes back through the relay."""
+    queued: int = 0
+    """Characters in ``control``."""
+    too_slow: bool = False
+    """Closed for falling behind: nothing more is queued for it."""
+    commands: Budget = field(default_factory=lambda: Budget(COMMAND_BURST, COMMANDS_PER_S))
 
     def push(self, text: str) -> None:
-        self.control.append(text)
+        """Queue a control message; a viewer this far behind is closed at once instead:
+        it reconnects and is sent the state afresh, and never misses some messages and
+        not others without knowing."""
+        if self.too_slow:
+            return
+        if len(self.control) >= CONTROL_QUEUE_MAX or self.queued + len(text) > CONTROL_QUEUE_BYTES:
+            self.too_slow = True
+            self.control.clear()
+            self.queued = 0
+            log.info("live view closed (%d): %s", wire.CLOSE_TOO_SLOW, TOO_SLOW)
+            task = asyncio.get_running_loop().create_task(
+                close_link(self.ws, wire.CLOSE_TOO_SLOW, TOO_SLOW)
+            )
+            _closing.add(task)
+            task.add_done_callback(_closing.discard)
+        else:
+            self.control.append(text)
+            self.queued += len(text)
         self.wake.set()
+
+    def pop(self) -> str:
+        text = self.control.popleft()
+        self.queued -= len(text)
+        return text
+
+
+_closing: set[asyncio.Task[None]] = set()
+"""Closes of viewers too slow, held until they end."""
 
 
 @dataclass(eq=False)
@@ -240,6 +318,7 @@ class Hub:
         self._forwarded: dict[str, Forwarded] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         self.writer = AuditWriter()
+        self.refusals = Refusals(self.writer)
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
         self._recheck_done = 0
@@ -474,8 +553,6 @@ class Hub:
     # -- what the relay brings (server.relay.Listener) ---------------------------------------
     def deliver(self, station_id: int, text: str) -> None:
         for v in list(self.viewers.get(station_id, ())):
-            if len(v.control) >= CONTROL_QUEUE_MAX:
-                continue  # its writer closes it as too slow
             v.push(text)
 
     def telemetry_came(self, station_id: int) -> None:
@@ -572,6 +649,7 @@ class Hub:
             self._give_up(request_id, "OFFLINE", text)
         for task in list(self._tasks):
             task.cancel()
+        self.refusals.flush()
         await self.writer.close(AUDIT_FLUSH_S)
         if self._recheck_task is not None:
             self._recheck_task.cancel()
@@ -595,7 +673,7 @@ class Hub:
             except Exception as exc:
                 level = logging.WARNING if self.relay.reachable else logging.DEBUG
                 log.log(level, "the relay is unreachable (command): %s", exc)
-                _refuse(_asked(asker, cmd), reply, self.writer, "OFFLINE", RELAY_REFUSED)
+                _refuse(_asked(asker, cmd), reply, self.refusals, "OFFLINE", RELAY_REFUSED)
                 return
             if owner is not None and owner != self.relay.process:
                 await self._forward(owner, asker, cmd, reply)
@@ -611,10 +689,10 @@ class Hub:
         asked = _asked(asker, cmd)
         request_id = asked.command.request_id
         if not asker.may_command:
-            _refuse(asked, reply, self.writer, "FORBIDDEN", FORBIDDEN)
+            _refuse(asked, reply, self.refusals, "FORBIDDEN", FORBIDDEN)
             return
         if request_id in self._forwarded:
-            _refuse(asked, reply, self.writer, "DUPLICATE", DUPLICATE, "request_id")
+            _refuse(asked, reply, self.refusals, "DUPLICATE", DUPLICATE, "request_id")
             return
         entry = self._forwarded[request_id] = Forwarded(asked, owner)
         if not await self._record_request(asked, reply):
@@ -634,7 +712,7 @@ class Hub:
             log.warning("a command could not be sent to the station's server: %s", exc)
             del self._forwarded[request_id]
             text = "this server cannot reach the station's server, so the command was not sent"
-            _refuse(asked, reply, self.writer, "OFFLINE", text)
+            _refuse(asked, reply, self.refusals, "OFFLINE", text)
             return
         loop = asyncio.get_running_loop()
         entry.timer = loop.call_later(COMMAND_TIMEOUT_S, self._forward_timeout, request_id)
@@ -699,7 +777,7 @@ class Hub:
             await self.writer.write(**asked.request_row())
         except Exception as exc:  # a command that cannot be audited is not sent
             log.error("audit of a live command failed: %s", exc)
-            _refuse(asked, reply, self.writer, "AUDIT", NOT_RECORDED)
+            _refuse(asked, reply, self.refusals, "AUDIT", NOT_RECORDED)
             return False
         return True
 
@@ -717,13 +795,13 @@ class Hub:
         asked = _asked(asker, cmd)
         cmd = asked.command
         if not asker.may_command:
-            _refuse(asked, reply, self.writer, "FORBIDDEN", FORBIDDEN)
+            _refuse(asked, reply, self.refusals, "FORBIDDEN", FORBIDDEN)
             return
         if conn is None:
-            _refuse(asked, reply, self.writer, "OFFLINE", "the station is not connected")
+            _refuse(asked, reply, self.refusals, "OFFLINE", "the station is not connected")
             return
         if not self.claim(asked, conn, asked_on):
-            _refuse(asked, reply, self.writer, "DUPLICATE", DUPLICATE, "request_id")
+            _refuse(asked, reply, self.refusals, "DUPLICATE", DUPLICATE, "request_id")
             return
         if asked_on is None and not await self._record_request(asked, reply):
             self.release(cmd.request_id)
@@ -844,7 +922,7 @@ def _asked(asker: Asker, cmd: wire.Command) -> live_audit.Asked:
 def _refuse(
     asked: live_audit.Asked,
     reply: Callable[[str], None],
-    writer: AuditWriter,
+    refusals: Refusals,
     code: str,
     text: str,
     field: str = "",
@@ -854,4 +932,83 @@ def _refuse(
         request_id=asked.command.request_id, ok=False, code=code, field=field, text=text
     )
     reply(result.model_dump_json())
-    writer.write_soon(asked.outcome_row("refused", result))
+    refusals.write(asked, asked.outcome_row("refused", result))
+
+
+@dataclass
+class _Tally:
+    """Refusals counted rather than written one by one, since ``first_at``."""
+
+    row: dict[str, Any]
+    first_at: float
+    first_request_id: str
+    count: int = 0
+    actions: collections.Counter[str] = field(default_factory=collections.Counter)
+    codes: collections.Counter[str] = field(default_factory=collections.Counter)
+    last_request_id: str = ""
+    last_at: float = 0.0
+
+
+class Refusals:
+    """The audit rows of the commands the server refuses itself: one row each for the
+    first ``REFUSAL_ROWS_BURST`` of a user to a station, then ``REFUSAL_ROWS_PER_S``; the
+    others are counted, and each ``REFUSAL_SUMMARY_S`` one ``command.refusals`` row says
+    how many there were, of which actions and codes, and the first and last request_id."""
+
+    def __init__(self, writer: AuditWriter) -> None:
+        self.writer = writer
+        self._budgets: dict[tuple[str, int], Budget] = {}
+        self._tallies: dict[tuple[str, int], _Tally] = {}
+        self._timers: dict[tuple[str, int], asyncio.TimerHandle] = {}
+
+    def write(self, asked: live_audit.Asked, row: dict[str, Any]) -> None:
+        key = (asked.actor, asked.station_id)
+        budget = self._budgets.get(key)
+        if budget is None:
+            if len(self._budgets) >= 1000:  # forget the idle ones
+                self._budgets = {k: b for k, b in self._budgets.items() if not b.full()}
+            budget = self._budgets[key] = Budget(REFUSAL_ROWS_BURST, REFUSAL_ROWS_PER_S)
+        if budget.take():
+            self.writer.write_soon(row)
+            return
+        now = time.time()
+        request_id = asked.command.request_id
+        tally = self._tallies.get(key)
+        if tally is None:
+            tally = self._tallies[key] = _Tally(row, now, request_id)
+            loop = asyncio.get_running_loop()
+            self._timers[key] = loop.call_later(REFUSAL_SUMMARY_S, self._flush, key)
+        tally.count += 1
+        tally.actions[row["action"]] += 1
+        tally.codes[row["new"]["code"]] += 1
+        tally.last_request_id, tally.last_at = request_id, now
+
+    def _flush(self, key: tuple[str, int]) -> None:
+        self._timers.pop(key, None)
+        tally = self._tallies.pop(key, None)
+        if tally is None:
+            return
+        when = {"from": tally.first_at, "to": tally.last_at}
+        self.writer.write_soon(
+            tally.row
+            | {
+                "action": REFUSALS_ACTION,
+                "old": None,
+                "new": {
+                    "count": tally.count,
+                    "actions": dict(tally.actions),
+                    "codes": dict(tally.codes),
+                    "first_request_id": tally.first_request_id,
+                    "last_request_id": tally.last_request_id,
+                }
+                | {k: datetime.fromtimestamp(t, UTC).isoformat() for k, t in when.items()},
+            }
+        )
+
+    def flush(self) -> None:
+        """Write every count now (at shutdown)."""
+        for key in list(self._tallies):
+            timer = self._timers.get(key)
+            if timer is not None:
+                timer.cancel()
+            self._flush(key)

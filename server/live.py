@@ -5,7 +5,10 @@ other server processes; this module holds the two sockets. A station's telemetry
 batches of samples and is never queued for a viewer: each viewer is sent every batch while
 it keeps up and the newest one when it falls behind (a slow browser sees fresh data late,
 never a growing backlog). Events, status and command results are never dropped, and a viewer
-is sent them before any telemetry waiting with them. A therapist's command goes to the
+is sent them before any telemetry waiting with them; a viewer too far behind on them is
+closed (:data:`~sessions.wire.CLOSE_TOO_SLOW`) and reconnects. A viewer's commands have a
+budget per link (:class:`~server.hub.Budget`): past it the link is closed
+(:data:`~sessions.wire.CLOSE_TOO_FAST`). A therapist's command goes to the
 station, which asks the device; the device's own ACK or NACK comes back to the viewers as a
 :class:`~sessions.wire.CommandResult` (or TIMEOUT / OFFLINE if it cannot).
 
@@ -27,7 +30,8 @@ from pydantic import ValidationError
 from server import metrics
 from server.deps import Id, LoginStanding, authenticate_station
 from server.hub import (
-    CONTROL_QUEUE_MAX,
+    COMMAND_BURST,
+    COMMANDS_PER_S,
     LOGIN_CLOSE,
     Asker,
     Hub,
@@ -256,6 +260,8 @@ async def live_socket(ws: WebSocket, station_id: Id) -> None:
             message = wire.VIEWER_UP.validate_json(raw)
             metrics.received("viewer", message)
             if isinstance(message, wire.Command):
+                if not viewer.commands.take():
+                    raise _Close(wire.CLOSE_TOO_FAST, TOO_FAST)
                 await _on_command(hub, viewer, message)
     except ValidationError as exc:
         await close_link(ws, wire.CLOSE_MALFORMED, wire.error_text(exc))
@@ -271,6 +277,12 @@ async def live_socket(ws: WebSocket, station_id: Id) -> None:
             writer.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await writer
+
+
+TOO_FAST = (
+    f"more than {COMMAND_BURST} commands at once or {COMMANDS_PER_S:g} a second: "
+    "the link was closed"
+)
 
 
 def _close_at_expiry(hub: Hub, ws: WebSocket, expires_at: datetime | None) -> asyncio.TimerHandle:
@@ -310,15 +322,14 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
             finally:
                 timer.cancel()
         v.wake.clear()
-        if len(v.control) >= CONTROL_QUEUE_MAX:
-            await close_link(v.ws, wire.CLOSE_TIMEOUT, "the viewer is not keeping up")
-            return
+        if v.too_slow:
+            return  # being closed (Viewer.push)
         while v.control:  # never behind telemetry: results and events go first
-            await v.ws.send_text(v.control.popleft())
+            await v.ws.send_text(v.pop())
             metrics.sent("viewer", "control")
         for seq, raw in hub.after(v.station_id, v.seq):
             while v.control:
-                await v.ws.send_text(v.control.popleft())
+                await v.ws.send_text(v.pop())
                 metrics.sent("viewer", "control")
             v.seq = seq
             await v.ws.send_text(raw)

@@ -22,6 +22,10 @@ than one row that is later corrected:
 A command from a viewer on another server process has its request row written by that
 process and its outcome by the station's (:mod:`server.hub`).
 
+The server's own refusals of one user's commands to one station past a few a second are
+counted rather than written one by one: one ``command.refusals`` row says how many
+(:class:`server.hub.Refusals`).
+
 ``kind`` is ``impedance`` (``set_impedance``), ``hold``, ``resume``, ``stop`` or ``start``.
 Rows go through the hub's batched writer; outcomes are queued, never awaited, so a station's
 answer costs the relay no database round trip.

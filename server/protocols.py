@@ -13,6 +13,13 @@ the ones it picks here), with two gaps closed.
 - A WebSocket text frame that is not UTF-8. uvicorn closes the link with 1007, as the
   protocol says, but logs it as a server failure: an ERROR and a traceback for each. Here
   it is one line, and the close says why.
+- A WebSocket peer that stops reading. Once what it has not taken fills the socket's
+  buffers, uvicorn makes every send wait until it takes some, with no end: a viewer that
+  stopped reading but still sent its heartbeats held its writer (and any close of it) for
+  good, and what was queued for it grew. Here a send that has waited ``SEND_STALL_S`` cuts
+  the connection; a close does not wait at all: it goes behind what the peer has not read
+  yet (a peer that reads again gets everything, then the close with its code and reason),
+  and the connection is cut if the peer has not answered it within ``SEND_STALL_S``.
 
 :func:`protocols` gives uvicorn.Config's ``http`` and ``ws`` for a server's settings.
 """
@@ -26,6 +33,7 @@ from typing import Any
 
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
+from uvicorn.protocols.utils import ClientDisconnected
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
 from server.config import Settings
@@ -84,9 +92,66 @@ class TimedH11Protocol(H11Protocol):
         self.transport.close()
 
 
+SEND_STALL_S = wire.HEARTBEAT_TIMEOUT_S
+"""The longest a WebSocket send waits for a peer that takes nothing: as long as a live link
+may stay silent."""
+
+
 class Utf8WebSocketProtocol(WebSocketsSansIOProtocol):
     """uvicorn's WebSocket protocol, closing on a text message that is not UTF-8 with one
-    log line and a reason."""
+    log line and a reason, and cutting a peer that takes nothing for ``SEND_STALL_S``."""
+
+    send_stall_s = SEND_STALL_S
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._paused = False
+        self._cut_timer: asyncio.TimerHandle | None = None
+
+    def pause_writing(self) -> None:
+        self._paused = True
+        super().pause_writing()
+
+    def resume_writing(self) -> None:
+        self._paused = False
+        super().resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._cut_timer is not None:
+            self._cut_timer.cancel()
+            self._cut_timer = None
+        super().connection_lost(exc)
+
+    async def send(self, message: Any) -> None:
+        if self._paused and not self.disconnected and self.handshake_complete:
+            if message["type"] == "websocket.close" and not self.close_sent:
+                self.writable.set()  # the close alone passes: the buffer takes it
+                try:
+                    await super().send(message)
+                finally:
+                    if self._paused:
+                        self.writable.clear()
+                self._cut_timer = self.loop.call_later(self.send_stall_s, self._cut)
+                return
+            try:
+                async with asyncio.timeout(self.send_stall_s):
+                    await self.writable.wait()
+            except TimeoutError:
+                self._cut()
+                raise ClientDisconnected from None
+        await super().send(message)
+
+    def _cut(self) -> None:
+        """Drop the connection of a peer that takes nothing sent to it."""
+        self._cut_timer = None
+        if self.disconnected or not self._paused:
+            return  # it took what it was sent: uvicorn's own close timer goes on
+        log.warning(
+            "cut the WebSocket of %s: it took nothing sent to it for %g s",
+            _peer(self.client),
+            self.send_stall_s,
+        )
+        self.transport.abort()
 
     def send_receive_event_to_app(self) -> None:
         if self.curr_msg_data_type == "text" and not self.close_sent:

@@ -23,6 +23,7 @@ therapist that the live view is stale.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal, cast
 
@@ -35,6 +36,7 @@ from pydantic import (
     create_model,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 from sessions.prescription import (
     DAMPING_MAX,
@@ -44,6 +46,7 @@ from sessions.prescription import (
     plus_zero,
 )
 from sessions.recording import DeviceInfo, SessionEvent
+from sessions.text import Line, Lines
 
 PROTOCOL = 4
 """2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message.
@@ -88,6 +91,12 @@ CLOSE_NO_ACCESS = 4007
 """The viewer may no longer see this station's patient."""
 CLOSE_MUST_CHANGE = 4008
 """The viewer's password was printed or reset: it must be changed before anything else."""
+CLOSE_TOO_SLOW = 4009
+"""The viewer fell too far behind the events, status and results sent to it (the server's
+``CONTROL_QUEUE_MAX``): it reconnects and is sent the station's state afresh."""
+CLOSE_TOO_FAST = 4010
+"""The viewer sent commands faster than its link's budget (the server's ``COMMAND_BURST``
+at once, ``COMMANDS_PER_S`` after): no person at a dashboard does."""
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -297,6 +306,32 @@ class StatusMsg(BaseModel):
     )
 
 
+REQUEST_ID_PATTERN = r"^[A-Za-z0-9._:-]{1,64}$"
+"""What a command's ``request_id`` may be: up to 64 letters, digits and ``. _ : -`` (the
+dashboard sends ``<time>-<counter>-<random>`` in base 36; a UUID fits). It goes into the
+audit log, which is append-only and looked up by it: a control character there (PostgreSQL
+cannot turn a NUL back into text) broke every look-up for good."""
+_REQUEST_ID = re.compile(REQUEST_ID_PATTERN)
+
+
+def _request_id(text: str) -> str:
+    if not _REQUEST_ID.fullmatch(text):
+        raise PydanticCustomError(
+            "request_id", "must be 1 to 64 letters, digits, dots, underscores, colons or hyphens"
+        )
+    return text
+
+
+RequestId = Annotated[
+    str,
+    Field(
+        json_schema_extra={"pattern": REQUEST_ID_PATTERN, "minLength": 1, "maxLength": 64},
+        description="1-64 letters, digits and . _ : - chosen by the viewer; links the command, "
+        "its result and its audit rows.",
+    ),
+    AfterValidator(_request_id),
+]
+
 Action = Literal["set_impedance", "hold", "resume", "stop", "start"]
 # Strict: a live K or B must be a JSON number, never true or "40" (see sessions.prescription).
 # -0.0 is 0.0, as in a prescription (sessions.prescription.plus_zero).
@@ -313,7 +348,7 @@ class Command(BaseModel):
 
     model_config = _STRICT
     type: Literal["command"] = "command"
-    request_id: str = Field(min_length=1, max_length=64)
+    request_id: RequestId
     action: Action
     stiffness: dict[Axis, LiveStiffness] | None = Field(
         default=None, description="set_impedance: new K per ankle axis, N·m/rad."
@@ -380,15 +415,16 @@ class CommandResult(BaseModel):
 
     model_config = _STRICT
     type: Literal["result"] = "result"
-    request_id: str
+    request_id: RequestId
     ok: bool
-    code: str = Field(
+    # What the station says goes into the audit log as it is: no control characters.
+    code: Line = Field(
         default="",
         description="The device's NACK code; the station's REFUSED, OFFLINE or TIMEOUT; or the "
         "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT or TIMEOUT.",
     )
-    field: str = ""
-    text: str = ""
+    field: Line = ""
+    text: Lines = ""
     rtt_ms: float = Field(default=0.0, description="Station to device and back, ms.")
     change: ImpedanceChange | None = Field(
         default=None, description="set_impedance, when made: what changed, and when it applies."

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 from fastapi import APIRouter, Query
-from sqlalchemy import select
+from sqlalchemy import ColumnElement, Text, cast, select
+from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.deps import Db, Id, TherapistOrAdmin
 from server.models import AuditEntry, Patient
@@ -61,5 +63,22 @@ async def list_audit(
     if station_id is not None:
         query = query.where(AuditEntry.entity == "station", AuditEntry.entity_id == str(station_id))
     if request_id is not None:
-        query = query.where(AuditEntry.new["request_id"].as_string() == request_id)
+        query = query.where(_request_id_is(db, request_id))
     return [AuditPublic.model_validate(e) for e in (await db.execute(query)).scalars()]
+
+
+def _request_id_is(db: AsyncSession, request_id: str) -> ColumnElement[bool]:
+    """Rows whose ``new`` holds this ``request_id``.
+
+    On PostgreSQL the row's JSON is searched as the text it is stored as, for the pair
+    ``"request_id": "<id>"`` as the serializer (``json.dumps``) wrote it, and never parsed:
+    any JSON operator (``->>``, ``->``, a cast to jsonb) unescapes every string of the row,
+    and a single row holding ``\u0000`` anywhere, which PostgreSQL's text cannot hold, made
+    every look-up a 500 for good (the log is append-only). Such rows were written before
+    request_ids and a station's answers were held to ``sessions.wire``'s rules. The quotes
+    make the match exact: inside a string value they would be escaped (``\"``)."""
+    if db.get_bind().dialect.name == "postgresql":
+        pair = f'"request_id": {json.dumps(request_id)}'
+        return cast(AuditEntry.new, Text).contains(pair, autoescape=True)
+    stored: ColumnElement[bool] = AuditEntry.new["request_id"].as_string() == request_id
+    return stored
