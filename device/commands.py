@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device.axes import AXES
-from device.limits import LEG_HEADROOM, SafetyLimits, to_float32
+from device.limits import LEG_HEADROOM, SafetyLimits, implausible_legs, to_float32
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, NackCode
 from device.trips import Trip
@@ -164,7 +164,7 @@ def check(command: msg.Message, ctx: Context) -> Checked:
     if isinstance(command, msg.ArmHome):
         require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD))
         if ctx.legs is not None:
-            check_leg_targets(ctx.legs, ctx.geometry, ctx.limits, "homing starts from")
+            check_homing_start(ctx.legs, ctx.geometry, ctx.limits)
         return command
     if isinstance(command, msg.StartSegment):
         require_mode(ctx.mode, (DeviceMode.READY, DeviceMode.ACTIVE))
@@ -413,6 +413,23 @@ def check_leg_targets(
             "legs",
         )
     return x
+
+
+def check_homing_start(
+    legs: Sequence[float] | NDArray[np.float64], geometry: Geometry, limits: SafetyLimits
+) -> None:
+    """Homing starts from any leg reading a piston can give (:func:`implausible_legs`):
+    from the end stops too, where a release, the start-up identification and every power-off
+    leave the platform, inside the stroke-end trip band."""
+    bad = implausible_legs(legs, geometry.stroke, limits)
+    if bad:
+        m = limits.stroke_margin
+        readings = ", ".join(f"{i + 1} at {legs[i] * 1e3:.2f} mm" for i in bad)
+        raise CommandError(
+            f"homing cannot start from these leg readings: leg {readings}, beyond "
+            f"{-m * 1e3:.0f}..{(geometry.stroke + m) * 1e3:.0f} mm (check the leg sensors)",
+            "legs",
+        )
 
 
 def check_segment(c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry) -> CheckedSegment:

@@ -146,6 +146,29 @@ def test_modes_are_part_of_the_check() -> None:
     )
 
 
+def test_homing_starts_from_the_end_stops_not_from_a_reading_no_piston_gives() -> None:
+    """A platform on its end stops (after a release, the start-up identification or a
+    power-off) reads its legs inside the stroke-end trip band: homing starts from there.
+    Only a reading no piston can give (not finite, or beyond the sensor's reach past either
+    end of the stroke) is refused, naming the leg."""
+    stroke = DEFAULT_GEOMETRY.stroke
+
+    def idle(*legs: float) -> Context:
+        return Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.IDLE, legs=legs)
+
+    on_stops = (-0.01e-3, -0.01e-3, -0.02e-3, 0.01e-3, 0.01e-3, 0.0)  # as measured
+    assert verdict(m.ArmHome(), idle(*on_stops)) is None
+    assert verdict(m.ArmHome(), idle(*([stroke + 1.9e-3] * 6))) is None  # on the top stops
+    assert verdict(m.ArmHome(), idle(0.0, 0.02, 0.05, 0.07, 0.09, stroke)) is None
+    for leg, reading in ((2, 0.15), (5, -2.5e-3), (0, math.nan), (3, math.inf)):
+        legs = [0.05] * 6
+        legs[leg] = reading
+        with pytest.raises(CommandError) as err:
+            commands.check(m.ArmHome(), idle(*legs))
+        assert err.value.code == NackCode.OUT_OF_RANGE and err.value.field == "legs"
+        assert f"leg {leg + 1} at " in str(err.value) and "-2..102 mm" in str(err.value)
+
+
 # -- through the real wire -----------------------------------------------------------------
 
 
