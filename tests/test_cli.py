@@ -44,6 +44,7 @@ def ankle(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str
         (["sim", "impedance", "--torque", "100"], "torque must be"),
         (["sim", "impedance", "--k", "500", "--torque", "0.2"], "leg sensors resolve"),
         (["sim", "impedance", "--mode", "dynamic", "--hz", "0.5,50"], "frequencies"),
+        (["sim", "step", "--fault", "supply_loss@0.6:3"], "supply_loss takes no channel"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: list[str], needle: str) -> None:
@@ -145,6 +146,17 @@ def test_a_bad_fault_spec_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
     r = ankle(*args)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "fault" in r.stderr
+
+
+@pytest.mark.parametrize("command", [("sim", "step"), ("device", "--sim")])
+def test_more_faults_than_the_plant_holds_are_refused_when_parsed(command: tuple[str, ...]) -> None:
+    """Once a traceback from the plant (``ankle sim``, exit 1) or, from ``ankle device``,
+    a sentence after identifying the unit that suggested a Python call."""
+    faults = [arg for n in range(17) for arg in ("--fault", f"leg_offset@1.4:{n % 6}=0.01")]
+    r = ankle(*command, *faults)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "--fault: at most 16 at once (the plant's fault table holds 16)" in r.stderr
 
 
 def test_a_sine_faster_than_the_device_accepts_is_refused_before_it_runs() -> None:
