@@ -409,8 +409,7 @@ def check_reachable(
         axes.append(sorted({lo, 0.5 * (lo + hi), hi}))
     poses = np.array(list(itertools.product(*axes)), dtype=np.float64)
     x = piston_displacements(poses + geometry.home_pose, geometry)
-    lo = limits.stroke_margin + LEG_HEADROOM
-    hi = geometry.stroke - limits.stroke_margin - LEG_HEADROOM
+    lo, hi = usable_stroke(geometry, limits)
     worst_low, worst_high = x.min(axis=0), x.max(axis=0)
     for leg in range(6):
         if worst_low[leg] < lo or worst_high[leg] > hi:
@@ -420,6 +419,13 @@ def check_reachable(
                 f"usable {lo * 1e3:.0f}..{hi * 1e3:.0f} mm",
                 "center",
             )
+
+
+def usable_stroke(geometry: Geometry, limits: SafetyLimits) -> tuple[float, float]:
+    """Where a target may put a piston (m): ``LEG_HEADROOM`` inside the stroke-end trip
+    band at either end, so a step's overshoot or a sine's tracking error never trips it."""
+    lo = limits.stroke_margin + LEG_HEADROOM
+    return lo, geometry.stroke - lo
 
 
 def check_leg_targets(
