@@ -106,7 +106,7 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     dev.add_argument(
         "--fault",
         type=fault_spec,
-        action="append",
+        action=FaultList,
         default=[],
         metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
         help="simulation only: inject a plant fault at TIME s after the start (repeatable; "
@@ -219,6 +219,27 @@ def fault_spec(text: str) -> Any:
         return parse_fault(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class FaultList(argparse.Action):
+    """``--fault``, repeatable: at most as many faults as the plant's fault table holds, so
+    too many is a usage error here rather than a failure once the plant is built."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        from device.plant.faults import MAX_FAULTS
+
+        faults = [*(getattr(namespace, self.dest, None) or ()), values]
+        if len(faults) > MAX_FAULTS:
+            raise argparse.ArgumentError(
+                self, f"at most {MAX_FAULTS} at once (the plant's fault table holds {MAX_FAULTS})"
+            )
+        setattr(namespace, self.dest, faults)
 
 
 def fault_kind(text: str) -> Any:

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from device.axes import AXES
-from device.limits import LEG_HEADROOM, SafetyLimits, to_float32
+from device.limits import LEG_HEADROOM, SafetyLimits, implausible_legs, to_float32
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, NackCode
 from device.trips import Trip
@@ -120,6 +120,26 @@ class Context:
 Checked = msg.Message | CheckedSegment | CheckedImpedance
 
 
+def figures(value: float, *bounds: float, digits: int = 6) -> tuple[str, ...]:
+    """``value`` (six significant digits at least, as ``:g``) and ``bounds`` (``digits`` at
+    least) as text, with the fewest digits at which each printed bound lies on the same side
+    of the printed value as the numbers do: a refusal never reads "stiffness 500 outside
+    0..500" for 500.0001, nor "at least 0.24, got 0.24" for a bound of 0.244."""
+
+    def side(a: float, b: float) -> int:
+        return int(a > b) - int(a < b)
+
+    value, bounds = float(value), tuple(float(b) for b in bounds)
+    for d in range(digits, 18):
+        texts = (f"{value:.{max(d, 6)}g}", *(f"{x:.{d}g}" for x in bounds))
+        shown = float(texts[0])
+        if all(
+            side(float(t), shown) == side(b, value) for t, b in zip(texts[1:], bounds, strict=True)
+        ):
+            return texts
+    return tuple(repr(float(x)) for x in (value, *bounds))
+
+
 # -- the one entry point of the device service -------------------------------------------
 
 
@@ -167,7 +187,7 @@ def check(command: msg.Message, ctx: Context) -> Checked:
     if isinstance(command, msg.ArmHome):
         require_mode(ctx.mode, (DeviceMode.IDLE, DeviceMode.READY, DeviceMode.HOLD))
         if ctx.legs is not None:
-            check_leg_targets(ctx.legs, ctx.geometry, ctx.limits, "homing starts from")
+            check_homing_start(ctx.legs, ctx.geometry, ctx.limits)
         return command
     if isinstance(command, msg.StartSegment):
         require_mode(ctx.mode, (DeviceMode.READY, DeviceMode.ACTIVE))
@@ -302,14 +322,16 @@ def check_impedance(
     B = _finite("damping", damping)
     for k, axis in enumerate(AXES):
         if not 0.0 <= K[k] <= limits.stiffness_max[k]:
+            v, lo, hi = figures(K[k], 0.0, limits.stiffness_max[k])
             raise CommandError(
-                f"{axis} stiffness {K[k]:g} outside 0..{limits.stiffness_max[k]:g}",
+                f"{axis} stiffness {v} outside {lo}..{hi}",
                 "stiffness",
                 axis=k,
             )
         if not 0.0 <= B[k] <= limits.damping_max[k]:
+            v, lo, hi = figures(B[k], 0.0, limits.damping_max[k])
             raise CommandError(
-                f"{axis} damping {B[k]:g} outside 0..{limits.damping_max[k]:g}",
+                f"{axis} damping {v} outside {lo}..{hi}",
                 "damping",
                 axis=k,
             )
@@ -321,8 +343,9 @@ def check_impedance(
             )
         least = limits.damping_min_at(k, float(K[k]))
         if compliant[k] and to_float32(B[k]) < least:  # as the wire carries it
+            v, low = figures(to_float32(B[k]), least)
             raise CommandError(
-                f"{axis} damping {B[k]:g} is below {least:g}, the least the device renders "
+                f"{axis} damping {v} is below {low}, the least the device renders "
                 f"stably at stiffness {K[k]:g}",
                 "damping",
                 axis=k,
@@ -346,23 +369,26 @@ def check_axis_targets(
                 f"{axis} target must be finite numbers", "center", NackCode.NOT_FINITE, k
             )
         if t.kind == Waveform.SINE and not 0.0 <= t.frequency <= SINE_HZ_MAX:
+            got, low, high = figures(t.frequency, 0.0, SINE_HZ_MAX)
             raise CommandError(
-                f"{axis} frequency {t.frequency:g} outside 0..{SINE_HZ_MAX:g} Hz",
+                f"{axis} frequency {got} outside {low}..{high} Hz",
                 "frequency",
                 axis=k,
             )
         lo, hi = t.extent()
         if lo < rom_low[k] or hi > rom_high[k]:
+            lo_text, low = figures(lo, rom_low[k], digits=4)
+            hi_text, high = figures(hi, rom_high[k], digits=4)
             raise CommandError(
-                f"{axis} waveform spans {lo:.4g}..{hi:.4g}, outside {where} "
-                f"{rom_low[k]:.4g}..{rom_high[k]:.4g}",
+                f"{axis} waveform spans {lo_text}..{hi_text}, outside {where} {low}..{high}",
                 "center",
                 axis=k,
             )
         speed = t.peak_speed()
         if speed > limits.axis_speed_max[k]:
+            v, top = figures(speed, limits.axis_speed_max[k], digits=3)
             raise CommandError(
-                f"{axis} waveform peaks at {speed:.3g}/s, above {limits.axis_speed_max[k]:g}/s",
+                f"{axis} waveform peaks at {v}/s, above {top}/s",
                 "frequency" if t.kind == Waveform.SINE else "ramp_rate",
                 axis=k,
             )
@@ -386,8 +412,7 @@ def check_reachable(
         axes.append(sorted({lo, 0.5 * (lo + hi), hi}))
     poses = np.array(list(itertools.product(*axes)), dtype=np.float64)
     x = piston_displacements(poses + geometry.home_pose, geometry)
-    lo = limits.stroke_margin + LEG_HEADROOM
-    hi = geometry.stroke - limits.stroke_margin - LEG_HEADROOM
+    lo, hi = usable_stroke(geometry, limits)
     worst_low, worst_high = x.min(axis=0), x.max(axis=0)
     for leg in range(6):
         if worst_low[leg] < lo or worst_high[leg] > hi:
@@ -397,6 +422,13 @@ def check_reachable(
                 f"usable {lo * 1e3:.0f}..{hi * 1e3:.0f} mm",
                 "center",
             )
+
+
+def usable_stroke(geometry: Geometry, limits: SafetyLimits) -> tuple[float, float]:
+    """Where a target may put a piston (m): ``LEG_HEADROOM`` inside the stroke-end trip
+    band at either end, so a step's overshoot or a sine's tracking error never trips it."""
+    lo = limits.stroke_margin + LEG_HEADROOM
+    return lo, geometry.stroke - lo
 
 
 def check_leg_targets(
@@ -418,29 +450,46 @@ def check_leg_targets(
     return x
 
 
+def check_homing_start(
+    legs: Sequence[float] | NDArray[np.float64], geometry: Geometry, limits: SafetyLimits
+) -> None:
+    """Homing starts from any leg reading a piston can give (:func:`implausible_legs`):
+    from the end stops too, where a release, the start-up identification and every power-off
+    leave the platform, inside the stroke-end trip band."""
+    bad = implausible_legs(legs, geometry.stroke, limits)
+    if bad:
+        m = limits.stroke_margin
+        readings = ", ".join(f"{i + 1} at {legs[i] * 1e3:.2f} mm" for i in bad)
+        raise CommandError(
+            f"homing cannot start from these leg readings: leg {readings}, beyond "
+            f"{-m * 1e3:.0f}..{(geometry.stroke + m) * 1e3:.0f} mm (check the leg sensors)",
+            "legs",
+        )
+
+
 def check_segment(c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry) -> CheckedSegment:
     """Every field of a segment against the device's published limits."""
     if c.segment_id == 0:
         raise CommandError("segment_id 0 means none; use 1 or more", "segment_id")
     if not 0.0 < c.duration <= SEGMENT_DURATION_MAX:
-        raise CommandError(
-            f"duration {c.duration:g} s outside (0, {SEGMENT_DURATION_MAX:g}]", "duration"
-        )
+        got, low, high = figures(c.duration, 0.0, SEGMENT_DURATION_MAX)
+        raise CommandError(f"duration {got} s outside ({low}, {high}]", "duration")
     if not 0.0 < c.force_limit <= limits.force_limit:
-        raise CommandError(
-            f"force_limit {c.force_limit:g} N outside (0, {limits.force_limit:g}]", "force_limit"
-        )
+        got, low, high = figures(c.force_limit, 0.0, limits.force_limit)
+        raise CommandError(f"force_limit {got} N outside ({low}, {high}]", "force_limit")
     if not 0.0 < c.torque_limit <= limits.torque_limit:
+        got, low, high = figures(c.torque_limit, 0.0, limits.torque_limit)
         raise CommandError(
-            f"torque_limit {c.torque_limit:g} N m outside (0, {limits.torque_limit:g}]",
+            f"torque_limit {got} N m outside ({low}, {high}]",
             "torque_limit",
         )
     for k, axis in enumerate(AXES):
         lo, hi = c.rom_low[k], c.rom_high[k]
         if not limits.rom_low[k] <= lo <= hi <= limits.rom_high[k]:
+            lo_text, low = figures(lo, limits.rom_low[k], digits=4)
+            hi_text, high = figures(hi, limits.rom_high[k], digits=4)
             raise CommandError(
-                f"{axis} range {lo:.4g}..{hi:.4g} is not within the device's "
-                f"{limits.rom_low[k]:.4g}..{limits.rom_high[k]:.4g}",
+                f"{axis} range {lo_text}..{hi_text} is not within the device's {low}..{high}",
                 "rom_low" if lo < limits.rom_low[k] or lo > hi else "rom_high",
                 axis=k,
             )

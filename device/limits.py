@@ -11,6 +11,8 @@ copy, so a host that asks for exactly a published limit is never refused by a ro
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -142,3 +144,23 @@ ROW_K_MAX, ROW_B_MAX, ROW_K_SLEW, ROW_B_SLEW, ROW_SCALARS = 3, 4, 5, 6, 7
 ROW_B_MIN, ROW_ENVELOPE_K = 8, 11
 """Rows 8-10: least damping per axis of K bands 0-2; row 11: the bands' lower edges."""
 """Rows of :meth:`SafetyLimits.as_array`, the compiled controller's copy."""
+
+
+def implausible_legs(
+    legs: Sequence[float] | NDArray[np.float64], stroke: float, limits: SafetyLimits
+) -> list[int]:
+    """The legs (0-5) whose displacement reading no piston of a ``stroke`` long cylinder
+    gives: not finite, or more than the stroke margin beyond either end of the stroke.
+
+    What homing needs of where it starts, and all it needs: a platform resting on its end
+    stops (vented by a release, the start-up identification or a power-off) reads its legs
+    at 0..2 mm, inside the stroke-end trip band, and homing takes it from there (a leg that
+    starts outside the band is judged once inside it: ``device.safety.outside_at_start``).
+    A sensor reads a little past its stops (its measuring range and zero errors); one that
+    reads farther is broken or mis-calibrated, and the controller would chase it."""
+    m = limits.stroke_margin
+    bad = []
+    for i, x in enumerate(legs):
+        if not (math.isfinite(float(x)) and -m <= x <= stroke + m):
+            bad.append(i)
+    return bad

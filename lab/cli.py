@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from device.cli import (
+    FaultList,
     Parser,
     UsageError,
     add_plant_options,
@@ -286,7 +287,7 @@ def _faults(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fault",
         type=fault_spec,
-        action="append",
+        action=FaultList,
         default=[],
         metavar="KIND@TIME[+DUR][:CHANNEL][=VALUE]",
         help="inject a plant fault at TIME s of simulated time (the 0.5 s settle at home "

@@ -40,13 +40,15 @@ from numpy.typing import NDArray
 
 from device import pwm, ring, trips
 from device.calibration import Calibration
+from device.commands import figures
 from device.controller import ControllerConfig, Mode, Waveform
 from device.geometry import AXES, AXIS_INDEX, DEFAULT_GEOMETRY
 from device.hardware import SimulatedHardware
 from device.identify import identify_simulated
+from device.limits import LEG_HEADROOM
 from device.plant.faults import Fault, FaultKind, describe, format_fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
-from device.plant.params import PlantConfig, draw_plant
+from device.plant.params import PlantConfig, build_params, draw_plant
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.safety import SafetyLimits, Trip
 from device.tickloop import COL
@@ -577,20 +579,69 @@ class StepResult(Checked):
     """(n, 2) signed PWM slots of those chambers, as percent of the period."""
 
 
+def leg_step_range(leg: int) -> tuple[float, float]:
+    """The lowest and highest displacement (m) leg ``leg`` (1..6) may step from home, the
+    other five held there: the target within the stroke the device lets a target use
+    (:func:`device.commands.usable_stroke`) and the platform, once there, within its range
+    of motion (forward kinematics), which a single leg's step tilts and shifts it through
+    on several axes at once: leg 1 down 45 mm moves the platform 36 mm along x, past the
+    30 mm range and its 5 mm trip margin; up 45 mm, 34 mm the other way, 1 mm short of the
+    trip, where any overshoot trips it."""
+    from device.commands import usable_stroke
+    from device.kinematics import Kinematics
+
+    i = leg_index(leg)
+    g, limits = DEFAULT_GEOMETRY, SafetyLimits()
+    kin = Kinematics(g)
+    rom_low, rom_high = np.array(limits.rom_low), np.array(limits.rom_high)
+
+    def inside(d: float) -> bool:
+        lengths = np.full(6, g.home_length)
+        lengths[i] += d
+        pose = kin.forward(lengths) - g.home_pose
+        return bool(np.all(rom_low <= pose) and np.all(pose <= rom_high))
+
+    def reach(end: float) -> float:  # from home (inside) toward ``end``, as far as inside
+        if inside(end):
+            return end
+        near, far = 0.0, end
+        for _ in range(40):  # to well under a micrometre
+            mid = 0.5 * (near + far)
+            near, far = (mid, far) if inside(mid) else (near, mid)
+        return near
+
+    low, high = usable_stroke(g, limits)
+    home = 0.5 * g.stroke
+    return reach(low - home), reach(high - home)
+
+
+def _check_leg_travel(leg: int, mm: float, what: str, times: int = 1) -> None:
+    """Refuse ``times`` steps of ``mm`` on ``leg`` beyond :func:`leg_step_range`."""
+    low, high = (x * 1e3 / times for x in leg_step_range(leg))
+    if not low <= mm <= high:
+        got, lo_text, hi_text = figures(mm, low, high, digits=3)
+        span = f"{times} steps" if times > 1 else "a step"
+        raise CommandError(
+            f"leg {leg} {what} must be {lo_text}..{hi_text} mm: {span} beyond would take its "
+            f"piston within {LEG_HEADROOM * 1e3:g} mm of the stroke-end trip band or the "
+            f"platform out of its range of motion; got {got}"
+        )
+
+
 def check_step(leg: int, mm: float, duration: float = 1.0) -> None:
     """Refuse a step that cannot be measured (before any simulation)."""
     leg_index(leg)
-    limits = SafetyLimits()
-    # From mid-stroke the target must stay inside the stroke the device accepts.
-    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3
     smallest = MIN_STEP_COUNTS * LEG_SENSOR_M * 1e3
-    if not math.isfinite(mm) or not smallest <= abs(mm) < largest:
+    if not math.isfinite(mm):
+        raise CommandError(f"step must be a finite number of mm, got {mm!r}")
+    if abs(mm) < smallest:
+        got, least = figures(abs(mm), smallest, digits=3)
         raise CommandError(
-            f"step must be at least {smallest:.2f} and below {largest:g} mm either way "
-            f"(a 10-90 % rise needs its 10 % point resolved by the "
-            f"{LEG_SENSOR_M * 1e3:.3f} mm leg sensor; the target must stay inside the stroke), "
-            f"got {mm:g}"
+            f"step must be at least {least} mm either way (a 10-90 % rise needs its 10 % "
+            f"point resolved by the {LEG_SENSOR_M * 1e3:.4f} mm leg sensor), got "
+            f"{'-' if mm < 0 else ''}{got}"
         )
+    _check_leg_travel(leg, mm, "step")
     if not math.isfinite(duration) or not 0.1 <= duration <= 60.0:
         raise CommandError("duration must be 0.1..60 s")
 
@@ -643,15 +694,16 @@ class StaircaseResult(Checked):
 def check_staircase(leg: int, step_mm: float, steps: int = STAIR_STEPS) -> None:
     """Refuse a staircase that cannot be measured (before any simulation)."""
     leg_index(leg)
-    limits = SafetyLimits()
     smallest = MIN_STAIR_COUNTS * LEG_SENSOR_M * 1e3
-    largest = (0.5 * DEFAULT_GEOMETRY.stroke - limits.stroke_margin) * 1e3 / steps
-    if not math.isfinite(step_mm) or not smallest <= abs(step_mm) < largest:
+    if not math.isfinite(step_mm):
+        raise CommandError(f"staircase step must be a finite number of mm, got {step_mm!r}")
+    if abs(step_mm) < smallest:
+        got, least = figures(abs(step_mm), smallest, digits=3)
         raise CommandError(
-            f"staircase step must be at least {smallest:.3f} and below {largest:g} mm "
-            f"either way (one leg sensor count up to {steps} steps within the half stroke), "
-            f"got {step_mm:g}"
+            f"staircase step must be at least {least} mm either way (one count of the leg "
+            f"sensor), got {'-' if step_mm < 0 else ''}{got}"
         )
+    _check_leg_travel(leg, step_mm, "staircase step", steps)
 
 
 def staircase(
@@ -935,23 +987,57 @@ def check_impedance(axis: str, k: float, b: float, torque: float) -> int:
     if k <= 0.0:
         raise CommandError("stiffness must be positive to measure it")
     if k > limits.stiffness_max[ax]:
-        raise CommandError(f"stiffness must be at most {limits.stiffness_max[ax]:g} N m/rad")
+        got, top = figures(k, limits.stiffness_max[ax])
+        raise CommandError(f"stiffness must be at most {top} N m/rad, got {got}")
     if b < 0.0:
         raise CommandError("damping cannot be negative")
     if b > limits.damping_max[ax]:
-        raise CommandError(f"damping must be at most {limits.damping_max[ax]:g} N m s/rad")
+        got, top = figures(b, limits.damping_max[ax])
+        raise CommandError(f"damping must be at most {top} N m s/rad, got {got}")
     if not TORQUE_MIN_NM <= abs(torque) <= TORQUE_MAX_NM:
+        got, lo, hi = figures(abs(torque), TORQUE_MIN_NM, TORQUE_MAX_NM)
         raise CommandError(
-            f"torque must be {TORQUE_MIN_NM:g}..{TORQUE_MAX_NM:g} N m either way (resolved by "
-            f"the force plate; below its {limits.torque_limit:g} N m trip), got {torque:g}"
+            f"torque must be {lo}..{hi} N m either way (resolved by the force plate; below "
+            f"its {limits.torque_limit:g} N m trip), got {'-' if torque < 0 else ''}{got}"
         )
-    # The deflection the patient's torque causes must move the legs by enough counts.
-    smallest = _sine_min_amplitude(ax)
-    if abs(torque) / k < smallest:
+    # The relaxed ankle's own stiffness takes its share of the patient's torque: the
+    # platform turns by torque / (K + K_ankle), and the plate sees K times that.
+    ankle = float(build_params(current_plant().config("relaxed")).patient_k[ax])
+    unit = f"N m/rad (the relaxed ankle's own {ankle:.3g} N m/rad takes the rest)"
+    # What the plate sees must be resolved by it: at least the smallest torque it resolves.
+    if k * abs(torque) / (k + ankle) < TORQUE_MIN_NM:
+        if abs(torque) <= TORQUE_MIN_NM:
+            raise CommandError(
+                f"torque {torque:g} N m: the plate sees only K / (K + K_ankle) of it, "
+                f"under the {TORQUE_MIN_NM:g} N m it resolves whatever K; push harder"
+            )
+        least_k = TORQUE_MIN_NM * ankle / (abs(torque) - TORQUE_MIN_NM)
+        got, low = figures(k, least_k, digits=3)
         raise CommandError(
-            f"torque {torque:g} N m against K = {k:g} moves {axis} "
-            f"{math.degrees(abs(torque) / k):.3g} deg, below the "
-            f"{math.degrees(smallest):.3g} deg the leg sensors resolve"
+            f"against torque {torque:g} N m the plate sees K / (K + K_ankle) of it: K must be "
+            f"at least {low} {unit} for the plate to see the {TORQUE_MIN_NM:g} N m it "
+            f"resolves, got {got}"
+        )
+    # The deflection must stay inside the range of motion, where the device clamps it.
+    rom = limits.rom_high[ax] if torque > 0 else -limits.rom_low[ax]
+    least_k = abs(torque) / rom - ankle
+    if k < least_k:
+        got, low = figures(k, least_k, digits=3)
+        raise CommandError(
+            f"torque {torque:g} N m would turn {axis} beyond its range of motion "
+            f"({math.degrees(rom):.3g} deg): K must be at least {low} {unit}, got {got}"
+        )
+    # The deflection must move the legs by enough counts.
+    smallest = _sine_min_amplitude(ax)
+    deflection = abs(torque) / (k + ankle)
+    if deflection < smallest:
+        most_k = abs(torque) / smallest - ankle
+        got, high = figures(k, most_k, digits=3)
+        raise CommandError(
+            f"torque {torque:g} N m against K = {got} and the relaxed ankle's {ankle:.3g} "
+            f"N m/rad moves {axis} {math.degrees(deflection):.3g} deg, below the "
+            f"{math.degrees(smallest):.3g} deg the leg sensors resolve: K must be at most "
+            f"{high} N m/rad"
         )
     return ax
 

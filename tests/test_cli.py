@@ -53,6 +53,21 @@ def ankle(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str
         (["sim", "impedance", "--torque", "100"], "torque must be"),
         (["sim", "impedance", "--k", "500", "--torque", "0.2"], "leg sensors resolve"),
         (["sim", "impedance", "--mode", "dynamic", "--hz", "0.5,50"], "frequencies"),
+        # Steps the device would refuse, or whose end pose is out of the range of motion:
+        # each tripped the run (STROKE_END, RANGE_OF_MOTION) before it was refused here.
+        (["sim", "step", "--leg", "6", "--mm", "47.99"], "leg 6 step must be -45..45 mm"),
+        (["sim", "step", "--mm", "-45"], "range of motion; got -45"),
+        (["sim", "staircase", "--mm", "5"], "8 steps beyond"),
+        # The plate must see what it resolves, and the ankle turn inside its range: once
+        # a "measured stiffness -2.02 N m/rad (2023736 % error)", exit 0.
+        (["sim", "impedance", "--k", "0.0001", "--torque", "10"], "K must be at least 0.152"),
+        (["sim", "impedance", "--k", "0.0001", "--torque", "0.1"], "whatever K"),
+        (["sim", "impedance", "--k", "20", "--torque", "40"], "beyond its range of motion"),
+        # A bound printed with the digits that tell it from the value.
+        (["sim", "step", "--mm", "0.24"], "at least 0.244 mm either way"),
+        (["sim", "staircase", "--mm", "-0.024"], "at least 0.0244 mm either way"),
+        (["sim", "impedance", "--k", "500.0001"], "at most 500 N m/rad, got 500.0001"),
+        (["sim", "step", "--fault", "supply_loss@0.6:3"], "supply_loss takes no channel"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: list[str], needle: str) -> None:
@@ -156,6 +171,17 @@ def test_a_bad_fault_spec_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
     assert r.stderr.count("\n") == 1 and "fault" in r.stderr
 
 
+@pytest.mark.parametrize("command", [("sim", "step"), ("device", "--sim")])
+def test_more_faults_than_the_plant_holds_are_refused_when_parsed(command: tuple[str, ...]) -> None:
+    """Once a traceback from the plant (``ankle sim``, exit 1) or, from ``ankle device``,
+    a sentence after identifying the unit that suggested a Python call."""
+    faults = [arg for n in range(17) for arg in ("--fault", f"leg_offset@1.4:{n % 6}=0.01")]
+    r = ankle(*command, *faults)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "--fault: at most 16 at once (the plant's fault table holds 16)" in r.stderr
+
+
 def test_a_sine_faster_than_the_device_accepts_is_refused_before_it_runs() -> None:
     # 5 deg at 20 Hz peaks at 11 rad/s: the device's axis speed limit (2 rad/s) refuses it,
     # as the device itself would, so nothing is simulated. (A sine that trips the legs is
@@ -164,15 +190,6 @@ def test_a_sine_faster_than_the_device_accepts_is_refused_before_it_runs() -> No
     assert r.returncode == 2
     assert r.stdout == ""
     assert r.stderr.count("\n") == 1 and "axis speed limit" in r.stderr
-
-
-def test_a_patient_pushing_past_the_range_of_motion_is_not_a_stiffness() -> None:
-    # 40 N m against 20 N m/rad would be 2 rad: the command is clamped at the range.
-    r = ankle("sim", "impedance", "--k", "20", "--torque", "40", "--json")
-    assert r.returncode == 1, r.stderr
-    data = json.loads(r.stdout)
-    assert "range_of_motion" in data["saturated"] and data["valid"] is False
-    assert data["measured_stiffness"] is None
 
 
 def test_console_shows_live_telemetry_from_the_service_and_stops_cleanly() -> None:

@@ -160,6 +160,8 @@ class Fault:
             raise ValueError(f"{name}: duration must be > 0 s (inf for ever)")
         lo, hi, what = _CHANNEL_RANGE[self.kind]
         if not (isinstance(self.channel, int) and lo <= self.channel <= hi):
+            if lo == hi:  # a part of its own: the supply
+                raise ValueError(f"{name} takes no channel, got channel {self.channel!r}")
             raise ValueError(f"{name}: channel {self.channel!r} is not a {what}")
         if not math.isfinite(self.value):
             raise ValueError(f"{name}: value must be a finite number")

@@ -146,6 +146,70 @@ def test_modes_are_part_of_the_check() -> None:
     )
 
 
+def test_homing_starts_from_the_end_stops_not_from_a_reading_no_piston_gives() -> None:
+    """A platform on its end stops (after a release, the start-up identification or a
+    power-off) reads its legs inside the stroke-end trip band: homing starts from there.
+    Only a reading no piston can give (not finite, or beyond the sensor's reach past either
+    end of the stroke) is refused, naming the leg."""
+    stroke = DEFAULT_GEOMETRY.stroke
+
+    def idle(*legs: float) -> Context:
+        return Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.IDLE, legs=legs)
+
+    on_stops = (-0.01e-3, -0.01e-3, -0.02e-3, 0.01e-3, 0.01e-3, 0.0)  # as measured
+    assert verdict(m.ArmHome(), idle(*on_stops)) is None
+    assert verdict(m.ArmHome(), idle(*([stroke + 1.9e-3] * 6))) is None  # on the top stops
+    assert verdict(m.ArmHome(), idle(0.0, 0.02, 0.05, 0.07, 0.09, stroke)) is None
+    for leg, reading in ((2, 0.15), (5, -2.5e-3), (0, math.nan), (3, math.inf)):
+        legs = [0.05] * 6
+        legs[leg] = reading
+        with pytest.raises(CommandError) as err:
+            commands.check(m.ArmHome(), idle(*legs))
+        assert err.value.code == NackCode.OUT_OF_RANGE and err.value.field == "legs"
+        assert f"leg {leg + 1} at " in str(err.value) and "-2..102 mm" in str(err.value)
+
+
+@pytest.mark.parametrize("k", range(3, 6))
+def test_a_refusal_never_prints_its_value_on_the_bound(k: int) -> None:
+    """A value just past a bound is printed with the digits that tell it from the bound:
+    not "pitch stiffness 500 outside 0..500" for 500.0001."""
+    import re
+
+    active = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.ACTIVE, compliant=(True,) * 6)
+    axis = ("roll", "pitch", "yaw")[k - 3]
+    for field, bound in (
+        ("stiffness", LIMITS.stiffness_max[k]),
+        ("damping", LIMITS.damping_max[k]),
+    ):
+        for value in (up(bound), float(np.float32(bound + 1e-4))):
+            change = {"stiffness": [0.0] * 6, "damping": [2.0] * 6}
+            change[field][k] = value
+            command = m.SetImpedance(tuple(change["stiffness"]), tuple(change["damping"]))
+            with pytest.raises(CommandError) as err:
+                commands.check(commands.as_received(command), active)
+            found = re.fullmatch(rf"{axis} {field} (\S+) outside 0\.\.(\S+)", str(err.value))
+            assert found is not None, str(err.value)
+            assert float(found[1]) > float(found[2]) == pytest.approx(bound), str(err.value)
+    too_fast = with_axis("waveform", k, Waveform.RAMP, segment())
+    too_fast = with_axis("ramp_end", k, 0.1, too_fast)
+    too_fast = with_axis("ramp_rate", k, up(LIMITS.axis_speed_max[k]), too_fast)
+    with pytest.raises(CommandError) as err:
+        commands.check(too_fast, ready())
+    found = re.search(r"peaks at (\S+)/s, above (\S+)/s", str(err.value))
+    assert found is not None and float(found[1]) > float(found[2]), str(err.value)
+    wide = with_axis("rom_high", k, up(LIMITS.rom_high[k]), segment())
+    with pytest.raises(CommandError) as err:
+        commands.check(wide, ready())
+    found = re.search(
+        r"range \S+\.\.(\S+) is not within the device's \S+\.\.(\S+)$", f"{err.value}"
+    )
+    assert found is not None and float(found[1]) > float(found[2]), str(err.value)
+    stiffness = (0.0, 0.0, 0.0, 0.0, 500.0001, 0.0)
+    pitch = commands.as_received(m.SetImpedance(stiffness=stiffness, damping=(2.0,) * 6))
+    with pytest.raises(CommandError, match=r"^pitch stiffness 500\.0001 outside 0\.\.500$"):
+        commands.check(pitch, active)
+
+
 # -- through the real wire -----------------------------------------------------------------
 
 

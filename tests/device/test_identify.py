@@ -492,7 +492,7 @@ def test_a_calibration_carries_the_load_bias_and_refuses_what_no_empty_unit_has(
             Calibration.load(path)
 
 
-@pytest.mark.parametrize("patient", ["absent", "resisting"])
+@pytest.mark.parametrize("patient", ["absent", "relaxed", "resisting"])
 def test_a_platform_resting_on_its_stops_homes(patient: str) -> None:
     """Where the identification leaves a unit (and a power-off): legs on their stops, vented,
     the platform below its range of motion. Homing takes it from there to home without a

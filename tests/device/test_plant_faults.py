@@ -145,7 +145,7 @@ def test_format_and_parse_round_trip(spec: str) -> None:
         ("supply_loss@soon", "time 'soon' is not a number"),
         ("supply_loss@-1", "time must be a finite number of seconds >= 0"),
         ("supply_loss@nan", "time must be"),
-        ("supply_loss@1:3", "channel 3 is not a no channel"),
+        ("supply_loss@1:3", "supply_loss takes no channel, got channel 3"),
         ("pressure_open@1", "needs a pressure transducer 0..11"),
         ("pressure_open@1:13", "channel 13 is not a pressure transducer"),
         ("pressure_open@1:two", "channel 'two' is not a whole number"),

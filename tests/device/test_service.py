@@ -23,6 +23,7 @@ from device.client import (
 )
 from device.controller import Mode, Waveform
 from device.hardware import SimulatedHardware
+from device.identify import lower_and_vent
 from device.plant.model import SCRIPT_SINE
 from device.plant.params import PlantConfig
 from device.protocol import messages as m
@@ -474,6 +475,57 @@ def test_release_vents_and_needs_homing_again(device: Running) -> None:
         assert t.mode == DeviceMode.READY and t.trip == Trip.NONE
 
     drive(device, body)
+
+
+async def on_the_stops(dev: DeviceClient, timeout: float = 40.0) -> m.Telemetry:
+    """The first sample with every leg down on its stop, inside the stroke-end trip band,
+    and still (under 0.1 mm over 0.5 s)."""
+    margin = SafetyLimits().stroke_margin
+    last: list[m.Telemetry] = []
+
+    async def watch() -> m.Telemetry:
+        async for t in dev.telemetry():
+            last[:] = [x for x in last if x.time > t.time - 0.5] + [t]
+            span = np.ptp([x.legs for x in last], axis=0).max()
+            if last[-1].time - last[0].time >= 0.45 and max(t.legs) < margin and span < 1e-4:
+                return t
+        raise AssertionError("telemetry ended")
+
+    return await asyncio.wait_for(watch(), timeout)
+
+
+def test_a_platform_resting_on_its_stops_homes_over_the_wire() -> None:
+    """Where the start-up identification and every power-off leave a unit, and where a
+    release on an empty plate lets it sink: every leg on its stop, inside the 2 mm trip
+    band. ArmHome is accepted there and homes without a trip; after a release onto the
+    stops, it homes again. Before, ArmHome was refused there (every leg outside 2..98 mm)
+    and such a unit could never be homed. (A relaxed foot holds a vented platform up at
+    34-38 mm, 15 mm below home: test_identify homes it from there.)"""
+    hw = SimulatedHardware(PlantConfig(patient="absent"), seed=3)
+    lower_and_vent(hw)
+    config = ServiceConfig(telemetry_hz=50, watchdog_ms=WATCHDOG_MS_MAX)
+
+    async def body(dev: DeviceClient) -> None:
+        start = await on_the_stops(dev, timeout=10.0)
+        assert start.mode == DeviceMode.IDLE
+        await dev.arm_home()
+        t = await dev.wait_for_mode(DeviceMode.READY, DeviceMode.FAULT, timeout=30.0)
+        assert t.mode == DeviceMode.READY and t.trip == Trip.NONE
+        await dev.release()  # nothing on the plate: it sinks onto its stops
+        await on_the_stops(dev)
+        await dev.arm_home()
+        t = await dev.wait_for_mode(DeviceMode.READY, DeviceMode.FAULT, timeout=30.0)
+        assert t.mode == DeviceMode.READY and t.trip == Trip.NONE
+
+    async def main(name: str) -> None:
+        dev = await DeviceClient.connect(name, command_timeout=0.3, retries=5)
+        try:
+            await body(dev)
+        finally:
+            await dev.close()
+
+    with service_in_thread(hw, config) as link:
+        asyncio.run(main(link.name))
 
 
 def test_a_host_that_stands_still_counts_the_stall_and_says_so(
