@@ -11,7 +11,9 @@ from dataclasses import replace
 import pytest
 
 from device.controller import ControllerConfig
+from device.hardware import SimulatedHardware
 from device.limits import SafetyLimits
+from device.plant.model import SCRIPT_RAMP
 from lab import experiments as ex
 
 
@@ -196,6 +198,21 @@ def test_a_flow_limited_sine_says_its_valves_saturated() -> None:
     assert r.valid  # the valves' flow limit is the device's real response, not a fault
     small = ex.sine("z", 2.0, 3.0, cycles=3, limits=FAST)
     assert small.saturated == () and small.valid
+
+
+def test_a_patient_pushing_past_the_range_of_motion_is_not_a_stiffness() -> None:
+    # `ankle sim impedance` refuses such a push before it runs (check_impedance); a patient
+    # is not bound by that: 40 N m against 20 N m/rad drives the plate into its range of
+    # motion, and the run says its measurement is no stiffness.
+    ax = ex._axis("pitch")
+    rig = ex._impedance_rig(ax, 20.0, 1.0, seed=1)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.script_torque(ax, SCRIPT_RAMP, rig.time, 10.0, 40.0)
+    rig.clear_log()
+    health = ex.assess(rig, rig.run(4.5), frozenset({"range_of_motion"}))
+    assert "range_of_motion" in health.saturated and not health.valid, health
+    assert health.reason is not None and "range of motion" in health.reason, health
 
 
 def test_an_invalid_benchmark_row_shows_no_number_and_is_not_met() -> None:
