@@ -33,6 +33,9 @@ from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 from fastapi import WebSocket
+from limits import RateLimitItem, RateLimitItemPerSecond
+from limits.storage import MemoryStorage
+from limits.strategies import MovingWindowRateLimiter
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 from starlette.websockets import WebSocketState
@@ -69,7 +72,8 @@ CONTROL_QUEUE_BYTES = 8 * 1024 * 1024
 """The same in bytes: a thousand events of 60 KB held for one viewer that reads nothing
 were 60 MB of the server's memory."""
 COMMAND_BURST = 30
-"""Commands a viewer's link may send at once; then ``COMMANDS_PER_S``. The dashboard sends
+"""Commands a viewer's link may send at once, and in any ``COMMAND_BURST / COMMANDS_PER_S``
+seconds (:data:`COMMAND_WINDOW`). The dashboard sends
 one per click of HOLD, Resume, Stop, Start or "Set K/B": a therapist clicking as fast as a
 person can (some 7 a second) never meets it. Past it the link is closed
 (:data:`~sessions.wire.CLOSE_TOO_FAST`)."""
@@ -77,7 +81,7 @@ COMMANDS_PER_S = 10.0
 REFUSAL_ROWS_BURST = 5
 """Of the commands the server itself refuses (never sent: FORBIDDEN, OFFLINE, DUPLICATE,
 AUDIT), those of one user to one station that get an audit row each: this many at once,
-then ``REFUSAL_ROWS_PER_S``; the rest are counted into one ``command.refusals`` row per
+and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest are counted into one ``command.refusals`` row per
 ``REFUSAL_SUMMARY_S``. Each refusal costs nothing on the device, but its row is kept for
 good: one browser tab sending 1,000 K/B changes a second to an offline station wrote a row
 for each (2,850 in 3 s)."""
@@ -102,27 +106,19 @@ _viewer_keys = itertools.count(1)
 T = TypeVar("T")
 
 
-class Budget:
-    """A token bucket: ``burst`` at once, then ``per_s`` a second."""
+_COUNTS = MovingWindowRateLimiter(MemoryStorage())
+"""The budgets below, counted in this process (a link and its refusals live in one)."""
+_hubs = itertools.count(1)
 
-    def __init__(self, burst: float, per_s: float) -> None:
-        self.burst = burst
-        self.per_s = per_s
-        self.tokens = burst
-        self.at = time.monotonic()
 
-    def take(self) -> bool:
-        """Spend one if there is one."""
-        now = time.monotonic()
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.per_s)
-        self.at = now
-        if self.tokens < 1.0:
-            return False
-        self.tokens -= 1.0
-        return True
+def _window(burst: int, per_s: float) -> RateLimitItem:
+    """``burst`` at once, ``per_s`` a second on average: ``burst`` in any moving window of
+    ``burst / per_s`` seconds."""
+    return RateLimitItemPerSecond(burst, max(1, round(burst / per_s)))
 
-    def full(self) -> bool:
-        return self.tokens + (time.monotonic() - self.at) * self.per_s >= self.burst
+
+COMMAND_WINDOW = _window(COMMAND_BURST, COMMANDS_PER_S)
+REFUSAL_ROWS_WINDOW = _window(REFUSAL_ROWS_BURST, int(REFUSAL_ROWS_PER_S))
 
 
 TOO_SLOW = "the viewer fell too far behind the events sent to it; reconnect"
@@ -146,7 +142,6 @@ class Viewer:
     """Characters in ``control``."""
     too_slow: bool = False
     """Closed for falling behind: nothing more is queued for it."""
-    commands: Budget = field(default_factory=lambda: Budget(COMMAND_BURST, COMMANDS_PER_S))
 
     def push(self, text: str) -> None:
         """Queue a control message; a viewer this far behind is closed at once instead:
@@ -168,6 +163,10 @@ class Viewer:
             self.control.append(text)
             self.queued += len(text)
         self.wake.set()
+
+    def command_allowed(self) -> bool:
+        """One more command within the link's budget (:data:`COMMAND_WINDOW`)."""
+        return _COUNTS.hit(COMMAND_WINDOW, "link", str(self.key))
 
     def pop(self) -> str:
         text = self.control.popleft()
@@ -957,18 +956,13 @@ class Refusals:
 
     def __init__(self, writer: AuditWriter) -> None:
         self.writer = writer
-        self._budgets: dict[tuple[str, int], Budget] = {}
+        self._serial = str(next(_hubs))
         self._tallies: dict[tuple[str, int], _Tally] = {}
         self._timers: dict[tuple[str, int], asyncio.TimerHandle] = {}
 
     def write(self, asked: live_audit.Asked, row: dict[str, Any]) -> None:
         key = (asked.actor, asked.station_id)
-        budget = self._budgets.get(key)
-        if budget is None:
-            if len(self._budgets) >= 1000:  # forget the idle ones
-                self._budgets = {k: b for k, b in self._budgets.items() if not b.full()}
-            budget = self._budgets[key] = Budget(REFUSAL_ROWS_BURST, REFUSAL_ROWS_PER_S)
-        if budget.take():
+        if _COUNTS.hit(REFUSAL_ROWS_WINDOW, "refusals", self._serial, *map(str, key)):
             self.writer.write_soon(row)
             return
         now = time.time()

@@ -260,7 +260,7 @@ async def live_socket(ws: WebSocket, station_id: Id) -> None:
             message = wire.VIEWER_UP.validate_json(raw)
             metrics.received("viewer", message)
             if isinstance(message, wire.Command):
-                if not viewer.commands.take():
+                if not viewer.command_allowed():
                     raise _Close(wire.CLOSE_TOO_FAST, TOO_FAST)
                 await _on_command(hub, viewer, message)
     except ValidationError as exc:
