@@ -96,27 +96,49 @@ lock file is left behind per upload."""
 LOCK_POLL_S = 0.01
 
 
+class _Held:
+    """One upload's asyncio lock and how many requests hold it or wait for it."""
+
+    __slots__ = ("lock", "users")
+
+    def __init__(self) -> None:
+        self.lock = asyncio.Lock()
+        self.users = 0
+
+
 @asynccontextmanager
 async def _lock(app: Any, key: str) -> AsyncIterator[None]:
     """One upload's appends, completion and expiry, one at a time: among this process's
     requests (an asyncio lock) and among every server process sharing the data directory (an
     exclusive flock on a stripe file in uploads/). The flock is polled, never waited for
-    in a thread: the holder needs the thread pool to write its bytes."""
-    locks: dict[str, asyncio.Lock] = app.state.__dict__.setdefault("upload_locks", {})
-    async with locks.setdefault(key, asyncio.Lock()):
-        uploads, _ = _dirs(app)
-        stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
-        fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
-        try:
-            while True:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    await asyncio.sleep(LOCK_POLL_S)
-            yield
-        finally:
-            os.close(fd)  # releases the flock
+    in a thread: the holder needs the thread pool to write its bytes. The asyncio lock is
+    dropped from ``app.state.upload_locks`` when the last request holding or waiting for it
+    is done, so that the map holds only the uploads being worked on now, not every id a
+    station ever sent."""
+    locks: dict[str, _Held] = app.state.__dict__.setdefault("upload_locks", {})
+    held = locks.get(key)
+    if held is None:
+        held = locks[key] = _Held()
+    held.users += 1
+    try:
+        async with held.lock:
+            uploads, _ = _dirs(app)
+            stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
+            fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
+            try:
+                while True:
+                    try:
+                        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        break
+                    except BlockingIOError:
+                        await asyncio.sleep(LOCK_POLL_S)
+                yield
+            finally:
+                os.close(fd)  # releases the flock
+    finally:
+        held.users -= 1
+        if held.users == 0:
+            del locks[key]
 
 
 def _append(path: Path, offset: int, data: bytes) -> None:

@@ -507,3 +507,39 @@ async def test_a_recording_naming_another_station_is_refused_with_the_first_chun
         r = await complete(live, world, sid, good)
         assert r.status_code == 201, (named, r.text)
         assert r.json()["station_id"] == world.s1_id
+
+
+@pytest.mark.asyncio
+async def test_no_upload_lock_is_kept_once_its_requests_are_done(live: Live, world: World) -> None:
+    """Each upload's lock lives as long as a request holds it or waits for it: after many
+    requests (refused ones for ids nothing holds, concurrent ones for one id, an upload
+    filed) the server keeps none, so a station sending random ids grows nothing."""
+    station = bearer(world.s1)
+
+    async def stray() -> None:
+        sid = str(uuid.uuid4())
+        r = await live.client.patch(
+            f"/uploads/{sid}", content=b"not a recording", headers={**station, "Upload-Offset": "0"}
+        )
+        assert r.status_code == 422, r.text
+        r = await live.client.patch(
+            f"/uploads/{sid}", content=b"x", headers={**station, "Upload-Offset": "5"}
+        )
+        assert r.status_code == 409, r.text
+        body = {"size": 8, "sha256": "0" * 64}
+        r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=station)
+        assert r.status_code == 404, r.text
+
+    sid = str(uuid.uuid4())
+    data = recording_bytes(sid, samples()[:200], world.s1_id, world.p1, world.rx1)
+
+    async def same_chunk() -> int:
+        r = await live.client.patch(
+            f"/uploads/{sid}", content=data, headers={**station, "Upload-Offset": "0"}
+        )
+        return r.status_code
+
+    results = await asyncio.gather(*(stray() for _ in range(40)), *(same_chunk() for _ in range(8)))
+    assert sorted(s for s in results if s is not None) == [204] + [409] * 7
+    assert (await complete(live, world, sid, data)).status_code == 201
+    assert live.app.state.upload_locks == {}
