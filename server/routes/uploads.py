@@ -169,11 +169,11 @@ async def upload_state(session_id: uuid.UUID, station: CurrentStation, db: Db) -
     sid = str(session_id)
     done = await db.scalar(select(Session).where(Session.session_uuid == sid))
     if done is not None:
-        if done.station_id != station.id:
+        if not await _sends_for(db, done.station_id, station):
             raise HTTPException(404, "no such upload")
         return Response(headers={"Upload-Offset": str(done.size_bytes), "Upload-Complete": "1"})
     up = await db.get(Upload, sid)
-    if up is None or up.station_id != station.id:
+    if up is None or not await _sends_for(db, up.station_id, station):
         raise HTTPException(404, "no such upload")
     return Response(headers={"Upload-Offset": str(up.received_bytes), "Upload-Complete": "0"})
 
@@ -205,7 +205,7 @@ async def upload_append(
         if await db.scalar(select(Session.id).where(Session.session_uuid == sid)):
             raise HTTPException(409, "this session is already complete")
         up = await db.get(Upload, sid)
-        if up is not None and up.station_id != station.id:
+        if up is not None and not await _take_over(db, up, station):
             raise HTTPException(404, "no such upload")
         held = up.received_bytes if up else 0
         if upload_offset != held:
@@ -246,16 +246,43 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> RecordingHeader:
     return header
 
 
+async def _sends_for(db: AsyncSession, other: int, station: Station) -> bool:
+    """Whether ``station`` may send what station ``other`` recorded or began to upload: it is
+    that station, or ``other`` is a revoked station of the same patient (this one's
+    predecessor: a station provisioned again sends, under its new token, what it recorded
+    and began to upload under its old one, which nothing else can send any more). The one
+    rule for a recording's header (:func:`_check_recorder`), an upload under way
+    (:func:`_take_over`) and a session already filed."""
+    if other == station.id:
+        return True
+    before = await db.get(Station, other)
+    return before is not None and before.revoked and before.patient_id == station.patient_id
+
+
+async def _take_over(db: AsyncSession, up: Upload, station: Station) -> bool:
+    """Whether ``station`` may go on with upload ``up``: its own, or its revoked
+    predecessor's (:func:`_sends_for`), which becomes this station's (saved with the
+    request's change). Another station of the same patient, not revoked, keeps its own."""
+    if up.station_id == station.id:
+        return True
+    if not await _sends_for(db, up.station_id, station):
+        return False
+    log.info(
+        "upload %s of revoked station %d taken over by station %d",
+        up.session_uuid,
+        up.station_id,
+        station.id,
+    )
+    up.station_id = station.id
+    return True
+
+
 async def _check_recorder(db: AsyncSession, named: int, station: Station) -> None:
     """A station uploads only what it recorded: the header names this station, or 0 (it
-    recorded before it first connected and learnt its id), or a revoked station of the same
-    patient (this one's predecessor: a station provisioned again sends what it recorded
-    under its old token, which nothing else can send any more). The session is filed under
-    the uploading station; a header naming another would contradict it in every download."""
-    if named in (0, station.id):
-        return
-    before = await db.get(Station, named)
-    if before is not None and before.revoked and before.patient_id == station.patient_id:
+    recorded before it first connected and learnt its id), or its revoked predecessor
+    (:func:`_sends_for`). The session is filed under the uploading station; a header naming
+    another would contradict it in every download."""
+    if named == 0 or await _sends_for(db, named, station):
         return
     raise HTTPException(
         422,
@@ -288,13 +315,13 @@ async def upload_complete(
     async with _lock(request.app, sid):
         done = await db.scalar(select(Session).where(Session.session_uuid == sid))
         if done is not None:
-            if done.station_id != station.id:
+            if not await _sends_for(db, done.station_id, station):
                 raise HTTPException(404, "no such upload")
             if done.sha256 != body.sha256 or done.size_bytes != body.size:
                 raise HTTPException(409, "this session was filed with other content")
             return session_public(done)
         up = await db.get(Upload, sid)
-        if up is None or up.station_id != station.id:
+        if up is None or not await _take_over(db, up, station):
             raise HTTPException(404, "no such upload")
         if up.received_bytes != body.size:
             raise HTTPException(

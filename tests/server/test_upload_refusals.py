@@ -26,7 +26,8 @@ from device.protocol.messages import DeviceMode
 from server.errors import DISK_FULL
 from server.models import Upload, utcnow
 from sessions.prescription import ExerciseKind
-from station.uploader import CHUNK
+from station.spool import Spool
+from station.uploader import CHUNK, Uploader
 from tests.server.live_server import Live, Seeds, Store, World, bearer, on_store, running
 from tests.server.test_series import PITCH, STARTED_AT, N, recording_bytes, samples
 
@@ -507,6 +508,92 @@ async def test_a_recording_naming_another_station_is_refused_with_the_first_chun
         r = await complete(live, world, sid, good)
         assert r.status_code == 201, (named, r.text)
         assert r.json()["station_id"] == world.s1_id
+
+
+async def _station(live: Live, world: World, name: str) -> tuple[int, str]:
+    r = await live.client.post(
+        f"/patients/{world.p1}/stations", json={"name": name}, headers=bearer(world.t1)
+    )
+    assert r.status_code == 201, r.text
+    return r.json()["id"], r.json()["token"]
+
+
+@pytest.mark.asyncio
+async def test_a_station_provisioned_again_finishes_what_its_revoked_predecessor_began(
+    live: Live, world: World, tmp_path: Path
+) -> None:
+    """The old station sent one session whole but not ``complete``, another's first chunk
+    only, and filed a third whose answer it never read; then it was revoked and a new one
+    provisioned for the same patient, with the old one's spool. The new station's own
+    uploader finishes all three (it was told 404 for a day, until the server dropped them).
+    Neither a station of the patient that is not revoked nor another patient's takes them."""
+    old_id, old = await _station(live, world, "Old")
+    sids = [str(uuid.uuid4()) for _ in range(3)]
+    data = {s: recording_bytes(s, samples(), old_id, world.p1, world.rx1) for s in sids}
+    whole, begun, filed = sids
+    assert len(data[begun]) > CHUNK
+    spool = Spool(tmp_path / "spool")
+    for s in sids:
+        spool.path(s).write_bytes(data[s])
+    for s, end in ((whole, len(data[whole])), (begun, CHUNK), (filed, len(data[filed]))):
+        for offset in range(0, end, CHUNK):
+            r = await live.client.patch(
+                f"/uploads/{s}",
+                content=data[s][offset : offset + CHUNK],
+                headers={**bearer(old), "Upload-Offset": str(offset)},
+            )
+            assert r.status_code == 204, r.text
+    body = {"size": len(data[filed]), "sha256": hashlib.sha256(data[filed]).hexdigest()}
+    r = await live.client.post(f"/uploads/{filed}/complete", json=body, headers=bearer(old))
+    assert r.status_code == 201, r.text
+    filed_row = r.json()
+
+    new_id, new = await _station(live, world, "New")
+    for s in sids:  # the old station is not revoked yet: its uploads are its own
+        r = await live.client.head(f"/uploads/{s}", headers=bearer(new))
+        assert r.status_code == 404, s
+    r = await live.client.post(f"/stations/{old_id}/revoke", headers=bearer(world.t1))
+    assert r.status_code == 200, r.text
+    for s in sids:  # nor another patient's station's, revoked or not
+        r = await live.client.head(f"/uploads/{s}", headers=bearer(world.s2))
+        assert r.status_code == 404, s
+
+    root = str(live.client.base_url).removesuffix("/api/v1/")
+    uploader = Uploader(root, new, spool)
+    try:
+        assert await uploader.upload_all() == 3, (uploader.refused, uploader.last_error)
+    finally:
+        await uploader.client.aclose()
+    assert not spool.pending() and not uploader.refused
+    sessions = (await live.client.get("/sessions", headers=bearer(world.t1))).json()
+    by_uuid = {row["session_uuid"]: row for row in sessions}
+    assert by_uuid[filed] == filed_row  # filed once, by the old station, and not again
+    for s in (whole, begun):
+        assert by_uuid[s]["station_id"] == new_id
+        got = await live.client.get(
+            f"/sessions/{by_uuid[s]['id']}/download/rec", headers=bearer(world.t1)
+        )
+        assert got.content == data[s]
+
+    # Taken over, an upload is the new station's: the patient's other station, not
+    # revoked, does not take it in turn.
+    later = str(uuid.uuid4())
+    later_data = recording_bytes(later, samples(), new_id, world.p1, world.rx1)
+    r = await live.client.patch(
+        f"/uploads/{later}",
+        content=later_data[:CHUNK],
+        headers={**bearer(new), "Upload-Offset": "0"},
+    )
+    assert r.status_code == 204, r.text
+    r = await live.client.patch(
+        f"/uploads/{later}",
+        content=later_data[CHUNK : 2 * CHUNK],
+        headers={**bearer(world.s1), "Upload-Offset": str(CHUNK)},
+    )
+    assert r.status_code == 404, r.text
+    assert (
+        await live.client.head(f"/uploads/{later}", headers=bearer(world.s1))
+    ).status_code == 404
 
 
 @pytest.mark.asyncio
