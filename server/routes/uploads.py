@@ -43,6 +43,7 @@ from sessions.recording import (
     Recording,
     RecordingError,
     RecordType,
+    check_prescription,
     check_session,
     decode,
     iter_records,
@@ -237,6 +238,7 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> RecordingHeader:
         raise HTTPException(422, "the first chunk must contain the recording's header record")
     try:
         header = RecordingHeader.model_validate_json(records[0][1])
+        check_prescription(header)
     except ValueError as exc:
         raise HTTPException(422, f"the header record is not valid: {error_text(exc)}") from None
     if header.session_id != sid:
@@ -393,13 +395,17 @@ class Refused(Exception):
 def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
     """The recording in ``part``, its summary and its SHA-256, or :class:`Refused` saying
     why not. Every check ``complete`` makes of the bytes is here, so that every refusal
-    discards the upload the same way."""
+    discards the upload the same way. Reading the file may fail (an ``OSError``: the
+    server's, retried); what follows reads only the bytes, so anything else that fails there
+    is an error of this recording, refused rather than answered 500 to a station that would
+    send the same bytes for a day."""
     digest = _sha256(part)
     if digest != sha256:
         # Start over rather than keep bytes that do not match the station's file.
         raise Refused(f"checksum mismatch: the server's bytes hash to {digest}; upload again")
+    data = part.read_bytes()
     try:
-        rec = decode(part.read_bytes())
+        rec = decode(data)
         if rec.damaged or rec.end is None:
             raise RecordingError("it is cut off: it has no end record")
         check_session(rec)
@@ -407,6 +413,10 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
         raise Refused(
             f"not a valid recording: {error_text(exc, 300)}; upload the session again"
         ) from None
+    except MemoryError:
+        raise
+    except Exception as exc:
+        raise _unexpected(part, "read", exc) from None
     try:
         summary = summarize(rec)
     except ValidationError as exc:  # a value past what a float holds: no clinician's number
@@ -414,7 +424,22 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
             f"not a valid recording: its values give no finite summary ({exc.title}."
             f"{error_text(exc, 300)}); upload the session again"
         ) from None
+    except MemoryError:
+        raise
+    except Exception as exc:
+        raise _unexpected(part, "summarise", exc) from None
     return rec, summary, digest
+
+
+def _unexpected(part: Path, doing: str, exc: Exception) -> Refused:
+    """A recording the server failed to read or summarise for a reason no check names: a
+    fault of the server's code to be fixed (logged with its traceback), but the same bytes
+    would fail the same way at every retry, so the recording is refused like any other."""
+    log.error("upload %s: could not %s the recording", part.stem, doing, exc_info=exc)
+    return Refused(
+        f"not a valid recording: the server could not {doing} it "
+        f"({type(exc).__name__}: {error_text(exc, 200)}); upload the session again"
+    )
 
 
 EXPIRE_PASS_MAX_S = 3600.0
