@@ -85,6 +85,16 @@ class Settings(BaseSettings):
         "client or proxy sends them at once; one that trickles them holds a connection "
         "for nothing. A new connection that sends nothing is closed after keep_alive_s.",
     )
+    body_timeout_s: float = Field(
+        default=60.0,
+        gt=0,
+        le=3600,
+        description="How long a request's body may go without a byte while the server reads "
+        "it, seconds; answered 408 and the connection closed after it (server.protocols). "
+        "The time between two reads, not the whole body's, as nginx's client_body_timeout "
+        "(whose default it is): a station's 1 MiB chunk over a slow link arrives in many "
+        "reads, and its own client gives up a write that makes no progress for 30 s.",
+    )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="Browser origins allowed to call the API and open WebSockets. Empty: "

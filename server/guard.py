@@ -6,10 +6,16 @@ more than a route's limit:
 - A ``Content-Length`` above the limit is answered 413 at once, before one byte of the body
   is read. A chunked body is counted as it arrives and refused the moment it passes the
   limit, whatever the route was doing with it.
-- A JSON body (or one with no content type, which FastAPI parses as JSON) is read whole,
-  at most the limit, and a string in it holding a lone UTF-16 surrogate (``"\\ud800"``,
-  legal JSON but no Unicode text) is refused with 422 naming the field. Left in, such a
-  string is stored by one layer and cannot be encoded by the next: a 500 after a change.
+- A JSON body (or one with no content type) is read whole, at most the limit, and
+  parsed. A string in it holding a lone UTF-16 surrogate
+  (``"\\ud800"``, legal JSON but no Unicode text) is refused with 422 naming the field. Left
+  in, such a string is stored by one layer and cannot be encoded by the next: a 500 after
+  a change. A body that does not parse, whatever stopped it (a syntax error, bytes that are
+  not UTF-8, arrays nested past Python's recursion limit, an integer of more digits than
+  Python reads, 4300), is refused with one 422, "The request is not valid JSON.", naming
+  why in ``ctx.error`` (FastAPI answered the last three with a bare 400 of its own), when
+  its content type says JSON; FastAPI reads a body with none as bytes, not JSON
+  (:func:`body_error`).
 
 What the server sends while refusing is small and fixed; the rest of a refused body is
 read and dropped by uvicorn so that the client sees the answer. A client that leaves before
@@ -22,11 +28,14 @@ from __future__ import annotations
 import contextlib
 import json
 import re
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from sessions.sentences import JSON_INVALID
 
 _SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")
 """The only way a lone surrogate gets into JSON text that is valid UTF-8."""
@@ -82,15 +91,12 @@ def _strings(value: Any, loc: tuple[str | int, ...]) -> Iterator[tuple[tuple[str
             stack.extend((x, (*at, i)) for i, x in enumerate(v))
 
 
-def lone_surrogate(body: bytes) -> dict[str, Any] | None:
-    """A FastAPI-shaped validation error for the first string with a lone surrogate, or
-    None. Bodies without a surrogate escape (nearly all) are passed over by one scan."""
+def lone_surrogate(body: bytes, doc: Any) -> dict[str, Any] | None:
+    """A FastAPI-shaped validation error for the first string with a lone surrogate in
+    ``doc`` (``body`` parsed), or None. Bodies without a surrogate escape (nearly all) are
+    passed over by one scan."""
     if not _SURROGATE_ESCAPE.search(body):
         return None
-    try:
-        doc = json.loads(body)
-    except (ValueError, RecursionError):
-        return None  # not JSON at all: the route's own parser says so
     for loc, text in _strings(doc, ("body",)):
         try:
             text.encode("utf-8")
@@ -103,6 +109,40 @@ def lone_surrogate(body: bytes) -> dict[str, Any] | None:
                 f"{exc.start}: only whole Unicode characters are accepted",
             }
     return None
+
+
+def parsed(body: bytes) -> tuple[Any, dict[str, Any] | None]:
+    """``body`` parsed as FastAPI parses it (``json.loads``), or, for a body that does not
+    parse, a FastAPI-shaped ``json_invalid`` error saying why, with where when known."""
+    at: list[str | int] = ["body"]
+    try:
+        return json.loads(body), None
+    except json.JSONDecodeError as exc:
+        at.append(exc.pos)
+        why = exc.msg
+    except UnicodeDecodeError as exc:
+        at.append(exc.start)
+        why = f"it is not {exc.encoding} text (byte {exc.start})"
+    except RecursionError:
+        why = "its arrays or objects are nested too deeply"
+    except ValueError:  # json's int() of a number past sys.get_int_max_str_digits()
+        why = f"a number in it has more than {sys.get_int_max_str_digits()} digits"
+    return None, {"type": "json_invalid", "loc": at, "msg": JSON_INVALID, "ctx": {"error": why}}
+
+
+def body_error(body: bytes, typed: bool) -> dict[str, Any] | None:
+    """The 422 entry for a JSON body (``typed``: its content type says JSON), or one with no
+    content type, or None to let it through. A typed body is parsed, as FastAPI parses it
+    for the route: one that does not parse gets :func:`parsed`'s error, whatever the route
+    (the client said it was JSON). FastAPI reads an untyped body as bytes, never as JSON
+    (its ``strict_content_type``): it is refused only for a lone surrogate, and parsed only
+    if it holds a surrogate escape (an upload's chunk sent untyped is never refused)."""
+    if not body or (not typed and not _SURROGATE_ESCAPE.search(body)):
+        return None  # FastAPI parses no empty body: its model says what is missing
+    doc, error = parsed(body)
+    if error is not None:
+        return error if typed else None
+    return lone_surrogate(body, doc)
 
 
 class RequestGuard:
@@ -144,11 +184,13 @@ class RequestGuard:
             await self.app(scope, receive, send)
             return
         if not content_type or _JSON_TYPES.match(content_type):
-            await self._json(scope, receive, send, limit)
+            await self._json(scope, receive, send, limit, typed=bool(content_type))
         else:
             await self._stream(scope, receive, send, limit)
 
-    async def _json(self, scope: Scope, receive: Receive, send: Send, limit: int) -> None:
+    async def _json(
+        self, scope: Scope, receive: Receive, send: Send, limit: int, typed: bool
+    ) -> None:
         parts: list[bytes] = []
         size = 0
         while True:
@@ -164,7 +206,7 @@ class RequestGuard:
             if not message.get("more_body", False):
                 break
         body = b"".join(parts)
-        error = lone_surrogate(body)
+        error = body_error(body, typed)
         if error is not None:
             await answer(send, 422, {"detail": [error]})
             return

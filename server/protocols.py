@@ -8,8 +8,13 @@ the ones it picks here), with two gaps closed.
   of them take every file descriptor the process has. Here a new connection that sends
   nothing is closed after the same keep-alive time, and a request's headers must all
   arrive within ``header_timeout_s`` of their first byte (nginx's
-  ``client_header_timeout``); the connection is closed otherwise. A request's body is not
-  timed here: the routes that read one bound its size (``server.guard``).
+  ``client_header_timeout``); the connection is closed otherwise. A request's body must
+  not stall: ``body_timeout_s`` with no byte of it while the server is reading it (nginx's
+  ``client_body_timeout``, the time between two reads, not the whole body's) is answered
+  408 and the connection closed, as a declared ``Content-Length`` never met would hold it
+  for good. A body sent slowly but steadily, a station's 1 MiB chunk over a poor mobile
+  link, is never cut; nor one the server does not read yet (its reading paused while the
+  route works, or a client waiting for ``100 Continue``).
 - A WebSocket text frame that is not UTF-8. uvicorn closes the link with 1007, as the
   protocol says, but logs it as a server failure: an ERROR and a traceback for each. Here
   it is one line, and the close says why.
@@ -28,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import json
 import logging
 from typing import Any
 
@@ -49,10 +55,16 @@ def _peer(client: tuple[str, int] | None) -> str:
 class TimedH11Protocol(H11Protocol):
     """uvicorn's h11 protocol, closing a connection whose request headers are late."""
 
-    def __init__(self, *args: Any, header_timeout_s: float, **kwargs: Any) -> None:
+    def __init__(
+        self, *args: Any, header_timeout_s: float, body_timeout_s: float, **kwargs: Any
+    ) -> None:
         super().__init__(*args, **kwargs)
         self.header_timeout_s = header_timeout_s
         self._header_timer: asyncio.TimerHandle | None = None
+        self.body_timeout_s = body_timeout_s
+        self._body_timer: asyncio.TimerHandle | None = None
+        self._body_seen = 0.0
+        """When the request's body last moved (a byte, or the server not reading it)."""
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
@@ -69,10 +81,69 @@ class TimedH11Protocol(H11Protocol):
                 self._header_timer = self.loop.call_later(self.header_timeout_s, self._headers_late)
         else:  # the headers are in (or the request was refused, or became a WebSocket)
             self._stop_header_timer()
+        if self.conn.their_state is h11.SEND_BODY and not self.transport.is_closing():
+            self._body_seen = self.loop.time()  # the headers, or a part of the body
+            if self._body_timer is None:
+                self._body_timer = self.loop.call_later(self.body_timeout_s, self._body_late)
+        else:
+            self._stop_body_timer()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._stop_header_timer()
+        self._stop_body_timer()
         super().connection_lost(exc)
+
+    def _stop_body_timer(self) -> None:
+        if self._body_timer is not None:
+            self._body_timer.cancel()
+            self._body_timer = None
+
+    def _body_late(self) -> None:
+        """The body timer (one per request, moved on rather than made again per read)."""
+        self._body_timer = None
+        if self.transport.is_closing() or self.conn.their_state is not h11.SEND_BODY:
+            return
+        now = self.loop.time()
+        cycle = self.cycle
+        if self.flow.read_paused or (cycle is not None and cycle.waiting_for_100_continue):
+            self._body_seen = now  # the server is not reading: the client is not late
+        idle = now - self._body_seen
+        if idle < self.body_timeout_s:
+            self._body_timer = self.loop.call_later(self.body_timeout_s - idle, self._body_late)
+            return
+        log.warning(
+            "closed the connection of %s: no byte of its request body (%s %s) for %g s",
+            _peer(self.client),
+            self.scope.get("method", "?") if cycle is not None else "?",
+            self.scope.get("path", "?") if cycle is not None else "?",
+            self.body_timeout_s,
+        )
+        if cycle is not None and not cycle.response_started:
+            self._send_408()
+            # The route waiting for the body reads a disconnect now, and what it sends is
+            # dropped, as when the client leaves (uvicorn does so once the socket closes).
+            cycle.disconnected = True
+            cycle.message_event.set()
+        self.transport.close()
+
+    def _send_408(self) -> None:
+        body = json.dumps(
+            {"detail": f"the request body stalled: no byte of it for {self.body_timeout_s:g} s"}
+        ).encode()
+        headers = [
+            (b"content-type", b"application/json"),
+            (b"content-length", str(len(body)).encode()),
+            (b"connection", b"close"),
+        ]
+        try:
+            for event in (
+                h11.Response(status_code=408, headers=headers, reason=b"Request Timeout"),
+                h11.Data(data=body),
+                h11.EndOfMessage(),
+            ):
+                self.transport.write(self.conn.send(event) or b"")
+        except h11.LocalProtocolError:  # no answer can be sent on this connection now
+            pass
 
     def _stop_header_timer(self) -> None:
         if self._header_timer is not None:
@@ -175,6 +246,10 @@ def protocols(settings: Settings) -> dict[str, Any]:
     """uvicorn.Config's ``http`` and ``ws`` for ``settings`` (a partial, not a class made
     on the fly: worker processes receive the configuration pickled)."""
     return {
-        "http": functools.partial(TimedH11Protocol, header_timeout_s=settings.header_timeout_s),
+        "http": functools.partial(
+            TimedH11Protocol,
+            header_timeout_s=settings.header_timeout_s,
+            body_timeout_s=settings.body_timeout_s,
+        ),
         "ws": Utf8WebSocketProtocol,
     }

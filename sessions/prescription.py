@@ -20,6 +20,7 @@ import math
 from enum import StrEnum
 from typing import Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic.config import JsonDict
 
@@ -392,8 +393,12 @@ class PrescriptionBody(BaseModel):
         if self.exercise not in COMPLIANT_KINDS:
             return self
         for i, a in enumerate(self.axes):
-            least = DEVICE_LIMITS.damping_min_at(AXIS_INDEX[a.axis], a.stiffness)
-            if to_float32(a.damping) < least:  # as the device receives it
+            # K and B as the device receives them (float32), looked up as it looks them up
+            # (device.commands): 4.9999999 reaches it as 5, where the envelope asks 0.8.
+            axis = AXIS_INDEX[a.axis]
+            stiffness = to_float32(a.stiffness)
+            least = DEVICE_LIMITS.damping_min_at(axis, stiffness)
+            if to_float32(a.damping) < least:
                 raise FieldError(
                     ("axes", i, "damping"),
                     bound_sentence(
@@ -402,7 +407,7 @@ class PrescriptionBody(BaseModel):
                         least,
                         "N·m·s/rad",
                         "the least the platform renders steadily at a stiffness of "
-                        f"{number(a.stiffness)} N·m/rad",
+                        f"{_envelope_stiffness(axis, stiffness)} N·m/rad",
                     ),
                 )
         return self
@@ -414,6 +419,19 @@ class PrescriptionBody(BaseModel):
     def compliant(self) -> bool:
         """Whether the platform renders K and B (yields to the patient) in this exercise."""
         return EXERCISE_LIBRARY[self.exercise].compliant
+
+
+def _envelope_stiffness(axis: int, stiffness: float) -> str:
+    """``stiffness`` (float32) as a sentence about the envelope says it: rounded as every
+    number is (:func:`number`), unless the rounded value asks another least damping than
+    ``stiffness`` does (4.9999995 said as 5, where the published envelope asks 0.8 instead
+    of 1): then with the figures that tell it from the band's edge ("4.9999995")."""
+    said = number(stiffness)
+    if DEVICE_LIMITS.damping_min_at(axis, float(said)) == DEVICE_LIMITS.damping_min_at(
+        axis, stiffness
+    ):
+        return said
+    return np.format_float_positional(np.float32(stiffness), trim="-")
 
 
 class PrescriptionInput(PrescriptionBody):

@@ -24,10 +24,10 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, ValidationError
 
 from device.protocol.messages import Telemetry
-from sessions.prescription import REPETITIONS_MAX, SETS_MAX
+from sessions.prescription import REPETITIONS_MAX, SETS_MAX, Axis
 from sessions.private import PRIVATE_FILE, fsync_dir
 
 MAGIC = b"ANKLREC1"
@@ -127,6 +127,45 @@ class Header(BaseModel):
     started_at: float = Field(
         ge=0.0, lt=UNIX_TIME_MAX, allow_inf_nan=False, description="Unix time, s."
     )
+
+
+class RecordedAxis(BaseModel):
+    """One axis of a :class:`RecordedPrescription`: what is read of it."""
+
+    model_config = ConfigDict(extra="allow")
+
+    axis: Axis
+    waveform: StrictStr = "hold"
+
+
+class RecordedPrescription(BaseModel):
+    """The prescription a header holds, as it must be for the summaries to read it
+    (``sessions.summary``, ``sessions.metrics``, the session's series): the exercise named
+    in text, its axes a list of objects each naming a rotation, its counts whole numbers no
+    larger than a prescription asks. Anything else may be there (what an older or newer
+    station wrote), and nothing is held to today's limits: a session recorded under a
+    prescription happened, whatever the rules are now. Checked by :func:`check_prescription`
+    (the header record itself keeps a plain object, so that a session filed before still
+    reads)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    exercise: StrictStr
+    axes: list[RecordedAxis] = Field(min_length=1)
+    sets: StrictInt | None = Field(default=None, ge=1, le=SETS_MAX)
+    repetitions: StrictInt | None = Field(default=None, ge=1, le=REPETITIONS_MAX)
+
+
+def check_prescription(header: Header) -> None:
+    """The header's prescription has the shape :class:`RecordedPrescription` says, or
+    :class:`RecordingError` names the first field that does not ("prescription.axes.0.axis:
+    Input should be 'roll', 'pitch' or 'yaw'")."""
+    try:
+        RecordedPrescription.model_validate(header.prescription)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in ("prescription", *err["loc"]))
+        raise RecordingError(f"{loc}: {err['msg']}") from None
 
 
 class SessionEvent(BaseModel):
@@ -245,7 +284,8 @@ def decode(data: bytes | memoryview) -> Recording:
 
 
 def check_session(rec: Recording) -> None:
-    """A finished recording must describe one session a station ran: its end's counts are
+    """A finished recording must describe one session a station ran: its header's
+    prescription can be read (:func:`check_prescription`); its end's counts are
     no more than a prescription can ask (and not negative); it ends no earlier than it
     starts, its samples were received within it (station clock, ``wall``), and the device's
     clock covers no more time than the session lasted (the sum of its forward steps ``t``,
@@ -259,6 +299,7 @@ def check_session(rec: Recording) -> None:
     reads."""
     if rec.end is None:
         raise RecordingError("it is cut off: it has no end record")
+    check_prescription(rec.header)
     for name, count, most in (
         ("sets_completed", rec.end.sets_completed, SETS_MAX),
         ("repetitions_completed", rec.end.repetitions_completed, SETS_MAX * REPETITIONS_MAX),

@@ -204,6 +204,9 @@ def sentence(
     return loc, f"{label}: {error.get('msg', 'not valid')}."
 
 
+JSON_INVALID = "The request is not valid JSON."
+"""What a body that does not parse as JSON is told, whatever stopped it (``server.guard``)."""
+
 _BOUND_TYPES: dict[str, Op] = {
     "greater_than_equal": "ge",
     "greater_than": "gt",
@@ -232,7 +235,7 @@ _SIMPLE: dict[str, str] = {
     "enum": "{label} must be one of {expected}.",
     "extra_forbidden": "“{name}” is not a field here.",
     "string_pattern_mismatch": "{label} is not in the expected form.",
-    "json_invalid": "The request is not valid JSON.",
+    "json_invalid": JSON_INVALID,
     "datetime_parsing": "{label} must be a date and time (ISO 8601).",
     "datetime_type": "{label} must be a date and time (ISO 8601).",
     "datetime_from_date_parsing": "{label} must be a date and time (ISO 8601).",
@@ -254,6 +257,7 @@ _SIMPLE: dict[str, str] = {
 
 
 __all__ = [
+    "JSON_INVALID",
     "FieldError",
     "bound_sentence",
     "field_label",

@@ -202,7 +202,7 @@ def prescribed_axes(prescription: dict[str, Any]) -> list[str]:
     if isinstance(axes, list):
         for a in axes:
             name = a.get("axis") if isinstance(a, dict) else None
-            if name in AXIS_INDEX and name not in names:
+            if isinstance(name, str) and name in AXIS_INDEX and name not in names:
                 names.append(name)
     return names or list(ROTATION_AXES)
 

@@ -43,6 +43,7 @@ from sessions.recording import (
     Recording,
     RecordingError,
     RecordType,
+    check_prescription,
     check_session,
     decode,
     iter_records,
@@ -96,27 +97,49 @@ lock file is left behind per upload."""
 LOCK_POLL_S = 0.01
 
 
+class _Held:
+    """One upload's asyncio lock and how many requests hold it or wait for it."""
+
+    __slots__ = ("lock", "users")
+
+    def __init__(self) -> None:
+        self.lock = asyncio.Lock()
+        self.users = 0
+
+
 @asynccontextmanager
 async def _lock(app: Any, key: str) -> AsyncIterator[None]:
     """One upload's appends, completion and expiry, one at a time: among this process's
     requests (an asyncio lock) and among every server process sharing the data directory (an
     exclusive flock on a stripe file in uploads/). The flock is polled, never waited for
-    in a thread: the holder needs the thread pool to write its bytes."""
-    locks: dict[str, asyncio.Lock] = app.state.__dict__.setdefault("upload_locks", {})
-    async with locks.setdefault(key, asyncio.Lock()):
-        uploads, _ = _dirs(app)
-        stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
-        fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
-        try:
-            while True:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    await asyncio.sleep(LOCK_POLL_S)
-            yield
-        finally:
-            os.close(fd)  # releases the flock
+    in a thread: the holder needs the thread pool to write its bytes. The asyncio lock is
+    dropped from ``app.state.upload_locks`` when the last request holding or waiting for it
+    is done, so that the map holds only the uploads being worked on now, not every id a
+    station ever sent."""
+    locks: dict[str, _Held] = app.state.__dict__.setdefault("upload_locks", {})
+    held = locks.get(key)
+    if held is None:
+        held = locks[key] = _Held()
+    held.users += 1
+    try:
+        async with held.lock:
+            uploads, _ = _dirs(app)
+            stripe = uploads / f".lock-{zlib.crc32(key.encode()) % LOCK_STRIPES:02d}"
+            fd = os.open(stripe, os.O_RDWR | os.O_CREAT, 0o600)
+            try:
+                while True:
+                    try:
+                        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        break
+                    except BlockingIOError:
+                        await asyncio.sleep(LOCK_POLL_S)
+                yield
+            finally:
+                os.close(fd)  # releases the flock
+    finally:
+        held.users -= 1
+        if held.users == 0:
+            del locks[key]
 
 
 def _append(path: Path, offset: int, data: bytes) -> None:
@@ -147,11 +170,11 @@ async def upload_state(session_id: uuid.UUID, station: CurrentStation, db: Db) -
     sid = str(session_id)
     done = await db.scalar(select(Session).where(Session.session_uuid == sid))
     if done is not None:
-        if done.station_id != station.id:
+        if not await _sends_for(db, done.station_id, station):
             raise HTTPException(404, "no such upload")
         return Response(headers={"Upload-Offset": str(done.size_bytes), "Upload-Complete": "1"})
     up = await db.get(Upload, sid)
-    if up is None or up.station_id != station.id:
+    if up is None or not await _sends_for(db, up.station_id, station):
         raise HTTPException(404, "no such upload")
     return Response(headers={"Upload-Offset": str(up.received_bytes), "Upload-Complete": "0"})
 
@@ -183,7 +206,7 @@ async def upload_append(
         if await db.scalar(select(Session.id).where(Session.session_uuid == sid)):
             raise HTTPException(409, "this session is already complete")
         up = await db.get(Upload, sid)
-        if up is not None and up.station_id != station.id:
+        if up is not None and not await _take_over(db, up, station):
             raise HTTPException(404, "no such upload")
         held = up.received_bytes if up else 0
         if upload_offset != held:
@@ -215,6 +238,7 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> RecordingHeader:
         raise HTTPException(422, "the first chunk must contain the recording's header record")
     try:
         header = RecordingHeader.model_validate_json(records[0][1])
+        check_prescription(header)
     except ValueError as exc:
         raise HTTPException(422, f"the header record is not valid: {error_text(exc)}") from None
     if header.session_id != sid:
@@ -224,16 +248,43 @@ def _check_start(data: bytes, patient_id: int, sid: str) -> RecordingHeader:
     return header
 
 
+async def _sends_for(db: AsyncSession, other: int, station: Station) -> bool:
+    """Whether ``station`` may send what station ``other`` recorded or began to upload: it is
+    that station, or ``other`` is a revoked station of the same patient (this one's
+    predecessor: a station provisioned again sends, under its new token, what it recorded
+    and began to upload under its old one, which nothing else can send any more). The one
+    rule for a recording's header (:func:`_check_recorder`), an upload under way
+    (:func:`_take_over`) and a session already filed."""
+    if other == station.id:
+        return True
+    before = await db.get(Station, other)
+    return before is not None and before.revoked and before.patient_id == station.patient_id
+
+
+async def _take_over(db: AsyncSession, up: Upload, station: Station) -> bool:
+    """Whether ``station`` may go on with upload ``up``: its own, or its revoked
+    predecessor's (:func:`_sends_for`), which becomes this station's (saved with the
+    request's change). Another station of the same patient, not revoked, keeps its own."""
+    if up.station_id == station.id:
+        return True
+    if not await _sends_for(db, up.station_id, station):
+        return False
+    log.info(
+        "upload %s of revoked station %d taken over by station %d",
+        up.session_uuid,
+        up.station_id,
+        station.id,
+    )
+    up.station_id = station.id
+    return True
+
+
 async def _check_recorder(db: AsyncSession, named: int, station: Station) -> None:
     """A station uploads only what it recorded: the header names this station, or 0 (it
-    recorded before it first connected and learnt its id), or a revoked station of the same
-    patient (this one's predecessor: a station provisioned again sends what it recorded
-    under its old token, which nothing else can send any more). The session is filed under
-    the uploading station; a header naming another would contradict it in every download."""
-    if named in (0, station.id):
-        return
-    before = await db.get(Station, named)
-    if before is not None and before.revoked and before.patient_id == station.patient_id:
+    recorded before it first connected and learnt its id), or its revoked predecessor
+    (:func:`_sends_for`). The session is filed under the uploading station; a header naming
+    another would contradict it in every download."""
+    if named == 0 or await _sends_for(db, named, station):
         return
     raise HTTPException(
         422,
@@ -266,13 +317,13 @@ async def upload_complete(
     async with _lock(request.app, sid):
         done = await db.scalar(select(Session).where(Session.session_uuid == sid))
         if done is not None:
-            if done.station_id != station.id:
+            if not await _sends_for(db, done.station_id, station):
                 raise HTTPException(404, "no such upload")
             if done.sha256 != body.sha256 or done.size_bytes != body.size:
                 raise HTTPException(409, "this session was filed with other content")
             return session_public(done)
         up = await db.get(Upload, sid)
-        if up is None or up.station_id != station.id:
+        if up is None or not await _take_over(db, up, station):
             raise HTTPException(404, "no such upload")
         if up.received_bytes != body.size:
             raise HTTPException(
@@ -344,13 +395,17 @@ class Refused(Exception):
 def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
     """The recording in ``part``, its summary and its SHA-256, or :class:`Refused` saying
     why not. Every check ``complete`` makes of the bytes is here, so that every refusal
-    discards the upload the same way."""
+    discards the upload the same way. Reading the file may fail (an ``OSError``: the
+    server's, retried); what follows reads only the bytes, so anything else that fails there
+    is an error of this recording, refused rather than answered 500 to a station that would
+    send the same bytes for a day."""
     digest = _sha256(part)
     if digest != sha256:
         # Start over rather than keep bytes that do not match the station's file.
         raise Refused(f"checksum mismatch: the server's bytes hash to {digest}; upload again")
+    data = part.read_bytes()
     try:
-        rec = decode(part.read_bytes())
+        rec = decode(data)
         if rec.damaged or rec.end is None:
             raise RecordingError("it is cut off: it has no end record")
         check_session(rec)
@@ -358,6 +413,10 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
         raise Refused(
             f"not a valid recording: {error_text(exc, 300)}; upload the session again"
         ) from None
+    except MemoryError:
+        raise
+    except Exception as exc:
+        raise _unexpected(part, "read", exc) from None
     try:
         summary = summarize(rec)
     except ValidationError as exc:  # a value past what a float holds: no clinician's number
@@ -365,7 +424,22 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
             f"not a valid recording: its values give no finite summary ({exc.title}."
             f"{error_text(exc, 300)}); upload the session again"
         ) from None
+    except MemoryError:
+        raise
+    except Exception as exc:
+        raise _unexpected(part, "summarise", exc) from None
     return rec, summary, digest
+
+
+def _unexpected(part: Path, doing: str, exc: Exception) -> Refused:
+    """A recording the server failed to read or summarise for a reason no check names: a
+    fault of the server's code to be fixed (logged with its traceback), but the same bytes
+    would fail the same way at every retry, so the recording is refused like any other."""
+    log.error("upload %s: could not %s the recording", part.stem, doing, exc_info=exc)
+    return Refused(
+        f"not a valid recording: the server could not {doing} it "
+        f"({type(exc).__name__}: {error_text(exc, 200)}); upload the session again"
+    )
 
 
 EXPIRE_PASS_MAX_S = 3600.0

@@ -3,8 +3,10 @@ with: ranges per axis, the device's stable envelope, directions for the patient'
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
+import numpy as np
 import pytest
 
 from device.limits import SafetyLimits
@@ -96,3 +98,56 @@ async def test_other_forms_and_parameters_speak_sentences_too(live: Live, world:
     r = await live.client.get("/exercises/limits?side=middle", headers=t1)
     assert r.status_code == 422
     assert r.json()["detail"][0]["msg"] == "Side must be one of left, right or both."
+
+
+def _near_edges(edges: list[float]) -> list[float]:
+    """Stiffnesses just below each edge of the envelope's bands: in float64 only (the device
+    receives the edge itself, in float32: 4.9999999 is 5), the float32 just below it, and
+    some a sentence would round onto it."""
+    out: list[float] = []
+    for edge in edges:
+        if edge <= 0:
+            continue
+        below32 = float(np.nextafter(np.float32(edge), np.float32(0)))
+        out += [edge * (1 - 2e-8), edge * (1 - 1e-7), below32, edge * (1 - 1e-5), edge - 0.01]
+    return out
+
+
+@pytest.mark.asyncio
+async def test_the_envelope_is_checked_as_the_device_receives_k_and_its_sentence_agrees(
+    live: Live, world: World
+) -> None:
+    """K and B are checked in float32, as the device receives and checks them: K =
+    4.9999999 reaches it as 5, where the published envelope asks B 0.8, so B 0.8 is taken.
+    A refusal says the stiffness so that the published envelope at it asks the damping the
+    sentence asks (never "at least 1 at a stiffness of 5", where it publishes 0.8)."""
+    t1 = bearer(world.t1)
+    limits = (await live.client.get("/exercises/limits", headers=t1)).json()
+    for axis in ("roll", "pitch", "yaw"):
+        bands = limits["axes"][axis]["envelope"]
+        edges = [b["stiffness_from"] for b in bands]
+
+        def published(k: float, bands: list[dict[str, float]] = bands) -> float:
+            return [b["damping_min"] for b in bands if k >= b["stiffness_from"]][-1]
+
+        for k in _near_edges(edges):
+            k32 = float(np.float32(k))
+            least = published(k32)  # what the device asks of this K as it receives it
+            body = {**STRENGTH, "axes": [{**STRENGTH["axes"][0], "axis": axis}]}
+            body["axes"][0] |= {"stiffness": k, "damping": least}
+            r = await live.client.post(f"/patients/{world.p1}/prescriptions", json=body, headers=t1)
+            assert r.status_code == 201, (axis, k, r.text)
+            lower = float(np.nextafter(np.float32(least), np.float32(0)))
+            body["axes"][0]["damping"] = lower
+            r = await live.client.post(f"/patients/{world.p1}/prescriptions", json=body, headers=t1)
+            assert r.status_code == 422, (axis, k, r.text)
+            (error,) = r.json()["detail"]
+            said = re.fullmatch(
+                rf"Damping B on {axis} must be at least ([\d.]+) N·m·s/rad \([^)]*\): the least "
+                r"the platform renders steadily at a stiffness of ([\d.]+) N·m/rad\.",
+                error["msg"],
+            )
+            assert said is not None, error["msg"]
+            said_least, said_k = float(said[1]), float(said[2])
+            assert said_least == pytest.approx(least, abs=0.05), (axis, k, error["msg"])
+            assert published(float(np.float32(said_k))) == least, (axis, k, error["msg"])

@@ -219,11 +219,66 @@ async def test_a_lone_surrogate_changes_nothing_anywhere(live: Live, world: Worl
         assert r.json()["display_name"] == name
 
 
+UNPARSABLE = [
+    pytest.param(b'{"email": "a@b.c", "password": ', "Expecting value", id="cut-off"),
+    pytest.param(b'{"email": "\xff\xfe", "password": "x"}', "not utf-8 text", id="not-utf8"),
+    pytest.param(b'{"email": ' + b"9" * 5000 + b"}", "more than 4300 digits", id="5000-digits"),
+    pytest.param(b"[" * 1001 + b"]" * 1001, "nested too deeply", id="nested-1001"),
+    pytest.param(b'{"a":' * 50000 + b"1" + b"}" * 50000, "nested too deeply", id="nested-50000"),
+]
+
+
 @pytest.mark.asyncio
-async def test_raw_bytes_that_are_not_utf8_are_a_4xx(live: Live) -> None:
+async def test_a_surrogate_encoded_in_raw_bytes_is_a_422_naming_the_field(live: Live) -> None:
+    """json reads the bytes of a UTF-16 surrogate (not UTF-8) as that surrogate; the field
+    refuses it, as it does the escape."""
     r = await live.client.post(
         "/auth/login",
         content=b'{"email": "\xed\xa0\x80", "password": "x"}',
         headers={"Content-Type": "application/json"},
     )
-    assert 400 <= r.status_code < 500, r.text
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "email"]
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(("body", "why"), UNPARSABLE)
+async def test_every_body_that_does_not_parse_is_the_same_422(
+    live: Live, world: World, body: bytes, why: str
+) -> None:
+    """Whatever stops a body parsing (FastAPI answered a 5,000-digit number, deep nesting
+    and bytes that are not UTF-8 with a bare 400 "There was an error parsing the body"),
+    every body sent as JSON is told the same sentence, with the reason beside it."""
+    t1 = bearer(world.t1)
+    for path, headers in (
+        ("/auth/login", {"Content-Type": "application/json"}),
+        ("/patients", {**t1, "Content-Type": "application/json; charset=utf-8"}),
+        (f"/patients/{world.p1}/prescriptions", {**t1, "Content-Type": "application/json"}),
+        (f"/stations/{world.s1_spare_id}/revoke", {**t1, "Content-Type": "application/json"}),
+    ):
+        r = await live.client.post(path, content=body, headers=headers)
+        assert r.status_code == 422, (path, r.text)
+        (error,) = r.json()["detail"]
+        assert error["type"] == "json_invalid" and error["msg"] == "The request is not valid JSON."
+        assert why in error["ctx"]["error"], error
+    assert (await live.client.get("/patients", headers=t1)).json()[0]["display_name"] == "Pat One"
+
+
+@pytest.mark.asyncio
+async def test_a_body_sent_without_a_content_type_is_not_parsed_as_json(
+    live: Live, world: World
+) -> None:
+    """FastAPI reads an untyped body as bytes: an upload's chunk sent so (binary, not
+    UTF-8) is taken, and a JSON route sent one says it wants an object, not that the JSON
+    is broken."""
+    from tests.server.test_series import recording_bytes, samples
+
+    sid = "3f1d7c0e-9b2a-4c5d-8e6f-7a8b9c0d1e2f"
+    data = recording_bytes(sid, samples()[:200], world.s1_id, world.p1, world.rx1)
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=data, headers={**bearer(world.s1), "Upload-Offset": "0"}
+    )
+    assert r.status_code == 204, r.text
+    r = await live.client.post("/auth/login", content=b"[" * 5000)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["type"] == "model_attributes_type"
