@@ -81,10 +81,10 @@ COMMANDS_PER_S = 10.0
 REFUSAL_ROWS_BURST = 5
 """Of the commands the server itself refuses (never sent: FORBIDDEN, OFFLINE, DUPLICATE,
 AUDIT), those of one user to one station that get an audit row each: this many at once,
-and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest are counted into one ``command.refusals`` row per
-``REFUSAL_SUMMARY_S``. Each refusal costs nothing on the device, but its row is kept for
-good: one browser tab sending 1,000 K/B changes a second to an offline station wrote a row
-for each (2,850 in 3 s)."""
+and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest are counted into
+one ``command.refusals`` row per ``REFUSAL_SUMMARY_S``. Each refusal costs nothing on the
+device, but its row is kept for good: one browser tab sending 1,000 K/B changes a second to
+an offline station wrote a row for each (2,850 in 3 s)."""
 REFUSAL_ROWS_PER_S = 1.0
 REFUSAL_SUMMARY_S = 10.0
 REFUSALS_ACTION = "command.refusals"
