@@ -25,6 +25,15 @@ from device.transport import TX_BUFFER_MAX, TcpLink
 from device.waveforms import Waveform
 from tests.device.faults import FaultProxy, Faults
 
+PITCH = AxisPlan(
+    Waveform.SINE,
+    amplitude=math.radians(5.0),
+    frequency=0.5,
+    stiffness=30.0,
+    damping=1.0,
+    compliant=True,
+)
+
 
 @pytest.fixture
 def tcp_device() -> Iterator[DeviceService]:
@@ -66,15 +75,7 @@ def test_the_service_acts_on_no_damaged_frame_and_the_client_recovers(
             assert dev.hello is not None
             await dev.arm_home()
             await dev.wait_for_mode(DeviceMode.READY, timeout=15.0)
-            pitch = AxisPlan(
-                Waveform.SINE,
-                amplitude=math.radians(5.0),
-                frequency=0.5,
-                stiffness=30.0,
-                damping=1.0,
-                compliant=True,
-            )
-            await dev.start_segment(build_segment(dev.hello, 9, 60.0, {"pitch": pitch}))
+            await dev.start_segment(build_segment(dev.hello, 9, 60.0, {"pitch": PITCH}))
             received = 0
 
             async def count() -> None:
@@ -205,16 +206,6 @@ def test_a_host_whose_link_is_taken_hears_it_at_every_waiter(tcp_device: DeviceS
             await first.close()
 
     asyncio.run(main())
-
-
-PITCH = AxisPlan(
-    Waveform.SINE,
-    amplitude=math.radians(5.0),
-    frequency=0.5,
-    stiffness=30.0,
-    damping=1.0,
-    compliant=True,
-)
 
 
 def raw_socket(service: DeviceService, rcvbuf: int | None = None) -> socket.socket:
