@@ -425,7 +425,10 @@ async def _ws_flood(config: dict[str, Any]) -> dict[str, Any]:
         try:
             while loop.time() - start < seconds:
                 for _ in range(per_tick):
-                    if sent % 10 == 9:
+                    # One command in 200 (5 a second at the default rate): within a link's
+                    # budget (server.hub.COMMAND_WINDOW), so the flood lasts its seconds; a
+                    # link past its budget is closed at once (tests/server/test_live_abuse).
+                    if sent % 200 == 199:
                         text = wire.Command(
                             request_id=f"flood-{sent}",
                             action="set_impedance",

@@ -47,6 +47,7 @@ def test_a_small_run_measures_every_key_and_no_5xx() -> None:
     assert out["good_login_status"] == 200 and out["good_login_ms_under_flood"] > 0
     assert out["malformed_4xx"] == 22 and out["malformed_other"] == 0
     assert out["ws_flood_sent"] >= 40
+    assert out["ws_flood_closed"] == ""  # its commands stay within the link's budget
     assert out["viewer_telemetry"] > 0
     assert 0 < out["server_rss_mb_idle"] <= out["server_rss_mb_max"]
     for key in ("idle", "bigbody", "login_flood", "ws_flood", "malformed"):
