@@ -1290,9 +1290,9 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         return
     for k in range(25):
         s.sensors[k] = sensors[k] - p.sensor_zero[k]
-    code = safety.check_sensors(s.sensors, p.stroke, p.limits, int(s.istate[I_OUTSIDE]))
+    code, part = safety.check_sensors(s.sensors, p.stroke, p.limits, int(s.istate[I_OUTSIDE]))
     if code != Trip.NONE and moving(s.istate):
-        trip(s, code)
+        trip(s, code, part)
         return
     for c in range(12):
         s.pressure[c] = s.sensors[c] - p.p_atm
@@ -1327,9 +1327,9 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
             s.leg_bias[i] = 0.0
         s.leg_x[i] = x
     if moving(s.istate):
-        code = safety.check_leg_speed(s.leg_rate, p.limits)
+        code, leg = safety.check_leg_speed(s.leg_rate, p.limits)
         if code != Trip.NONE:
-            trip(s, code)
+            trip(s, code, leg)
 
 
 @njit_inline
@@ -1895,9 +1895,9 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
         rel = s.pose.copy()
         for k in range(6):
             rel[k] -= p.home_pose[k]
-        code = safety.check_pose(rel, p.limits)
+        code, axis = safety.check_pose(rel, p.limits)
         if code != Trip.NONE and not outside & safety.OUTSIDE_POSE:
-            trip(s, code)
+            trip(s, code, axis)
             return
 
     # G_p: the differential that holds platform weight (model) and the foot's wrench

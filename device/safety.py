@@ -72,40 +72,50 @@ at 2; at 2 mm none did."""
 @njit
 def check_sensors(
     sensors: NDArray[np.float64], stroke: float, limits: NDArray[np.float64], exempt: int
-) -> int:
-    """Trip code for a fresh sensor vector (0 if fine). A leg whose bit is set in ``exempt``
-    started its motion outside its stroke's margin and is not judged until it is inside."""
+) -> tuple[int, int]:
+    """(trip code, part) for a fresh sensor vector ((0, -1) if fine); the part as
+    :func:`device.trips.where` names it: the leg at its stroke's end, the force/torque
+    channel over its limit (for the force, the axis it pushes along most). A leg whose bit
+    is set in ``exempt`` started its motion outside its stroke's margin and is not judged
+    until it is inside."""
     if not all_finite(sensors):
-        return Trip.SENSOR_INVALID
+        return Trip.SENSOR_INVALID, -1
     margin = limits[ROW_SCALARS, 3]
     for i in range(6):
         x = sensors[13 + i]
         if (x < margin or x > stroke - margin) and not exempt & (1 << i):
-            return Trip.STROKE_END
+            return Trip.STROKE_END, i
     f2 = sensors[19] ** 2 + sensors[20] ** 2 + sensors[21] ** 2
     if f2 > limits[ROW_SCALARS, 0] ** 2:
-        return Trip.WRENCH_LIMIT
+        most = 0
+        for k in range(1, 3):
+            if abs(sensors[19 + k]) > abs(sensors[19 + most]):
+                most = k
+        return Trip.WRENCH_LIMIT, most
     for k in range(3):
         if abs(sensors[22 + k]) > limits[ROW_SCALARS, 1]:
-            return Trip.WRENCH_LIMIT
-    return Trip.NONE
+            return Trip.WRENCH_LIMIT, 3 + k
+    return Trip.NONE, -1
 
 
 @njit
-def check_leg_speed(leg_rate: NDArray[np.float64], limits: NDArray[np.float64]) -> int:
+def check_leg_speed(leg_rate: NDArray[np.float64], limits: NDArray[np.float64]) -> tuple[int, int]:
+    """(LEG_SPEED, the leg) for the first leg over the speed limit, (0, -1) if none."""
     for i in range(6):
         if abs(leg_rate[i]) > limits[ROW_SCALARS, 2]:
-            return Trip.LEG_SPEED
-    return Trip.NONE
+            return Trip.LEG_SPEED, i
+    return Trip.NONE, -1
 
 
 @njit
-def check_pose(pose: NDArray[np.float64], limits: NDArray[np.float64]) -> int:
+def check_pose(pose: NDArray[np.float64], limits: NDArray[np.float64]) -> tuple[int, int]:
+    """(RANGE_OF_MOTION, the axis) for the first axis past its range and margin, (0, -1)
+    if none."""
     for k in range(6):
         m = limits[ROW_ROM_MARGIN, k]
         if pose[k] < limits[ROW_ROM_LOW, k] - m or pose[k] > limits[ROW_ROM_HIGH, k] + m:
-            return Trip.RANGE_OF_MOTION
-    return Trip.NONE
+            return Trip.RANGE_OF_MOTION, k
+    return Trip.NONE, -1
 
 
 @njit
@@ -157,7 +167,7 @@ def outside_at_start(
     for i in range(6):
         if not margin <= legs[i] <= stroke - margin:
             mask |= 1 << i
-    if check_pose(pose - home, limits) != Trip.NONE:
+    if check_pose(pose - home, limits)[0] != Trip.NONE:
         mask |= OUTSIDE_POSE
     return mask
 

@@ -118,10 +118,12 @@ def where(trip: int, channel: int) -> str:
         return ""
     if trip in (Trip.PRESSURE_SENSOR, Trip.VALVE, Trip.AIR_BALANCE):
         return chamber(channel)
-    if trip in (Trip.LEG_SENSOR, Trip.FORCE_BALANCE):
+    if trip in (Trip.LEG_SENSOR, Trip.FORCE_BALANCE, Trip.STROKE_END, Trip.LEG_SPEED):
         return f"leg {channel + 1}"
-    if trip == Trip.FORCE_SENSOR and channel < len(_WRENCH_PARTS):
+    if trip in (Trip.FORCE_SENSOR, Trip.WRENCH_LIMIT) and channel < len(_WRENCH_PARTS):
         return _WRENCH_PARTS[channel]
+    if trip == Trip.RANGE_OF_MOTION and channel < len(AXES):
+        return AXES[channel]
     if trip == Trip.SUPPLY_LOSS and channel == SUPPLY_BY_AIR:
         return (
             "the air of two legs or more (a supply its transducer missed, or a fault on each: "

@@ -234,10 +234,10 @@ def fault_parts(fault: Fault) -> frozenset[str]:
 
 def trip_part(trip: Trip, channel: int) -> str:
     """The part a trip names, as :func:`fault_parts` says it ('' for none, and for an axis:
-    a FOLLOWING trip of the platform's pose names no part)."""
+    a FOLLOWING or RANGE_OF_MOTION trip of the platform's pose names no part)."""
     if trip in (Trip.SUPPLY_LOSS, Trip.SUPPLY_HIGH):
         return _SUPPLY
-    if trip == Trip.FOLLOWING and channel < len(AXES):
+    if trip in (Trip.FOLLOWING, Trip.RANGE_OF_MOTION) and channel < len(AXES):
         return ""
     return trips.where(trip, channel)
 

@@ -9,13 +9,14 @@ import pytest
 from numpy.typing import NDArray
 
 from device import controller as ctl
-from device import quiet
+from device import quiet, trips
 from device.calibration import Calibration
 from device.controller import Mode, Waveform
 from device.geometry import DEFAULT_GEOMETRY
 from device.hardware import HardwareError, SimulatedHardware, open_hardware
 from device.identify import identify
 from device.kinematics import Kinematics
+from device.limits import SafetyLimits
 from device.plant.params import PlantConfig, draw_plant
 from device.rig import AxisTarget, CommandError, Rig
 from device.safety import Trip
@@ -102,6 +103,44 @@ def test_leaving_the_range_of_motion_trips() -> None:
             break
     assert r.mode == Mode.FAULT
     assert r.trip in (Trip.RANGE_OF_MOTION, Trip.LEG_SPEED, Trip.STROKE_END)
+    # Each names its part: the axis that left its range, the leg too fast or at its end.
+    named = trips.where(int(r.trip), r.trip_channel)
+    assert named == "pitch" if r.trip == Trip.RANGE_OF_MOTION else named.startswith("leg "), named
+
+
+def test_each_limit_names_the_part_over_it() -> None:
+    from device import safety
+    from device.limits import ROW_ROM_LOW, ROW_ROM_MARGIN, ROW_SCALARS
+
+    lim = SafetyLimits().published().as_array()
+    stroke = 0.1
+    sensors = np.zeros(25)
+    sensors[13:19] = 0.05
+    sensors[16] = stroke  # leg 4 at its far end
+    assert safety.check_sensors(sensors, stroke, lim, 0) == (int(Trip.STROKE_END), 3)
+    sensors[16] = 0.05
+    sensors[20] = -1.1 * lim[ROW_SCALARS, 0]  # a force over the limit, mostly along y
+    sensors[19] = 0.2 * lim[ROW_SCALARS, 0]
+    assert safety.check_sensors(sensors, stroke, lim, 0) == (int(Trip.WRENCH_LIMIT), 1)
+    sensors[19:22] = 0.0
+    sensors[24] = 1.1 * lim[ROW_SCALARS, 1]  # a torque about yaw over the limit
+    assert safety.check_sensors(sensors, stroke, lim, 0) == (int(Trip.WRENCH_LIMIT), 5)
+    rate = np.zeros(6)
+    rate[2] = -1.5 * lim[ROW_SCALARS, 2]
+    assert safety.check_leg_speed(rate, lim) == (int(Trip.LEG_SPEED), 2)
+    pose = np.zeros(6)
+    pose[3] = lim[ROW_ROM_LOW, 3] - lim[ROW_ROM_MARGIN, 3] - 0.01  # roll below its range and margin
+    assert safety.check_pose(pose, lim) == (int(Trip.RANGE_OF_MOTION), 3)
+    assert safety.check_pose(np.zeros(6), lim) == (int(Trip.NONE), -1)
+    words = {
+        (Trip.STROKE_END, 3): "leg 4",
+        (Trip.LEG_SPEED, 2): "leg 3",
+        (Trip.WRENCH_LIMIT, 1): "force along y",
+        (Trip.WRENCH_LIMIT, 5): "torque about yaw",
+        (Trip.RANGE_OF_MOTION, 3): "roll",
+    }
+    for (code, part), said in words.items():
+        assert trips.where(int(code), part) == said
 
 
 @pytest.mark.parametrize(

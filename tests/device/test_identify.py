@@ -535,8 +535,8 @@ def test_a_leg_or_pose_outside_its_limit_is_judged_once_it_is_inside() -> None:
     pose[2] = -0.04  # below the range of motion
     mask = safety.outside_at_start(sensors[13:19], pose, home, stroke, lim)
     assert mask == (1 | safety.OUTSIDE_POSE)
-    assert safety.check_sensors(sensors, stroke, lim, mask) == 0  # waived while outside
-    assert safety.check_sensors(sensors, stroke, lim, 0) == int(Trip.STROKE_END)
+    assert safety.check_sensors(sensors, stroke, lim, mask)[0] == 0  # waived while outside
+    assert safety.check_sensors(sensors, stroke, lim, 0)[0] == int(Trip.STROKE_END)
     sensors[13] = 0.0035  # inside the 2 mm margin, not yet 2 mm beyond it: still waived
     assert safety.still_outside(sensors, pose, home, stroke, lim, mask) == mask
     sensors[13] = 0.0045
@@ -546,7 +546,7 @@ def test_a_leg_or_pose_outside_its_limit_is_judged_once_it_is_inside() -> None:
     pose[2] = -0.02
     assert safety.still_outside(sensors, pose, home, stroke, lim, mask) == 0
     sensors[13] = 0.0015  # judged from now on
-    assert safety.check_sensors(sensors, stroke, lim, 0) == int(Trip.STROKE_END)
+    assert safety.check_sensors(sensors, stroke, lim, 0)[0] == int(Trip.STROKE_END)
 
 
 @pytest.mark.parametrize("reference", [-1.0, math.nan, math.inf])

@@ -442,6 +442,7 @@ def test_a_tripped_limit_is_a_latched_fault_with_its_code(device: Running) -> No
         assert t.trip == Trip.WRENCH_LIMIT
         faults = [e for e in device.service.events if e.mode_to == DeviceMode.FAULT]
         assert faults[0].kind == EventKind.LIMIT and faults[0].code == Trip.WRENCH_LIMIT
+        assert "torque about pitch" in faults[0].text, faults[0].text  # the channel over it
         assert valves_closed(device.service)
         # The device's own limits are back in force for whatever comes next.
         assert device.service.rig.params.limits[7, 1] == pytest.approx(60.0)

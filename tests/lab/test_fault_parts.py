@@ -55,6 +55,8 @@ def test_a_leg_sensor_fault_is_answered_by_its_leg_s_chambers_too_and_an_axis_by
     assert trip_part(Trip.AIR_BALANCE, 6) not in fault_parts(stuck)
     assert trip_part(Trip.FOLLOWING, 4) == ""  # pitch: an axis of the pose, not a part
     assert trip_part(Trip.FOLLOWING, 6 + 2) in fault_parts(stuck)  # joint mode: leg 3
+    assert trip_part(Trip.RANGE_OF_MOTION, 4) == ""  # so is a range of motion's
+    assert trip_part(Trip.STROKE_END, 2) in fault_parts(stuck)  # its leg at its stroke's end
     # The supply, whether its transducer or the legs' air found it.
     supply = fault_parts(_fault(FaultKind.SUPPLY_LOSS, -1))
     assert trip_part(Trip.SUPPLY_LOSS, 12) in supply
