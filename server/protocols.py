@@ -81,7 +81,7 @@ class TimedH11Protocol(H11Protocol):
                 self._header_timer = self.loop.call_later(self.header_timeout_s, self._headers_late)
         else:  # the headers are in (or the request was refused, or became a WebSocket)
             self._stop_header_timer()
-        if self.conn.their_state is h11.SEND_BODY and not self.transport.is_closing():
+        if self.conn.their_state is h11.SEND_BODY and self._reads_body():
             self._body_seen = self.loop.time()  # the headers, or a part of the body
             if self._body_timer is None:
                 self._body_timer = self.loop.call_later(self.body_timeout_s, self._body_late)
@@ -98,10 +98,16 @@ class TimedH11Protocol(H11Protocol):
             self._body_timer.cancel()
             self._body_timer = None
 
+    def _reads_body(self) -> bool:
+        """Whether this connection is still an HTTP one reading a request: not closing, and
+        not handed to a WebSocket. An upgrade request leaves h11 in ``SEND_BODY`` when the
+        link is handed over; timed as a body, every live link was cut after 60 s."""
+        return not self.transport.is_closing() and self.transport.get_protocol() is self
+
     def _body_late(self) -> None:
         """The body timer (one per request, moved on rather than made again per read)."""
         self._body_timer = None
-        if self.transport.is_closing() or self.conn.their_state is not h11.SEND_BODY:
+        if not self._reads_body() or self.conn.their_state is not h11.SEND_BODY:
             return
         now = self.loop.time()
         cycle = self.cycle

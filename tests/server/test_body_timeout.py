@@ -12,9 +12,11 @@ from pathlib import Path
 
 import pytest
 
+from sessions import wire
 from station.uploader import CHUNK
 from tests.server.live_server import Seeds, Store, World, on_store, running
 from tests.server.test_series import recording_bytes, samples
+from tests.server.ws_client import close_of, station_ws, welcomed
 
 BODY_TIMEOUT_S = 2.0
 STEP_S = 0.2
@@ -127,3 +129,28 @@ async def _trickle(port: int) -> int:
         return status
     finally:
         writer.close()
+
+
+@pytest.mark.asyncio
+async def test_a_live_link_is_no_body_and_outlives_the_body_timeout(
+    seeds: Seeds,
+    store: Store,
+    seeded_store: tuple[Path | str, World],
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A WebSocket starts as an HTTP request that h11 leaves expecting a body when the link
+    is handed over: timed as one, every station's and viewer's link was cut once the body
+    timeout passed (60 s), and the station reconnected each minute."""
+    world = seeded_store[1]
+    with on_store(seeds, store, tmp_path, seeded_store[0]) as base:
+        settings = base.model_copy(update={"body_timeout_s": BODY_TIMEOUT_S})
+        async with running(settings) as live, station_ws(live, world.s1) as station:
+            await welcomed(station)
+            deadline = time.monotonic() + 3 * BODY_TIMEOUT_S
+            while time.monotonic() < deadline:  # beats keep it from being closed as silent
+                await station.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+                await asyncio.sleep(BODY_TIMEOUT_S / 4)
+            await station.send(wire.Heartbeat(sent=time.time()).model_dump_json())
+            assert await close_of(station, 0.5) is None  # still open
+    assert "request body" not in caplog.text, caplog.text
