@@ -7,7 +7,7 @@ it keeps up and the newest one when it falls behind (a slow browser sees fresh d
 never a growing backlog). Events, status and command results are never dropped, and a viewer
 is sent them before any telemetry waiting with them; a viewer too far behind on them is
 closed (:data:`~sessions.wire.CLOSE_TOO_SLOW`) and reconnects. A viewer's commands have a
-budget per link (:class:`~server.hub.Budget`): past it the link is closed
+budget per link (:data:`~server.hub.COMMAND_WINDOW`): past it the link is closed
 (:data:`~sessions.wire.CLOSE_TOO_FAST`). A therapist's command goes to the
 station, which asks the device; the device's own ACK or NACK comes back to the viewers as a
 :class:`~sessions.wire.CommandResult` (or TIMEOUT / OFFLINE if it cannot).
