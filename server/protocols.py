@@ -43,6 +43,7 @@ from uvicorn.protocols.utils import ClientDisconnected
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
 from server.config import Settings
+from server.headers import API_CSP
 from sessions import wire
 
 log = logging.getLogger("ankle.server")
@@ -136,10 +137,15 @@ class TimedH11Protocol(H11Protocol):
         body = json.dumps(
             {"detail": f"the request body stalled: no byte of it for {self.body_timeout_s:g} s"}
         ).encode()
+        # What every other answer carries: uvicorn's date and server headers, and the
+        # security headers (written here, outside the app and its middleware).
         headers = [
+            *self.server_state.default_headers,
             (b"content-type", b"application/json"),
             (b"content-length", str(len(body)).encode()),
             (b"connection", b"close"),
+            (b"x-content-type-options", b"nosniff"),
+            (b"content-security-policy", API_CSP.encode()),
         ]
         try:
             for event in (

@@ -76,6 +76,23 @@ def _needs_loop(path: Path) -> bool:
     return not name.startswith(NEEDS_NO_LOOP) or _imports_loop(path)
 
 
+HARDWARE_WARM = """
+from device import tickloop
+from device.rig import Rig
+
+rig = Rig()
+tickloop.HardwareLoop(rig.state, rig.params)
+"""
+"""Compiles the Python hardware loop's entries (:class:`device.tickloop.HardwareLoop`: the
+controller's tick called alone, not inlined in the simulation's loop): a minute of a cold
+compile's CPU that the first test to need it (:data:`HARDWARE_LOOP_NAMES`) spent waiting."""
+
+HARDWARE_LOOP_NAMES = frozenset({"HardwareLoop", "run_hardware", "controller_tick", "Hardware"})
+"""Names whose use in a test file means it runs the hardware loop: the loop itself, the
+controller's tick called from Python, or a hardware of its own (a subclass of ``Hardware``).
+Such a file waits for :data:`HARDWARE_WARM` too."""
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Start compiling the device's loops once, before any worker starts (this runs ahead of
     xdist's own hook, which starts the workers, and they inherit the folder's name).
@@ -85,23 +102,38 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     compile runs once, in the background: the tests that need no compiled loop run meanwhile
     (they come first: ``pytest_collection_modifyitems``), and each other test waits for it
     (``pytest_runtest_setup``), then loads the cache in about a second. Waiting instead, as
-    before, left one of two cores idle for the two minutes of a cold compile."""
+    before, left one of two cores idle for the two minutes of a cold compile.
+
+    The simulated service compiles first (most tests wait for it), then the hardware loop
+    (:data:`HARDWARE_WARM`), one after the other: two compiles at once would take CPU from
+    the tests running meanwhile and delay the one most tests wait for."""
     global _warm
     if _WARM_ENV in os.environ:  # a worker: the controller has started it
         return
     folder = Path(tempfile.mkdtemp(prefix="ankle-warm-"))
     os.environ[_WARM_ENV] = str(folder)
     argv = [sys.executable, "-m", "device", "device", "--sim", "--link", "tcp://127.0.0.1:0"]
-    log = (folder / "log").open("wb")
-    _warm = subprocess.Popen([*argv, "--seconds", "0"], stdout=log, stderr=subprocess.STDOUT)
-    log.close()
+
+    def spawn(args: list[str], log_name: str) -> subprocess.Popen[bytes]:
+        global _warm
+        with (folder / log_name).open("wb") as log:
+            _warm = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+        return _warm
+
+    def done(name: str, code: int) -> None:
+        (folder / f"{name}.tmp").write_text(str(code))
+        (folder / f"{name}.tmp").replace(folder / name)
 
     def report(proc: subprocess.Popen[bytes]) -> None:
         code = proc.wait()
-        (folder / "exit.tmp").write_text(str(code))
-        (folder / "exit.tmp").replace(folder / "exit")
+        done("exit", code)
+        if code != 0:
+            done("hw-exit", code)
+            return
+        done("hw-exit", spawn([sys.executable, "-c", HARDWARE_WARM], "hw-log").wait())
 
-    threading.Thread(target=report, args=(_warm,), daemon=True).start()
+    first = spawn([*argv, "--seconds", "0"], "log")
+    threading.Thread(target=report, args=(first,), daemon=True).start()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
@@ -144,25 +176,45 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items[:] = [item for f in order for item in files[f]]
 
 
+@functools.cache
+def _uses_hardware_loop(path: Path) -> bool:
+    """Whether the test file ``path`` names one of :data:`HARDWARE_LOOP_NAMES`."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Name) and node.id in HARDWARE_LOOP_NAMES:
+            return True
+        if isinstance(node, ast.Attribute) and node.attr in HARDWARE_LOOP_NAMES:
+            return True
+    return False
+
+
+def _wait_for(folder: Path, name: str, log_name: str, what: str) -> None:
+    """Wait until the warm-up step that writes ``name`` has ended; fail unless it exited 0."""
+    deadline = time.monotonic() + WARM_TIMEOUT_S
+    while not (folder / name).exists():
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} did not compile in {WARM_TIMEOUT_S:.0f} s")
+        time.sleep(0.2)
+    code = (folder / name).read_text()
+    if code != "0":
+        pytest.fail(
+            f"{what} does not start (exit {code}):\n"
+            + (folder / log_name).read_text(errors="replace")[-8000:],
+            pytrace=False,
+        )
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item: pytest.Item) -> None:
     """A test that runs the compiled loop waits, before its fixtures, for the compile."""
     folder = Path(os.environ[_WARM_ENV])
-    if not _needs_loop(item.path) or (folder / "ok").exists():
+    if not _needs_loop(item.path):
         return
-    deadline = time.monotonic() + WARM_TIMEOUT_S
-    while not (folder / "exit").exists():
-        if time.monotonic() > deadline:
-            pytest.fail(f"the device's loops did not compile in {WARM_TIMEOUT_S:.0f} s")
-        time.sleep(0.2)
-    code = (folder / "exit").read_text()
-    if code != "0":
-        pytest.fail(
-            f"the device service does not start (exit {code}):\n"
-            + (folder / "log").read_text(errors="replace")[-8000:],
-            pytrace=False,
-        )
-    (folder / "ok").touch()
+    if not (folder / "ok").exists():
+        _wait_for(folder, "exit", "log", "the device service")
+        (folder / "ok").touch()
+    if _uses_hardware_loop(item.path) and not (folder / "hw-ok").exists():
+        _wait_for(folder, "hw-exit", "hw-log", "the hardware loop")
+        (folder / "hw-ok").touch()
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

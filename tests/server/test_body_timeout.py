@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from server.headers import API_CSP
 from sessions import wire
 from station.uploader import CHUNK
 from tests.server.live_server import Live, Seeds, Store, World, on_store, running
@@ -40,9 +41,19 @@ async def _served(
 
 async def _answer(reader: asyncio.StreamReader) -> tuple[int, bytes]:
     """The status and body of the one answer on a connection the server then closes."""
+    status, _, body = await _answer_with_headers(reader)
+    return status, body
+
+
+async def _answer_with_headers(
+    reader: asyncio.StreamReader,
+) -> tuple[int, dict[str, str], bytes]:
+    """:func:`_answer` with the answer's headers (names lower case)."""
     raw = await asyncio.wait_for(reader.read(), GIVE_UP_S)  # to the server's close
     head, _, body = raw.partition(b"\r\n\r\n")
-    return int(head.split(b" ", 2)[1]), body
+    lines = head.decode("latin-1").split("\r\n")
+    headers = dict(line.split(": ", 1) for line in lines[1:])
+    return int(lines[0].split(" ", 2)[1]), {k.lower(): v for k, v in headers.items()}, body
 
 
 @pytest.mark.asyncio
@@ -90,14 +101,18 @@ async def test_a_stalled_body_is_answered_408_and_a_slow_steady_one_is_served(
             served = await _trickle(port)
             assert served == 401  # the login's answer: its body was read whole
 
-            answers = await asyncio.gather(*(_answer(reader) for reader, _ in waiting))
+            answers = await asyncio.gather(*(_answer_with_headers(reader) for reader, _ in waiting))
             elapsed = time.monotonic() - started
         finally:
             for _, writer in waiting:
                 writer.close()
-        for status, body in answers:
+        for status, headers, body in answers:
             assert status == 408, body
             assert json.loads(body) == {"detail": "the request body stalled: no byte of it for 2 s"}
+            # as every other answer: security headers, the date and the server
+            assert headers["x-content-type-options"] == "nosniff"
+            assert headers["content-security-policy"] == API_CSP
+            assert headers["connection"] == "close" and "date" in headers
         assert elapsed >= BODY_TIMEOUT_S
         assert (
             await live.client.head(f"/uploads/{sid}", headers=_station(world))

@@ -82,6 +82,7 @@ async def press(ws: ClientConnection, action: dict[str, Any]) -> dict[str, Any]:
             return message
 
 
+@pytest.mark.sqlite_only  # the station's own loop and page: no store or relay takes part
 @pytest.mark.asyncio
 async def test_the_demo_repeats_a_finished_exercise_but_never_moves_after_stop(
     system: System, therapist: httpx.AsyncClient
