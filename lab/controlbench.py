@@ -223,7 +223,7 @@ def _run(plots: Path | None, progress: Callable[[str], None] | None) -> dict[str
         if suffix and r.unsettled is not None and health.reason == r.unsettled:
             # The comparison's finding, not a failed measurement: without dead-band
             # compensation the leg swings through the band and never settles. Its rise and
-            # overshoot stand; its settling and steady error are no number.
+            # overshoot and where it rests at the end stand; its settling is no number.
             health = replace(health, valid=True, reason=None)
             out[f"step_unsettled{suffix}"] = r.unsettled
         checks[f"step{suffix}"] = _health(health)

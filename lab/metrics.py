@@ -17,12 +17,11 @@ SETTLE_BAND_M = 0.3e-3
 rather than a percentage, because for a 10 mm step 2 % would be finer than the resolution
 itself."""
 SETTLE_HOLD_S = 0.5
-"""How long a step's response must stay within the band to count as settled (s), and the
-window its steady-state error is the mean over. Longer than the slowest step's rise (45 mm,
-167 ms) and than a period of the limit cycle an uncompensated leg swings through the band
-in (0.3-0.4 s between its exits: it never settles), short against the quiet hold's own slow
-wander (a healthy leg resting on its air drifts 0.3 mm over 10-18 s and is then corrected),
-which is the hold, not the step."""
+"""How long a step's response must stay within the band to count as settled (s). Longer
+than the slowest step's rise (45 mm, 167 ms) and than a period of the limit cycle an
+uncompensated leg swings through the band in (0.3-0.4 s between its exits: it never
+settles), short against the quiet hold's own slow wander (a healthy leg resting on its air
+drifts 0.3 mm over 10-18 s and is then corrected), which is the hold, not the step."""
 
 
 @dataclass(frozen=True)
@@ -37,8 +36,9 @@ class StepMetrics:
     within ``band`` of the target for ``hold`` seconds (ms). NaN when the record holds no
     such window."""
     steady_error_mm: float
-    """|mean response - target| over the ``hold`` seconds from ``settling_ms`` (mm); NaN
-    when it never settled."""
+    """|mean response - target| over the last ``tail`` seconds of the record (mm): where the
+    leg rests when the record ends, settled or not. Unlike settling it may depend on the
+    record's length: a leg that the quiet hold lets wander is wherever it wandered."""
 
     @property
     def measured(self) -> bool:
@@ -56,13 +56,15 @@ def step_metrics(
     target: float,
     band: float = SETTLE_BAND_M,
     hold: float = SETTLE_HOLD_S,
+    tail: float = 0.2,
 ) -> StepMetrics:
     """Metrics of a step from ``y0`` to ``target`` that starts at ``t[0]``.
 
-    None depends on how long the record goes on after the step settled: settling is the
-    first entry into the band that then lasts ``hold`` seconds, and the steady-state error
-    and the overshoot are taken up to the end of that window. What the held leg does later
-    (``device.quiet``) is not the step's response.
+    Settling and overshoot do not depend on how long the record goes on after the step
+    settled: settling is the first entry into the band that then lasts ``hold`` seconds,
+    and the overshoot is taken up to the end of that window (what the held leg does later,
+    ``device.quiet``, is not the step's response). The steady-state error is where the leg
+    rests at the end of the record, so a target on it is never met by construction.
     """
     t = np.asarray(t, dtype=np.float64) - float(t[0])
     y = np.asarray(y, dtype=np.float64)
@@ -88,10 +90,10 @@ def step_metrics(
         i = int(settled[0])
         upto = t < end[i]
         settling = float(t[i]) * 1e3
-        steady = abs(float(np.mean(y[upto & (t >= t[i])])) - target) * 1e3
     else:
-        settling = steady = math.nan
+        settling = math.nan
         upto = np.ones(t.size, dtype=bool)
+    steady = abs(float(np.mean(y[t >= t[-1] - tail])) - target) * 1e3
     overshoot = max(0.0, float(np.max(frac[upto])) - 1.0) * 100.0
     return StepMetrics(rise, overshoot, settling, steady)
 

@@ -86,8 +86,9 @@ def test_settling_does_not_depend_on_how_long_the_record_goes_on() -> None:
     short = ex.step(leg=2, mm=-20.0, duration=1.0)
     assert long.valid and short.valid
     assert long.metrics.settling_ms == short.metrics.settling_ms < 200.0
-    assert long.metrics.steady_error_mm == short.metrics.steady_error_mm
     assert long.metrics.overshoot_pct == short.metrics.overshoot_pct
+    # where each record ends: corrected again by 20 s, resting at its first error by 1 s
+    assert long.metrics.steady_error_mm < 0.3 and short.metrics.steady_error_mm < 0.3
 
 
 # -- dynamic impedance ------------------------------------------------------------------------
