@@ -11,6 +11,7 @@ import contextlib
 import csv
 import json
 import math
+import re
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, is_dataclass
@@ -33,12 +34,25 @@ from device.commands import WATCHDOG_MS_MAX, WATCHDOG_MS_MIN, CommandError
 from device.geometry import AXES
 
 
+class SimParser(Parser):
+    """:class:`Parser` that reads any negative number as a value: argparse takes only
+    ``-1`` and ``-.5`` for numbers, and ``--mm -inf`` or ``--mm -1e3`` for an option it does
+    not know ("expected one argument"), so the value never reached the check that says what
+    is wrong with it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(
+            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE
+        )
+
+
 def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
     """Register ``sim`` and ``bench`` on a parent parser's subcommands."""
     sim = sub.add_parser("sim", help="experiments on the simulated device (simulated time)")
-    ss = sim.add_subparsers(dest="experiment", required=True, parser_class=Parser)
+    ss = sim.add_subparsers(dest="experiment", required=True, parser_class=SimParser)
 
-    p = ss.add_parser("step", help="position step of one leg (paper Fig. 9)")
+    p: Parser = ss.add_parser("step", help="position step of one leg (paper Fig. 9)")
     p.add_argument("--leg", type=int, default=1, help="leg number 1..6")
     p.add_argument("--mm", type=finite_float, default=10.0, help="step size (mm)")
     p.add_argument(
@@ -589,7 +603,7 @@ def _run_experiment(args: argparse.Namespace) -> int:
         r2 = ex.sine(args.axis, args.amplitude, args.hz)
         health = r2.health
         unit = "deg" if args.axis in AXES[3:] else "mm"
-        what = f"{r2.axis} {r2.amplitude:g} {unit} at {r2.frequency:g} Hz"
+        what = f"{r2.axis} {r2.amplitude:.15g} {unit} at {r2.frequency:.15g} Hz"
         text = f"{what}: gain {r2.gain_db:+.2f} dB, phase {r2.phase_deg:.1f} deg"
         data = {
             "axis": r2.axis,
@@ -650,6 +664,14 @@ def _run_experiment(args: argparse.Namespace) -> int:
                 f"the admittance law alone: K {j.law_stiffness:.2f}, B {j.law_damping:.3f}; "
                 f"the patient's muscles feel K {j.patient_stiffness:.2f}, "
                 f"B {j.patient_damping:.3f} (rendered + the passive ankle)"
+            )
+            measured = (
+                "measured_stiffness",
+                "measured_damping",
+                "stiffness_error_pct",
+                "damping_error",
+                "damping_error_pct",
+                "fits",
             )
             data |= {
                 "measured_stiffness": j.stiffness,

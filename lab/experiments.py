@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
@@ -48,12 +49,14 @@ from device.identify import identify_simulated
 from device.limits import LEG_HEADROOM
 from device.plant.faults import Fault, FaultKind, describe, format_fault
 from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
-from device.plant.params import PlantConfig, build_params, draw_plant
+from device.plant.params import TICK_HZ, PlantConfig, build_params, draw_plant
 from device.rig import AxisTarget, CommandError, Rig, leg_index
 from device.safety import SafetyLimits, Trip
 from device.tickloop import COL
 from device.waveforms import SINE_HZ_MAX
 from lab.metrics import (
+    SETTLE_BAND_M,
+    SETTLE_HOLD_S,
     StepMetrics,
     impedance_fit,
     impedance_fit_inertia,
@@ -76,6 +79,8 @@ clamped there; the controller clamps to the bound exactly."""
 
 LEG_SENSOR_M = DEFAULT_GEOMETRY.stroke / 2.0**12
 """One count of the 12-bit leg position sensor: 0.024 mm (device/plant/params.py)."""
+STEP_DURATION_MAX_S = 60.0
+"""Longest step record (s)."""
 MIN_STEP_COUNTS = 10
 """A step's 10 % point must be at least one sensor count for a 10-90 % rise time."""
 MIN_SINE_COUNTS = 10
@@ -89,9 +94,24 @@ TORQUE_MIN_NM = 0.1
 """Smallest patient torque: 75 counts of the torque sensor, 30 times its noise."""
 TORQUE_MAX_NM = 40.0
 """Largest patient torque: below the 60 N m wrench trip of the force plate."""
-IMPEDANCE_HZ_RANGE = (0.1, 5.0)
-"""Frequencies of the patient's sinusoidal torque: voluntary ankle torque is below 5 Hz;
-below 0.1 Hz a few cycles would take minutes."""
+RING_MARGIN = 0.8
+"""The patient's torque stays this share of the ring guard's lowest frequency below it."""
+_LIMITS = SafetyLimits().published()
+"""The device's limits exactly as it publishes them (float32, ``DeviceHello``): every check
+here compares against these, as the device's own does, so a request this lab accepts the
+device accepts too."""
+IMPEDANCE_HZ_RANGE = (0.1, RING_MARGIN * ControllerConfig().ring_band[0])
+"""Frequencies of the patient's sinusoidal torque (0.1-4 Hz): below 0.1 Hz a few cycles
+would take minutes. The top stays a fifth below the ring guard's band
+(``ControllerConfig.ring_band``, from 5 Hz; device.ring): a torque sine moves the admittance
+law at its own frequency, and at the band's edge the guard took it for a ring (pitch at
+K = 50, B = 1 against 5 Hz: "rang at 5 Hz and raised its damping 1.50 times", on a healthy
+unit, every time), since it counts half-cycles in whole control periods and the loop's noise
+shortens some. Voluntary ankle torque is below 4 Hz."""
+INERTIA_SHARE_MAX = 0.05
+"""At one frequency alone the fit cannot tell the device's virtual inertia from a lower
+stiffness (it measures ``K - J w^2``): the inertia's term may be at most this share of K,
+the 5 % the stiffness target allows."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +191,18 @@ class FaultOutcome:
     others: bool = False
     """Another fault struck before the trip as well: the words then say whose part the trip
     names."""
+    warned_ms: float | None = None
+    """The device's warning (:func:`device_warning`) was first seen this long after the fault
+    struck (ms, within :data:`WARNING_WATCH_S` of when it was raised); None when the warning
+    is not credited to this fault, or its time is not known."""
+    warning_names_it: bool | None = None
+    """The warning credited to this fault names a part this fault acts on (the chamber whose
+    air did not add up, or the supply); None when it names none (a ring names an axis) or
+    no warning is credited to it."""
+    warned_before: bool = False
+    """The device had already warned before this fault struck: the warning is another's."""
+    warning_credited: bool = False
+    """``noticed`` begins with the device's warning: it was raised after this fault struck."""
 
     def words(self) -> str:
         """One line for a person: the fault in the device's own numbering, then its fate."""
@@ -179,15 +211,29 @@ class FaultOutcome:
             return f"{said}: never struck (the run ended at {self.run_end_s:.2f} s)"
         if self.before:
             return f"{said}: struck after the device had already tripped"
+        struck = "struck after the device had already warned" if self.warned_before else "struck"
         if self.noticed is None:
-            return f"{said}: struck; the device noticed nothing"
-        after = (
-            f" ({self.noticed_ms:.0f} ms after it struck)" if self.noticed_ms is not None else ""
-        )
-        whose = ""
-        if self.others and self.names_it is not None:
-            whose = ", which names this fault's part" if self.names_it else ", naming another part"
-        return f"{said}: struck; the device then {self.noticed}{after}{whose}"
+            more = " more" if self.warned_before else ""
+            return f"{said}: {struck}; the device noticed nothing{more}"
+
+        def whose(names: bool | None) -> str:
+            if not self.others or names is None:
+                return ""
+            return ", which names this fault's part" if names else ", naming another part"
+
+        # ``noticed`` is the warning credited to it (if any), then the trip (if any).
+        parts = self.noticed.split("; then ")
+        warned = parts.pop(0) if self.warning_credited else None
+        text = []
+        if warned is not None:
+            ms = self.warned_ms
+            by = f" (by {ms:.0f} ms after it struck)" if ms is not None else ""
+            text.append(f"{warned}{by}{whose(self.warning_names_it)}")
+        if parts:
+            ms = self.noticed_ms
+            after = f" ({ms:.0f} ms after it struck)" if ms is not None else ""
+            text.append(f"{parts[0]}{after}{whose(self.names_it)}")
+        return f"{said}: {struck}; the device then " + "; then ".join(text)
 
     def as_json(self) -> dict[str, object]:
         return {
@@ -198,6 +244,9 @@ class FaultOutcome:
             "noticed_ms": self.noticed_ms,
             "after_trip": self.before,
             "names_its_part": self.names_it,
+            "warned_ms": self.warned_ms,
+            "warning_names_its_part": self.warning_names_it,
+            "after_warning": self.warned_before,
         }
 
 
@@ -244,17 +293,18 @@ def trip_part(trip: Trip, channel: int) -> str:
 
 def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
     """What became of each injected fault (:func:`injected`) in ``rig``'s run: whether it
-    struck, and what the device then did (its warning, then its trip, timed from the fault
-    where the run's log shows when it tripped: :attr:`Rig.tripped_at`)."""
+    struck, and what the device then did: its warning, credited to a fault only if the fault
+    struck before the device raised it (:func:`run` times it), then its trip, timed from
+    the fault where the run's log shows when it tripped (:attr:`Rig.tripped_at`). Each says
+    whether the part it names is the fault's."""
     trip, end, trip_at_s = rig.trip, rig.time, rig.tripped_at
-    said = []
     warning = device_warning(rig)
-    if warning is not None:
-        said.append(warning.removeprefix("the device "))
+    warned = _WARNED.get(rig)
+    warned_part = warning_part(rig) if warning is not None else ""
+    tripped = ""
     if trip != Trip.NONE:
         named = trips.where(trip, rig.trip_channel)
-        said.append(f"tripped {trip.name}" + (f" ({named})" if named else ""))
-    notice = "; then ".join(said) or None
+        tripped = f"tripped {trip.name}" + (f" ({named})" if named else "")
     part = trip_part(trip, rig.trip_channel) if trip != Trip.NONE else ""
     out = []
     for f in _FAULTS:
@@ -268,13 +318,67 @@ def fault_outcomes(rig: Rig) -> tuple[FaultOutcome, ...]:
             g is not f and g.time <= end and (trip_at_s is None or g.time <= trip_at_s)
             for g in _FAULTS
         )
+        # The warning is this fault's to answer only if the fault struck before it was
+        # raised; where the run was not timed (:func:`run`), only if it struck at all.
+        credited = (
+            warning is not None
+            and struck
+            and (warned is None or _strike_tick(f) <= round(warned[0] * TICK_HZ))
+        )
+        said = []
+        if credited:
+            assert warning is not None
+            said.append(warning.removeprefix("the device "))
+        if tripped:
+            said.append(tripped)
+        notice = "; then ".join(said) or None
         out.append(
             FaultOutcome(
                 f, struck, notice if struck and not before else None, after, before, end,
                 names_it, others,
+                (warned[1] - f.time) * 1e3 if credited and warned is not None else None,
+                (warned_part in fault_parts(f)) if credited and warned_part else None,
+                warning is not None and struck and not credited,
+                credited and not before,
             )
         )  # fmt: skip
     return tuple(out)
+
+
+WARNING_WATCH_S = 0.005
+"""With faults injected, :func:`run` looks for the device's warning this often (s): the time
+it gives a warning is this close, and every fault's strike is a boundary of its own, so the
+order of a warning and a fault is known exactly."""
+
+_WARNED: weakref.WeakKeyDictionary[Rig, tuple[float, float]] = weakref.WeakKeyDictionary()
+"""When each rig's device first warned: between the two times (s) of the rig's clock."""
+
+
+def _strike_tick(fault: Fault) -> int:
+    """The controller tick at which ``fault`` strikes (its time, on the rig's clock)."""
+    return math.ceil(fault.time * TICK_HZ - 1e-6)
+
+
+def run(rig: Rig, seconds: float) -> NDArray[np.float64]:
+    """``rig.run(seconds)``. With faults injected, run in pieces that end at each fault's
+    strike and every :data:`WARNING_WATCH_S`, noting when the device first warned, so that a
+    warning is credited only to a fault that struck before it (:func:`fault_outcomes`).
+    A healthy run is one piece, as it always was."""
+    if not _FAULTS or rig in _WARNED:
+        return rig.run(seconds)
+    first = round(rig.time * TICK_HZ)
+    last = first + round(seconds * TICK_HZ)
+    every = round(WARNING_WATCH_S * TICK_HZ)
+    cuts = {*range(first + every, last, every), last}
+    cuts |= {_strike_tick(f) for f in _FAULTS if first < _strike_tick(f) < last}
+    rows = []
+    tick = first
+    for cut in sorted(cuts):
+        rows.append(rig.run((cut - tick) / TICK_HZ))
+        if rig not in _WARNED and device_warning(rig) is not None:
+            _WARNED[rig] = (tick / TICK_HZ, cut / TICK_HZ)
+        tick = cut
+    return np.concatenate(rows)
 
 
 class Checked:
@@ -411,6 +515,16 @@ def device_warning(rig: Rig) -> str | None:
             "times: what was measured is the raised damping"
         )
     return None
+
+
+def warning_part(rig: Rig) -> str:
+    """The part the device's warning names, in the words of :func:`fault_parts` ('' for
+    none: a ring names an axis)."""
+    if rig.service_chamber >= 0:
+        return trips.where(Trip.AIR_BALANCE, rig.service_chamber)
+    if rig.supply_low:
+        return _SUPPLY
+    return ""
 
 
 def with_warning(health: Health, warning: str | None) -> Health:
@@ -550,7 +664,7 @@ class TrippedBeforeMeasurement(RuntimeError):
 
 def _settle_at_home(rig: Rig) -> None:
     rig.move_legs(np.full(6, 0.5 * rig.geometry.stroke))
-    rig.run(SETTLE_S)
+    run(rig, SETTLE_S)
     if rig.trip != Trip.NONE:
         part = trips.where(rig.trip, rig.trip_channel) or None
         faults = fault_outcomes(rig)
@@ -577,6 +691,10 @@ class StepResult(Checked):
     """(n, 2) gauge pressures of its cap and rod chambers (bar)."""
     duty: NDArray[np.float64] = field(repr=False)
     """(n, 2) signed PWM slots of those chambers, as percent of the period."""
+    unsettled: str | None = None
+    """Why the metrics are not all numbers (the leg did not rise, or did not settle, within
+    the record): the step is then invalid (``health``) with this reason, unless the device
+    made it so first."""
 
 
 def leg_step_range(leg: int) -> tuple[float, float]:
@@ -591,7 +709,7 @@ def leg_step_range(leg: int) -> tuple[float, float]:
     from device.kinematics import Kinematics
 
     i = leg_index(leg)
-    g, limits = DEFAULT_GEOMETRY, SafetyLimits()
+    g, limits = DEFAULT_GEOMETRY, _LIMITS
     kin = Kinematics(g)
     rom_low, rom_high = np.array(limits.rom_low), np.array(limits.rom_high)
 
@@ -642,8 +760,16 @@ def check_step(leg: int, mm: float, duration: float = 1.0) -> None:
             f"{'-' if mm < 0 else ''}{got}"
         )
     _check_leg_travel(leg, mm, "step")
-    if not math.isfinite(duration) or not 0.1 <= duration <= 60.0:
-        raise CommandError("duration must be 0.1..60 s")
+    # The record must hold the step: the leg's travel at the fastest the device lets a leg
+    # go (its leg speed limit trips beyond), then the window a settled response stays in.
+    shortest = abs(mm) * 1e-3 / _LIMITS.leg_speed_limit + SETTLE_HOLD_S
+    if not (math.isfinite(duration) and shortest <= duration <= STEP_DURATION_MAX_S):
+        got, low, high = figures(duration, shortest, STEP_DURATION_MAX_S, digits=3)
+        raise CommandError(
+            f"duration of a {abs(mm):g} mm step must be {low}..{high} s (its travel at the "
+            f"{_LIMITS.leg_speed_limit:g} m/s leg speed limit, then {SETTLE_HOLD_S:g} s within "
+            f"{SETTLE_BAND_M * 1e3:g} mm of the target to count as settled), got {got}"
+        )
 
 
 def step(
@@ -662,7 +788,7 @@ def step(
     target = rig.state.leg_target.copy()
     target[i] += mm * 1e-3
     rig.move_legs(target)
-    log = rig.run(duration)
+    log = run(rig, duration)
     t = log[:, 0] - log[0, 0]
     y = log[:, COL[f"leg_x{i}"]]
     y_start = float(y[0])
@@ -671,7 +797,23 @@ def step(
     p = log[:, [COL[f"pressure_g{2 * i}"], COL[f"pressure_g{2 * i + 1}"]]] / 1e5
     d = log[:, [COL[f"slots{2 * i}"], COL[f"slots{2 * i + 1}"]]] * (100.0 / 28.0)
     health = assess(rig, log)
-    return StepResult(leg, mm, compensate, m, health, t, (y - y_start) * 1e3, p, d)
+    unsettled = unmeasured_step(m, duration)
+    if unsettled is not None and health.valid:
+        health = replace(health, valid=False, reason=unsettled)
+    return StepResult(leg, mm, compensate, m, health, t, (y - y_start) * 1e3, p, d, unsettled)
+
+
+def unmeasured_step(m: StepMetrics, duration: float) -> str | None:
+    """Why a step's metrics are not all numbers, in words; None when they are."""
+    if m.measured:
+        return None
+    band = f"{SETTLE_BAND_M * 1e3:g} mm"
+    if not math.isfinite(m.rise_ms):
+        return f"the leg did not reach 90 % of the step within the {duration:g} s recorded"
+    return (
+        f"the leg did not settle: it stayed within {band} of the target for no "
+        f"{SETTLE_HOLD_S:g} s of the {duration:g} s recorded"
+    )
 
 
 @dataclass(frozen=True)
@@ -725,7 +867,7 @@ def staircase(
         if rig.mode == Mode.FAULT:
             break  # tripped: no further step would move
         rig.move_legs(target)
-        log = rig.run(dwell)
+        log = run(rig, dwell)
         y = log[:, COL[f"leg_x{i}"]]
         tail = log[:, 0] >= log[-1, 0] - 0.1
         errors.append(abs(float(np.mean(y[tail])) - target[i]) * 1e3)
@@ -775,27 +917,44 @@ def check_sine(axis: str, amplitude: float, hz: float, limits: SafetyLimits | No
     """Refuse a sine that cannot be measured (before any simulation)."""
     k = _axis(axis)
     scale, unit = _unit(k)
+    lim = _LIMITS if limits is None else limits.published()
     smallest = _sine_min_amplitude(k) / scale
-    largest = SafetyLimits().rom_high[k] / scale
+    largest = largest_amplitude(k, lim)
     if not (math.isfinite(amplitude) and smallest <= amplitude <= largest):
+        # Each bound with the digits that tell it from the value (the one place those are
+        # many: 30 mm along x against the published 29.999999).
+        got, low = figures(amplitude, smallest, digits=3)
+        got_high, high = figures(amplitude, largest, digits=3)
+        got = max(got, got_high, key=len)
         raise CommandError(
-            f"{axis} amplitude must be {smallest:.3g}..{largest:.3g} {unit} (at least "
-            f"{MIN_SINE_COUNTS} leg sensor counts; at most the range of motion), got {amplitude:g}"
+            f"{axis} amplitude must be {low}..{high} {unit} (at least {MIN_SINE_COUNTS} leg "
+            f"sensor counts; at most the range of motion), got {got}"
         )
     lo, hi = SINE_HZ_RANGE
     if not (math.isfinite(hz) and lo <= hz <= hi):
-        raise CommandError(f"frequency must be {lo:g}..{hi:g} Hz, got {hz:g}")
-    lim = _LIMITS if limits is None else limits
+        got, low, high = figures(hz, lo, hi)
+        raise CommandError(f"frequency must be {low}..{high} Hz, got {got}")
     fastest = speed_limit_hz(axis, amplitude, lim)
     if hz > fastest:
+        got, high = figures(hz, fastest, digits=3)
         raise CommandError(
-            f"{axis} {amplitude:g} {unit} at {hz:g} Hz is faster than the device accepts "
+            f"{axis} {amplitude:g} {unit} at {got} Hz is faster than the device accepts "
             f"(axis speed limit {lim.axis_speed_max[k]:g} {'rad' if k >= 3 else 'm'}/s: "
-            f"at most {fastest:.3g} Hz at this amplitude)"
+            f"at most {high} Hz at this amplitude)"
         )
 
 
-_LIMITS = SafetyLimits().published()
+def largest_amplitude(k: int, limits: SafetyLimits) -> float:
+    """The largest sine amplitude on axis ``k``, in the user's unit (deg or mm), that the
+    device accepts about home: the one whose value in SI (``amplitude * scale``, as the
+    experiment commands it) stays within the range of motion ``limits`` publish (float32, as
+    ``DeviceHello`` carries them, so 30 mm along x is just beyond 0.029999999 m)."""
+    scale = _unit(k)[0]
+    rom = min(limits.rom_high[k], -limits.rom_low[k])
+    a = rom / scale
+    while a * scale > rom:  # the same comparison the device makes, one unit in the last place
+        a = math.nextafter(a, 0.0)
+    return a
 
 
 def speed_limit_hz(axis: str, amplitude: float, limits: SafetyLimits | None = None) -> float:
@@ -803,7 +962,7 @@ def speed_limit_hz(axis: str, amplitude: float, limits: SafetyLimits | None = No
     limit (``SafetyLimits.axis_speed_max``) bounds the target's peak speed 2 pi f A."""
     k = _axis(axis)
     a = amplitude * _unit(k)[0]
-    lim = _LIMITS if limits is None else limits
+    lim = _LIMITS if limits is None else limits.published()
     return lim.axis_speed_max[k] / (2.0 * math.pi * a) if a > 0 else math.inf
 
 
@@ -839,9 +998,9 @@ def sine(
     rig = _rig(patient, True, seed, limits=limits)
     _settle_at_home(rig)
     rig.track({axis: AxisTarget(Waveform.SINE, 0.0, amplitude * scale, hz)})
-    rig.run(_sine_lead_s(hz))  # let the start-up transient die
+    run(rig, _sine_lead_s(hz))  # let the start-up transient die
     rig.clear_log()
-    log = rig.run(cycles / hz)
+    log = run(rig, cycles / hz)
     home = rig.geometry.home_pose[k]
     command = (log[:, COL[f"pose_cmd_{axis}"]] - home) / scale
     response = (log[:, COL[f"pose_{axis}"]] - home) / scale
@@ -983,7 +1142,7 @@ def check_impedance(axis: str, k: float, b: float, torque: float) -> int:
     for name, v in (("stiffness", k), ("damping", b), ("torque", torque)):
         if not math.isfinite(v):
             raise CommandError(f"{name} must be a finite number")
-    limits = SafetyLimits()
+    limits = _LIMITS
     if k <= 0.0:
         raise CommandError("stiffness must be positive to measure it")
     if k > limits.stiffness_max[ax]:
@@ -1051,7 +1210,7 @@ def _impedance_rig(ax: int, k: float, b: float, seed: int) -> Rig:
     on = [i == ax for i in range(6)]
     rig.set_impedance(K, B, on)
     rig.track({})
-    rig.run(0.3)
+    run(rig, 0.3)
     return rig
 
 
@@ -1072,7 +1231,7 @@ def impedance(
     t0 = rig.time
     rig.hardware.script_torque(ax, SCRIPT_RAMP, t0, torque / ramp_s, torque)  # type: ignore[attr-defined]
     rig.clear_log()
-    log = rig.run(ramp_s + 0.5)
+    log = run(rig, ramp_s + 0.5)
     home = rig.geometry.home_pose[ax]
     angle = log[:, COL[f"pose_meas_{AXES[ax]}"]] - home
     tq = log[:, COL[f"wrench_{AXES[ax]}"]] - rig.state.tare[ax]
@@ -1146,11 +1305,44 @@ class DynamicImpedanceResult(Checked):
         return self.damping_error / self.damping * 100.0 if self.damping > 0 else math.nan
 
 
+def virtual_inertia(ax: int, k: float) -> float:
+    """The virtual inertia (kg m2) the device renders on axis ``ax`` at stiffness ``k``: the
+    axis's own, raised so the virtual mode stays at or below its frequency cap
+    (``ControllerConfig.virtual_inertia``, ``virtual_frequency_max``)."""
+    config = ControllerConfig()
+    j = config.virtual_inertia[ax]
+    if j > 0.0 and config.virtual_frequency_max > 0.0:
+        j = max(j, k / (2.0 * math.pi * config.virtual_frequency_max) ** 2)
+    return j
+
+
 def check_dynamic(axis: str, k: float, b: float, torque: float, hz: tuple[float, ...]) -> int:
+    """Refuse a dynamic impedance experiment that cannot be measured; returns the axis."""
     ax = check_impedance(axis, k, b, torque)
     lo, hi = IMPEDANCE_HZ_RANGE
-    if not hz or not all(math.isfinite(f) and lo <= f <= hi for f in hz):
-        raise CommandError(f"patient torque frequencies must be {lo:g}..{hi:g} Hz")
+    if not hz:
+        raise CommandError("give at least one patient torque frequency")
+    for f in hz:
+        if not (math.isfinite(f) and lo <= f <= hi):
+            got, low, high = figures(f, lo, hi)
+            ring_low = ControllerConfig().ring_band[0]
+            raise CommandError(
+                f"patient torque frequencies must be {low}..{high} Hz (a few cycles within "
+                f"minutes; below the ring guard's band from {ring_low:g} Hz, where a torque "
+                f"sine is taken for the foot ringing), got {got}"
+            )
+    if len(set(hz)) == 1:
+        # One frequency measures K - J w^2: refused where the inertia would pass for K.
+        j = virtual_inertia(ax, k)
+        top = math.sqrt(INERTIA_SHARE_MAX * k / j) / (2.0 * math.pi) if j > 0.0 else math.inf
+        if hz[0] > top:
+            got, high = figures(hz[0], top, digits=3)
+            raise CommandError(
+                f"at one frequency the fit cannot tell the device's virtual inertia "
+                f"({j:.3g} kg m2 at K = {k:g}) from a lower stiffness: alone, the frequency "
+                f"must be at most {high} Hz (J w^2 within {INERTIA_SHARE_MAX * 100:g} % of K), "
+                f"got {got}; or give two or more frequencies, fitted with J"
+            )
     return ax
 
 
@@ -1173,10 +1365,10 @@ def impedance_dynamic(
     for f in hz:
         t0 = rig.time
         hw.script_torque(ax, SCRIPT_SINE, t0, torque, f)
-        rig.run(max(1.0 / f, 0.5))  # the transient of the new frequency dies
+        run(rig, max(1.0 / f, 0.5))  # the transient of the new frequency dies
         rig.clear_log()
         cycles = max(3, math.ceil(2.0 * f))
-        log = rig.run(cycles / f)
+        log = run(rig, cycles / f)
         health = assess(rig, log, frozenset({"range_of_motion"}), final=False)
         if not health.valid:
             hw.script_torque(ax, 0, 0.0, 0.0, 0.0)

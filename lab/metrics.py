@@ -12,17 +12,41 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+SETTLE_BAND_M = 0.3e-3
+"""The settling band about a step's target (m): the paper's 0.3 mm resolution, absolute
+rather than a percentage, because for a 10 mm step 2 % would be finer than the resolution
+itself."""
+SETTLE_HOLD_S = 0.5
+"""How long a step's response must stay within the band to count as settled (s). Longer
+than the slowest step's rise (45 mm, 167 ms) and than a period of the limit cycle an
+uncompensated leg swings through the band in (0.3-0.4 s between its exits: it never
+settles), short against the quiet hold's own slow wander (a healthy leg resting on its air
+drifts 0.3 mm over 10-18 s and is then corrected), which is the hold, not the step."""
+
 
 @dataclass(frozen=True)
 class StepMetrics:
     rise_ms: float
     """10-90 % rise time (ms); NaN if the response never reached 90 %."""
     overshoot_pct: float
-    """Peak beyond the target, in percent of the step."""
+    """Peak beyond the target, in percent of the step, up to the end of the settling window
+    (over the whole record when it never settled)."""
     settling_ms: float
-    """Time after which the response stays within the band of the target (ms)."""
+    """When the response entered the band for good: the first time after which it stayed
+    within ``band`` of the target for ``hold`` seconds (ms). NaN when the record holds no
+    such window."""
     steady_error_mm: float
-    """|mean response - target| over the last ``tail`` seconds (mm)."""
+    """|mean response - target| over the last ``tail`` seconds of the record (mm): where the
+    leg rests when the record ends, settled or not. Unlike settling it may depend on the
+    record's length: a leg that the quiet hold lets wander is wherever it wandered."""
+
+    @property
+    def measured(self) -> bool:
+        """Every number is finite: the step rose and settled within the record."""
+        return all(
+            math.isfinite(v)
+            for v in (self.rise_ms, self.overshoot_pct, self.settling_ms, self.steady_error_mm)
+        )
 
 
 def step_metrics(
@@ -30,32 +54,47 @@ def step_metrics(
     y: NDArray[np.float64],
     y0: float,
     target: float,
-    band: float = 0.3e-3,
+    band: float = SETTLE_BAND_M,
+    hold: float = SETTLE_HOLD_S,
     tail: float = 0.2,
 ) -> StepMetrics:
     """Metrics of a step from ``y0`` to ``target`` that starts at ``t[0]``.
 
-    The settling band is absolute (default the paper's 0.3 mm resolution) rather than a
-    percentage, because for a 10 mm step 2 % would be finer than the resolution itself.
+    Settling and overshoot do not depend on how long the record goes on after the step
+    settled: settling is the first entry into the band that then lasts ``hold`` seconds,
+    and the overshoot is taken up to the end of that window (what the held leg does later,
+    ``device.quiet``, is not the step's response). The steady-state error is where the leg
+    rests at the end of the record, so a target on it is never met by construction.
     """
     t = np.asarray(t, dtype=np.float64) - float(t[0])
+    y = np.asarray(y, dtype=np.float64)
     step = target - y0
     if step == 0.0:
         raise ValueError("a step needs a target different from its start")
-    frac = (np.asarray(y, dtype=np.float64) - y0) / step
+    frac = (y - y0) / step
     i10 = np.argmax(frac >= 0.1)
     i90 = np.argmax(frac >= 0.9)
     rise = float(t[i90] - t[i10]) * 1e3 if frac[i90] >= 0.9 and frac[i10] >= 0.1 else math.nan
-    overshoot = max(0.0, float(np.max(frac)) - 1.0) * 100.0
-    outside = np.nonzero(np.abs(y - target) > band)[0]
-    if outside.size == 0:
-        settling = 0.0
-    elif outside[-1] + 1 < t.size:
-        settling = float(t[outside[-1] + 1]) * 1e3
+    inside = np.abs(y - target) <= band
+    # For each sample, the first sample at or after it outside the band (len(t): none).
+    outside = np.flatnonzero(~inside)
+    next_out = np.append(outside, t.size)[np.searchsorted(outside, np.arange(t.size))]
+    # The window is the samples within hold seconds of its first (hold / dt of them, half
+    # a sample's slack against rounding); the record must hold all of it.
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    end = t + hold - 0.5 * dt
+    leaves = np.append(t, math.inf)[next_out]
+    stays = inside & (leaves >= end) & (t[-1] + dt >= end)
+    settled = np.flatnonzero(stays)
+    if settled.size:
+        i = int(settled[0])
+        upto = t < end[i]
+        settling = float(t[i]) * 1e3
     else:
         settling = math.nan
-    last = t >= t[-1] - tail
-    steady = abs(float(np.mean(y[last])) - target) * 1e3
+        upto = np.ones(t.size, dtype=bool)
+    steady = abs(float(np.mean(y[t >= t[-1] - tail])) - target) * 1e3
+    overshoot = max(0.0, float(np.max(frac[upto])) - 1.0) * 100.0
     return StepMetrics(rise, overshoot, settling, steady)
 
 

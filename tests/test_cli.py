@@ -368,6 +368,9 @@ def test_each_injected_fault_is_said_in_the_devices_numbering_with_what_became_o
             "noticed_ms": None,
             "after_trip": False,
             "names_its_part": None,
+            "warned_ms": None,
+            "warning_names_its_part": None,
+            "after_warning": False,
         }
     ]
     r = ankle("sim", "step", "--fault", "leg_offset@0.6:2=0.05")
