@@ -154,7 +154,9 @@ def watch_database(engine: AsyncEngine) -> None:
 
 
 # -- HTTP ----------------------------------------------------------------------------------
-METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "CONNECT", "TRACE"})
+METHODS = frozenset(
+    {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "CONNECT", "TRACE"}
+)
 """The methods HTTP defines (RFC 9110, and PATCH): every other counts as ``other``. A
 request line may carry any token as its method, so the label's values must be a closed
 set: 20,000 pipelined requests with made-up methods, no token needed, made 20,000 series,
