@@ -32,7 +32,7 @@ from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
-from server.routes.dates import utc_time
+from server.routes.dates import day_or_time, refuse
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import Recording, read
@@ -92,17 +92,29 @@ async def list_sessions(
     station_id: Id | None = None,
     prescription_id: Id | None = None,
     since: Annotated[
-        datetime | None,
-        Query(description="Started at or after (ISO 8601; UTC if it names no offset)."),
+        str | None,
+        Query(
+            description="Started on or after this day (YYYY-MM-DD) or at or after this time "
+            "(ISO 8601; UTC if it names no offset)."
+        ),
     ] = None,
     until: Annotated[
-        datetime | None,
-        Query(description="Started before (ISO 8601; UTC if it names no offset)."),
+        str | None,
+        Query(
+            description="Started up to and including this day (YYYY-MM-DD), or before this "
+            "time; days from 1900-01-01 to 9998-12-31."
+        ),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[SessionPublic]:
-    """Newest first. A therapist sees their own patients' sessions; an admin sees all."""
+    """Newest first. A therapist sees their own patients' sessions; an admin sees all.
+    ``since`` and ``until`` are read as the progress page, the report and the FHIR bundle
+    read them (``server.routes.dates.day_or_time``): a day ``until`` names is included."""
+    start = day_or_time("since", since)
+    end = day_or_time("until", until, end_of_day=True)
+    if start is not None and end is not None and start >= end:
+        raise refuse("since", f"since ({since}) must be before until ({until})")
     q = select(Session).join(Patient, Patient.id == Session.patient_id)
     if user.role != "admin":
         q = q.where(Patient.therapist_id == user.id)
@@ -112,10 +124,10 @@ async def list_sessions(
         q = q.where(Session.station_id == station_id)
     if prescription_id is not None:
         q = q.where(Session.prescription_id == prescription_id)
-    if since is not None:
-        q = q.where(Session.started_at >= utc_time("since", since))
-    if until is not None:
-        q = q.where(Session.started_at < utc_time("until", until))
+    if start is not None:
+        q = q.where(Session.started_at >= start)
+    if end is not None:
+        q = q.where(Session.started_at < end)
     rows = await db.scalars(q.order_by(Session.started_at.desc()).limit(limit).offset(offset))
     return [session_public(r) for r in rows]
 
