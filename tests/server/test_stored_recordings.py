@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import shutil
+from pathlib import Path
 
 import pytest
 from sqlalchemy import update
@@ -27,6 +28,11 @@ async def stored(live: Live, session_id: int) -> Session:
         return row
 
 
+def file_of(live: Live, row: Session) -> Path:
+    assert row.file_path is not None
+    return live.settings.data_dir / row.file_path
+
+
 async def test_a_damaged_recording_is_a_500_saying_so_and_nothing_is_made_from_it(
     live: Live, world: World, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -37,7 +43,7 @@ async def test_a_damaged_recording_is_a_500_saying_so_and_nothing_is_made_from_i
     t1 = bearer(world.t1)
     url = f"/sessions/{session_id}/download/"
     whole = {f: (await live.client.get(url + f, headers=t1)).content for f in ("csv", "rec")}
-    file = live.settings.data_dir / (await stored(live, session_id)).file_path
+    file = file_of(live, await stored(live, session_id))
     cache = live.settings.data_dir / "exports"
     kept = sorted(p.name for p in cache.iterdir())
     audited = len(await exports(live, world))
@@ -78,9 +84,7 @@ async def test_an_export_is_served_only_for_the_recording_it_was_made_from(
     assert old.status_code == other.status_code == 200
     assert old.content != other.content
     row_a, row_b = await stored(live, a), await stored(live, b)
-    shutil.copyfile(
-        live.settings.data_dir / row_b.file_path, live.settings.data_dir / row_a.file_path
-    )
+    shutil.copyfile(file_of(live, row_b), file_of(live, row_a))
     async with live.sessionmaker() as db:
         await db.execute(
             update(Session)
