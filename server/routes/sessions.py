@@ -35,7 +35,7 @@ from device.protocol.messages import DeviceMode
 from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
-from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment
 from server.routes.dates import day_or_time, refuse
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
@@ -171,18 +171,45 @@ async def get_session(
     return session_public(row)
 
 
-@router.get(
-    "/sessions/{session_id}/download/{fmt}",
-    response_class=FileResponse,
-    responses={
+_RANGE_TEXT = {"text/plain": {"schema": {"type": "string"}}}
+_DOWNLOAD: dict[str, Any] = {
+    "response_class": FileResponse,
+    "responses": {
         **NOT_FOUND,
         200: {
             "description": "csv (clinicians), parquet (analysis), mcap (Foxglove), json "
             "(summary and events) or rec (the recording as uploaded). The SHA-256 of the "
-            "body is in X-Content-SHA256."
+            "body is in X-Content-SHA256. HEAD: the same headers, no body."
+        },
+        206: {
+            "description": "The part a `Range: bytes=…` header asked for (one range, or "
+            "several as multipart/byteranges), with Content-Range; X-Content-SHA256 is the "
+            "whole file's."
+        },
+        400: {
+            "description": "A Range header that is not one (not bytes, or a range that ends "
+            "before it starts), in plain text.",
+            "content": _RANGE_TEXT,
+        },
+        416: {
+            "description": "A Range that starts past the end of the file, with "
+            "Content-Range: bytes */<size> and no body.",
+            "content": _RANGE_TEXT,
+        },
+        500: {
+            "model": ErrorPublic,
+            "description": "The stored recording is damaged (not the file the station "
+            "uploaded): the server's operator must restore it from backup.",
         },
     },
-    summary="Download a session",
+}
+
+
+@router.get("/sessions/{session_id}/download/{fmt}", summary="Download a session", **_DOWNLOAD)
+@router.head(
+    "/sessions/{session_id}/download/{fmt}",
+    summary="A session's download, headers only",
+    **_DOWNLOAD,
 )
 async def download(
     session_id: Id, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
@@ -201,8 +228,8 @@ async def download(
     response = FileResponse(
         path,
         media_type=media,
-        filename=filename,
         headers={
+            "Content-Disposition": attachment(filename),
             "X-Content-SHA256": digest,
             "ETag": f'"{digest}"',
             "Cache-Control": "no-store",
@@ -218,6 +245,8 @@ def _sends_data(request: Request, response: FileResponse) -> bool:
     """Whether ``response`` will send any of its file: a Range it cannot serve is answered
     400 (malformed) or 416 (past the end) with none, and is not an export. Asks Starlette's
     own Range reading, so that the answer and the audit cannot disagree."""
+    if request.method == "HEAD":
+        return False  # the headers alone
     http_range = request.headers.get("range")
     if_range = request.headers.get("if-range")
     # Starlette's own (private) Range reading; a Starlette without it: count it as sent,

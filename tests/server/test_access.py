@@ -188,6 +188,7 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("GET", "/sessions"): Call(ANY_USER),
     ("GET", "/sessions/{session_id}"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),
+    ("HEAD", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/series"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay.viser"): Call(OWNER_OR_ADMIN),

@@ -9,6 +9,7 @@ import re
 from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote
 
 import numpy as np
 import pytest
@@ -93,7 +94,18 @@ def pdf_text(body: bytes) -> str:
 
 
 def disposition_name(r: Any) -> str:
-    match = re.fullmatch(r'attachment; filename="([^"]+)"', r.headers["content-disposition"])
+    """The name a browser saves the file under: ``filename*`` if given, else ``filename``;
+    ``filename`` is always given, in ASCII, for clients that read nothing else."""
+    header = r.headers["content-disposition"]
+    match = re.fullmatch(
+        r"attachment; filename=\"([A-Za-z0-9._-]+)\"(?:; filename\*=UTF-8''([^;\s]+))?", header
+    )
+    assert match, header
+    return unquote(match.group(2)) if match.group(2) else match.group(1)
+
+
+def ascii_fallback(r: Any) -> str:
+    match = re.match(r'attachment; filename="([^"]+)"', r.headers["content-disposition"])
     assert match, r.headers["content-disposition"]
     return match.group(1)
 
@@ -123,7 +135,8 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/pdf"
     assert r.headers["cache-control"] == "no-store"
-    assert disposition_name(r) == f"report-CL-7-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
+    assert disposition_name(r) == f"report-CL-7-ä-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
+    assert ascii_fallback(r) == f"report-CL-7-a-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
     text = pdf_text(r.content)
 
     for fact in ("Pat One", "CL 7/ä", "1950", "Left", f"{since} to {until}"):
@@ -345,6 +358,34 @@ async def test_a_range_download_is_audited_only_when_it_sends_data(
         sent += status in (200, 206)
         assert len(await exports(live, world)) == sent, ask
     assert r.content == whole.content  # If-Range did not match: the whole file was sent
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(
+    ("reference", "saved", "plain"),
+    [
+        ("Řehoř-12", "Řehoř-12", "Rehor-12"),
+        ("Ř" * 60, "Ř" * 60, "R" * 60),
+        ("王小明", "王小明", "patient-{p}"),
+        ("a/b\\c:d", "a-b-c-d", "a-b-c-d"),
+    ],
+)
+async def test_report_and_fhir_names_keep_the_reference_in_its_own_script(
+    live: Live, world: World, reference: str, saved: str, plain: str
+) -> None:
+    """``Řehoř-12`` was saved as ``report-eho--12-…`` and 60 x ``Ř`` as ``report-patient-…``:
+    the name is now given as ``filename*`` (RFC 6266/8187), the session downloads' way, with
+    an ASCII ``filename`` transliterated where Unicode can."""
+    t1 = bearer(world.t1)
+    r = await live.client.patch(f"/patients/{world.p1}", json={"reference": reference}, headers=t1)
+    assert r.status_code == 200, r.text
+    days = f"{TODAY - timedelta(days=89):%Y%m%d}-{TODAY:%Y%m%d}"
+    plain = plain.format(p=world.p1)
+    for path, suffix in (("report.pdf", ".pdf"), ("fhir", ".fhir.json")):
+        r = await live.client.get(f"/patients/{world.p1}/{path}", headers=t1)
+        assert r.status_code == 200, r.text
+        assert disposition_name(r) == f"report-{saved}-{days}{suffix}"
+        assert ascii_fallback(r) == f"report-{plain}-{days}{suffix}"
 
 
 NAMES = ("Łukasz Żółć", "Ελένη Παπαδοπούλου", "Ольга Иванова", "Nguyễn Thị Hằng")
