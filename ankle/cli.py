@@ -138,6 +138,7 @@ def _db(args: argparse.Namespace) -> int:
         return 0
 
     async def run() -> db.Revisions:
+        await db.check_reachable(settings)
         engine = db.create_engine(settings)
         try:
             if args.db_command == "upgrade":
@@ -153,8 +154,11 @@ def _db(args: argparse.Namespace) -> int:
 
 
 def _server(args: argparse.Namespace) -> int:
+    import asyncio
+
     from server.cli import serve, settings_into_environment
     from server.config import load_settings
+    from server.db import check_reachable
     from webui.app import create_app
 
     if args.workers < 1:
@@ -174,6 +178,7 @@ def _server(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return device_cli.USAGE_ERROR
+    asyncio.run(check_reachable(settings))  # one line, not uvicorn's traceback
     settings_into_environment(settings, overrides)
     serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
     return 0
@@ -184,8 +189,10 @@ def _admin(args: argparse.Namespace) -> int:
 
     from server.cli import AdminError, create_user_async, reset_password_async
     from server.config import load_settings
+    from server.db import check_reachable
 
     settings = load_settings(**({"data_dir": args.data_dir} if args.data_dir is not None else {}))
+    asyncio.run(check_reachable(settings))
     try:
         if args.admin_command == "create-user":
             password = None
@@ -235,6 +242,7 @@ def _main(argv: Sequence[str] | None) -> int:
             return device_cli.USAGE_ERROR
         if args.command in ("admin", "db", "server"):
             from server.config import SettingsError
+            from server.db import DatabaseUnreachable
 
             command = {"admin": _admin, "db": _db, "server": _server}[args.command]
             try:
@@ -242,6 +250,9 @@ def _main(argv: Sequence[str] | None) -> int:
             except SettingsError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return device_cli.USAGE_ERROR
+            except DatabaseUnreachable as exc:  # the setting may be right, the database away
+                print(f"error: {exc}", file=sys.stderr)
+                return 1
         if args.command == "console":
             from device.console import run_console
 

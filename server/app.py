@@ -22,7 +22,7 @@ from server import errors, live, metrics
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, prepare
 from server.guard import RequestGuard
-from server.headers import SecurityHeaders
+from server.headers import AllowedMethods, SecurityHeaders
 from server.hub import VIEW_HZ, Hub
 from server.logs import RequestIds
 from server.relay import open_relay
@@ -146,6 +146,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(RequestGuard, default=settings.body_max_bytes, limit_for=body_limit)
     app.add_middleware(LoginGate, path=f"{API_PREFIX}/auth/login")
     app.add_middleware(SecurityHeaders)
+    app.add_middleware(AllowedMethods)
     app.add_middleware(metrics.HttpMetrics)
     app.add_middleware(RequestIds)  # outermost: every log line of a request carries its id
     for router in ROUTERS:

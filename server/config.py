@@ -6,6 +6,7 @@ and the one-machine demo run servers side by side on different data directories.
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -250,6 +251,26 @@ class Settings(BaseSettings):
         open_storage(value)  # its ValueError names what works
         return value
 
+    @field_validator("database_url")
+    @classmethod
+    def _database(cls, value: str) -> str:
+        scheme = urlsplit(value).scheme.lower()
+        if scheme == "sqlite+aiosqlite":
+            return value
+        if scheme != "postgresql+asyncpg":
+            # The scheme alone: the URL may hold a password, and this reaches the log.
+            raise ValueError(
+                f"{scheme or 'no'} scheme is not a database the server runs on: use "
+                "postgresql+asyncpg://user:password@host/db, or nothing for SQLite in the "
+                "data directory"
+            )
+        if importlib.util.find_spec("asyncpg") is None:
+            raise ValueError(
+                "PostgreSQL needs the asyncpg driver, which is not installed: install the "
+                "server with its postgres extra"
+            )
+        return value
+
     @field_validator("relay_url")
     @classmethod
     def _relay(cls, value: str) -> str:
@@ -269,7 +290,10 @@ class Settings(BaseSettings):
         data = dict(data)
         data_dir = Path(data.get("data_dir") or "ankle-data")
         host = str(data.get("host") or "127.0.0.1")
-        port = int(data.get("port") if data.get("port") is not None else 8000)
+        try:
+            port = int(data.get("port") if data.get("port") is not None else 8000)
+        except (TypeError, ValueError):
+            port = 8000  # for the defaults below; the port's own check names ANKLE_PORT
         if not data.get("database_url"):
             data["database_url"] = f"sqlite+aiosqlite:///{data_dir / 'ankle.db'}"
         public = str(data.get("public_url") or "")

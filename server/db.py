@@ -18,6 +18,7 @@ from alembic.config import Config
 from alembic.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, event, make_url, text
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.ext.asyncio import (
     AsyncEngine,
     AsyncSession,
@@ -83,6 +84,42 @@ def create_engine(settings: Settings) -> AsyncEngine:
     if engine.dialect.name == "sqlite":
         event.listen(engine.sync_engine, "connect", _sqlite_pragmas)
     return engine
+
+
+class DatabaseUnreachable(Exception):
+    """The database ``ANKLE_DATABASE_URL`` names cannot be opened: one line saying where
+    and why, never the password."""
+
+
+def where(database_url: str) -> str:
+    """The database a URL names, for a message: the SQLite file, or PostgreSQL's host, port
+    and database (no user, no password)."""
+    url = make_url(database_url)
+    if url.get_backend_name() == "sqlite":
+        return f"the SQLite file {url.database}"
+    return f"PostgreSQL at {url.host or 'localhost'}:{url.port or 5432}/{url.database or ''}"
+
+
+def unreachable(database_url: str, exc: BaseException) -> DatabaseUnreachable:
+    """``exc`` (a driver's, an OSError) as one line naming the database and the cause."""
+    cause = exc.orig if isinstance(exc, DBAPIError) and exc.orig is not None else exc
+    said = (str(cause).strip().splitlines() or [type(cause).__name__])[0]
+    return DatabaseUnreachable(
+        f"cannot open the database (ANKLE_DATABASE_URL: {where(database_url)}): {said}"
+    )
+
+
+async def check_reachable(settings: Settings) -> None:
+    """Open one connection to the database and close it; :class:`DatabaseUnreachable` if
+    that fails, so that a command says so in one line before anything else starts."""
+    engine = create_engine(settings)
+    try:
+        async with engine.connect():
+            pass
+    except (DBAPIError, OSError) as exc:
+        raise unreachable(settings.database_url, exc) from None
+    finally:
+        await engine.dispose()
 
 
 def create_sessionmaker(engine: AsyncEngine) -> async_sessionmaker[AsyncSession]:

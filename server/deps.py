@@ -75,6 +75,15 @@ a password change or reset), past its expiry, its user deactivated, or its user 
 printed or reset password they must change first (such a login may change that password,
 ask who it is and log out: ``SignedInUser``, nothing else)."""
 
+FOR_USERS = (
+    "this route is for therapists and admins: a home station's token is valid, but cannot use it"
+)
+FOR_STATIONS = (
+    "this route is for home stations: a therapist's or admin's token is valid, but cannot use it"
+)
+"""A valid token on a route for the other kind of caller: 403, since it is who is asking
+that is refused, not the token (a 401 would say the token is invalid or expired)."""
+
 MUST_CHANGE_PASSWORD = (
     "you must change your password before anything else: it was printed or reset, so "
     "someone else has seen it (POST /api/v1/auth/password)"
@@ -143,6 +152,8 @@ async def _signed_in(
         raise unauthorized()
     standing = await login_standing(db, credentials.credentials)
     if standing.user is None or standing.failure not in (None, "must_change"):
+        if standing.user is None and await authenticate_station(db, credentials.credentials):
+            raise forbidden(FOR_USERS)
         raise unauthorized("invalid or expired token")
     return standing
 
@@ -211,6 +222,9 @@ async def current_station(
         raise unauthorized()
     station = await authenticate_station(db, credentials.credentials)
     if station is None:
+        standing = await login_standing(db, credentials.credentials)
+        if standing.failure in (None, "must_change"):
+            raise forbidden(FOR_STATIONS)
         raise unauthorized("invalid or revoked station token")
     now = utcnow()
     if station.last_seen_at is None or now - station.last_seen_at > LAST_SEEN_RESOLUTION:

@@ -8,6 +8,10 @@ CSV, a recording) that happens to look like HTML or script.
 
 from __future__ import annotations
 
+import re
+
+from fastapi.routing import iter_route_contexts
+from starlette.routing import compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 API_CSP = "default-src 'none'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'; sandbox"
@@ -36,3 +40,52 @@ class SecurityHeaders:
             await send(message)
 
         await self.app(scope, receive, with_headers)
+
+
+class AllowedMethods:
+    """A 405's ``Allow`` lists every method the path is served with.
+
+    The router answers 405 from the first route whose path matched, so ``Allow`` named
+    that route's methods only: ``GET`` on ``/patients/{id}``, which PATCH changes, and no
+    POST on ``/patients``. The app's route table is read once, on the first 405."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self._paths: list[tuple[re.Pattern[str], frozenset[str]]] | None = None
+
+    def _table(self, scope: Scope) -> list[tuple[re.Pattern[str], frozenset[str]]]:
+        if self._paths is None:
+            paths: dict[str, set[str]] = {}
+            for context in iter_route_contexts(scope["app"].routes):
+                if context.path and context.methods:
+                    paths.setdefault(context.path, set()).update(context.methods)
+            self._paths = [(compile_path(p)[0], frozenset(m)) for p, m in paths.items()]
+        return self._paths
+
+    def allowed(self, scope: Scope) -> str:
+        path, root = scope["path"], scope.get("root_path", "")
+        if root and path.startswith(root):  # as the router reads it
+            path = path[len(root) :]
+        methods: set[str] = set()
+        for regex, served in self._table(scope):
+            if regex.match(path):
+                methods |= served
+        return ", ".join(sorted(methods))
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def with_allow(message: Message) -> None:
+            if message["type"] == "http.response.start" and message["status"] == 405:
+                allowed = self.allowed(scope)
+                if allowed:
+                    headers = [
+                        (k, v) for k, v in message.get("headers", []) if k.lower() != b"allow"
+                    ]
+                    headers.append((b"allow", allowed.encode()))
+                    message = {**message, "headers": headers}
+            await send(message)
+
+        await self.app(scope, receive, with_allow)

@@ -154,10 +154,29 @@ def watch_database(engine: AsyncEngine) -> None:
 
 
 # -- HTTP ----------------------------------------------------------------------------------
+METHODS = frozenset(
+    {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "CONNECT", "TRACE"}
+)
+"""The methods HTTP defines (RFC 9110, and PATCH): every other counts as ``other``. A
+request line may carry any token as its method, so the label's values must be a closed
+set: 20,000 pipelined requests with made-up methods, no token needed, made 20,000 series,
+grew ``/metrics`` to 38 MB and blocked the event loop 4 s per scrape."""
+
+
+def method_label(method: str) -> str:
+    return method if method in METHODS else "other"
+
+
+def status_label(status: int) -> str:
+    """A status an ASGI app can send is any integer; HTTP's are 100-599."""
+    return str(status) if 100 <= status <= 599 else "other"
+
+
 class HttpMetrics:
     """Counts and times every HTTP request by its route's template (``/api/v1/patients/{id}``,
     never the path itself, so the number of series stays bounded); a request no route
-    matched counts as ``unmatched``."""
+    matched counts as ``unmatched``, a method HTTP does not define as ``other``: every
+    label comes from a closed set, whatever a client sends."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -187,7 +206,7 @@ class HttpMetrics:
             nonlocal status
             if message["type"] == "http.response.start":
                 status = message["status"]
-                HTTP_SECONDS.labels(scope["method"], self._route(scope)).observe(
+                HTTP_SECONDS.labels(method_label(scope["method"]), self._route(scope)).observe(
                     time.perf_counter() - start
                 )
             await send(message)
@@ -195,7 +214,9 @@ class HttpMetrics:
         try:
             await self.app(scope, receive, send_status)
         finally:
-            HTTP_REQUESTS.labels(scope["method"], self._route(scope), str(status)).inc()
+            HTTP_REQUESTS.labels(
+                method_label(scope["method"]), self._route(scope), status_label(status)
+            ).inc()
 
 
 # -- /metrics --------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ The numbers are those of :mod:`sessions.measures`, as in the FHIR export.
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -58,10 +59,16 @@ _BODY = ParagraphStyle("body", parent=_STYLES["BodyText"], fontName=fonts.REGULA
 _SMALL = ParagraphStyle("small", parent=_BODY, fontSize=8, leading=10)
 _H1 = ParagraphStyle("title", parent=_STYLES["Title"], fontName=fonts.BOLD)
 _H2 = ParagraphStyle("heading", parent=_STYLES["Heading2"], fontName=fonts.BOLD)
-_CELL = ParagraphStyle("cell", parent=_BODY, fontSize=8, leading=10, splitLongWords=False)
+# A word breaks only when it is wider than the page could hold (fit_widths): a reference
+# or a title of 120 letters with no space, which the API allows.
+_CELL = ParagraphStyle("cell", parent=_BODY, fontSize=8, leading=10, splitLongWords=True)
 _HEAD = ParagraphStyle("head", parent=_CELL, fontName=fonts.BOLD)
 _CELL_PAD = 6.0
 """Left and right padding of a table cell, points (reportlab's default, set below)."""
+_MARGIN = 18 * mm
+"""Left and right page margin."""
+FRAME_WIDTH = A4[0] - 2 * _MARGIN
+"""The width text and tables may take on a page, points; nothing is drawn beyond it."""
 _GRID = TableStyle(
     [
         ("GRID", (0, 0), (-1, -1), 0.4, colors.grey),
@@ -127,22 +134,37 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], widths: Sequenc
         + 2 * _CELL_PAD
         for i, h in enumerate(header)
     ]
-    table = Table(cells, colWidths=fit_widths(widths, least), repeatRows=1)
+    table = Table(cells, colWidths=fit_widths(widths, least, FRAME_WIDTH), repeatRows=1)
     table.setStyle(_GRID)
     return table
 
 
-def fit_widths(wanted: Sequence[float], least: Sequence[float]) -> list[float]:
+def fit_widths(
+    wanted: Sequence[float], least: Sequence[float], most: float = math.inf
+) -> list[float]:
     """Column widths as ``wanted``, none below its ``least``: a column that needs more takes
     it from the others' slack, in proportion, so the table keeps its width; only when all
-    the slack is too little does the table grow (a word is never cut)."""
+    the slack is too little does the table grow (a word is not cut), up to ``most`` (the
+    page's width). Past that the widest needs are cut down to one level, so the table fits
+    the page and only a word wider than its column there breaks (a name of 120 letters
+    with no space, which the API allows, pushed the table 428 pt off the page's left)."""
     widths = [max(w, m) for w, m in zip(wanted, least, strict=True)]
     over = sum(widths) - sum(wanted)
     slack = [w - m for w, m in zip(widths, least, strict=True)]
     if over > 0 and sum(slack) > 0:
         share = min(1.0, over / sum(slack))
         widths = [w - x * share for w, x in zip(widths, slack, strict=True)]
-    return widths
+    if sum(widths) <= most:
+        return widths
+    # The level L at which sum(min(w, L)) is ``most``: the narrow columns keep their width.
+    room, level = most, 0.0
+    for i, w in enumerate(ordered := sorted(widths)):
+        left = len(ordered) - i
+        if w * left >= room:
+            level = room / left
+            break
+        room -= w
+    return [min(w, level) for w in widths]
 
 
 def _longest_word(text: str, font: str) -> float:
@@ -346,11 +368,31 @@ def _signature() -> Flowable:
     )
 
 
+_FOOTER_SIZE = 7
+
+
+def fitted(text: str, font: str, size: float, width: float) -> str:
+    """``text`` cut with "…" to be at most ``width`` points wide in ``font`` at ``size``."""
+    if stringWidth(text, font, size) <= width:
+        return text
+    low, high = 0, len(text)  # the longest prefix that fits with the ellipsis
+    while low < high:
+        mid = (low + high + 1) // 2
+        if stringWidth(text[:mid] + "…", font, size) <= width:
+            low = mid
+        else:
+            high = mid - 1
+    return text[:low] + "…"
+
+
 def _footer(canvas: Any, doc: BaseDocTemplate) -> None:
     canvas.saveState()
-    canvas.setFont(fonts.REGULAR, 7)
-    canvas.drawString(doc.leftMargin, 10 * mm, doc.title)
-    canvas.drawRightString(A4[0] - doc.rightMargin, 10 * mm, f"page {doc.page}")
+    canvas.setFont(fonts.REGULAR, _FOOTER_SIZE)
+    page = f"page {doc.page}"
+    # The title holds the patient's name, up to 120 characters: cut short of the page number.
+    room = FRAME_WIDTH - stringWidth(page, fonts.REGULAR, _FOOTER_SIZE) - 6 * mm
+    canvas.drawString(doc.leftMargin, 10 * mm, fitted(doc.title, fonts.REGULAR, _FOOTER_SIZE, room))
+    canvas.drawRightString(A4[0] - doc.rightMargin, 10 * mm, page)
     canvas.restoreState()
 
 
@@ -452,8 +494,8 @@ def pdf(record: PatientRecord) -> bytes:
         pagesize=A4,
         title=f"{TITLE}: {p.display_name}, {period}",
         author="Ankle telerehabilitation server",
-        leftMargin=18 * mm,
-        rightMargin=18 * mm,
+        leftMargin=_MARGIN,
+        rightMargin=_MARGIN,
         topMargin=16 * mm,
         bottomMargin=18 * mm,
         initialFontName=fonts.REGULAR,  # else every page also declares Helvetica

@@ -190,6 +190,14 @@ def sentence(
     bound = _ctx_number(ctx, op) if op is not None else None
     if op is not None and bound is not None:
         return loc, bound_sentence(label, op, bound, place.unit)
+    if kind in ("too_long", "too_short") and isinstance(error.get("input"), str):
+        # A length checked after another validator (text cleaned, ``Line | None``) is
+        # reported as a collection's: for text, its count is characters.
+        kind = "string_" + kind
+    if kind == "string_pattern_mismatch":
+        form = PATTERN_FORMS.get(str(ctx.get("pattern", "")))
+        if form is not None:
+            return loc, f"{label} must be {form}."
     text = _SIMPLE.get(kind)
     if text is not None:
         words = {**ctx, "label": label, "name": place.name, "expected": _expected(ctx)}
@@ -206,6 +214,12 @@ def sentence(
 
 JSON_INVALID = "The request is not valid JSON."
 """What a body that does not parse as JSON is told, whatever stopped it (``server.guard``)."""
+
+SHA256_HEX = r"^[0-9a-fA-F]{64}$"
+"""A SHA-256 as hex digits, in either case (``sha256sum`` writes lower, some tools upper)."""
+PATTERN_FORMS: dict[str, str] = {SHA256_HEX: "64 hexadecimal digits (0-9 and a-f)"}
+"""What a text a pattern checks must be, in words, for each pattern the API uses; a
+pattern not named here is quoted as it is."""
 
 _BOUND_TYPES: dict[str, Op] = {
     "greater_than_equal": "ge",
@@ -234,7 +248,8 @@ _SIMPLE: dict[str, str] = {
     "literal_error": "{label} must be one of {expected}.",
     "enum": "{label} must be one of {expected}.",
     "extra_forbidden": "“{name}” is not a field here.",
-    "string_pattern_mismatch": "{label} is not in the expected form.",
+    "string_pattern_mismatch": "{label} is not in the expected form: it must match the "
+    "regular expression {pattern}.",
     "json_invalid": JSON_INVALID,
     "datetime_parsing": "{label} must be a date and time (ISO 8601).",
     "datetime_type": "{label} must be a date and time (ISO 8601).",
@@ -258,6 +273,8 @@ _SIMPLE: dict[str, str] = {
 
 __all__ = [
     "JSON_INVALID",
+    "PATTERN_FORMS",
+    "SHA256_HEX",
     "FieldError",
     "bound_sentence",
     "field_label",

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import re
+import unicodedata
 from collections.abc import Callable
 from typing import Any
+from urllib.parse import quote
 
 from fastapi import FastAPI
 from fastapi.dependencies.models import Dependant
@@ -29,6 +32,36 @@ UNAUTHORIZED: Responses = {401: _err("Token missing, unknown, expired or revoked
 FORBIDDEN: Responses = {403: _err("The caller's role may not do this.")}
 NOT_FOUND: Responses = {404: _err("No such record, or it belongs to another therapist's patient.")}
 CONFLICT: Responses = {409: _err("The record's state does not allow this change.")}
+
+
+_NOT_IN_NAME = re.compile(r"[^\w.-]+")
+_NOT_ASCII_NAME = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def name_part(text: str) -> str:
+    """``text`` as part of a file name, in any script: letters, digits, ``.``, ``_`` and
+    ``-`` kept (composed, NFC), every other run (blanks, slashes, punctuation) one ``-``."""
+    return _NOT_IN_NAME.sub("-", unicodedata.normalize("NFC", text)).strip("-.")
+
+
+def ascii_name(text: str) -> str:
+    """``text`` in ASCII for a client that reads only ``filename=``: transliterated where
+    Unicode can (``Řehoř`` -> ``Rehor``: NFKD, combining marks dropped), then every other
+    run one ``-``; empty if nothing of it is ASCII."""
+    decomposed = unicodedata.normalize("NFKD", text)
+    letters = "".join(c for c in decomposed if not unicodedata.combining(c))
+    return _NOT_ASCII_NAME.sub("-", letters).strip("-.")
+
+
+def attachment(name: str, fallback: str | None = None) -> str:
+    """The ``Content-Disposition`` of a download saved as ``name`` (RFC 6266): a name in
+    plain ASCII as ``filename``, any other as ``filename*=UTF-8''…`` (RFC 8187) with
+    ``fallback`` (by default :func:`ascii_name` of it) as ``filename`` for clients that
+    read only that. Session downloads, the report and the FHIR bundle all use it."""
+    if _NOT_ASCII_NAME.search(name) is None:
+        return f'attachment; filename="{name}"'
+    plain = fallback if fallback is not None else ascii_name(name)
+    return f"attachment; filename=\"{plain}\"; filename*=UTF-8''{quote(name, safe='')}"
 
 
 def _depends_on(dependant: Dependant, call: Callable[..., Any]) -> bool:

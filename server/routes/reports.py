@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import re
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 
@@ -23,7 +22,7 @@ from server.deps import Db, Id, TherapistOrAdmin, patient_for
 from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
-from server.routes.common import NOT_FOUND, UNAUTHORIZED
+from server.routes.common import NOT_FOUND, UNAUTHORIZED, ascii_name, attachment, name_part
 from server.routes.dates import FIRST_DAY, LAST_DAY, refuse, shown
 from server.routes.progress import load_progress
 from sessions import fhir, record
@@ -32,7 +31,6 @@ router = APIRouter(prefix="/patients", tags=["reports"])
 
 DEFAULT_DAYS = 90
 """The period a report covers when not told: this many days up to today, inclusive."""
-_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 _WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
 """How a refusal names each parameter: as the patient page labels it, and as the API does."""
 
@@ -157,10 +155,17 @@ async def patient_record(
     )
 
 
-def file_name(patient: Patient, first: date, last: date, suffix: str) -> str:
-    """``report-<reference or patient-id>-<first>-<last><suffix>``, safe in any file system."""
-    who = _UNSAFE.sub("-", patient.reference or "").strip("-.") or f"patient-{patient.id}"
-    return f"report-{who}-{first:%Y%m%d}-{last:%Y%m%d}{suffix}"
+def disposition(patient: Patient, first: date, last: date, suffix: str) -> str:
+    """``Content-Disposition`` for ``report-<reference or patient-id>-<first>-<last><suffix>``,
+    safe in any file system: the reference in its own script (``Řehoř-12``), and for a
+    client that reads only ``filename=``, in ASCII (``Rehor-12``; ``patient-<id>`` if none of
+    it is)."""
+
+    def name(who: str) -> str:
+        return f"report-{who or f'patient-{patient.id}'}-{first:%Y%m%d}-{last:%Y%m%d}{suffix}"
+
+    reference = patient.reference or ""
+    return attachment(name(name_part(reference)), name(ascii_name(reference)))
 
 
 async def _exported(
@@ -170,13 +175,13 @@ async def _exported(
     await audit.export(db, audit.user_actor(user), "patient", patient.id, patient.id, what)
 
 
-def _attachment(body: bytes, media_type: str, name: str) -> Response:
+def _attachment(body: bytes, media_type: str, disposition: str) -> Response:
     return Response(
         body,
         media_type=media_type,
         # A patient's record: kept by no cache on the way.
         headers={
-            "Content-Disposition": f'attachment; filename="{name}"',
+            "Content-Disposition": disposition,
             "Cache-Control": "no-store",
         },
     )
@@ -208,7 +213,7 @@ async def report_pdf(
     data = await patient_record(request, db, patient, first, last)
     body = await asyncio.to_thread(pdf, data)
     await _exported(db, user, patient, "pdf", first, last, sessions=len(data.sessions))
-    return _attachment(body, "application/pdf", file_name(patient, first, last, ".pdf"))
+    return _attachment(body, "application/pdf", disposition(patient, first, last, ".pdf"))
 
 
 @router.get(
@@ -252,4 +257,4 @@ async def report_fhir(
         observations=len(bundle["entry"]) - 1,
     )
     body = json.dumps(bundle, ensure_ascii=False).encode()
-    return _attachment(body, fhir.MEDIA_TYPE, file_name(patient, first, last, ".fhir.json"))
+    return _attachment(body, fhir.MEDIA_TYPE, disposition(patient, first, last, ".fhir.json"))

@@ -27,7 +27,10 @@ router = APIRouter(tags=["stations"])
 
 
 async def _online(request: Request, station: Station) -> bool:
-    return bool(await request.app.state.hub.online(station.id))
+    """Whether ``station`` is linked now. A revoked station never is: its token is refused
+    and the revocation closes its link (``Hub.recheck``), though another process's lease
+    on it may not have run out yet."""
+    return not station.revoked and bool(await request.app.state.hub.online(station.id))
 
 
 async def _manageable(db: AsyncSession, user: User, patient_id: int) -> Patient | None:
@@ -119,7 +122,7 @@ async def list_stations(
         query = query.where(Station.patient_id == patient_id)
     stations = list((await db.execute(query)).scalars())
     online = await request.app.state.hub.online_of([s.id for s in stations])
-    return [StationPublic.from_row(s, s.id in online) for s in stations]
+    return [StationPublic.from_row(s, s.id in online and not s.revoked) for s in stations]
 
 
 @router.post(

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, HTTPException, Request, Response, status
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
@@ -49,6 +49,7 @@ from sessions.recording import (
     iter_records,
 )
 from sessions.recording import Header as RecordingHeader
+from sessions.sentences import SHA256_HEX
 from sessions.summary import Summary, summarize
 from sessions.wire import error_text
 
@@ -80,7 +81,9 @@ INVALID: Responses = {
 class UploadComplete(BaseModel):
     model_config = ConfigDict(extra="forbid")
     size: int = Field(ge=len(MAGIC), description="Bytes in the whole file.")
-    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of the file, hex.")
+    sha256: Annotated[str, AfterValidator(str.lower)] = Field(
+        pattern=SHA256_HEX, title="SHA-256", description="SHA-256 of the file, hex (either case)."
+    )
 
 
 def _dirs(app: Any) -> tuple[Path, Path]:

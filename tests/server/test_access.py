@@ -91,9 +91,11 @@ RECORD_OF: dict[str, Callable[[Records], object]] = {
 
 
 def answers(
-    owner: int, admin: int, other: int, station: int = 401, anon: int = 401
+    owner: int, admin: int, other: int, station: int = 403, anon: int = 401
 ) -> dict[str, int]:
-    """The status each identity gets (a wrong token is always 401, as no token is)."""
+    """The status each identity gets: a wrong token is always 401, as no token is; a valid
+    token on a route for the other kind of caller (a station's on a therapist's route, a
+    user's on a station's) is 403."""
     return {
         "anon": anon,
         "wrong": anon,
@@ -109,7 +111,7 @@ ANY_USER = answers(owner=200, admin=200, other=200)
 OWNER_OR_ADMIN = answers(owner=200, admin=200, other=404)
 OWNER_WRITES = answers(owner=200, admin=403, other=404)
 ADMIN_ONLY = answers(owner=403, admin=200, other=403)
-STATION_ONLY = answers(owner=401, admin=401, other=401, station=200)
+STATION_ONLY = answers(owner=403, admin=403, other=403, station=200)
 
 
 @dataclass(frozen=True)
@@ -186,6 +188,7 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("GET", "/sessions"): Call(ANY_USER),
     ("GET", "/sessions/{session_id}"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),
+    ("HEAD", "/sessions/{session_id}/download/{fmt}"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/series"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay"): Call(OWNER_OR_ADMIN),
     ("GET", "/sessions/{session_id}/replay.viser"): Call(OWNER_OR_ADMIN),
@@ -193,20 +196,23 @@ ACCESS: dict[tuple[str, str], Call] = {
     ("GET", "/patients/{patient_id}/fhir"): Call(OWNER_OR_ADMIN),
     # An upload in the order a station makes one: bytes, where it stands, complete.
     ("PATCH", "/uploads/{session_id}"): Call(
-        answers(owner=401, admin=401, other=401, station=204),
+        answers(owner=403, admin=403, other=403, station=204),
         content=lambda r: r.upload,
         headers={"Upload-Offset": "0"},
         at=UPLOAD,
     ),
     ("HEAD", "/uploads/{session_id}"): Call(STATION_ONLY, at=UPLOAD),
     ("POST", "/uploads/{session_id}/complete"): Call(
-        answers(owner=401, admin=401, other=401, station=201), body=upload_done, at=UPLOAD
+        answers(owner=403, admin=403, other=403, station=201), body=upload_done, at=UPLOAD
     ),
     ("GET", "/audit"): Call(ANY_USER),
     # Archiving revokes the patient's stations and freezes the record: after everything else.
     ("POST", "/patients/{patient_id}/archive"): Call(OWNER_WRITES, last=True),
-    ("POST", "/patients/{patient_id}/unarchive"): Call(OWNER_WRITES, last=True),
-    ("POST", "/auth/logout"): Call(answers(owner=204, admin=204, other=204), last=True),
+    # Archiving revoked the station: its token is invalid from then on.
+    ("POST", "/patients/{patient_id}/unarchive"): Call({**OWNER_WRITES, "station": 401}, last=True),
+    ("POST", "/auth/logout"): Call(
+        answers(owner=204, admin=204, other=204, station=401), last=True
+    ),
 }
 """(method, path under ``/api/v1``) → the call. Run in this order."""
 
@@ -284,7 +290,7 @@ def coverage(ops: list[tuple[str, str]]) -> str:
     problems = []
     if missing:
         rows = "\n".join(
-            f"    {op!r}: Call(answers(owner=..., admin=..., other=..., station=401)),"
+            f"    {op!r}: Call(answers(owner=..., admin=..., other=..., station=403)),"
             for op in missing
         )
         problems.append(

@@ -7,8 +7,10 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import update
 
+from server.deps import FOR_STATIONS, FOR_USERS
 from server.models import AuthToken, Station, User, utcnow
 from tests.server.live_server import PASSWORD, Live, World, bearer, login
+from tests.server.ws_client import station_ws, welcomed
 
 pytestmark = pytest.mark.both_stores
 
@@ -94,14 +96,32 @@ async def test_an_expired_token_is_refused(live: Live, world: World) -> None:
 
 @pytest.mark.asyncio
 async def test_tokens_do_not_cross_between_users_and_stations(live: Live, world: World) -> None:
-    assert (await live.client.get("/auth/me", headers=bearer(world.s1))).status_code == 401
-    assert (await live.client.get("/station/me", headers=bearer(world.t1))).status_code == 401
+    """A valid token on the other kind of caller's route is a 403 that says whose route it
+    is, not a 401 calling the token invalid or expired (it is neither)."""
+    r = await live.client.get("/auth/me", headers=bearer(world.s1))
+    assert (r.status_code, r.json()) == (403, {"detail": FOR_USERS})
+    r = await live.client.get("/patients", headers=bearer(world.s1))
+    assert (r.status_code, r.json()) == (403, {"detail": FOR_USERS})
+    r = await live.client.get("/station/me", headers=bearer(world.t1))
+    assert (r.status_code, r.json()) == (403, {"detail": FOR_STATIONS})
+    # An invalid token stays a 401 on either.
+    r = await live.client.get("/patients", headers=bearer(world.s1 + "x"))
+    assert (r.status_code, r.json()) == (401, {"detail": "invalid or expired token"})
+    r = await live.client.get("/station/me", headers=bearer(world.t1 + "x"))
+    assert (r.status_code, r.json()) == (401, {"detail": "invalid or revoked station token"})
 
 
 @pytest.mark.asyncio
 async def test_a_revoked_station_is_refused(live: Live, world: World) -> None:
-    r = await live.client.post(f"/stations/{world.s1_id}/revoke", headers=bearer(world.t1))
-    assert r.json()["revoked"] is True
+    async with station_ws(live, world.s1) as ws:
+        await welcomed(ws)
+        listed = await live.client.get("/stations", headers=bearer(world.t1))
+        assert {s["id"]: s["online"] for s in listed.json()}[world.s1_id] is True
+        r = await live.client.post(f"/stations/{world.s1_id}/revoke", headers=bearer(world.t1))
+    # The revocation closed its link: the answer says so, as the list does.
+    assert (r.json()["revoked"], r.json()["online"]) == (True, False)
+    listed = await live.client.get("/stations", headers=bearer(world.t1))
+    assert {s["id"]: s["online"] for s in listed.json()}[world.s1_id] is False
     r = await live.client.get("/station/prescriptions", headers=bearer(world.s1))
     assert (r.status_code, r.json()) == (401, {"detail": "invalid or revoked station token"})
     async with live.sessionmaker() as db:

@@ -103,3 +103,27 @@ async def test_with_a_token_only_its_bearer_reads_metrics(
         assert r.status_code == status, r.text
         if status == 200:
             assert "ankle_http_requests_total" in r.text
+
+
+async def test_made_up_methods_and_paths_add_no_series(live: Live) -> None:
+    """A request line may carry any token as its method and any path: the labels must not.
+    20,000 made-up methods (no token needed) once made 20,000 series, a 38 MB scrape that
+    blocked the event loop 4 s; each now counts as ``other``, each path no route matched as
+    ``unmatched``."""
+    before = (await scrape(live)).text
+    series_before = before.count("ankle_http_requests_total{")
+    for i in range(40):
+        r = await live.client.request(f"X{i:04d}Q", "/health")
+        assert r.status_code == 405
+        r = await live.client.get(f"/no-such-route-{i}")
+        assert r.status_code == 404
+    after = (await scrape(live)).text
+    assert "X0001Q" not in after and "no-such-route" not in after
+    other = {"method": "other", "route": "/api/v1/health", "status": "405"}
+    assert sample(after, "ankle_http_requests_total", **other) == 40
+    unmatched = {"method": "GET", "route": "unmatched", "status": "404"}
+    assert sample(after, "ankle_http_requests_total", **unmatched) == (
+        sample(before, "ankle_http_requests_total", **unmatched) + 40
+    )
+    # A few new series (those two, the scrape's own), not one per request.
+    assert after.count("ankle_http_requests_total{") - series_before <= 3

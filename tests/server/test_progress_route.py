@@ -4,6 +4,7 @@ they existed."""
 from __future__ import annotations
 
 import time
+from datetime import date, timedelta
 from typing import Any
 
 import numpy as np
@@ -181,6 +182,51 @@ async def test_the_session_list_takes_times_without_an_offset_and_refuses_past_t
         (error,) = r.json()["detail"]
         assert error["loc"] == ["query", field]
         assert "from 1900-01-01 to 9998-12-31" in error["msg"]
+
+
+@pytest.mark.asyncio
+async def test_the_session_list_reads_a_day_as_progress_and_the_report_do(
+    live: Live, world: World
+) -> None:
+    """``until=<day>`` left that day's sessions out of the list while progress, the report
+    and FHIR included them; ``since=0000-01-01`` was refused without the range."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    sid = await upload(
+        live,
+        world,
+        assessment_rows([(20.0, 10.0)]),
+        rx,
+        ExerciseKind.ROM_ASSESSMENT,
+        time.time() - DAY,
+    )
+    t1 = bearer(world.t1)
+    r = await live.client.get(f"/sessions/{sid}", headers=t1)
+    day = date.fromisoformat(r.json()["started_at"][:10])
+    before, after = str(day - timedelta(days=1)), str(day + timedelta(days=1))
+    for params, listed in [
+        ({"since": str(day), "until": str(day)}, [sid]),
+        ({"until": str(day)}, [sid]),
+        ({"since": str(day)}, [sid]),
+        ({"until": before}, []),
+        ({"since": after}, []),
+    ]:
+        r = await live.client.get("/sessions", params=params, headers=t1)
+        assert r.status_code == 200, r.text
+        assert [s["id"] for s in r.json()] == listed, params
+    progress = await live.client.get(
+        f"/patients/{world.p1}/progress", params={"since": str(day), "until": str(day)}, headers=t1
+    )
+    assert progress.status_code == 200, progress.text
+    (exercise,) = progress.json()["exercises"]  # the same day, the same session
+    assert (exercise["exercise"], exercise["sessions"]) == ("rom_assessment", 1)
+    for field in ("since", "until"):
+        r = await live.client.get("/sessions", params={field: "0000-01-01"}, headers=t1)
+        assert r.status_code == 422, r.text
+        (error,) = r.json()["detail"]
+        assert error["loc"] == ["query", field]
+        assert "from 1900-01-01 to 9998-12-31" in error["msg"], error["msg"]
+    r = await live.client.get("/sessions", params={"since": after, "until": before}, headers=t1)
+    assert r.status_code == 422, r.text
 
 
 @pytest.mark.asyncio

@@ -9,6 +9,7 @@ import re
 from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote
 
 import numpy as np
 import pytest
@@ -29,7 +30,7 @@ from sessions.measures import CODES, code_table_markdown, measures, system_url
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.recording import SessionEvent
 from sessions.summary import AxisSummary, Summary
-from tests.server.live_server import Live, World, bearer
+from tests.server.live_server import STRENGTH, Live, World, bearer
 from tests.server.test_progress_route import DAY, assessment_rows, prescribe
 from tests.server.test_progress_route import upload as upload_assessment
 from tests.server.test_series import (
@@ -93,7 +94,18 @@ def pdf_text(body: bytes) -> str:
 
 
 def disposition_name(r: Any) -> str:
-    match = re.fullmatch(r'attachment; filename="([^"]+)"', r.headers["content-disposition"])
+    """The name a browser saves the file under: ``filename*`` if given, else ``filename``;
+    ``filename`` is always given, in ASCII, for clients that read nothing else."""
+    header = r.headers["content-disposition"]
+    match = re.fullmatch(
+        r"attachment; filename=\"([A-Za-z0-9._-]+)\"(?:; filename\*=UTF-8''([^;\s]+))?", header
+    )
+    assert match, header
+    return unquote(match.group(2)) if match.group(2) else match.group(1)
+
+
+def ascii_fallback(r: Any) -> str:
+    match = re.match(r'attachment; filename="([^"]+)"', r.headers["content-disposition"])
     assert match, r.headers["content-disposition"]
     return match.group(1)
 
@@ -123,7 +135,8 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/pdf"
     assert r.headers["cache-control"] == "no-store"
-    assert disposition_name(r) == f"report-CL-7-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
+    assert disposition_name(r) == f"report-CL-7-ä-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
+    assert ascii_fallback(r) == f"report-CL-7-a-{since:%Y%m%d}-{until:%Y%m%d}.pdf"
     text = pdf_text(r.content)
 
     for fact in ("Pat One", "CL 7/ä", "1950", "Left", f"{since} to {until}"):
@@ -347,6 +360,85 @@ async def test_a_range_download_is_audited_only_when_it_sends_data(
     assert r.content == whole.content  # If-Range did not match: the whole file was sent
 
 
+@pytest.mark.asyncio
+@pytest.mark.parametrize(
+    ("reference", "saved", "plain"),
+    [
+        ("Řehoř-12", "Řehoř-12", "Rehor-12"),
+        ("Ř" * 60, "Ř" * 60, "R" * 60),
+        ("王小明", "王小明", "patient-{p}"),
+        ("a/b\\c:d", "a-b-c-d", "a-b-c-d"),
+    ],
+)
+async def test_report_and_fhir_names_keep_the_reference_in_its_own_script(
+    live: Live, world: World, reference: str, saved: str, plain: str
+) -> None:
+    """``Řehoř-12`` was saved as ``report-eho--12-…`` and 60 x ``Ř`` as ``report-patient-…``:
+    the name is now given as ``filename*`` (RFC 6266/8187), the session downloads' way, with
+    an ASCII ``filename`` transliterated where Unicode can."""
+    t1 = bearer(world.t1)
+    r = await live.client.patch(f"/patients/{world.p1}", json={"reference": reference}, headers=t1)
+    assert r.status_code == 200, r.text
+    days = f"{TODAY - timedelta(days=89):%Y%m%d}-{TODAY:%Y%m%d}"
+    plain = plain.format(p=world.p1)
+    for path, suffix in (("report.pdf", ".pdf"), ("fhir", ".fhir.json")):
+        r = await live.client.get(f"/patients/{world.p1}/{path}", headers=t1)
+        assert r.status_code == 200, r.text
+        assert disposition_name(r) == f"report-{saved}-{days}{suffix}"
+        assert ascii_fallback(r) == f"report-{plain}-{days}{suffix}"
+
+
+def text_spans(body: bytes) -> list[tuple[int, str, float, float]]:
+    """(page, text, left x, right x) of every piece of text drawn, points: where pypdf finds
+    it drawn, its width as the font it is set in measures it."""
+    spans: list[tuple[int, str, float, float]] = []
+    for number, page in enumerate(PdfReader(io.BytesIO(body)).pages):
+
+        def visit(
+            text: str, cm: list[float], tm: list[float], font: Any, size: float, n: int = number
+        ) -> None:
+            text = text.strip()
+            if not text:
+                return
+            x = cm[0] * tm[4] + cm[2] * tm[5] + cm[4]
+            scale = math.hypot(cm[0], cm[1]) * math.hypot(tm[0], tm[1])
+            bold = "Bold" in str(font.get("/BaseFont", "")) if font is not None else True
+            face = fonts.BOLD if bold else fonts.REGULAR
+            width = pdfmetrics.stringWidth(text, face, size * scale)
+            spans.append((n, text, x, x + width))
+
+        page.extract_text(visitor_text=visit)
+    return spans
+
+
+@pytest.mark.asyncio
+async def test_long_unbroken_text_prints_inside_the_page(live: Live, world: World) -> None:
+    """A 120-letter name, title or reference with no space (all allowed by the API): the
+    name's cell started 428 pt left of the page, a title 211 pt, and the page footer ran
+    to 1075 pt on a 595 pt page. Every piece of text now lies within the page's margins."""
+    t1 = bearer(world.t1)
+    r = await live.client.patch(
+        f"/patients/{world.p1}",
+        json={"display_name": "W" * 120, "reference": "Ř" * 64},
+        headers=t1,
+    )
+    assert r.status_code == 200, r.text
+    r = await live.client.patch(
+        f"/prescriptions/{world.rx1}", json={**STRENGTH, "title": "M" * 120}, headers=t1
+    )
+    assert r.status_code == 200, r.text
+    r = await live.client.get(f"/patients/{world.p1}/report.pdf", headers=t1)
+    assert r.status_code == 200, r.text
+    spans = text_spans(r.content)
+    assert any("WWWW" in t for _, t, _, _ in spans) and any("MMMM" in t for _, t, _, _ in spans)
+    left, right = 18 * mm, 595.28 - 18 * mm
+    outside = [s for s in spans if s[2] < left - 1 or s[3] > right + 1]
+    assert not outside, outside[:5]
+    # What was cut to fit is all there, broken across lines (the footer's title aside).
+    text = pdf_text(r.content).replace(" ", "")
+    assert "W" * 120 in text and "M" * 120 in text and "Ř" * 64 in text
+
+
 NAMES = ("Łukasz Żółć", "Ελένη Παπαδοπούλου", "Ольга Иванова", "Nguyễn Thị Hằng")
 """Polish, Greek, Russian and Vietnamese: letters Helvetica (WinAnsi) has no glyph for."""
 
@@ -487,6 +579,7 @@ def test_a_column_is_never_narrower_than_its_longest_word() -> None:
     """DejaVu Sans is wider than Helvetica: at the widths laid out for Helvetica, "Per week"
     ran into "Prescribed", the date into the exercise and "interrupted" broke in two. Each
     column now takes the room its longest word needs from columns that have some to spare."""
+    fonts.register()  # as pdf() does: alone, this test had no report made before it
     header = ["Date", "Exercise", "Ended", "Repetitions", "Measures"]
     rows = [["2026-11-15 12:00", "Strength (resistive)", "interrupted", "3 of 30", "x " * 80]]
     wanted = [26 * mm, 24 * mm, 20 * mm, 20 * mm, 80 * mm]
@@ -503,3 +596,6 @@ def test_a_column_is_never_narrower_than_its_longest_word() -> None:
     assert report.fit_widths([10, 50], [30, 20]) == pytest.approx([30, 30])
     assert report.fit_widths([10, 10], [30, 20]) == [30, 20]
     assert report.fit_widths([40, 40], [10, 10]) == [40, 40]
+    # Never past the page: the widest needs are cut to one level, the narrow ones kept.
+    assert report.fit_widths([10, 10], [300, 20], 100) == pytest.approx([80, 20])
+    assert report.fit_widths([10, 10, 10], [300, 200, 20], 100) == pytest.approx([40, 40, 20])

@@ -128,3 +128,18 @@ async def test_a_control_character_in_an_audit_filter_is_a_422(live: Live, world
         "/audit", params={"action": "patient.update"}, headers=bearer(world.admin)
     )
     assert r.status_code == 200, r.text
+
+
+@pytest.mark.asyncio
+async def test_text_too_long_is_counted_in_characters(live: Live, world: World) -> None:
+    """A reference or an audit action filter past its length said "at most 64 allowed"
+    (pydantic's words for a list, as the length is checked after the text is cleaned)."""
+    t1 = bearer(world.t1)
+    r = await live.client.patch(f"/patients/{world.p1}", json={"reference": "R" * 65}, headers=t1)
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["msg"] == "Reference must be at most 64 characters long."
+    r = await live.client.get("/audit", params={"action": "a" * 65}, headers=bearer(world.admin))
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["msg"] == "Action must be at most 64 characters long."

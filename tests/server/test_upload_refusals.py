@@ -727,3 +727,24 @@ async def test_a_recording_the_server_fails_to_summarise_is_refused_not_a_500(
     monkeypatch.undo()
     assert await put(live, world, sid, data) == 204
     assert (await complete(live, world, sid, data)).status_code == 201
+
+
+@pytest.mark.asyncio
+async def test_a_sha256_in_upper_case_is_taken_and_one_not_hex_says_what_it_must_be(
+    live: Live, world: World
+) -> None:
+    """``sha256sum`` writes lower case, other tools upper: both name the same digest. One that
+    is not hex was told only that it was "not in the expected form"."""
+    sid = str(uuid.uuid4())
+    data = recording_bytes(sid, samples(), world.s1_id, world.p1, world.rx1)
+    assert await put(live, world, sid, data) == 204
+    bad = {"size": len(data), "sha256": "g" * 64}
+    r = await live.client.post(f"/uploads/{sid}/complete", json=bad, headers=bearer(world.s1))
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["msg"] == "SHA-256 must be 64 hexadecimal digits (0-9 and a-f)."
+    digest = hashlib.sha256(data).hexdigest()
+    body = {"size": len(data), "sha256": digest.upper()}
+    r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=bearer(world.s1))
+    assert r.status_code == 201, r.text
+    assert r.json()["sha256"] == digest

@@ -217,7 +217,7 @@ async def test_only_who_may_watch_the_station_gets_a_ticket(dash: Live, world: W
     missing = await dash.client.post("/stations/999999/scene/ticket", headers=bearer(world.t1))
     assert missing.status_code == 404
     station = await dash.client.post(path, headers=bearer(world.s1))
-    assert station.status_code == 401
+    assert station.status_code == 403  # a valid token, but a station's: not its route
     # An admin reads every patient: the view too (read-only, as the live view).
     await ticket(dash, world.admin, world.s1_id)
     # A ticket shows one station: t2's ticket for their own opens theirs, not s1's.

@@ -1,0 +1,85 @@
+"""A setting that cannot work, or a database that cannot be reached, is one line naming the
+setting and what is wrong, exit 2 (a bad setting) or 1 (the database away): not a
+traceback of hundreds of lines from the driver, uvicorn or ``int()``."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from ankle.cli import main
+
+COMMANDS = {
+    "server": ["server"],
+    "db current": ["db", "current"],
+    "db upgrade": ["db", "upgrade"],
+    "admin create-user": [
+        "admin",
+        "create-user",
+        "--email",
+        "a@clinic.test",
+        "--name",
+        "A",
+        "--role",
+        "admin",
+    ],
+}
+
+
+def closed_port() -> int:
+    """A local port nothing listens on (bound, then let go)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+    return port
+
+
+def one_line(capsys: pytest.CaptureFixture[str]) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert "Traceback" not in captured.err + captured.out
+    return lines[0]
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_database_that_cannot_be_reached_is_one_line_and_exit_1(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    url = f"postgresql+asyncpg://ankle:s3cret@127.0.0.1:{closed_port()}/ankle"
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("ANKLE_DATABASE_URL", url)
+        env.setenv("ANKLE_DATA_DIR", str(tmp_path))
+        assert main(COMMANDS[command]) == 1
+    line = one_line(capsys)
+    assert line.startswith("error: cannot open the database (ANKLE_DATABASE_URL: PostgreSQL")
+    assert "s3cret" not in line  # the line reaches a log
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "says"),
+    [
+        ("ANKLE_DATABASE_URL", "mysql://ankle:s3cret@db/ankle", "mysql scheme is not a database"),
+        ("ANKLE_DATABASE_URL", "postgresql://ankle:s3cret@db/ankle", "postgresql+asyncpg://"),
+        ("ANKLE_PORT", "abc", "valid integer"),
+        ("ANKLE_PORT", "70000", "65535"),
+    ],
+)
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_setting_that_cannot_work_is_one_line_naming_it_and_exit_2(
+    command: str,
+    name: str,
+    value: str,
+    says: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv(name, value)
+        env.setenv("ANKLE_DATA_DIR", str(tmp_path))
+        assert main(COMMANDS[command]) == 2
+    line = one_line(capsys)
+    assert line.startswith(f"error: {name}: "), line
+    assert says in line and "s3cret" not in line
