@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import hashlib
 import os
 import threading
 from collections.abc import AsyncIterator
@@ -48,7 +47,7 @@ from viser.infra import StateSerializer
 from server.deps import Db, Id, TherapistOrAdmin
 from server.models import Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
-from server.routes.sessions import _session_for, exported, recording_path, session_time
+from server.routes.sessions import _session_for, exported, intact_recording, session_time
 from sessions.recording import Recording, read
 from webui.assets import VIEWER_CSP
 from webui.scene import CAMERA_LOOK_AT, CAMERA_POSITION, PlatformScene
@@ -182,16 +181,11 @@ async def _replay_file(
     request: Request, db: Db, user: TherapistOrAdmin, session_id: int
 ) -> tuple[Session, Path]:
     row = await _session_for(db, user, session_id)
-    source = recording_path(request, row)
-    sha256 = row.sha256
-    if sha256 is None:
-        sha256 = await asyncio.to_thread(_sha256, source)
+    # Checked as every download is, and cached by the SHA-256 of the file it is made from: a
+    # damaged recording is a 500, never a replay kept under the intact file's name.
+    source, sha256 = await intact_recording(request, row)
     replays: Replays = request.app.state.replays
     return row, await asyncio.to_thread(replays.get, source, sha256)
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @router.get(

@@ -21,6 +21,7 @@ import zstandard
 
 from device.protocol.messages import DeviceMode
 from server.config import Settings
+from server.routes.sessions import DAMAGED
 from sessions.prescription import AXIS_INDEX
 from sessions.recording import SAMPLE_DTYPE, decode
 from tests.server.live_server import World, bearer, running, seeded
@@ -125,6 +126,31 @@ def test_the_standalone_page_is_visers_client_with_the_recording_inside(
     assert match is not None and base64.b64decode(match.group(1)) == data
     # The client is about 0.8 MB; 5 s of replay adds tens of kilobytes.
     assert len(html) < len(client) + 200_000
+
+
+@pytest.mark.asyncio
+async def test_a_damaged_recording_makes_no_replay(
+    seeded: tuple[Path, World], tmp_path: Path
+) -> None:
+    """The replay was built from the stored file and kept under the SHA-256 the upload
+    completed with: a recording cut short on disk was played (and kept) as if whole. It is
+    checked as every download is: a 500 saying so, nothing built."""
+    template, world = seeded
+    for f in template.glob("ankle.db*"):
+        shutil.copy(f, tmp_path / f.name)
+    async with running(Settings(data_dir=tmp_path), create_app) as live:
+        sid = await upload(live, world, samples()[:800])
+        (stored,) = (tmp_path / "sessions").glob("*.rec")
+        whole = stored.read_bytes()
+        stored.write_bytes(whole[: len(whole) // 2])
+        for path in (f"/sessions/{sid}/replay", f"/sessions/{sid}/replay.viser"):
+            r = await live.client.get(path, headers=bearer(world.t1))
+            assert (r.status_code, r.json()) == (500, {"detail": DAMAGED}), path
+        assert live.app.state.replays.builds == 0
+        assert list((tmp_path / "sessions").glob("*.viser")) == []
+        stored.write_bytes(whole)  # restored from backup
+        r = await live.client.get(f"/sessions/{sid}/replay.viser", headers=bearer(world.t1))
+        assert r.status_code == 200 and live.app.state.replays.builds == 1
 
 
 def test_frames_are_the_latest_drawable_sample_at_each_frame_time() -> None:
