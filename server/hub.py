@@ -80,11 +80,11 @@ person can (some 7 a second) never meets it. Past it the link is closed
 COMMANDS_PER_S = 10.0
 REFUSAL_ROWS_BURST = 5
 """Of the commands the server itself refuses (never sent: FORBIDDEN, OFFLINE, DUPLICATE,
-AUDIT), those of one user to one station that get an audit row each: this many at once,
-and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest are counted into
-one ``command.refusals`` row per ``REFUSAL_SUMMARY_S``. Each refusal costs nothing on the
-device, but its row is kept for good: one browser tab sending 1,000 K/B changes a second to
-an offline station wrote a row for each (2,850 in 3 s)."""
+AUDIT, a Start's REFUSED), those of one user to one station that get an audit row each:
+this many at once, and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest
+are counted into one ``command.refusals`` row per ``REFUSAL_SUMMARY_S``. Each refusal costs
+nothing on the device, but its row is kept for good: one browser tab sending 1,000 K/B
+changes a second to an offline station wrote a row for each (2,850 in 3 s)."""
 REFUSAL_ROWS_PER_S = 1.0
 REFUSAL_SUMMARY_S = 10.0
 REFUSALS_ACTION = "command.refusals"
@@ -796,6 +796,11 @@ class Hub:
         if not asker.may_command:
             _refuse(asked, reply, self.refusals, "FORBIDDEN", FORBIDDEN)
             return
+        if cmd.action == "start":
+            refused = await self._start_refusal(asker.patient_id, cmd.prescription_id)
+            if refused:
+                _refuse(asked, reply, self.refusals, *refused, "prescription_id")
+                return
         if conn is None:
             _refuse(asked, reply, self.refusals, "OFFLINE", "the station is not connected")
             return
@@ -811,6 +816,33 @@ class Hub:
             metrics.sent("station", "command")
         except Exception:
             self.link_lost(conn, cmd.request_id)
+
+    async def _start_refusal(
+        self, patient_id: int, prescription_id: int | None
+    ) -> tuple[str, str] | None:
+        """Why a Start cannot go to the station, as (code, sentence): it names no
+        prescription, or one that is not an active prescription of the station's patient
+        (another patient's, or one since ended); the server knows that as well as the
+        station, which would refuse it only after it was sent and audited as asked of this
+        patient. None when it may go."""
+        if prescription_id is None:
+            return "REFUSED", wire.START_NEEDS_PRESCRIPTION
+        assert self.sessionmaker is not None
+        try:
+            async with self.sessionmaker() as db:
+                found = await db.scalar(
+                    select(Prescription.id).where(
+                        Prescription.id == prescription_id,
+                        Prescription.patient_id == patient_id,
+                        Prescription.status == "active",
+                    )
+                )
+        except Exception as exc:  # not sent unchecked
+            log.error("a Start's prescription could not be checked: %s", exc)
+            return "AUDIT", UNCHECKED
+        if found is None:
+            return "REFUSED", wire.not_prescribed(prescription_id)
+        return None
 
     def claim(
         self, asked: live_audit.Asked, conn: StationConn, asked_on: str | None = None
@@ -906,6 +938,10 @@ class Hub:
 FORBIDDEN = "only the patient's therapist may change a running exercise"
 DUPLICATE = "a command sent with this request_id may still be answered"
 NOT_RECORDED = "the command could not be recorded, so it was not sent; try again"
+UNCHECKED = (
+    "the prescription could not be checked (the database did not answer), so the exercise "
+    "was not started; try again"
+)
 
 
 def _asked(asker: Asker, cmd: wire.Command) -> live_audit.Asked:

@@ -12,7 +12,8 @@ than one row that is later corrected:
   values changed; its old and new values are the station's own account of the change, the
   very values the session's event log records, and say when it applies), ``<kind>.refused``
   with the code, field and reason of whoever refused it (the device's NACK, the station, or
-  the server itself: ``FORBIDDEN``, ``OFFLINE``, ``DUPLICATE``, ``AUDIT``; a command the
+  the server itself: ``FORBIDDEN``, ``OFFLINE``, ``DUPLICATE``, ``AUDIT``, ``REFUSED`` for a
+  Start of no prescription or of one not active for the station's patient; a command the
   server refuses is never sent and has no request row, unless the viewer's process had sent
   it on to the station's, which refused it), or ``<kind>.unanswered`` (``TIMEOUT``, the
   station's link lost, the server shut down; or the station's process never said that the

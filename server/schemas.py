@@ -24,7 +24,12 @@ from pydantic import (
 )
 
 from server.models import Prescription, PrescriptionStatus, Role, Side, Station
-from server.security import PASSWORD_MAX_LENGTH, PASSWORD_MIN_LENGTH
+from server.security import (
+    PASSWORD_MAX_LENGTH,
+    PASSWORD_MIN_LENGTH,
+    PASSWORD_SCORE_MIN,
+    password_weakness,
+)
 from sessions.anatomy import direction_table
 from sessions.prescription import AxisPrescription, PrescriptionBody, PrescriptionInput
 from sessions.sentences import FieldError, field_label, setting_parts
@@ -53,7 +58,9 @@ Password = Annotated[
     Field(
         min_length=PASSWORD_MIN_LENGTH,
         max_length=PASSWORD_MAX_LENGTH,
-        description=f"At least {PASSWORD_MIN_LENGTH} characters; a passphrase is best.",
+        description=f"At least {PASSWORD_MIN_LENGTH} characters, not easy to guess (zxcvbn "
+        f"score {PASSWORD_SCORE_MIN} of 4 at least, the account's e-mail and name counted as "
+        "known; judged on the first 72 characters); a passphrase is best.",
     ),
 ]
 Name = Annotated[
@@ -117,6 +124,14 @@ class UserCreate(BaseModel):
         "answers it once, and its owner must change it at the first sign-in. Give one only "
         "when the account's owner chose it themselves.",
     )
+
+    @model_validator(mode="after")
+    def _hard_to_guess(self) -> UserCreate:
+        if self.password is not None:
+            weak = password_weakness(self.password, (self.email, self.name))
+            if weak is not None:
+                raise FieldError(("password",), weak)
+        return self
 
 
 class UserPublic(BaseModel):

@@ -13,21 +13,34 @@ import contextlib
 import hashlib
 import hmac
 import os
+import re
 import secrets
 import threading
-from collections.abc import Callable
+import unicodedata
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 from typing import Any, TypeVar
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
+from zxcvbn import zxcvbn
+
+from sessions.text import has_visible
 
 T = TypeVar("T")
 
 PASSWORD_MIN_LENGTH = 10
 PASSWORD_MAX_LENGTH = 1024
 """Long enough for any passphrase, short enough that hashing one is not a denial of service."""
+PASSWORD_SCORE_MIN = 3
+"""The least zxcvbn score (0 to 4) of a password set here: 3 is "safely unguessable", some
+10^10 guesses. Length alone let in twenty spaces, "aaaaaaaaaa", "1234567890" and the
+account's own e-mail address."""
+SCORED_CHARACTERS = 72
+"""A password is scored on its first this many characters (NFKC-normal), zxcvbn's own limit:
+its time grows fast with length (1024 "a"s took two minutes), and a password whose start
+is strong is no weaker for what follows."""
 
 
 @cache
@@ -67,6 +80,31 @@ def new_password() -> str:
     """A one-time password for a person to type once: 16 URL-safe characters (96 random
     bits), printed or shown once and changed at the next sign-in."""
     return secrets.token_urlsafe(12)
+
+
+def password_weakness(password: str, user_inputs: Sequence[str] = ()) -> str | None:
+    """Why ``password`` may not be set, in a sentence with zxcvbn's own advice; None if it
+    may. ``user_inputs``: the account's e-mail address and name, which a password built
+    from them is too easy to guess from. About 50 ms: callers in the event loop run it in a
+    thread. Only a password being set is judged, never one signing in."""
+    text = unicodedata.normalize("NFKC", password)
+    if not has_visible(text):
+        return "The password has nothing visible in it: not only spaces or invisible characters."
+    words = [w for value in user_inputs for w in re.split(r"[\s@.+_-]+", value.lower()) if w]
+    result = zxcvbn(text[:SCORED_CHARACTERS], user_inputs=[*user_inputs, *words])
+    score = int(result["score"])
+    if score >= PASSWORD_SCORE_MIN:
+        return None
+    feedback = result["feedback"]
+    said = [str(feedback["warning"])] if feedback["warning"] else []
+    if any(m.get("dictionary_name") == "user_inputs" for m in result["sequence"]):
+        said.append("It is made from the account's own e-mail address or name.")
+    said += [str(s) for s in feedback["suggestions"]]
+    advice = " ".join(said) or "Add another word or two. Uncommon words are better."
+    return (
+        f"The password is too easy to guess (strength {score} of 4, at least "
+        f"{PASSWORD_SCORE_MIN} needed). {advice}"
+    )
 
 
 def new_token() -> str:

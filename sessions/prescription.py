@@ -27,7 +27,7 @@ from pydantic.config import JsonDict
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
-from device.commands import CommandError, check_segment_as_received
+from device.commands import CommandError, check_segment_as_received, figures
 from device.geometry import DEFAULT_GEOMETRY
 from device.limits import SafetyLimits, to_float32
 from device.protocol import messages as msg
@@ -75,6 +75,9 @@ TORQUE_LIMIT_MAX = DEVICE_LIMITS.torque_limit
 FORCE_LIMIT_MAX = DEVICE_LIMITS.force_limit
 SEGMENT_S_MAX = 600.0
 """Longest repetition (s): one device segment."""
+SLACK_DEG = 1e-9
+"""Degrees an angle may pass a bound by and still be at it (the sum of two numbers typed at
+the bound, e.g. center + amplitude, can land a rounding step beyond it)."""
 SETS_MAX, REPETITIONS_MAX = 20, 100
 """The most sets, and repetitions per set, a prescription asks (a session's end record
 counts no more: ``sessions.recording.End``)."""
@@ -84,6 +87,18 @@ def plus_zero(value: object) -> object:
     """-0.0 as 0.0 (a number is stored, shown and sent as the therapist means it); anything
     else unchanged."""
     return value + 0.0 if isinstance(value, float) else value
+
+
+def _said(value: float, bound: float) -> tuple[str, str]:
+    """``value`` and ``bound`` as a sentence says them (:func:`number`), or with the figures
+    that keep them apart when rounding would not (``device.commands.figures``): a sine
+    reaching 22.929° is not said to reach 22.9°, outside a range up to 22.9°."""
+    texts = number(value), number(bound)
+    shown = float(texts[0]), float(texts[1])
+    if (shown[0] > shown[1]) == (value > bound) and (shown[0] < shown[1]) == (value < bound):
+        return texts
+    said, top = figures(value, bound, digits=4)
+    return said, top
 
 
 class ExerciseKind(StrEnum):
@@ -249,13 +264,23 @@ class AxisPrescription(BaseModel):
             return self.ramp_rate
         return 0.0
 
+    def target_inside(self) -> bool:
+        """The target waveform stays within :meth:`limits_deg` (as degrees are compared)."""
+        t_lo, t_hi = self.target_span_deg()
+        lo, hi = self.limits_deg()
+        return t_lo >= lo - SLACK_DEG and t_hi <= hi + SLACK_DEG
+
+    def speed_allowed(self) -> bool:
+        """The target moves no faster than the device allows (as degrees are compared)."""
+        return self.peak_speed_deg_s() <= SPEED_MAX_DEG_S + SLACK_DEG
+
     def _in_range(self, field: str, lo: float, hi: float) -> None:
         value = getattr(self, field)
         if value is None:
             return
-        if value < lo - 1e-9:
+        if value < lo - SLACK_DEG:
             raise FieldError((field,), bound_sentence(self._label(field), "ge", lo, "°"))
-        if value > hi + 1e-9:
+        if value > hi + SLACK_DEG:
             raise FieldError((field,), bound_sentence(self._label(field), "le", hi, "°"))
 
     @model_validator(mode="after")
@@ -273,21 +298,20 @@ class AxisPrescription(BaseModel):
         self._in_range("center", lo, hi)
         if self.waveform == "ramp":
             self._in_range("ramp_end", lo, hi)
-        t_lo, t_hi = self.target_span_deg()
-        if t_lo < lo - 1e-9 or t_hi > hi + 1e-9:
+        if not self.target_inside():
+            t_lo, t_hi = self.target_span_deg()
+            (reach_lo, low), (reach_hi, high) = _said(t_lo, lo), _said(t_hi, hi)
             raise FieldError(
                 ("amplitude",),
-                f"The sine on {self.axis} reaches {number(t_lo)} to {number(t_hi)}°, outside "
-                f"the range {number(lo)} to {number(hi)}°: lower the amplitude or move the "
-                "center.",
+                f"The sine on {self.axis} reaches {reach_lo} to {reach_hi}°, outside the "
+                f"range {low} to {high}°: lower the amplitude or move the center.",
             )
-        speed = self.peak_speed_deg_s()
-        if speed > SPEED_MAX_DEG_S:  # a sine's (a ramp's rate has its own bound)
+        if not self.speed_allowed():  # a sine's (a ramp's rate has its own bound)
+            speed, top = _said(self.peak_speed_deg_s(), SPEED_MAX_DEG_S)
             raise FieldError(
                 ("frequency",),
-                f"The target on {self.axis} moves at up to {number(speed)}°/s, faster than the "
-                f"device allows ({number(SPEED_MAX_DEG_S)}°/s): lower the amplitude or the "
-                "frequency.",
+                f"The target on {self.axis} moves at up to {speed}°/s, faster than the device "
+                f"allows ({top}°/s): lower the amplitude or the frequency.",
             )
         if self.waveform == "sine" and self.amplitude > 0 and self.frequency <= 0:
             raise FieldError(
@@ -514,11 +538,17 @@ def device_segment(
         lo, hi = a.limits_deg()
         i = AXIS_INDEX[a.axis]
         low[i], high[i] = math.radians(lo), math.radians(hi)
+        if a.waveform == "sine":
+            top = device.axis_speed_max[i]
+            center, amplitude, frequency = _sine_as_received(a, low[i], high[i], top)
+        else:
+            center, amplitude = math.radians(a.center), math.radians(a.amplitude)
+            frequency = a.frequency
         plans[a.axis] = AxisPlan(
             waveform=_WAVEFORM[a.waveform],
-            center=math.radians(a.center),
-            amplitude=math.radians(a.amplitude),
-            frequency=a.frequency,
+            center=center,
+            amplitude=amplitude,
+            frequency=frequency,
             ramp_end=math.radians(a.ramp_end),
             ramp_rate=math.radians(a.ramp_rate),
             stiffness=stiffness[a.axis],
@@ -535,6 +565,44 @@ def device_segment(
         force_limit=body.force_limit,
         torque_limit=body.torque_limit,
     )
+
+
+SINE_STEPS_MAX = 4
+"""Float32 steps a sine's amplitude or frequency is taken in by at most, past the room the
+rounded numbers leave (:func:`_sine_as_received`): one is ever needed."""
+
+
+def _sine_as_received(
+    a: AxisPrescription, low: float, high: float, speed_max: float
+) -> tuple[float, float, float]:
+    """The centre, amplitude (radians) and frequency of a sine the model accepted in degrees,
+    such that the device accepts them too as it receives them (each a float32 on its own,
+    checked as ``device.commands.check_axis_targets`` does): inside ``low..high`` and no
+    faster than ``speed_max`` (rad/s). Rounded one by one, a sine spanning the range exactly
+    (pitch -20 to 22.918°: centre 1.459°, amplitude 21.459°) reached the device a step beyond
+    both ends (-0.3490659..0.40000002 rad in -0.3490658..0.40000001), and one at the top
+    speed peaked at 2.00000002 rad/s over 2: refused, though every bound the model states
+    held. The centre is kept inside the range, and the amplitude, then the frequency, taken
+    in by the float32 steps that cost (under 1e-5° and 1e-6 Hz). A sine the model refuses is
+    not adjusted."""
+    center, amplitude = math.radians(a.center), math.radians(a.amplitude)
+    if not a.target_inside() or not a.speed_allowed():
+        return center, amplitude, a.frequency
+    lo, hi, top = to_float32(low), to_float32(high), to_float32(speed_max)
+    c = min(max(to_float32(center), lo), hi)
+    amp = np.float32(min(to_float32(amplitude), c - lo, hi - c))
+    for _ in range(SINE_STEPS_MAX):
+        if c - float(amp) >= lo and c + float(amp) <= hi:
+            break
+        amp = np.nextafter(amp, np.float32(0.0))
+    hz = np.float32(a.frequency)
+    if amp > 0:
+        hz = np.float32(min(float(hz), top / (2.0 * math.pi * float(amp))))
+    for _ in range(SINE_STEPS_MAX):
+        if 2.0 * math.pi * float(hz) * float(amp) <= top:
+            break
+        hz = np.nextafter(hz, np.float32(0.0))
+    return c, float(amp), float(hz)
 
 
 class ExerciseTemplate(BaseModel):

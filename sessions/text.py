@@ -136,12 +136,18 @@ def lines(text: str) -> str:
     return _refuse_control(text, _CONTROL_BUT_LINES)
 
 
+def has_visible(text: str) -> bool:
+    """Whether ``text`` draws something: a letter, digit, punctuation or symbol that is not
+    one of those that draw nothing (spaces, format and control characters, lone marks)."""
+    return any(unicodedata.category(ch)[0] in "LNPS" and ch not in _DRAWS_NOTHING for ch in text)
+
+
 def visible_name(text: str) -> str:
     """``text`` if it is a name a list can show: one line, nothing invisible but the
     joiners, something visible, at most :data:`MAX_MARKS` marks on one character."""
     one_line(text)
     _refuse_invisible(text, JOINERS)
-    if not any(unicodedata.category(ch)[0] in "LNPS" and ch not in _DRAWS_NOTHING for ch in text):
+    if not has_visible(text):
         raise PydanticCustomError(NOTHING_VISIBLE, "has nothing visible in it")
     run = 0
     for at, ch in enumerate(text):

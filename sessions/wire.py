@@ -360,6 +360,17 @@ class Command(BaseModel):
     by: str = Field(default="", description="Set by the server: therapist:<id>.")
 
 
+START_NEEDS_PRESCRIPTION = (
+    "start needs a prescription_id: which of the patient's active prescriptions to run"
+)
+"""A Start that names no prescription (the server's refusal, and the station's)."""
+
+
+def not_prescribed(prescription_id: int) -> str:
+    """A Start of a prescription the station's patient has not (active), as refused."""
+    return f"prescription {prescription_id} is not an active prescription of this patient"
+
+
 Applies = Literal["now", "on_resume", "next_repetition"]
 
 

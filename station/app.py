@@ -51,6 +51,9 @@ APPLIES_TEXT: dict[wire.Applies, str] = {
     "next_repetition": "accepted; it applies from the next repetition",
 }
 """The answer to a K/B change, by when the device renders it."""
+STOP_WAIT_S = 8.0
+"""How long a station asked to stop (SIGTERM) waits for the exercise to end as on STOP."""
+NOTHING_HELD = "nothing to resume: no exercise is paused and the platform is not held"
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
 REASON_MAX = 240
@@ -59,9 +62,9 @@ reason is in the spool, beside the session)."""
 
 
 class Station:
-    def __init__(self, config: StationConfig) -> None:
+    def __init__(self, config: StationConfig, spool: Spool | None = None) -> None:
         self.config = config
-        self.spool = Spool(config.spool)
+        self.spool = spool if spool is not None else Spool(config.spool)
         self.dev: DeviceClient | None = None
         self.link = ServerLink(
             config.server, config.token, self._hello, self._on_server, config.batch_hz
@@ -87,6 +90,8 @@ class Station:
         self._repeating = config.autostart and config.repeat_after_s is not None
         self._last_phase: wire.Phase = "idle"
         self._segment_base = max(1, int(time.time()) & 0xFFFF)
+        self._stopping = ""
+        """Why the station is stopping (:meth:`wind_down`); nothing starts from then on."""
 
     # -- running -------------------------------------------------------------------------
     async def run(self) -> None:
@@ -109,6 +114,28 @@ class Station:
             await asyncio.gather(*tasks, return_exceptions=True)
             await self._shutdown()
 
+    async def wind_down(self, why: str) -> None:
+        """Stop as asked by whoever runs the station (SIGTERM, SIGINT), before :meth:`run` is
+        cancelled: a running exercise stops as on STOP (the platform holds and goes home) and
+        its session ends ``stopped`` with ``why``, on disk. Bounded by STOP_WAIT_S, within
+        the time a supervisor gives before it kills (``ankle run``: 10 s); a platform not
+        home by then is held, and the session ends all the same (:meth:`_shutdown`)."""
+        self._stopping = why
+        self._repeats(False)
+        run, session = self.run_, self._session_task
+        if run is None or session is None:
+            return
+        log.info("stopping the exercise: %s", why)
+        run.stop(why)
+        try:
+            async with asyncio.timeout(STOP_WAIT_S):
+                await asyncio.shield(session)
+        except TimeoutError:
+            log.warning("the platform was not home within %g s; holding it", STOP_WAIT_S)
+            if self.dev is not None:
+                with contextlib.suppress(DeviceError):
+                    await self.dev.hold()
+
     async def _shutdown(self) -> None:
         self._repeats(False)
         if self.run_ is not None:
@@ -117,8 +144,21 @@ class Station:
             with contextlib.suppress(DeviceError):
                 await self.dev.hold()  # whatever the telemetry says: see ExerciseRun's abort
             await self.dev.close()
-        if self.writer is not None:
-            self.writer.close()  # left open: recovered and closed as interrupted next start
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            run = self.run_
+            if self._stopping and run is not None:
+                # Stopped as asked, but not yet ended (the platform was still going home).
+                writer.end(
+                    End(
+                        ended_at=time.time(),
+                        reason="stopped",
+                        sets_completed=run.sets_done,
+                        repetitions_completed=run.reps_done,
+                        text=f"{self._stopping}; the platform was held before it was home",
+                    )
+                )
+            writer.close()  # else left open: recovered and closed as interrupted next start
         await self.uploader.aclose()
 
     async def _device_loop(self) -> None:
@@ -222,13 +262,15 @@ class Station:
 
     def start(self, prescription_id: int) -> str:
         """Start a prescription; a reason it cannot start, or ``""``."""
+        if self._stopping:
+            return "the station is stopping"
         if self.run_ is not None:
             return "an exercise is already running"
         if self.dev is None or self.dev.hello is None:
             return "the platform is not connected"
         item = next((p for p in self.prescriptions if p.id == prescription_id), None)
         if item is None:
-            return f"no active prescription {prescription_id} for this patient"
+            return wire.not_prescribed(prescription_id)
         welcome = self.link.welcome
         hello = self.dev.hello
         self.message = ""  # the last session's notice is history now
@@ -391,7 +433,10 @@ class Station:
             )
 
         if cmd.action == "start":
-            why = self.start(cmd.prescription_id or 0)
+            if cmd.prescription_id is None:
+                why = wire.START_NEEDS_PRESCRIPTION
+            else:
+                why = self.start(cmd.prescription_id)
             if not why:
                 self._repeats(True)
             return result(not why, "REFUSED" if why else "", "prescription_id", why)
@@ -426,6 +471,10 @@ class Station:
             elif cmd.action == "resume":
                 if run is not None and run.ending:
                     return result(False, "REFUSED", "action", "the exercise is ending")
+                if dev.mode != DeviceMode.HOLD and (run is None or run.phase != "paused"):
+                    # As a Stop with nothing running is refused: an ACK here said a Resume
+                    # was carried out when nothing was held.
+                    return result(False, "REFUSED", "action", NOTHING_HELD)
                 hold = self._hold()
                 if cmd.by == "patient" and hold is not None and not hold.patient_may_resume:
                     return result(False, "REFUSED", "action", patient_resume_refusal(hold))

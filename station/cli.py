@@ -158,6 +158,14 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
     except SettingsError as exc:
         print(f"error: ankle station: {exc}")
         return 2
+    from station.spool import Spool, SpoolInUse
+
+    spool = Spool(config.spool)
+    try:
+        spool.lock()
+    except SpoolInUse as exc:
+        print(f"error: ankle station: {exc}")
+        return 2
     if page is not None and config.page_port:
         taken = port_taken(config.page_host, config.page_port)
         if taken is not None:
@@ -171,7 +179,7 @@ def run(args: argparse.Namespace, page: PageServer | None = None) -> int:
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per upload chunk is noise
     from station.app import Station
 
-    station = Station(config)
+    station = Station(config, spool)
     served = None
     if page is not None and config.page_port:
         served = (page, config.page_host, config.page_port)
@@ -186,8 +194,18 @@ async def _main(station: Station, page: tuple[PageServer, str, int] | None = Non
         serve, host, port = page
         page_task = asyncio.create_task(serve(station, host, port), name="patient-page")
         page_task.add_done_callback(_page_ended)
+    stopping: list[asyncio.Task[None]] = []
+
+    def stop(sig: signal.Signals) -> None:
+        # The first signal stops the station as STOP stops an exercise: the platform holds
+        # and goes home, the session ends "stopped", saying so, and is on disk. Another one
+        # (a supervisor sends two) does not cut that short; it is bounded (STOP_WAIT_S).
+        if not stopping:
+            why = f"the station was stopped ({sig.name})"
+            stopping.append(asyncio.create_task(_stop(station, task, why), name="stopping"))
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, task.cancel)
+        loop.add_signal_handler(sig, stop, sig)
     try:
         with contextlib.suppress(asyncio.CancelledError):
             await task
@@ -196,6 +214,13 @@ async def _main(station: Station, page: tuple[PageServer, str, int] | None = Non
             page_task.cancel()
             await asyncio.gather(page_task, return_exceptions=True)
     return 0
+
+
+async def _stop(station: Station, task: asyncio.Task[None], why: str) -> None:
+    try:
+        await station.wind_down(why)
+    finally:
+        task.cancel()
 
 
 def _page_ended(task: asyncio.Task[None]) -> None:

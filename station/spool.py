@@ -3,7 +3,8 @@
 Every session is written here first, as it runs (``<session uuid>.rec``), and deleted only
 after the server has confirmed the upload with the same checksum. A file without an end
 record is a session the station did not finish (killed, power lost): at start-up it is cut
-back to its whole records, closed as ``interrupted`` and queued like any other.
+back to its whole records, closed as ``interrupted`` at its last sample and queued like any
+other. One station process uses a spool at a time (:meth:`Spool.lock`).
 
 A session the server refuses for good (not a valid recording, too large: a 4xx that sending
 it again cannot change) is moved to ``refused/`` with the server's reason beside it
@@ -16,18 +17,34 @@ the server's data).
 
 from __future__ import annotations
 
+import fcntl
 import json
+import math
 import os
-import time
 from pathlib import Path
 
 from sessions.private import PRIVATE_FILE, fsync_dir, private_data_dir, write_private
-from sessions.recording import End, RecordingError, RecordingWriter, recover
+from sessions.recording import End, Recording, RecordingError, RecordingWriter, recover
 
 PRESCRIPTIONS_FILE = "prescriptions.json"
+LOCK_FILE = "station.lock"
+"""Held locked (flock) by the station using the spool, with its process id in it."""
 REFUSED_DIR = "refused"
 """Beside the sessions waiting: the ones the server refused for good."""
 REASON_SUFFIX = ".reason.txt"
+
+
+class SpoolInUse(RuntimeError):
+    """Another station process holds the spool (:meth:`Spool.lock`)."""
+
+
+def last_recorded(rec: Recording) -> float:
+    """When a session a crash left open ended, as near as its file tells: its last sample or
+    event (station clock), never before it started. Not the time it is closed, which may be
+    days later (a session with 0.99 s of samples was filed as lasting 31 s)."""
+    walls = [float(rec.samples["wall"][-1])] if len(rec.samples) else []
+    walls += [e.wall for e in rec.events]
+    return max([rec.header.started_at, *(w for w in walls if math.isfinite(w))])
 
 
 class Spool:
@@ -35,6 +52,7 @@ class Spool:
         self.dir = directory
         private_data_dir(self.dir)
         self.refused_dir = self.dir / REFUSED_DIR
+        self._lock_fd = -1
 
     def path(self, session_id: str) -> Path:
         return self.dir / f"{session_id}.rec"
@@ -83,7 +101,7 @@ class Spool:
                 with RecordingWriter(path) as writer:
                     writer.end(
                         End(
-                            ended_at=time.time(),
+                            ended_at=last_recorded(rec),
                             reason="interrupted",
                             sets_completed=sets,
                             repetitions_completed=reps,
@@ -93,6 +111,25 @@ class Spool:
                     )
                 closed.append(rec.header.session_id)
         return closed
+
+    def lock(self) -> None:
+        """Hold the spool for this process's life: a second station on the same spool would
+        take the first's open recording for one a crash left (and close, upload and lose
+        it). Raises :class:`SpoolInUse` if another process holds it."""
+        fd = os.open(self.dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, PRIVATE_FILE)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip()
+            os.close(fd)
+            who = f" (process {holder})" if holder.isdigit() else ""
+            raise SpoolInUse(
+                f"the spool folder {self.dir} is in use by another station{who}; stop it, "
+                "or give this one its own --spool"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._lock_fd = fd  # held, never closed: the lock ends with the process
 
     def save_prescriptions(self, items: list[dict[str, object]]) -> None:
         """Cache the latest prescriptions so the patient can exercise with no network."""

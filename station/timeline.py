@@ -71,6 +71,7 @@ class ExerciseRun:
         self._refused = False
         """The device refused a repetition's segment: the run ended without it."""
         self._homing_note = ""
+        self._stop_why = ""
         self._segment_id = first_segment_id
         self._after_event: int | None = None
         """The device's newest event id when this run first heard from it: events up to it
@@ -107,7 +108,11 @@ class ExerciseRun:
             self._resumed.set()
             self._on_change()
 
-    def stop(self) -> None:
+    def stop(self, why: str = "") -> None:
+        """End the run as STOP does; ``why``: said in its end record (the station stopping),
+        when it ends before it is complete."""
+        if why and not self._stop_why:
+            self._stop_why = why
         self._stop.set()
         self._resumed.set()  # wakes a paused timeline, which then sees the stop
 
@@ -177,12 +182,13 @@ class ExerciseRun:
             self.set = self.rep = 0
             self._on_change()
         said = self.message if reason in ("fault", "interrupted") or self._refused else ""
+        why = self._stop_why if reason != "completed" else ""
         return End(
             ended_at=time.time(),
             reason=reason,
             sets_completed=self.sets_done,
             repetitions_completed=self.reps_done,
-            text="; ".join(t for t in (said, self._homing_note) if t),
+            text="; ".join(t for t in (said, why, self._homing_note) if t),
         )
 
     async def _home(self) -> None:

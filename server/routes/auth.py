@@ -6,6 +6,7 @@ import logging
 from datetime import timedelta
 
 from fastapi import APIRouter, HTTPException, Request, status
+from fastapi.exceptions import RequestValidationError
 from sqlalchemy import delete, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
@@ -21,6 +22,7 @@ from server.security import (
     hash_password,
     needs_rehash,
     new_token,
+    password_weakness,
     token_hash,
     verify_password,
 )
@@ -168,7 +170,9 @@ async def change_password(
     """Any signed-in user, including one who must change a printed or reset password (this
     clears that mark). The current password is checked like a sign-in: a wrong one is a 400
     and counts against the account's and the address's failed sign-ins (then 429). Every
-    other login of the user ends (their live views close, code 4004); this one stays.
+    other login of the user ends (their live views close, code 4004); this one stays. A new
+    password easy to guess (``server.security.password_weakness``) is a 422 on
+    new_password, with zxcvbn's advice.
     Audited as user.password_change (a wrong current password as
     user.password_change_failed); never the password itself."""
     assert credentials is not None  # signed_in_user has refused a request without one
@@ -188,6 +192,10 @@ async def change_password(
         raise _too_many(exc) from None
     except CountsAway as exc:
         raise _uncounted(exc) from None
+    weak = await hashing.run(password_weakness, body.new_password, (user.email, user.name))
+    if weak is not None:  # a 422 on the field, as the body's own checks give (no input echoed)
+        loc = ("body", "new_password")
+        raise RequestValidationError([{"type": "value_error", "loc": loc, "msg": weak}])
     await accounts.change_password(
         db, hashing, user, body.new_password, token_hash(credentials.credentials)
     )

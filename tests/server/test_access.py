@@ -129,7 +129,12 @@ class Call:
     """Run after every other route (it ends the callers' sign-ins)."""
 
 
-NEW_USER = {"email": "n@clinic.test", "name": "N", "role": "therapist", "password": "0123456789"}
+NEW_USER = {
+    "email": "n@clinic.test",
+    "name": "N",
+    "role": "therapist",
+    "password": "quiet lantern ninety",
+}
 
 
 def upload_done(r: Records) -> dict[str, Any]:

@@ -179,7 +179,7 @@ def test_bad_input_is_one_line_exit_2_and_changes_nothing(
     tmp_path: Path, args: list[str], stdin: str | None, needle: str
 ) -> None:
     settings = Settings(data_dir=tmp_path)
-    ensure_user(settings, "taken@clinic.test", "Taken", "therapist", "0123456789")
+    ensure_user(settings, "taken@clinic.test", "Taken", "therapist", "taken but strong passphrase")
     r = admin(tmp_path, *args, stdin=stdin)
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = r.stderr.strip().splitlines()

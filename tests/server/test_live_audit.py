@@ -361,6 +361,43 @@ async def test_commands_the_server_refuses_are_recorded_as_refused_and_never_sen
     ]
 
 
+@pytest.mark.asyncio
+async def test_a_start_of_no_prescription_or_another_patients_is_refused_by_the_server(
+    live: Live, world: World
+) -> None:
+    """A Start of another therapist's patient's prescription went to the station and was
+    audited as asked of this station's patient; one with no prescription_id reached the
+    station as prescription 0. The server refuses both itself: never sent, audited."""
+    async with (
+        station(live, world, ack) as link,
+        viewer(live, world.t1, world.s1_id) as v,
+    ):
+        asked: list[tuple[str, dict[str, Any], str]] = [
+            ("theirs", {"prescription_id": world.rx2}, f"prescription {world.rx2} is not an"),
+            ("nothing", {}, "start needs a prescription_id"),
+        ]
+        for request_id, fields, says in asked:
+            await v.send(request_id, "start", **fields)
+            result = await v.next_of(wire.CommandResult, request_id)
+            assert (result.ok, result.code, result.field) == (
+                False,
+                "REFUSED",
+                "prescription_id",
+            ), result
+            assert says in result.text, result
+        # The patient's own prescription still starts: it is the only command sent.
+        await v.send("mine", "start", prescription_id=world.rx1)
+        assert (await v.next_of(wire.CommandResult, "mine")).ok
+        assert (await link.next_command()).request_id == "mine"
+        assert link.commands.empty(), "a refused Start reached the station"
+    for request_id, fields, says in asked:
+        (row,) = await rows_of(live, world, request_id, 1)
+        assert (row["action"], row["actor"]) == ("start.refused", f"user:{world.t1_id}"), row
+        assert (row["patient_id"], row["new"]["code"]) == (world.p1, "REFUSED"), row
+        assert row["new"]["prescription_id"] == fields.get("prescription_id"), row
+        assert says in row["new"]["text"], row
+
+
 @pytest.mark.sqlite_only
 @pytest.mark.asyncio
 async def test_a_command_that_cannot_be_audited_is_not_sent_but_a_hold_always_is(

@@ -3,17 +3,26 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 from pydantic import ValidationError
 
+from device.commands import check_segment_as_received
+from device.geometry import DEFAULT_GEOMETRY
 from sessions.prescription import (
+    AXIS_INDEX,
+    DEVICE_LIMITS,
     EXERCISE_LIBRARY,
+    SPEED_MAX_DEG_S,
     AxisPrescription,
+    ExerciseKind,
     PrescriptionBody,
     PrescriptionInput,
     allowed_range_deg,
+    device_segment,
 )
+from sessions.sentences import FieldError
 
 
 def axis(**kw: object) -> dict[str, object]:
@@ -97,3 +106,59 @@ def test_minus_zero_is_zero() -> None:
         }
     )
     assert str(body.axes[0].stiffness) == "0.0" and str(body.axes[0].center) == "0.0"
+
+
+def _sine(axis_name: str, center: float, amplitude: float, frequency: float) -> dict[str, object]:
+    body = EXERCISE_LIBRARY[ExerciseKind.FLEXIBILITY].defaults.model_dump(mode="json")
+    body["axes"][0].update(axis=axis_name, center=center, amplitude=amplitude, frequency=frequency)
+    return body
+
+
+@pytest.mark.parametrize("axis_name", ["pitch", "roll", "yaw"])
+def test_a_sine_at_the_edges_of_the_range_or_the_speed_is_what_the_device_accepts(
+    axis_name: str,
+) -> None:
+    """The range is published in degrees and the device checks radians in single precision:
+    a sine the model accepts reaching an end of the range exactly (the whole pitch range,
+    -20 to 22.918°, was refused by the device's check: -0.3490659..0.40000002 rad outside
+    -0.3490658..0.40000001), or moving exactly at the top speed, is accepted by both, and
+    reaches the device no more than a rounding step from what was prescribed."""
+    lo, hi = allowed_range_deg(axis_name)
+    sines = [((lo + hi) / 2, (hi - lo) / 2)]
+    for k in range(1, 40):
+        center = lo + (hi - lo) * k / 40
+        sines.append((center, min(center - lo, hi - center)))
+    for center, amplitude in sines:
+        for frequency in (0.05, SPEED_MAX_DEG_S / (2 * math.pi * amplitude)):
+            body = PrescriptionInput.model_validate(
+                _sine(axis_name, center, amplitude, min(frequency, 7.0))
+            )
+            segment = device_segment(DEVICE_LIMITS, 1, body, {axis_name: 60.0}, {axis_name: 3.0})
+            check_segment_as_received(segment, DEVICE_LIMITS, DEFAULT_GEOMETRY)
+            i = AXIS_INDEX[axis_name]
+            assert math.degrees(segment.center[i]) == pytest.approx(center, abs=1e-5)
+            assert math.degrees(segment.amplitude[i]) == pytest.approx(amplitude, abs=1e-5)
+            assert segment.frequency[i] == pytest.approx(min(frequency, 7.0), abs=1e-6)
+
+
+def _field(error: Any) -> tuple[object, ...]:
+    """The path of the field a refusal is about, as the server reports it."""
+    cause = error.get("ctx", {}).get("error")
+    return (*error["loc"], *(cause.loc if isinstance(cause, FieldError) else ()))
+
+
+def test_a_sine_past_the_range_or_the_speed_is_refused_in_degrees_on_its_field() -> None:
+    lo, hi = allowed_range_deg("pitch")
+    center, amplitude = (lo + hi) / 2, (hi - lo) / 2 + 0.01
+    with pytest.raises(ValidationError) as err:
+        PrescriptionInput.model_validate(_sine("pitch", center, amplitude, 0.05))
+    (error,) = err.value.errors()
+    assert _field(error) == ("axes", 0, "amplitude"), error
+    # Said with the figures that keep the reach outside the range, in degrees.
+    assert "reaches -20.01 to 22.9283°, outside the range -20 to 22.92°" in error["msg"], error
+    frequency = SPEED_MAX_DEG_S / (2 * math.pi * 10.0) * 1.00003
+    with pytest.raises(ValidationError) as err:
+        PrescriptionInput.model_validate(_sine("pitch", 0.0, 10.0, frequency))
+    (error,) = err.value.errors()
+    assert _field(error) == ("axes", 0, "frequency"), error
+    assert "moves at up to 114.595°/s, faster than the device allows (114.59°/s)" in error["msg"]

@@ -29,6 +29,7 @@ from device.hardware import SimulatedHardware
 from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_SINE
 from device.plant.params import PlantConfig
+from device.protocol.messages import DeviceMode
 from device.service import WATCHDOG_MS_MAX, ServiceConfig
 from device.transport import PtyLink
 from sessions import wire
@@ -302,7 +303,7 @@ async def test_malformed_messages_are_answered_and_change_nothing(home: Home) ->
         refusals: list[tuple[dict[str, Any], str]] = [
             ({"type": "pause"}, "nothing to pause"),
             ({"type": "resume"}, "not paused"),
-            ({"type": "start", "prescription_id": 999}, "no active prescription 999"),
+            ({"type": "start", "prescription_id": 999}, "prescription 999 is not an active"),
         ]
         for action, says in refusals:
             result = await ask(ws, {**action, "id": "r1"})
@@ -394,6 +395,29 @@ async def test_the_patient_starts_pauses_resumes_plays_and_stops(home: Home) -> 
     summary = summarize(rec)
     assert summary.game is not None
     assert (summary.game.score, summary.game.gates, summary.game.missed) == (2, 3, 1)
+
+
+@pytest.mark.asyncio
+async def test_a_therapists_command_with_nothing_to_act_on_is_refused_alike(home: Home) -> None:
+    """Resume with nothing held was answered "acknowledged by the device" while Stop with
+    nothing running was refused; a Start with no prescription was refused as "no active
+    prescription 0". Each is refused now, in words, and nothing moves."""
+    deadline = time.monotonic() + 30
+    while home.station.dev is None or home.station.dev.mode is None:
+        assert time.monotonic() < deadline, "the station never reached the device"
+        await asyncio.sleep(0.05)
+    asked: list[tuple[dict[str, Any], str]] = [
+        ({"action": "resume"}, "nothing to resume: no exercise is paused and the platform is"),
+        ({"action": "stop"}, "no exercise is running"),
+        ({"action": "start"}, "start needs a prescription_id"),
+    ]
+    for fields, says in asked:
+        cmd = wire.Command(request_id="r", by="therapist:1", **fields)
+        result = await home.station.command(cmd)
+        assert (result.ok, result.code) == (False, "REFUSED"), result
+        assert result.text.startswith(says), result
+    assert home.station.run_ is None and not list(home.spool.glob("*.rec"))
+    assert home.station.dev is not None and home.station.dev.mode != DeviceMode.ACTIVE
 
 
 @pytest.mark.asyncio

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import stat
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -66,6 +68,72 @@ def test_a_killed_session_is_cut_to_whole_records_and_closed_as_interrupted(
     assert rec.end is not None and rec.end.reason == "interrupted"
     assert rec.end.repetitions_completed == 1
     assert path.stat().st_size > size  # the torn bytes went, the end record came
+
+
+def test_a_killed_session_ends_at_its_last_sample_not_when_it_is_closed(tmp_path: Path) -> None:
+    """A station off for a day after a crash files the session as it was: 0.99 s of
+    samples, not a session lasting until the station came back (nor 31 s, as one was)."""
+    spool = Spool(tmp_path)
+    began = time.time() - 86400.0  # the station stayed off for a day
+    start = header("a").model_copy(update={"started_at": began})
+    writer = RecordingWriter(spool.path("a"), start)
+    for i in range(100):
+        writer.add(row(began + i * 0.01))  # device time and wall time alike
+    writer.event(SessionEvent(wall=began + 0.5, kind="rep_done"))
+    writer.flush()
+    os.close(writer._fd)  # killed: no end record
+    # Killed before a sample came: it ended as it started.
+    RecordingWriter(spool.path("b"), header("b").model_copy(update={"started_at": began})).close()
+    assert sorted(spool.recover_unfinished()) == ["a", "b"]
+    ended = read(spool.path("a")).end
+    assert ended is not None and ended.reason == "interrupted"
+    assert ended.ended_at == began + 99 * 0.01
+    ended = read(spool.path("b")).end
+    assert ended is not None and ended.ended_at == began
+
+
+def test_one_station_at_a_time_holds_the_spool(tmp_path: Path) -> None:
+    """Two stations on one spool: the second took the first's open recording for one a crash
+    left, closed and uploaded it (and the server refused it as cut off). Now a second
+    `ankle station` stops at once, in one line, and leaves the spool alone."""
+    spool = Spool(tmp_path / "spool")
+    spool.lock()
+    open_now = spool.path("running")
+    writer = RecordingWriter(open_now, header("running"))
+    writer.add(row(time.time()))
+    writer.flush()
+    before = open_now.read_bytes()
+    try:
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ankle",
+                "station",
+                "--device",
+                "socket://127.0.0.1:9",
+                "--server",
+                "http://127.0.0.1:9",
+                "--token",
+                "t",
+                "--spool",
+                str(spool.dir),
+                "--page-port",
+                "0",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])},
+        )
+    finally:
+        writer.close()
+    assert done.returncode == 2, done
+    assert done.stdout.splitlines() == [
+        f"error: ankle station: the spool folder {spool.dir} is in use by another station "
+        f"(process {os.getpid()}); stop it, or give this one its own --spool"
+    ], done
+    assert open_now.read_bytes() == before  # not closed as interrupted, not uploaded
 
 
 def test_finished_sessions_are_left_alone_and_headerless_files_removed(tmp_path: Path) -> None:

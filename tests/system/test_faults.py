@@ -18,6 +18,7 @@ from websockets.asyncio.client import ClientConnection
 from websockets.asyncio.server import ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 
+from device.protocol.messages import DeviceMode
 from sessions import wire
 from sessions.recording import decode
 from station import server_link
@@ -110,6 +111,56 @@ async def test_station_killed_mid_repetition_loses_nothing_and_leaves_the_device
         assert time.monotonic() < deadline, "the spool file outlived its confirmed upload"
         await asyncio.sleep(0.1)
     assert list(system.spool.glob("*.rec")) == []
+
+
+@pytest.mark.sqlite_only
+@pytest.mark.asyncio
+async def test_station_stopped_by_sigterm_stops_the_exercise_and_ends_its_session(
+    system: System, therapist: httpx.AsyncClient
+) -> None:
+    """SIGTERM (a service manager, `ankle run` stopping) used to end the station with the
+    session open: filed at the next start as killed, crashed or lost power, with the restart
+    as its end. Now the exercise stops as on STOP (the platform holds, goes home) and the
+    session ends "stopped", saying why, before the station exits."""
+    pid, ws, status = await start_exercise(system, therapist, prescription(3))
+    sid = status.session_id
+    assert sid is not None and system.station is not None
+    spool_file = system.spool / f"{sid}.rec"
+    try:
+        await active(ws, 30)
+        await asyncio.sleep(1.0)  # well into the repetition
+        asked_at = time.time()
+        system.station.send_signal(signal.SIGTERM)
+        assert await asyncio.to_thread(system.station.wait, 30) == 0
+        await presence(ws, online=False, timeout=15)
+    finally:
+        await ws.close()
+    log = system.logs[-1].read_text()
+    assert "Traceback" not in log, log[-3000:]
+
+    rec = decode(spool_file.read_bytes())
+    assert rec.end is not None and rec.end.reason == "stopped", rec.end
+    assert rec.end.text.startswith("the station was stopped (SIGTERM)"), rec.end
+    assert rec.end.repetitions_completed < 3
+    wall = rec.samples["wall"]
+    assert asked_at <= rec.end.ended_at <= float(wall[-1]) + 1.0, (rec.end, float(wall[-1]))
+    # Held at once, not run out, then sent home; recorded to its end.
+    went = [(e.detail["from"], e.detail["to"]) for e in rec.events if e.by == "device"]
+    went = went[went.index(("ACTIVE", "HOLD")) :]
+    assert went[:2] == [("ACTIVE", "HOLD"), ("HOLD", "HOMING")], went
+    last = DeviceMode(int(rec.samples["mode"][-1]))
+    assert last in (DeviceMode.HOMING, DeviceMode.READY), last
+
+    # Started again, the station sends it as it ended, and the device is where it was left.
+    system.start_station()
+    (session,) = await uploaded(therapist, pid, timeout=60)
+    assert (session["session_uuid"], session["end_reason"]) == (sid, "stopped")
+    ws = await live(system, bearer(therapist))
+    try:
+        state = await status_until(ws, lambda s: s.device_link == "connected", 30)
+        assert state.device_mode in SAFE_MODES and state.session_id is None, state
+    finally:
+        await ws.close()
 
 
 @pytest.mark.asyncio
