@@ -139,8 +139,8 @@ async def ensure_user_async(
 ) -> bool:
     """Create the account unless one with this email exists (then nothing changes).
     True if it was created. The password is the owner's own: no change is asked of them.
-    Raises pydantic's ValidationError for a malformed email or a password shorter than 10
-    characters."""
+    Raises pydantic's ValidationError for a malformed email or a password ``UserCreate``
+    refuses (too short, or too easy to guess: ``server.security.password_weakness``)."""
     async with _database(settings) as sessionmaker, sessionmaker() as db:
         _, created = await _ensure_user(db, email, name, role, password)
         await db.commit()
