@@ -16,10 +16,14 @@ from tests.server.live_server import bearer, login, running
 
 def test_ensure_user_creates_once(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path)
-    assert ensure_user(settings, "Boss@Clinic.test", "Boss", "admin", "0123456789") is True
-    assert ensure_user(settings, "boss@clinic.test", "Other", "therapist", "9876543210") is False
+    assert ensure_user(settings, "Boss@Clinic.test", "Boss", "admin", "violet tractor hum") is True
+    assert (
+        ensure_user(settings, "boss@clinic.test", "Other", "therapist", "amber cloud tide") is False
+    )
     with pytest.raises(ValidationError, match="password"):
         ensure_user(settings, "short@clinic.test", "S", "admin", "123")
+    with pytest.raises(ValidationError, match="too easy to guess"):
+        ensure_user(settings, "weak@clinic.test", "W", "admin", "0123456789")
 
 
 def test_provision_demo_is_idempotent_and_private(tmp_path: Path) -> None:
