@@ -90,7 +90,8 @@ class SafetyLimits:
     first figure. The builds that set it: a resisting foot on light, long-tubed builds (15,
     18, 19) rings at 6-11 Hz in roll below it, 0.4-1.1 deg. Below it the loop oscillates
     with a foot, or a push on an empty plate asks the legs for more than their speed limit.
-    Translations are not measured (no exercise renders them)."""
+    Translations are not measured (no exercise renders them): the device refuses a compliant
+    translation (``device.commands.COMPLIANT_AXES``), so their zeros are never used."""
 
     def damping_min_at(self, axis: int, stiffness: float) -> float:
         """The least damping the device renders stably on ``axis`` at ``stiffness``."""
