@@ -44,9 +44,10 @@ STALL_S = 0.1
 of this host, or less where the watchdog is short (:attr:`DeviceClient.stall_threshold`):
 half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
 STALL_SHARE = 0.5
-"""...at most this share of the device's watchdog. The device hears nothing for a heartbeat
-period plus the stall, and holds past the watchdog: a stall over half of it is counted
-before it can hold (a 75 ms stall held a 100 ms watchdog, under a fixed 100 ms uncounted)."""
+"""A stall is also anything over this share of the device's watchdog, where that is less.
+The device hears nothing for a heartbeat period plus the stall, and holds past the
+watchdog: a stall over half of it is counted before it can hold (a 75 ms stall held a
+100 ms watchdog, under a fixed 100 ms uncounted)."""
 log = logging.getLogger("ankle.host")
 T = TypeVar("T")
 HEARTBEATS_PER_WATCHDOG = 4
@@ -96,8 +97,8 @@ class ClientStats:
     """Command to ACK/NACK round trips (the last 10000)."""
     stalls: int = 0
     """Heartbeats that left more than :attr:`DeviceClient.stall_threshold` late: this host
-    stood still (its event
-    loop blocked, or the process got no core) and the device heard nothing meanwhile."""
+    stood still (its event loop blocked, or the process got no core) and the device heard
+    nothing meanwhile."""
     stall_ms_max: float = 0.0
     """The longest such stall (ms)."""
     last_stall: tuple[float, float] | None = None

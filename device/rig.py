@@ -155,9 +155,7 @@ class Rig:
             raise CommandError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")
         six = [targets.get(axis, AxisTarget()) for axis in AXES]
         lim = self.limits
-        commands.check_axis_targets(six, lim.rom_low, lim.rom_high, lim)
-        commands.check_reachable(six, self.geometry, lim)
-        commands.check_leg_speed(six, self.geometry, lim)
+        commands.check_targets(six, lim.rom_low, lim.rom_high, lim, self.geometry)
         self._check_not_tripped()
         self.apply_track(six)
 
