@@ -41,7 +41,13 @@ CLOSE_TIMEOUT = 2.0
 """Seconds :meth:`DeviceClient.close` waits for the port to flush before it drops it."""
 STALL_S = 0.1
 """A heartbeat's wait (its period's sleep, or its ACK's) this much past its bound is a stall
-of this host: half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
+of this host, or less where the watchdog is short (:attr:`DeviceClient.stall_threshold`):
+half the device's default watchdog (``ankle device --watchdog-ms``, 200 ms)."""
+STALL_SHARE = 0.5
+"""A stall is also anything over this share of the device's watchdog, where that is less.
+The device hears nothing for a heartbeat period plus the stall, and holds past the
+watchdog: a stall over half of it is counted before it can hold (a 75 ms stall held a
+100 ms watchdog, under a fixed 100 ms uncounted)."""
 log = logging.getLogger("ankle.host")
 T = TypeVar("T")
 HEARTBEATS_PER_WATCHDOG = 4
@@ -90,8 +96,9 @@ class ClientStats:
     rtt_ms: list[float] = field(default_factory=list)
     """Command to ACK/NACK round trips (the last 10000)."""
     stalls: int = 0
-    """Heartbeats that left more than :data:`STALL_S` late: this host stood still (its event
-    loop blocked, or the process got no core) and the device heard nothing meanwhile."""
+    """Heartbeats that left more than :attr:`DeviceClient.stall_threshold` late: this host
+    stood still (its event loop blocked, or the process got no core) and the device heard
+    nothing meanwhile."""
     stall_ms_max: float = 0.0
     """The longest such stall (ms)."""
     last_stall: tuple[float, float] | None = None
@@ -315,6 +322,15 @@ class DeviceClient:
             return self.heartbeat_period
         return min(self.heartbeat_period, self.watchdog_ms / 1e3 / HEARTBEATS_PER_WATCHDOG)
 
+    @property
+    def stall_threshold(self) -> float:
+        """Seconds a heartbeat's wait may end past its bound before it counts as a stall:
+        :data:`STALL_S`, or :data:`STALL_SHARE` of the device's watchdog if that is less, so
+        that every hold this host's standing still causes shows in :attr:`stats`."""
+        if self.watchdog_ms is None:
+            return STALL_S
+        return min(STALL_S, STALL_SHARE * self.watchdog_ms / 1e3)
+
     async def arm_home(self) -> msg.Ack:
         return await self.command(msg.ArmHome())
 
@@ -408,10 +424,10 @@ class DeviceClient:
             self._check_stall(time.perf_counter() - start - period)
 
     def _check_stall(self, late: float) -> None:
-        """A heartbeat's wait ended ``late`` s past its bound: over :data:`STALL_S`, this host
-        stood still; count it and say so, so that a hold by the device's watchdog can be
-        told from a broken cable."""
-        if late <= STALL_S:
+        """A heartbeat's wait ended ``late`` s past its bound: over :attr:`stall_threshold`,
+        this host stood still; count it and say so, so that a hold by the device's watchdog
+        can be told from a broken cable."""
+        if late <= self.stall_threshold:
             return
         ms = late * 1e3
         self.stats.stalls += 1

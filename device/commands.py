@@ -24,7 +24,7 @@ from typing import Protocol, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from device.axes import AXES
+from device.axes import AXES, unit
 from device.limits import LEG_HEADROOM, SafetyLimits, implausible_legs, to_float32
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, NackCode
@@ -33,10 +33,40 @@ from device.waveforms import SINE_HZ_MAX, AxisTarget, Waveform
 
 SEGMENT_DURATION_MAX = 3600.0
 """Longest segment (s)."""
+FORCE_LIMIT_MIN = 60.0
+"""Least force limit a segment may set (N). A foot at rest puts the shank's weight on the
+plate: a 5 s hold-only segment read up to 44.4 N on the force sensor with a relaxed or a
+resisting foot (three seeds each; 1.8 N of sensor noise with no foot), so 1, 5 and 20 N
+tripped WRENCH_LIMIT with nothing moving. 60 N is 1.35 times the most a foot at rest gave."""
+TORQUE_LIMIT_MIN = 2.0
+"""Least torque limit a segment may set (N m). The same holds read up to 0.8 N m about any
+axis with a relaxed or a resisting foot (0.06 N m of noise with none): 0.1 N m tripped a
+motionless segment. 2 N m is 2.5 times that (a moving exercise puts more on the plate, 3.2 N m
+for a relaxed foot at 0.2 rad and 0.5 Hz in pitch, which its own limit is there to stop)."""
 WATCHDOG_MS_MIN, WATCHDOG_MS_MAX = 100, 2000
 """The watchdogs the device accepts (published in HELLO). The least leaves a host room for
-several heartbeats (the client sends four per watchdog, 25 ms apart at the least) and for a
-short stall it counts (``device.client.STALL_S``, 100 ms) before the device holds."""
+several heartbeats (the client sends four per watchdog, 25 ms apart at the least), and the
+client counts any stall of more than half the watchdog (``device.client.stall_threshold``),
+so every hold a host's own standing still causes shows in its stall count."""
+COMPLIANT_AXES = (False, False, False, True, True, True)
+"""The axes that may be compliant: the device renders impedance about the ankle's rotations
+only. The translations' stable damping was never measured (no exercise renders them; the
+prescriptions are rotations only): a compliant z at K 500 N/m, B 50 N s/m tripped LEG_SPEED
+or FOLLOWING, and at K 0, B 1 FOLLOWING within 0.3 s. So none is offered."""
+LEG_SPEED_SHARE = 0.64
+"""Share of the leg speed limit a segment's targets may plan for a leg
+(:func:`check_planned_leg_speed`); the rest is room for the sine's fade-in and tracking
+error. Measured on the rig (relaxed, resisting and no foot, sines of one to six axes at 1-10
+Hz, ramps end to end): the legs peaked at up to 1.52 times the planned bound, the most at 1
+Hz, where a sine's raised-cosine fade-in makes its command up to 1.6 times its steady peak
+speed. At 0.64 (0.256 m/s) the fastest of those scaled to the bound peaked at 0.388 m/s,
+under the 0.40 m/s trip; the largest single-axis plan at the axis speed limit (pitch end to
+end at 2 rad/s, 0.253 m/s; it peaks at 0.32 m/s) fits. Searched further (about 700 accepted
+segments at the bound: grids of one to six axes, random and hill-climbed, the nominal unit
+and drawn builds 15, 18, 19 and 50 with each foot): no trip, the fastest leg 0.970 of the
+trip (build 19, no foot, roll and yaw in phase at 1 Hz). The margin is the fade-in's: a fade
+that never commands more than a sine's steady speed (over whole periods at low frequencies)
+would leave room for a larger share."""
 
 
 class CommandError(ValueError):
@@ -190,11 +220,13 @@ def check(command: msg.Message, ctx: Context) -> Checked:
             check_homing_start(ctx.legs, ctx.geometry, ctx.limits)
         return command
     if isinstance(command, msg.StartSegment):
+        if ctx.mode == DeviceMode.IDLE:
+            raise CommandError("home the platform first (ArmHome)", code=NackCode.NOT_HOMED)
         require_mode(ctx.mode, (DeviceMode.READY, DeviceMode.ACTIVE))
         return check_segment(command, ctx.limits, ctx.geometry)
     if isinstance(command, msg.SetImpedance):
         require_mode(ctx.mode, (DeviceMode.ACTIVE, DeviceMode.HOLD), "no segment is loaded")
-        compliant = ctx.compliant if ctx.compliant is not None else (True,) * 6
+        compliant = ctx.compliant if ctx.compliant is not None else COMPLIANT_AXES
         check_impedance(command.stiffness, command.damping, compliant, ctx.limits)
         return CheckedImpedance(command.stiffness, command.damping, compliant)
     if isinstance(command, msg.Resume):
@@ -317,10 +349,19 @@ def check_impedance(
     compliant: Sequence[bool],
     limits: SafetyLimits,
 ) -> None:
-    """K and B per axis within the device's maxima; a compliant axis needs one of them."""
+    """K and B per axis within the device's maxima; only a rotation may be compliant
+    (:data:`COMPLIANT_AXES`), and a compliant axis needs K or B, and B at least the least
+    damping of its K's band."""
     K = _finite("stiffness", stiffness)
     B = _finite("damping", damping)
     for k, axis in enumerate(AXES):
+        if compliant[k] and not COMPLIANT_AXES[k]:
+            raise CommandError(
+                f"{axis} cannot be compliant: the device renders impedance about the ankle's "
+                "rotations only",
+                "compliant",
+                axis=k,
+            )
         if not 0.0 <= K[k] <= limits.stiffness_max[k]:
             v, lo, hi = figures(K[k], 0.0, limits.stiffness_max[k])
             raise CommandError(
@@ -341,12 +382,16 @@ def check_impedance(
                 "stiffness",
                 axis=k,
             )
-        least = limits.damping_min_at(k, float(K[k]))
-        if compliant[k] and to_float32(B[k]) < least:  # as the wire carries it
+        stiff = to_float32(K[k])  # the band and the damping as the wire carries them
+        least = limits.damping_min_at(k, stiff)
+        if compliant[k] and to_float32(B[k]) < least:
             v, low = figures(to_float32(B[k]), least)
+            # K with the digits that put it on its side of the band edges (49.999996 is
+            # below the 50 that needs less damping).
+            at = figures(stiff, *limits.envelope_stiffness)[0]
             raise CommandError(
-                f"{axis} damping {v} is below {low}, the least the device renders "
-                f"stably at stiffness {K[k]:g}",
+                f"{axis} damping {v} is below {low}, the least that renders stably at "
+                f"stiffness {at}",
                 "damping",
                 axis=k,
             )
@@ -387,41 +432,109 @@ def check_axis_targets(
         speed = t.peak_speed()
         if speed > limits.axis_speed_max[k]:
             v, top = figures(speed, limits.axis_speed_max[k], digits=3)
+            per = f"{unit(axis)}/s"
             raise CommandError(
-                f"{axis} waveform peaks at {v}/s, above {top}/s",
+                f"{axis} waveform peaks at {v} {per}, above {top} {per}",
                 "frequency" if t.kind == Waveform.SINE else "ramp_rate",
                 axis=k,
             )
 
 
-def check_reachable(
-    targets: Sequence[AxisTarget], geometry: Geometry, limits: SafetyLimits
-) -> None:
-    """Every pose the targets can combine (and home, where each segment starts from) keeps
-    every piston ``LEG_HEADROOM`` inside its stroke-end band.
-
-    Single axes fit in the stroke over their whole range, but extremes of several axes at
-    once may not (full roll and full pitch together need about 109 mm of a 100 mm stroke):
-    such a target is refused here rather than tripping STROKE_END when it is reached. The
-    box of the targets' extents is checked at its corners and edge midpoints.
-    """
+def sample_poses(targets: Sequence[AxisTarget]) -> NDArray[np.float64]:
+    """(n, 6) poses relative to home that stand for every pose the targets can combine (and
+    home, where each segment starts from): the corners and edge midpoints of the box of the
+    targets' extents."""
     axes = []
     for t in targets:
         lo, hi = t.extent()
         lo, hi = min(lo, 0.0), max(hi, 0.0)
         axes.append(sorted({lo, 0.5 * (lo + hi), hi}))
-    poses = np.array(list(itertools.product(*axes)), dtype=np.float64)
-    x = piston_displacements(poses + geometry.home_pose, geometry)
-    lo, hi = usable_stroke(geometry, limits)
+    return np.array(list(itertools.product(*axes)), dtype=np.float64)
+
+
+def check_reachable(
+    targets: Sequence[AxisTarget], geometry: Geometry, limits: SafetyLimits
+) -> None:
+    """Every pose the targets can combine keeps every piston ``LEG_HEADROOM`` inside its
+    stroke-end band (checked at :func:`sample_poses`).
+
+    Single axes fit in the stroke over their whole range, but extremes of several axes at
+    once may not (full roll and full pitch together need about 109 mm of a 100 mm stroke):
+    such a target is refused here rather than tripping STROKE_END when it is reached.
+    """
+    x = piston_displacements(sample_poses(targets) + geometry.home_pose, geometry) * 1e3
+    lo, hi = (v * 1e3 for v in usable_stroke(geometry, limits))
     worst_low, worst_high = x.min(axis=0), x.max(axis=0)
     for leg in range(6):
         if worst_low[leg] < lo or worst_high[leg] > hi:
+            # Each end with the digits that put it on its side of its bound: never "50.0..
+            # 95.0 mm, beyond 5..95 mm" for 95.00001.
+            low_text, low = figures(worst_low[leg], lo, digits=3)
+            high_text, high = figures(worst_high[leg], hi, digits=3)
             raise CommandError(
-                f"these targets together need leg {leg + 1} at "
-                f"{worst_low[leg] * 1e3:.1f}..{worst_high[leg] * 1e3:.1f} mm, beyond its "
-                f"usable {lo * 1e3:.0f}..{hi * 1e3:.0f} mm",
+                f"these targets together need leg {leg + 1} at {low_text}..{high_text} mm, "
+                f"beyond its usable {low}..{high} mm",
                 "center",
             )
+
+
+def planned_leg_speeds(targets: Sequence[AxisTarget], geometry: Geometry) -> NDArray[np.float64]:
+    """A bound on each leg's speed (m/s) the targets plan: the most, over
+    :func:`sample_poses`, of the sum over the axes of ``|d x_leg / d q_k|`` times the axis's
+    peak speed. Each axis at its own peak and every sign against the leg: a sine's phase
+    cannot make the legs faster than that."""
+    peaks = np.array([t.peak_speed() for t in targets], dtype=np.float64)
+    poses = sample_poses(targets) + geometry.home_pose
+    moving = np.flatnonzero(peaks)
+    bound = np.zeros(6)
+    if moving.size == 0:
+        return bound
+    step = 1e-6  # central differences of the inverse kinematics (m, rad)
+    for k in moving:
+        d = np.zeros(6)
+        d[k] = step
+        ahead = piston_displacements(poses + d, geometry)
+        behind = piston_displacements(poses - d, geometry)
+        bound = bound + np.abs(ahead - behind) / (2.0 * step) * peaks[k]
+    result: NDArray[np.float64] = bound.max(axis=0)
+    return result
+
+
+def check_planned_leg_speed(
+    targets: Sequence[AxisTarget], geometry: Geometry, limits: SafetyLimits
+) -> None:
+    """No leg plans faster than :data:`LEG_SPEED_SHARE` of the leg speed limit.
+
+    Each axis alone within its speed limit is not enough: roll, pitch and yaw sines at 2 Hz,
+    each just within its 2 rad/s, plan 0.43 m/s for leg 6 together and trip LEG_SPEED.
+    """
+    planned = planned_leg_speeds(targets, geometry)
+    bound = LEG_SPEED_SHARE * limits.leg_speed_limit
+    leg = int(np.argmax(planned))
+    if planned[leg] > bound:
+        v, top = figures(float(planned[leg]), bound, digits=3)
+        raise CommandError(
+            f"these targets together move leg {leg + 1} at up to {v} m/s, above the {top} m/s "
+            "they may plan",
+            "waveform",
+        )
+
+
+def check_targets(
+    targets: Sequence[AxisTarget],
+    rom_low: Sequence[float],
+    rom_high: Sequence[float],
+    limits: SafetyLimits,
+    geometry: Geometry,
+    where: str = "the range of motion",
+) -> None:
+    """Every check of six axis targets, in one place for a segment and for the rig: each
+    axis within ``rom_low..rom_high`` and its speed (:func:`check_axis_targets`), the legs'
+    stroke for every pose they combine (:func:`check_reachable`) and the legs' combined
+    speed (:func:`check_planned_leg_speed`)."""
+    check_axis_targets(targets, rom_low, rom_high, limits, where)
+    check_reachable(targets, geometry, limits)
+    check_planned_leg_speed(targets, geometry, limits)
 
 
 def usable_stroke(geometry: Geometry, limits: SafetyLimits) -> tuple[float, float]:
@@ -474,28 +587,37 @@ def check_segment(c: msg.StartSegment, limits: SafetyLimits, geometry: Geometry)
     if not 0.0 < c.duration <= SEGMENT_DURATION_MAX:
         got, low, high = figures(c.duration, 0.0, SEGMENT_DURATION_MAX)
         raise CommandError(f"duration {got} s outside ({low}, {high}]", "duration")
-    if not 0.0 < c.force_limit <= limits.force_limit:
-        got, low, high = figures(c.force_limit, 0.0, limits.force_limit)
-        raise CommandError(f"force_limit {got} N outside ({low}, {high}]", "force_limit")
-    if not 0.0 < c.torque_limit <= limits.torque_limit:
-        got, low, high = figures(c.torque_limit, 0.0, limits.torque_limit)
-        raise CommandError(
-            f"torque_limit {got} N m outside ({low}, {high}]",
-            "torque_limit",
-        )
+    for name, value, least, top, per in (
+        ("force_limit", c.force_limit, FORCE_LIMIT_MIN, limits.force_limit, "N"),
+        ("torque_limit", c.torque_limit, TORQUE_LIMIT_MIN, limits.torque_limit, "N m"),
+    ):
+        if value < least:
+            got, low = figures(value, least)
+            raise CommandError(
+                f"{name} {got} {per} is below {low} {per}: a foot at rest would trip it", name
+            )
+        if value > top:
+            got, low, high = figures(value, least, top)
+            raise CommandError(f"{name} {got} {per} outside [{low}, {high}]", name)
     for k, axis in enumerate(AXES):
         lo, hi = c.rom_low[k], c.rom_high[k]
         if not limits.rom_low[k] <= lo <= hi <= limits.rom_high[k]:
             lo_text, low = figures(lo, limits.rom_low[k], digits=4)
             hi_text, high = figures(hi, limits.rom_high[k], digits=4)
-            raise CommandError(
-                f"{axis} range {lo_text}..{hi_text} is not within the device's {low}..{high}",
-                "rom_low" if lo < limits.rom_low[k] or lo > hi else "rom_high",
-                axis=k,
-            )
+            text = f"{axis} range {lo_text}..{hi_text} is not within the device's {low}..{high}"
+            # The field that is wrong: the end outside the device's range, or, with both
+            # inside, the low end above the high one.
+            if lo < limits.rom_low[k] or lo > limits.rom_high[k]:
+                field = "rom_low"
+            elif hi < limits.rom_low[k] or hi > limits.rom_high[k]:
+                field = "rom_high"
+            else:
+                field = "rom_low"
+                lo_text, hi_text = figures(lo, hi)
+                text = f"{axis} range low end {lo_text} is above its high end {hi_text}"
+            raise CommandError(text, field, axis=k)
     targets = tuple(segment_targets(c))
-    check_axis_targets(targets, c.rom_low, c.rom_high, limits, "the segment's range")
-    check_reachable(targets, geometry, limits)
+    check_targets(targets, c.rom_low, c.rom_high, limits, geometry, "the segment's range")
     check_impedance(c.stiffness, c.damping, c.compliant, limits)
     return CheckedSegment(
         segment_id=c.segment_id,

@@ -67,7 +67,11 @@ class SafetyLimits:
 
     axis_speed_max: tuple[float, ...] = (0.10, 0.10, 0.10, 2.0, 2.0, 2.0)
     """Fastest target waveform a command may ask for per axis (m/s, rad/s): a 7 Hz, 2 deg
-    pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion."""
+    pitch sine peaks at 1.5 rad/s. Checked on commands; the leg speed limit trips motion.
+    The sine's 0.1 s fade-in (``device.controller.waveform``) commands more than this for a
+    moment below about 2 Hz: up to 1.62 times a sine's steady peak speed (3.23 against
+    2.00 rad/s in pitch at 0.8 Hz), which the legs' combined check leaves room for
+    (``device.commands.LEG_SPEED_SHARE``)."""
 
     envelope_stiffness: tuple[float, ...] = (0.0, 5.0, 50.0)
     """The stable stiffness-damping envelope, in three bands of K: the lower edge of each
@@ -90,7 +94,8 @@ class SafetyLimits:
     first figure. The builds that set it: a resisting foot on light, long-tubed builds (15,
     18, 19) rings at 6-11 Hz in roll below it, 0.4-1.1 deg. Below it the loop oscillates
     with a foot, or a push on an empty plate asks the legs for more than their speed limit.
-    Translations are not measured (no exercise renders them)."""
+    Translations are not measured (no exercise renders them): the device refuses a compliant
+    translation (``device.commands.COMPLIANT_AXES``), so their zeros are never used."""
 
     def damping_min_at(self, axis: int, stiffness: float) -> float:
         """The least damping the device renders stably on ``axis`` at ``stiffness``."""

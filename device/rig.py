@@ -155,8 +155,7 @@ class Rig:
             raise CommandError(f"unknown axis {sorted(unknown)}; axes are {', '.join(AXES)}")
         six = [targets.get(axis, AxisTarget()) for axis in AXES]
         lim = self.limits
-        commands.check_axis_targets(six, lim.rom_low, lim.rom_high, lim)
-        commands.check_reachable(six, self.geometry, lim)
+        commands.check_targets(six, lim.rom_low, lim.rom_high, lim, self.geometry)
         self._check_not_tripped()
         self.apply_track(six)
 
@@ -166,8 +165,10 @@ class Rig:
         damping: Vector,
         compliant: Sequence[bool] | None = None,
     ) -> None:
-        """K and B per axis (N/m, N m/rad; N s/m, N m s/rad); slewed by the device."""
-        on = (True,) * 6 if compliant is None else tuple(bool(c) for c in compliant)
+        """K and B per axis (N/m, N m/rad; N s/m, N m s/rad); slewed by the device. The
+        compliant axes are the rotations unless named (only those may be:
+        :data:`device.commands.COMPLIANT_AXES`)."""
+        on = commands.COMPLIANT_AXES if compliant is None else tuple(bool(c) for c in compliant)
         commands.check_impedance(stiffness, damping, on, self.limits)
         self.apply_impedance(stiffness, damping, on)
 

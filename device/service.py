@@ -289,7 +289,7 @@ class DeviceService:
         try:
             command = msg.decode(Frame(mtype, seq, body), "host")
         except msg.MessageError as exc:
-            self._reply(seq, mtype, CommandError(str(exc), code=exc.code))
+            self._reply(seq, mtype, CommandError(str(exc), exc.field, exc.code, exc.axis))
             return
         if isinstance(command, msg.Hello):
             if command.nonce != self._nonce:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 from typing import Any, ClassVar, Literal, dataclass_transform
 
+from device.axes import AXES
 from device.protocol.framing import HANDSHAKE_TYPE, MAX_BODY, Frame, encode_frame
 from device.trips import Trip
 from device.waveforms import Waveform
@@ -163,11 +164,14 @@ def wire(
 
 
 class MessageError(ValueError):
-    """A body that does not decode into its message; ``code`` is the NACK code to answer."""
+    """A body that does not decode into its message; ``code`` is the NACK code to answer,
+    ``field`` the field at fault and ``axis`` its axis (index into ``AXES``), where known."""
 
-    def __init__(self, code: NackCode, text: str) -> None:
+    def __init__(self, code: NackCode, text: str, field: str = "", axis: int | None = None) -> None:
         super().__init__(text)
         self.code = code
+        self.field = field
+        self.axis = axis
 
 
 @dataclass(frozen=True)
@@ -206,6 +210,9 @@ class Message:
     SENDER: ClassVar[Sender]
     _fields: ClassVar[tuple[_FieldSpec, ...]]
     _struct: ClassVar[struct.Struct]
+    _bytes: ClassVar[struct.Struct]
+    """The same layout with each bool as its byte: a bool field's byte is checked to be 0
+    or 1 (``struct`` reads any other byte as true)."""
 
     def __init_subclass__(cls, type_: int, sender: Sender, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -220,6 +227,7 @@ class Message:
         cls.SENDER = sender
         cls._fields = tuple(specs)
         cls._struct = struct.Struct(fmt)
+        cls._bytes = struct.Struct(fmt.replace("?", "B"))
         if cls._struct.size > MAX_BODY:
             raise TypeError(f"{cls.__name__} is {cls._struct.size} bytes, above {MAX_BODY}")
         registry = HOST_MESSAGES if sender == "host" else DEVICE_MESSAGES
@@ -475,14 +483,42 @@ def pack(msg: Message) -> bytes:
     return msg._struct.pack(*_flatten(msg))
 
 
-def _enum(spec: _FieldSpec, value: int) -> Any:
+def _where(spec: _FieldSpec, index: int | None) -> tuple[str, int | None]:
+    """How a refusal names one value of a field: the field, and its axis where the field
+    holds one value per axis."""
+    if index is not None and spec.count == len(AXES):
+        return f"{spec.name} of {AXES[index]}", index
+    return spec.name, None
+
+
+def _enum(spec: _FieldSpec, value: int, index: int | None = None) -> Any:
     assert spec.enum is not None
     try:
         return spec.enum(value)
     except ValueError:
+        name, axis = _where(spec, index)
         raise MessageError(
-            NackCode.MALFORMED, f"{spec.name}: {value} is not a known {spec.enum.__name__}"
+            NackCode.MALFORMED,
+            f"{name}: {value} is not a known {spec.enum.__name__}",
+            spec.name,
+            axis,
         ) from None
+
+
+def _check_bools(cls: type[Message], body: bytes) -> None:
+    """Each bool field's byte is 0 or 1: any other is a corrupt or foreign body, not true."""
+    raw = cls._bytes.unpack(body)
+    i = 0
+    for spec in cls.layout():
+        n = 1 if spec.is_text else spec.count
+        if spec.fmt == "?":
+            for j, v in enumerate(raw[i : i + n]):
+                if v not in (0, 1):
+                    name, axis = _where(spec, j if n > 1 else None)
+                    raise MessageError(
+                        NackCode.MALFORMED, f"{name}: {v} is not 0 or 1", spec.name, axis
+                    )
+        i += n
 
 
 def unpack(cls: type[Message], body: bytes) -> Message:
@@ -492,6 +528,7 @@ def unpack(cls: type[Message], body: bytes) -> Message:
             NackCode.MALFORMED,
             f"{cls.__name__} body is {len(body)} bytes, expected {cls.size()}",
         )
+    _check_bools(cls, body)
     values = cls._struct.unpack(body)
     kwargs: dict[str, Any] = {}
     i = 0
@@ -502,7 +539,9 @@ def unpack(cls: type[Message], body: bytes) -> Message:
             i += 1
         elif spec.count > 1:
             chunk = values[i : i + spec.count]
-            kwargs[spec.name] = tuple(_enum(spec, v) for v in chunk) if spec.enum else chunk
+            kwargs[spec.name] = (
+                tuple(_enum(spec, v, j) for j, v in enumerate(chunk)) if spec.enum else chunk
+            )
             i += spec.count
         else:
             kwargs[spec.name] = _enum(spec, values[i]) if spec.enum else values[i]

@@ -134,9 +134,113 @@ def test_targets_no_leg_can_reach_together_are_refused_with_the_leg_named() -> N
     assert verdict(with_axis("center", 4, 0.0, seg), ready()) is None
 
 
+def rotations(hz: float, signs: tuple[int, int, int], share: float) -> m.StartSegment:
+    """Roll, pitch and yaw sines at ``hz``, each at ``share`` of its axis speed limit."""
+    seg = segment()
+    for k, sign in zip((3, 4, 5), signs, strict=True):
+        amplitude = share * LIMITS.axis_speed_max[k] / (2 * math.pi * hz)
+        seg = with_axis("waveform", k, Waveform.SINE, seg)
+        seg = with_axis("amplitude", k, float(np.float32(sign * amplitude)), seg)
+        seg = with_axis("frequency", k, hz, seg)
+    return commands.as_received(seg)
+
+
+def at_the_leg_speed_bound(hz: float, signs: tuple[int, int, int]) -> m.StartSegment:
+    """:func:`rotations` at the largest share the leg speed check accepts."""
+    bound = commands.LEG_SPEED_SHARE * LIMITS.leg_speed_limit
+    low, high = 0.0, 1.0
+    for _ in range(40):
+        mid = 0.5 * (low + high)
+        targets = commands.segment_targets(rotations(hz, signs, mid))
+        if commands.planned_leg_speeds(targets, DEFAULT_GEOMETRY).max() <= bound:
+            low = mid
+        else:
+            high = mid
+    return rotations(hz, signs, low)
+
+
+def test_axes_each_within_their_speed_that_together_drive_a_leg_too_fast_are_refused() -> None:
+    """Roll, pitch and yaw sines at 2 Hz, each at 0.999 of its 2 rad/s, were accepted and
+    tripped LEG_SPEED on leg 6: each axis was checked alone. The legs' speed they plan
+    together is checked, and the refusal names the leg, its planned speed and the bound."""
+    import re
+
+    with pytest.raises(CommandError) as err:
+        commands.check(rotations(2.0, (-1, -1, 1), 0.999), ready())
+    found = re.fullmatch(
+        r"these targets together move leg (\d) at up to (\S+) m/s, above the (\S+) m/s "
+        r"they may plan",
+        str(err.value),
+    )
+    assert found is not None, str(err.value)
+    assert err.value.field == "waveform" and err.value.code == NackCode.OUT_OF_RANGE
+    assert (
+        float(found[2])
+        > float(found[3])
+        == pytest.approx(commands.LEG_SPEED_SHARE * LIMITS.leg_speed_limit, rel=1e-3)
+    )
+    assert len(str(err.value).encode()) <= 96  # the NACK's text field
+    # Just inside the bound is accepted, just outside refused.
+    edge = at_the_leg_speed_bound(2.0, (-1, -1, 1))
+    assert verdict(edge, ready()) is None
+    scaled = [float(np.float32(1.01 * a)) for a in edge.amplitude]
+    assert verdict(dataclasses.replace(edge, amplitude=tuple(scaled)), ready()) is not None
+    # Any one axis at its speed limit (sines from the slowest that fits the range to the
+    # fastest, and ramps end to end) still plans within the bound.
+    for k in range(6):
+        for hz in (0.8, 1.0, 2.0, 5.0, 10.0, 20.0):
+            amplitude = min(LIMITS.axis_speed_max[k] / (2 * math.pi * hz), LIMITS.rom_high[k])
+            one = with_axis("waveform", k, Waveform.SINE, segment())
+            one = with_axis("amplitude", k, down(amplitude), one)
+            one = with_axis("frequency", k, hz, one)
+            assert verdict(one, ready()) is None, (k, hz)
+        ramp = with_axis("waveform", k, Waveform.RAMP, segment())
+        ramp = with_axis("center", k, LIMITS.rom_low[k], ramp)
+        ramp = with_axis("ramp_end", k, LIMITS.rom_high[k], ramp)
+        ramp = with_axis("ramp_rate", k, LIMITS.axis_speed_max[k], ramp)
+        assert verdict(ramp, ready()) is None, k
+
+
+def test_only_the_ankles_rotations_may_be_compliant() -> None:
+    """A compliant translation tripped (z at 500 N/m, 50 N s/m: LEG_SPEED or FOLLOWING; at
+    K 0, B 1: FOLLOWING within 0.3 s); no exercise renders one and no stable damping is
+    known. Refused by the segment, a live change and the rig alike, naming the axis."""
+    for k in range(3):
+        seg = with_axis("compliant", k, True, segment())
+        seg = with_axis("stiffness", k, 500.0, seg)
+        seg = with_axis("damping", k, 50.0, seg)
+        with pytest.raises(CommandError, match="renders impedance about the ankle's rotations"):
+            commands.check(seg, ready())
+    rig = Rig(SimulatedHardware(PlantConfig(patient="absent")))
+    with pytest.raises(CommandError) as err:
+        rig.set_impedance(
+            (0, 0, 500.0, 0, 0, 0), (0, 0, 50.0, 0, 0, 0), [False, False, True] + [False] * 3
+        )
+    assert err.value.field == "compliant" and err.value.axis == 2
+    assert not rig.state.compliant.any()
+    # Unnamed, the compliant axes are the rotations.
+    rig.set_impedance((0, 0, 0, 20.0, 20.0, 20.0), (0, 0, 0, 2.0, 2.0, 2.0))
+    assert list(rig.state.compliant) == [0, 0, 0, 1, 1, 1]
+
+
+def test_a_force_or_torque_limit_a_foot_at_rest_exceeds_is_refused() -> None:
+    """Force limits of 1, 5 and 20 N and torque limits of 0.1 N m were accepted and tripped
+    WRENCH_LIMIT with nothing moving: a relaxed foot at rest puts more on the plate."""
+    for name, least in (
+        ("force_limit", commands.FORCE_LIMIT_MIN),
+        ("torque_limit", commands.TORQUE_LIMIT_MIN),
+    ):
+        low: dict[str, object] = {name: down(least)}
+        with pytest.raises(CommandError) as err:
+            commands.check(dataclasses.replace(segment(), **low), ready())  # type: ignore[arg-type]
+        assert err.value.field == name and f"is below {least:g} " in str(err.value)
+        at: dict[str, object] = {name: least}
+        assert verdict(dataclasses.replace(segment(), **at), ready()) is None  # type: ignore[arg-type]
+
+
 def test_modes_are_part_of_the_check() -> None:
     idle = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.IDLE)
-    assert verdict(segment(), idle) == NackCode.WRONG_MODE
+    assert verdict(segment(), idle) == NackCode.NOT_HOMED
     latched = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.FAULT, Trip.SOFTWARE)
     assert verdict(m.ArmHome(), latched) == NackCode.LATCHED
     assert verdict(m.Rearm(), latched) is None
@@ -175,7 +279,7 @@ def test_a_refusal_never_prints_its_value_on_the_bound(k: int) -> None:
     not "pitch stiffness 500 outside 0..500" for 500.0001."""
     import re
 
-    active = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.ACTIVE, compliant=(True,) * 6)
+    active = Context(LIMITS, DEFAULT_GEOMETRY, DeviceMode.ACTIVE, compliant=commands.COMPLIANT_AXES)
     axis = ("roll", "pitch", "yaw")[k - 3]
     for field, bound in (
         ("stiffness", LIMITS.stiffness_max[k]),
@@ -195,7 +299,7 @@ def test_a_refusal_never_prints_its_value_on_the_bound(k: int) -> None:
     too_fast = with_axis("ramp_rate", k, up(LIMITS.axis_speed_max[k]), too_fast)
     with pytest.raises(CommandError) as err:
         commands.check(too_fast, ready())
-    found = re.search(r"peaks at (\S+)/s, above (\S+)/s", str(err.value))
+    found = re.search(r"peaks at (\S+) rad/s, above (\S+) rad/s", str(err.value))
     assert found is not None and float(found[1]) > float(found[2]), str(err.value)
     wide = with_axis("rom_high", k, up(LIMITS.rom_high[k]), segment())
     with pytest.raises(CommandError) as err:
@@ -263,6 +367,8 @@ BOUNDARY = st.one_of(
     ),
     st.tuples(st.just("torque_limit"), st.just(-1), _values(LIMITS.torque_limit, 1)),
     st.tuples(st.just("force_limit"), st.just(-1), _values(LIMITS.force_limit, 1)),
+    st.tuples(st.just("torque_limit"), st.just(-1), _values(commands.TORQUE_LIMIT_MIN, -1)),
+    st.tuples(st.just("force_limit"), st.just(-1), _values(commands.FORCE_LIMIT_MIN, -1)),
 )
 
 
@@ -344,21 +450,31 @@ def test_boundary_commands_through_the_wire_match_the_check_and_never_kill_the_s
     asyncio.run(main())
 
 
-EXTREMES = {
-    "pitch held at its published high end": {"center": (4, LIMITS.rom_high[4])},
-    "pitch held at its published low end": {"center": (4, LIMITS.rom_low[4])},
-    "roll sine over the whole range at the speed limit": {
-        "waveform": (3, Waveform.SINE),
-        "amplitude": (3, LIMITS.rom_high[3]),
-        "frequency": (3, 0.9999 * LIMITS.axis_speed_max[3] / (2 * math.pi * LIMITS.rom_high[3])),
-    },
-    "yaw ramp end to end at the speed limit": {
-        "waveform": (5, Waveform.RAMP),
-        "center": (5, LIMITS.rom_low[5]),
-        "ramp_end": (5, LIMITS.rom_high[5]),
-        "ramp_rate": (5, LIMITS.axis_speed_max[5]),
-    },
-    "heave held at its published high end": {"center": (2, LIMITS.rom_high[2])},
+EXTREMES: dict[str, list[tuple[str, int, object]]] = {
+    "pitch held at its published high end": [("center", 4, LIMITS.rom_high[4])],
+    "pitch held at its published low end": [("center", 4, LIMITS.rom_low[4])],
+    "roll sine over the whole range at the speed limit": [
+        ("waveform", 3, Waveform.SINE),
+        ("amplitude", 3, LIMITS.rom_high[3]),
+        ("frequency", 3, 0.9999 * LIMITS.axis_speed_max[3] / (2 * math.pi * LIMITS.rom_high[3])),
+    ],
+    "yaw ramp end to end at the speed limit": [
+        ("waveform", 5, Waveform.RAMP),
+        ("center", 5, LIMITS.rom_low[5]),
+        ("ramp_end", 5, LIMITS.rom_high[5]),
+        ("ramp_rate", 5, LIMITS.axis_speed_max[5]),
+    ],
+    "heave held at its published high end": [("center", 2, LIMITS.rom_high[2])],
+    # The legs' combined speed at its bound, where the fade-in adds most (1 Hz).
+    "roll, pitch and yaw sines together at the leg speed bound": [
+        (name, k, getattr(at_the_leg_speed_bound(1.0, (-1, -1, 1)), name)[k])
+        for name in ("waveform", "amplitude", "frequency")
+        for k in (3, 4, 5)
+    ],
+    "a hold with the least force and torque limits": [
+        ("force_limit", -1, commands.FORCE_LIMIT_MIN),
+        ("torque_limit", -1, commands.TORQUE_LIMIT_MIN),
+    ],
 }
 
 
@@ -367,8 +483,12 @@ def test_an_accepted_extreme_segment_runs_without_tripping(
     service: DeviceService, name: str
 ) -> None:
     seg = segment(segment_id=9, duration=2.5)
-    for field, (k, value) in EXTREMES[name].items():
-        seg = with_axis(field, k, value, seg)
+    for field, k, value in EXTREMES[name]:
+        if k < 0:
+            scalar: dict[str, object] = {field: value}
+            seg = dataclasses.replace(seg, **scalar)  # type: ignore[arg-type]
+        else:
+            seg = with_axis(field, k, value, seg)
     seg = dataclasses.replace(seg, duration=2.5)
     assert verdict(seg, ready()) is None, "the extreme must be one the device accepts"
 

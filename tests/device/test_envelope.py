@@ -62,7 +62,9 @@ def test_a_live_change_below_the_envelope_is_a_nack_naming_the_bound() -> None:
     low = m.SetImpedance(stiffness=(0, 0, 0, 0, 2.0, 0), damping=(0, 0, 0, 0, 0.1, 0))
     with pytest.raises(CommandError) as err:
         commands.check(low, ctx)
-    assert err.value.code == NackCode.OUT_OF_RANGE and "least the device renders" in str(err.value)
+    assert err.value.code == NackCode.OUT_OF_RANGE and "the least that renders stably" in str(
+        err.value
+    )
 
 
 def test_the_controller_never_renders_a_pair_outside_on_the_way() -> None:

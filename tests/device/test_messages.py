@@ -103,9 +103,26 @@ def test_an_unknown_enum_value_is_malformed() -> None:
     body = bytearray(m.pack(m.StartSegment(segment_id=1)))
     offset = struct.calcsize("<If")  # segment_id, duration, then the six waveforms
     body[offset] = 9
-    with pytest.raises(m.MessageError, match="waveform: 9 is not a known Waveform") as err:
+    with pytest.raises(m.MessageError, match=r"^waveform of x: 9 is not a known Waveform$") as err:
         m.unpack(m.StartSegment, bytes(body))
     assert err.value.code == m.NackCode.MALFORMED
+    assert (err.value.field, err.value.axis) == ("waveform", 0)  # named in the NACK
+
+
+def test_a_bool_byte_other_than_0_or_1_is_malformed() -> None:
+    """``struct`` reads any non-zero byte as true: a compliant byte of 7 was taken as a
+    compliant axis. Only 0 and 1 are a bool on the wire."""
+    body = bytearray(m.pack(m.StartSegment(segment_id=1)))
+    offset = m.StartSegment.size() - 2 * 24 - 2 * 4 - 6  # the six compliant bytes
+    for value in (0, 1):
+        body[offset + 5] = value
+        read = m.unpack(m.StartSegment, bytes(body))
+        assert isinstance(read, m.StartSegment) and read.compliant[5] is bool(value)
+    body[offset + 5] = 7
+    with pytest.raises(m.MessageError, match=r"^compliant of yaw: 7 is not 0 or 1$") as err:
+        m.unpack(m.StartSegment, bytes(body))
+    assert err.value.code == m.NackCode.MALFORMED
+    assert (err.value.field, err.value.axis) == ("compliant", 5)
 
 
 def test_an_unknown_type_is_an_unknown_command() -> None:

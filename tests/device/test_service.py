@@ -226,6 +226,31 @@ BAD_SEGMENTS: list[tuple[dict[str, object], NackCode, str]] = [
     ({"stiffness": (0, 0, 0, 0, math.inf, 0)}, NackCode.NOT_FINITE, "stiffness"),
     ({"frequency": (0, 0, 0, 0, 10.0, 0)}, NackCode.OUT_OF_RANGE, "frequency"),
     ({"segment_id": 0}, NackCode.OUT_OF_RANGE, "segment_id"),
+    # Below what a foot at rest puts on the plate: these tripped a motionless segment.
+    ({"force_limit": 20.0}, NackCode.OUT_OF_RANGE, "force_limit"),
+    ({"torque_limit": 0.1}, NackCode.OUT_OF_RANGE, "torque_limit"),
+    # A compliant translation (it tripped LEG_SPEED or FOLLOWING).
+    (
+        {
+            "compliant": (False, False, True, False, True, False),
+            "stiffness": (0, 0, 500.0, 0, 30.0, 0),
+            "damping": (0, 0, 50.0, 0, 1.0, 0),
+        },
+        NackCode.OUT_OF_RANGE,
+        "compliant",
+    ),
+    # The end that is wrong is named (it was blamed on rom_low).
+    ({"rom_high": (0.03, 0.03, 0.025, -3.4e38, 0.40, 0.30)}, NackCode.OUT_OF_RANGE, "rom_high"),
+    # Roll, pitch and yaw each just within 2 rad/s: leg 6 together tripped LEG_SPEED.
+    (
+        {
+            "waveform": (0, 0, 0, 1, 1, 1),
+            "amplitude": (0, 0, 0, -0.159, -0.159, 0.159),
+            "frequency": (0, 0, 0, 2.0, 2.0, 2.0),
+        },
+        NackCode.OUT_OF_RANGE,
+        "waveform",
+    ),
 ]
 
 
@@ -265,7 +290,7 @@ def test_commands_in_the_wrong_mode_are_refused(device: Running) -> None:
         assert dev.hello is not None
         seg = build_segment(dev.hello, 1, 10.0, {"pitch": PITCH})
         cases = [
-            (dev.start_segment(seg), NackCode.WRONG_MODE),
+            (dev.start_segment(seg), NackCode.NOT_HOMED),
             (dev.resume(), NackCode.WRONG_MODE),
             (dev.set_impedance((0,) * 6, (0,) * 6), NackCode.WRONG_MODE),
             (dev.rearm(), NackCode.WRONG_MODE),
@@ -277,6 +302,8 @@ def test_commands_in_the_wrong_mode_are_refused(device: Running) -> None:
             with pytest.raises(CommandRefused) as err:
                 await call
             assert err.value.nack.code == code, err.value
+            if code == NackCode.NOT_HOMED:
+                assert err.value.nack.text == "home the platform first (ArmHome)"
         assert device.service.mode == DeviceMode.IDLE
         assert (device.service.telemetry_hz, device.service.watchdog_ms) == (100, WATCHDOG_MS_MAX)
         assert device.service.commands_refused == len(cases)
@@ -286,9 +313,28 @@ def test_commands_in_the_wrong_mode_are_refused(device: Running) -> None:
 
 def test_malformed_and_unknown_frames_get_a_nack_and_change_nothing(device: Running) -> None:
     async def body(dev: DeviceClient) -> None:
-        for frame, code in [
-            (Frame(99, 40000, b""), NackCode.UNKNOWN_COMMAND),
-            (Frame(m.StartSegment.TYPE, 40001, b"\x01\x02"), NackCode.MALFORMED),
+        assert dev.hello is not None
+        good = m.pack(build_segment(dev.hello, 1, 10.0, {"pitch": PITCH}))
+        wave = bytearray(good)
+        wave[8 + 4] = 3  # pitch's waveform byte: no such waveform
+        bool_at = m.StartSegment.size() - 2 * 24 - 2 * 4 - 6  # the compliant bytes
+        flag = bytearray(good)
+        flag[bool_at + 4] = 7  # pitch's compliant byte: neither false (0) nor true (1)
+        for frame, code, field, text in [
+            (Frame(99, 40000, b""), NackCode.UNKNOWN_COMMAND, "", ""),
+            (Frame(m.StartSegment.TYPE, 40001, b"\x01\x02"), NackCode.MALFORMED, "", ""),
+            (
+                Frame(m.StartSegment.TYPE, 40002, bytes(wave)),
+                NackCode.MALFORMED,
+                "waveform",
+                "waveform of pitch: 3 is not a known Waveform",
+            ),
+            (
+                Frame(m.StartSegment.TYPE, 40003, bytes(flag)),
+                NackCode.MALFORMED,
+                "compliant",
+                "compliant of pitch: 7 is not 0 or 1",
+            ),
         ]:
             loop = asyncio.get_running_loop()
             fut: asyncio.Future[m.Ack | m.Nack] = loop.create_future()
@@ -296,7 +342,61 @@ def test_malformed_and_unknown_frames_get_a_nack_and_change_nothing(device: Runn
             dev._writer.write(encode_frame(frame))
             reply = await asyncio.wait_for(fut, 1.0)
             assert isinstance(reply, m.Nack) and reply.code == code
+            if field:
+                assert (reply.field, reply.text) == (field, text)
         assert device.service.mode == DeviceMode.IDLE
+
+    drive(device, body)
+
+
+def test_refusals_print_their_numbers_on_the_side_of_their_bounds(device: Running) -> None:
+    """A refusal never contradicts itself: "damping 0.4 is below 0.8, the least ... at
+    stiffness 50" for K = 49.999996 (where 0.8 is the least), "leg 4 at 50.0..95.0 mm,
+    beyond its usable 5..95 mm" for 95.000001 mm; a speed says its unit."""
+    import re
+
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        await home(dev)
+
+        async def refused(axes: dict[str, AxisPlan]) -> str:
+            assert dev.hello is not None
+            with pytest.raises(CommandRefused) as err:
+                await dev.start_segment(build_segment(dev.hello, 3, 2.0, axes))
+            return err.value.nack.text
+
+        below_50 = float(np.nextafter(np.float32(50.0), np.float32(0.0)))
+        text = await refused({"pitch": AxisPlan(stiffness=below_50, damping=0.4, compliant=True)})
+        found = re.fullmatch(
+            r"pitch damping 0\.4 is below (\S+), the least that renders stably at "
+            r"stiffness (\S+)",
+            text,
+        )
+        assert found is not None, text
+        band = 0 if float(found[2]) < 5.0 else (1 if float(found[2]) < 50.0 else 2)
+        assert float(found[2]) < 50.0 and band == 1  # K as sent: below the 50 band edge
+        assert float(found[1]) == pytest.approx(dev.hello.damping_min[3 * 4 + band])
+        text = await refused(
+            {
+                "z": AxisPlan(Waveform.HOLD, 0.025),
+                "pitch": AxisPlan(Waveform.HOLD, 0.2142036408185959),
+            }
+        )
+        found = re.fullmatch(
+            r"these targets together need leg (\d) at (\S+)\.\.(\S+) mm, beyond its usable "
+            r"(\S+)\.\.(\S+) mm",
+            text,
+        )
+        assert found is not None, text
+        low, high, usable_low, usable_high = (float(found[i]) for i in range(2, 6))
+        assert low < usable_low or high > usable_high, text
+        fast = float(np.nextafter(np.float32(2.0), np.float32(3.0)))
+        text = await refused({"roll": AxisPlan(Waveform.RAMP, 0.0, ramp_end=0.1, ramp_rate=fast)})
+        assert re.fullmatch(r"roll waveform peaks at \S+ rad/s, above 2 rad/s", text), text
+        fast = float(np.nextafter(np.float32(0.1), np.float32(1.0)))
+        text = await refused({"x": AxisPlan(Waveform.RAMP, 0.0, ramp_end=0.01, ramp_rate=fast)})
+        assert re.fullmatch(r"x waveform peaks at \S+ m/s, above \S+ m/s", text), text
+        assert device.service.mode == DeviceMode.READY
 
     drive(device, body)
 
@@ -549,6 +649,41 @@ def test_a_host_that_stands_still_counts_the_stall_and_says_so(
     assert any("this computer stood still for" in r.getMessage() for r in caplog.records)
 
 
+def test_at_the_least_watchdog_every_hold_a_host_stall_causes_is_counted(
+    device: Running,
+) -> None:
+    """At the least watchdog (100 ms, heartbeats 25 ms apart) a host stall of 75 ms already
+    holds the platform, but a stall was counted only past 100 ms: the hold went unexplained.
+    The client counts a stall past half its watchdog."""
+
+    async def body(dev: DeviceClient) -> None:
+        assert dev.hello is not None
+        await home(dev)
+        await dev.configure(100, dev.hello.watchdog_ms_min)
+        await start(dev)
+        await asyncio.sleep(0.3)  # heartbeats running at the short watchdog
+        stalls = dev.stats.stalls
+        watchdogs = [e.event_id for e in device.service.events if e.kind == EventKind.WATCHDOG]
+        began = time.perf_counter()
+        time.sleep(0.09)  # the host's event loop blocked: no heartbeat can leave
+        blocked_ms = (time.perf_counter() - began) * 1e3
+        await asyncio.sleep(0.3)  # the heartbeat task wakes, late
+        held = [
+            e.event_id
+            for e in device.service.events
+            if e.kind == EventKind.WATCHDOG and e.event_id not in watchdogs
+        ]
+        # The heartbeat's sleep (25 ms) began before the block: it ended at least the block
+        # less one period late, over half the watchdog (and under the fixed 100 ms).
+        assert dev.stats.stalls > stalls, (blocked_ms, dev.stats, held)
+        assert dev.stats.stall_ms_max >= blocked_ms - 25.0 - 1.0, (blocked_ms, dev.stats)
+        await dev.configure(100, WATCHDOG_MS_MAX)
+        if held:  # the device held on the host's stall: it is resumable, and was counted
+            await dev.resume()
+
+    drive(device, body)
+
+
 def test_a_subscription_gets_what_the_device_sent_before_its_first_read(
     device: Running,
 ) -> None:
@@ -672,7 +807,10 @@ def test_the_client_beats_several_times_in_any_watchdog_the_device_accepts(
         assert dev.watchdog_ms == dev.hello.watchdog_ms  # from HELLO
         await dev.configure(100, least)
         assert dev.heartbeat_interval * HEARTBEATS_PER_WATCHDOG <= least / 1e3
-        assert dev.heartbeat_interval * 2 < STALL_S  # a stall the client counts comes first
+        # A stall that holds the platform (a heartbeat period and the stall past the
+        # watchdog) is one the client counts.
+        assert dev.heartbeat_interval + dev.stall_threshold < least / 1e3
+        assert dev.stall_threshold <= STALL_S
         await dev.configure(100, 400)
         assert dev.heartbeat_interval == dev.heartbeat_period  # 50 ms: four fit in 400
 

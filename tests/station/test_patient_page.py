@@ -434,7 +434,7 @@ async def test_a_start_the_device_would_refuse_is_refused_and_recorded(home: Hom
         await status_where(ws, device="connected")
         result = await ask(ws, {"type": "start", "prescription_id": PRESCRIPTION_ID + 1})
         assert not result["ok"], result
-        assert "torque_limit 0 N m outside (0, 60]" in result["text"], result
+        assert "torque_limit 0 N m is below 2 N m" in result["text"], result
         status = await status_where(ws, 10.0, phase="stopped", session_id=None)
         assert "torque_limit" in status["message"], status
         assert status["device_mode"] != "ACTIVE"
@@ -443,7 +443,7 @@ async def test_a_start_the_device_would_refuse_is_refused_and_recorded(home: Hom
     (path,) = home.spool.glob("*.rec")
     rec = read(path)
     assert rec.end is not None and rec.end.reason == "stopped"
-    assert "torque_limit 0 N m outside" in rec.end.text
+    assert "torque_limit 0 N m is below" in rec.end.text
     assert [e.kind for e in rec.events] == ["refused"]
 
 
