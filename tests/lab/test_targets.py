@@ -10,6 +10,7 @@ from dataclasses import replace
 
 import pytest
 
+from device import commands
 from device.controller import ControllerConfig
 from device.hardware import SimulatedHardware
 from device.limits import SafetyLimits
@@ -77,10 +78,15 @@ def test_rendered_pitch_stiffness_is_within_5_percent(k: float) -> None:
     assert ex.impedance("pitch", k=k, b=1.0, torque=min(10.0, k * 0.3)).error_pct <= 5.0
 
 
-def test_a_sweep_stops_at_the_first_trip_and_reports_no_roll_off() -> None:
+def test_a_sweep_stops_at_the_first_trip_and_reports_no_roll_off(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # Every sine the device accepts stays below its 0.4 m/s leg speed limit, so a rig whose
     # limit is 0.1 m/s stands in for a device that trips: 2 deg pitch at 2 Hz moves the legs
-    # at about 0.04 m/s, at 6 Hz at about 0.13 m/s.
+    # at about 0.04 m/s, at 6 Hz at about 0.13 m/s. The device plans no leg past 0.64 of its
+    # limit (device.commands.LEG_SPEED_SHARE) and would refuse the 6 Hz sine up front; here
+    # the trip is only the stand-in, so that planning check is widened for this rig alone.
+    monkeypatch.setattr(commands, "LEG_SPEED_SHARE", 10.0)
     slow = SafetyLimits(leg_speed_limit=0.1)
     r = ex.sweep("pitch", 2.0, frequencies=(2.0, 6.0, 8.0), limits=slow)
     assert r.stopped_hz == 6.0 and r.frequencies == (2.0, 6.0)
@@ -188,8 +194,9 @@ def test_a_stiff_sealed_unit_follows_7_hz_with_its_friction_fed_forward(
     assert fed.gain_db >= -3.0 > unfed.gain_db, (fed.gain_db, unfed.gain_db)
 
 
-FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0))
-"""A lab rig that accepts targets faster than the device does (its own limit is 0.1 m/s)."""
+FAST = SafetyLimits(axis_speed_max=(1.0, 1.0, 1.0, 10.0, 10.0, 10.0), leg_speed_limit=0.8)
+"""A lab rig that accepts targets faster than the device does (its own axis limit is
+0.1 m/s; its legs may plan up to 0.64 of 0.8 m/s, the device's of 0.4)."""
 
 
 def test_a_flow_limited_sine_says_its_valves_saturated() -> None:
