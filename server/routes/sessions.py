@@ -16,7 +16,6 @@ session at 100 Hz reads and decimates in milliseconds, and nothing can go stale.
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import logging
 import os
 from datetime import datetime
@@ -35,7 +34,7 @@ from device.protocol.messages import DeviceMode
 from server import audit
 from server.deps import Db, Id, TherapistOrAdmin, record_for
 from server.models import Patient, Session
-from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment
+from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment, file_sha256
 from server.routes.dates import day_or_time, refuse
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
@@ -314,14 +313,6 @@ def _identity(path: Path) -> tuple[int, int, int]:
     return st.st_size, st.st_mtime_ns, st.st_ino
 
 
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 async def intact_recording(request: Request, row: Session) -> tuple[Path, str]:
     """The stored recording of a session and its SHA-256, checked against the size and
     SHA-256 the upload completed with; a 500 saying it is damaged if it is not.
@@ -340,7 +331,7 @@ async def intact_recording(request: Request, row: Session) -> tuple[Path, str]:
     else:
         digest = None
         if not row.size_bytes or identity[0] == row.size_bytes:
-            found = await asyncio.to_thread(_file_sha256, source)
+            found = await asyncio.to_thread(file_sha256, source)
             if row.sha256 is None or found == row.sha256:
                 digest = found
         if digest is None:

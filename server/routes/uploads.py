@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import fcntl
-import hashlib
 import logging
 import os
 import time
@@ -36,7 +35,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server import audit
 from server.deps import CurrentStation, Db
 from server.models import Prescription, Session, Station, Upload, utcnow
-from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses
+from server.routes.common import UNAUTHORIZED, ErrorPublic, Responses, file_sha256
 from server.routes.sessions import SessionPublic, session_public
 from sessions.recording import (
     MAGIC,
@@ -153,14 +152,6 @@ def _append(path: Path, offset: int, data: bytes) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 @router.head(
@@ -402,7 +393,7 @@ def _checked(part: Path, sha256: str) -> tuple[Recording, Summary, str]:
     server's, retried); what follows reads only the bytes, so anything else that fails there
     is an error of this recording, refused rather than answered 500 to a station that would
     send the same bytes for a day."""
-    digest = _sha256(part)
+    digest = file_sha256(part)
     if digest != sha256:
         # Start over rather than keep bytes that do not match the station's file.
         raise Refused(f"checksum mismatch: the server's bytes hash to {digest}; upload again")
