@@ -64,9 +64,10 @@ under the 0.40 m/s trip; the largest single-axis plan at the axis speed limit (p
 end at 2 rad/s, 0.253 m/s; it peaks at 0.32 m/s) fits. Searched further (about 700 accepted
 segments at the bound: grids of one to six axes, random and hill-climbed, the nominal unit
 and drawn builds 15, 18, 19 and 50 with each foot): no trip, the fastest leg 0.970 of the
-trip (build 19, no foot, roll and yaw in phase at 1 Hz). The margin is the fade-in's: a fade
-that never commands more than a sine's steady speed (over whole periods at low frequencies)
-would leave room for a larger share."""
+trip (build 19, no foot, roll and yaw in phase at 1 Hz). The margin is the fade-in's: any fade
+from zero amplitude that is short against the period commands more than the sine's steady
+speed, as the sine starts at its zero crossing; a sine started at a turning point (zero
+speed, the approach taking the platform there) would leave room for a larger share."""
 
 
 class CommandError(ValueError):
