@@ -32,6 +32,7 @@ from device.geometry import DEFAULT_GEOMETRY
 from device.limits import SafetyLimits, to_float32
 from device.protocol import messages as msg
 from device.segments import AxisPlan, build_segment
+from device.waveforms import AxisTarget
 from device.waveforms import Waveform as DeviceWaveform
 from sessions.sentences import FieldError, bound_sentence, field_label, number
 from sessions.text import lines, one_line
@@ -591,15 +592,20 @@ def _sine_as_received(
     lo, hi, top = to_float32(low), to_float32(high), to_float32(speed_max)
     c = min(max(to_float32(center), lo), hi)
     amp = np.float32(min(to_float32(amplitude), c - lo, hi - c))
+
+    def sine(amp: np.float32, hz: np.float32) -> AxisTarget:  # the device's own arithmetic
+        return AxisTarget(DeviceWaveform.SINE, c, float(amp), float(hz))
+
     for _ in range(SINE_STEPS_MAX):
-        if c - float(amp) >= lo and c + float(amp) <= hi:
+        t_lo, t_hi = sine(amp, np.float32(0.0)).extent()
+        if t_lo >= lo and t_hi <= hi:
             break
         amp = np.nextafter(amp, np.float32(0.0))
     hz = np.float32(a.frequency)
     if amp > 0:
         hz = np.float32(min(float(hz), top / (2.0 * math.pi * float(amp))))
     for _ in range(SINE_STEPS_MAX):
-        if 2.0 * math.pi * float(hz) * float(amp) <= top:
+        if sine(amp, hz).peak_speed() <= top:
             break
         hz = np.nextafter(hz, np.float32(0.0))
     return c, float(amp), float(hz)
