@@ -211,8 +211,8 @@ class Message:
     _fields: ClassVar[tuple[_FieldSpec, ...]]
     _struct: ClassVar[struct.Struct]
     _bytes: ClassVar[struct.Struct]
-    """The same layout with each bool as its byte: a bool field's byte is checked to be 0
-    or 1 (``struct`` reads any other byte as true)."""
+    """The same layout with each bool as its byte, which :func:`unpack` reads: a bool
+    field's byte is checked to be 0 or 1 (``struct`` reads any other byte as true)."""
 
     def __init_subclass__(cls, type_: int, sender: Sender, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -505,20 +505,18 @@ def _enum(spec: _FieldSpec, value: int, index: int | None = None) -> Any:
         ) from None
 
 
-def _check_bools(cls: type[Message], body: bytes) -> None:
-    """Each bool field's byte is 0 or 1: any other is a corrupt or foreign body, not true."""
-    raw = cls._bytes.unpack(body)
-    i = 0
-    for spec in cls.layout():
-        n = 1 if spec.is_text else spec.count
-        if spec.fmt == "?":
-            for j, v in enumerate(raw[i : i + n]):
-                if v not in (0, 1):
-                    name, axis = _where(spec, j if n > 1 else None)
-                    raise MessageError(
-                        NackCode.MALFORMED, f"{name}: {v} is not 0 or 1", spec.name, axis
-                    )
-        i += n
+def _value(spec: _FieldSpec, value: Any, index: int | None = None) -> Any:
+    """One decoded value of a field: an enum member, a bool from a byte that is 0 or 1 (any
+    other is a corrupt or foreign body, not true: ``struct`` reads it as true), or as read."""
+    if spec.enum is not None:
+        return _enum(spec, value, index)
+    if spec.fmt == "?":
+        if value not in (0, 1):
+            name, axis = _where(spec, index)
+            text = f"{name}: {value} is not 0 or 1"
+            raise MessageError(NackCode.MALFORMED, text, spec.name, axis)
+        return bool(value)
+    return value
 
 
 def unpack(cls: type[Message], body: bytes) -> Message:
@@ -528,8 +526,7 @@ def unpack(cls: type[Message], body: bytes) -> Message:
             NackCode.MALFORMED,
             f"{cls.__name__} body is {len(body)} bytes, expected {cls.size()}",
         )
-    _check_bools(cls, body)
-    values = cls._struct.unpack(body)
+    values = cls._bytes.unpack(body)
     kwargs: dict[str, Any] = {}
     i = 0
     for spec in cls.layout():
@@ -539,12 +536,12 @@ def unpack(cls: type[Message], body: bytes) -> Message:
             i += 1
         elif spec.count > 1:
             chunk = values[i : i + spec.count]
-            kwargs[spec.name] = (
-                tuple(_enum(spec, v, j) for j, v in enumerate(chunk)) if spec.enum else chunk
-            )
+            if spec.enum is not None or spec.fmt == "?":
+                chunk = tuple(_value(spec, v, j) for j, v in enumerate(chunk))
+            kwargs[spec.name] = chunk
             i += spec.count
         else:
-            kwargs[spec.name] = _enum(spec, values[i]) if spec.enum else values[i]
+            kwargs[spec.name] = _value(spec, values[i])
             i += 1
     return cls(**kwargs)
 
