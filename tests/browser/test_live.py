@@ -69,6 +69,36 @@ def dark_share(png: bytes) -> float:
     return sum(counts[:150]) / sum(counts)
 
 
+SCREEN_S = 90.0
+"""How long the 3D view may take to show a pose on screen: each screenshot of it waits for
+software WebGL, several seconds apiece while the whole suite loads two cores."""
+
+BROWSER_SCENE = """() => {
+    const viewer = window.__viserMutable;
+    const platform = viewer?.nodeRefFromName?.["/platform"];
+    const canvas = viewer?.canvas;
+    const gl = canvas?.getContext("webgl2");
+    return {
+        platform: platform ? [...platform.quaternion.toArray(), ...platform.position.toArray()]
+            : null,
+        queued: viewer?.messageQueue?.length ?? null,
+        webgl_lost: gl ? gl.isContextLost() : null,
+        visibility: document.visibilityState,
+    };
+}"""
+"""What viser's client in the 3D view's frame holds (it publishes its state for tests): the
+platform as three.js draws it (quaternion and position), messages not yet applied, whether
+the WebGL context was lost."""
+
+
+def browser_scene(page: Page) -> dict[str, object]:
+    handle = page.locator("#scene").element_handle()
+    frame = handle.content_frame() if handle is not None else None
+    assert frame is not None, "the 3D view's frame is not loaded"
+    state: dict[str, object] = frame.evaluate(BROWSER_SCENE)
+    return state
+
+
 def status(page: Page) -> str:
     """What the page says about the device, for a failure's message: the mode, what the
     patient is doing, and the why-banner (a hold's or fault's reason, and since when)."""
@@ -90,14 +120,22 @@ def watchdog_held(page: Page) -> bool:
     return held and "the device's watchdog held the platform" in why
 
 
-def wait_for(page: Page, done: Callable[[], bool], what: str, timeout: float = 30.0) -> None:
+def wait_for(
+    page: Page,
+    done: Callable[[], bool],
+    what: str,
+    timeout: float = 30.0,
+    account: Callable[[], str] | None = None,
+) -> None:
     """Wait until ``done()``, resuming (at most three times) a hold by the device's watchdog;
-    fail with ``what`` and the page's account of the device. Any other hold, a fault or an
-    end fails at the deadline with its reason in the message."""
+    fail with ``what``, the page's account of the device and ``account()`` if given. Any
+    other hold, a fault or an end fails at the deadline with its reason in the message."""
     deadline = time.monotonic() + timeout
     resumed = 0
     while not done():
-        assert time.monotonic() < deadline, f"{what} within {timeout:g} s: {status(page)}"
+        if time.monotonic() >= deadline:
+            more = f"; {account()}" if account is not None else ""
+            pytest.fail(f"{what} within {timeout:g} s: {status(page)}{more}")
         if watchdog_held(page) and resumed < 3:
             resumed += 1
             print(f"resuming a hold by the watchdog: {status(page)}")  # shown if the test fails
@@ -188,12 +226,32 @@ def test_live_view_start_watch_change_k_and_hold(system: System, page: Page, sho
         ) != (second["platform_wxyz"], second["platform_position"])
 
     wait_for(page, moved, "the scene's platform did not follow telemetry")
+    # In the browser: the 3D client applies the poses it receives to the platform it draws...
     iframe = page.locator("#scene")
+    held = browser_scene(page)
+    assert held["platform"] is not None and held["webgl_lost"] is False, held
+    wait_for(
+        page,
+        lambda: browser_scene(page)["platform"] != held["platform"],
+        "the browser's 3D view did not receive the platform's poses",
+        account=lambda: f"{browser_scene(page)}",
+    )
+    # ...and they change what is on screen.
+    shots_taken: list[str] = []
+
+    def redrawn() -> bool:
+        t0 = time.monotonic()
+        changed = iframe.screenshot(timeout=SHOT_MS) != pixels
+        shots_taken.append(f"{time.monotonic() - t0:.1f} s")
+        return changed
+
     pixels = iframe.screenshot(timeout=SHOT_MS)
     wait_for(
         page,
-        lambda: iframe.screenshot(timeout=SHOT_MS) != pixels,
+        redrawn,
         "the 3D view did not change on screen",
+        timeout=SCREEN_S,
+        account=lambda: f"screenshots taken in {', '.join(shots_taken)}; {browser_scene(page)}",
     )
     page.screenshot(path=shots / "live.png", full_page=True, timeout=SHOT_MS)
     assert_controls_labelled(page)
