@@ -207,6 +207,14 @@ def test_the_patient_exercises_plays_pauses_and_stops(
 
 
 SCREENS = {"desktop": (1400, 900), "laptop": (1280, 720), "tablet-portrait": (768, 1024)}
+PHONES = {"phone": (375, 667), "phone-sideways": (667, 375)}
+"""Screens on which, during an exercise, the game and STOP share a phone's little height
+(stacked, the controls took 41 % of it and the game was below the fold)."""
+CONTROLS_SHARE_MAX = 0.2
+"""The most of a phone's height the Pause and STOP bar takes (it takes 10 % upright, 19 %
+sideways)."""
+TARGET_PX = 44
+"""The least width and height of STOP: WCAG 2.5.5's target size, in CSS pixels."""
 IN_VIEW = """(selector) => {
   const el = document.querySelector(selector);
   const r = el.getBoundingClientRect();
@@ -245,7 +253,8 @@ def assert_in_view(page: Page, selector: str, screen: str, timeout: float = 10.0
 def test_start_the_game_and_stop_are_in_view_on_every_screen(
     system: System, therapist: httpx.Client, page: Page, shots: Path
 ) -> None:
-    body = {**BODY, "sets": 1, "repetitions": 3, "rest_s": 0.0}
+    # Ten repetitions (50 s): still running while every screen is looked at.
+    body = {**BODY, "sets": 1, "repetitions": 10, "rest_s": 0.0}
     r = therapist.patch(f"/api/v1/prescriptions/{system.creds['prescription_id']}", json=body)
     assert r.status_code == 200, r.text
     system.start_station()
@@ -274,6 +283,20 @@ def test_start_the_game_and_stop_are_in_view_on_every_screen(
             assert_in_view(page, selector, screen)
         # One instruction at a time: the therapist's words, once, in "what to do now".
         expect(page.get_by_text(INSTRUCTIONS)).to_have_count(1)
+    # The bar as it stands through the exercise: "Starting." under the buttons is gone after
+    # a few seconds.
+    expect(page.locator("#feedback")).to_be_empty()
+    for screen, (width, height) in PHONES.items():
+        page.set_viewport_size({"width": width, "height": height})
+        page.screenshot(path=shots / f"patient-{screen}-running.png")
+        for selector in ("#game-canvas", "#stop", "#todo"):
+            assert_in_view(page, selector, screen)
+        controls = page.locator("footer.controls").bounding_box()
+        stop = page.locator("#stop").bounding_box()
+        assert controls is not None and stop is not None
+        assert controls["height"] <= CONTROLS_SHARE_MAX * height, (screen, controls)
+        assert stop["width"] >= TARGET_PX and stop["height"] >= TARGET_PX, (screen, stop)
+        assert page.evaluate(IN_VIEW, "#game-canvas")["height"] >= height / 4, screen
     page.get_by_role("button", name="STOP").click()
     expect(todo).to_have_text(
         "The exercise was stopped. You can start again when you are ready.", timeout=MINUTE_MS
