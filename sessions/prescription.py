@@ -82,6 +82,24 @@ the bound, e.g. center + amplitude, can land a rounding step beyond it)."""
 SETS_MAX, REPETITIONS_MAX = 20, 100
 """The most sets, and repetitions per set, a prescription asks (a session's end record
 counts no more: ``sessions.recording.End``)."""
+SESSION_S_MAX = 2 * 3600.0
+"""The longest session a prescription asks (s), rests between sets included: two hours.
+Each count and time on its own is bounded, but together they reached 347 hours (20 sets of
+100 repetitions of 600 s with 900 s rests), a session nobody does and no upload carries:
+the station records every sample (234 bytes; 100 a second by default, 42 MB per 30 min),
+and the server takes a session file of at most 512 MiB by default (``upload_max_bytes``),
+about 6.4 hours; a longer one is refused and stays at the station. Two hours is thirty
+times the library's longest default session (4 min), and its recording fits that limit
+with room for holds and homing: a third of it at the default rate, and still under it at
+the device's fastest telemetry (250 samples a second, 421 MB)."""
+
+
+def duration_words(seconds: float) -> str:
+    """A duration as a sentence says it, to the second: "2 h", "347 h 45 min", "4 min 30 s"."""
+    whole = round(seconds)
+    parts = [(whole // 3600, "h"), (whole // 60 % 60, "min"), (whole % 60, "s")]
+    said = [f"{n} {unit}" for n, unit in parts if n]
+    return " ".join(said) or "0 s"
 
 
 def plus_zero(value: object) -> object:
@@ -484,6 +502,30 @@ class PrescriptionInput(PrescriptionBody):
                         "give way in this exercise, so leave it at 0.",
                     )
         return self
+
+    @model_validator(mode="after")
+    def _session_fits(self) -> PrescriptionInput:
+        """The whole session, rests included, no longer than :data:`SESSION_S_MAX`. Said of
+        the sets, the first of the timeline's fields, with every number it is made of."""
+        total = self.total_s()
+        if total <= SESSION_S_MAX:
+            return self
+        sets = f"{self.sets} set{'s' if self.sets != 1 else ''}"
+        reps = f"{self.repetitions} repetition{'s' if self.repetitions != 1 else ''}"
+        rests = (
+            f", {number(self.rest_s)} s rest between sets"
+            if self.sets > 1 and self.rest_s > 0
+            else ""
+        )
+        said, most = duration_words(total), duration_words(SESSION_S_MAX)
+        if round(total) <= SESSION_S_MAX:  # to the second it reads as the maximum: 7200.4 s
+            said, most = (f"{text} s" for text in figures(total, SESSION_S_MAX))
+        raise FieldError(
+            ("sets",),
+            f"This session lasts {said} ({sets} of {reps} of {number(self.repetition_s)} s"
+            f"{rests}), longer than the {most} a session may last: fewer sets or "
+            "repetitions, or shorter repetitions or rests.",
+        )
 
     @model_validator(mode="after")
     def _device_accepts(self) -> PrescriptionInput:

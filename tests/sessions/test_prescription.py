@@ -10,10 +10,13 @@ from pydantic import ValidationError
 
 from device.commands import check_segment_as_received
 from device.geometry import DEFAULT_GEOMETRY
+from device.service import TELEMETRY_HZ_MAX, ServiceConfig
+from server.config import Settings
 from sessions.prescription import (
     AXIS_INDEX,
     DEVICE_LIMITS,
     EXERCISE_LIBRARY,
+    SESSION_S_MAX,
     SPEED_MAX_DEG_S,
     AxisPrescription,
     ExerciseKind,
@@ -22,6 +25,7 @@ from sessions.prescription import (
     allowed_range_deg,
     device_segment,
 )
+from sessions.recording import SAMPLE_DTYPE
 from sessions.sentences import FieldError
 
 
@@ -82,6 +86,47 @@ def test_an_axis_may_appear_once_and_totals_include_rest() -> None:
         }
     )
     assert body.total_s() == 3 * 10 * 6.0 + 2 * 30.0
+
+
+def _timeline(**kw: object) -> dict[str, object]:
+    return {"exercise": "strength", "axes": [axis()], **kw}
+
+
+def test_a_session_longer_than_two_hours_is_refused_on_the_sets_with_its_total() -> None:
+    """Each count and time was within its bound, and together they asked for 338 hours,
+    which no recording upload carries: refused with the total, what it is made of and the
+    maximum; two hours exactly is a session."""
+    with pytest.raises(ValidationError) as err:
+        PrescriptionInput.model_validate(
+            _timeline(sets=20, repetitions=100, repetition_s=600.0, rest_s=900.0)
+        )
+    (error,) = err.value.errors()
+    cause = error["ctx"]["error"]
+    assert isinstance(cause, FieldError) and cause.loc == ("sets",)
+    assert str(cause) == (
+        "This session lasts 338 h 5 min (20 sets of 100 repetitions of 600 s, 900 s rest "
+        "between sets), longer than the 2 h a session may last: fewer sets or repetitions, "
+        "or shorter repetitions or rests."
+    )
+    longest = _timeline(sets=4, repetitions=30, repetition_s=58.0, rest_s=80.0)
+    assert PrescriptionInput.model_validate(longest).total_s() == SESSION_S_MAX
+    # Past it by less than a second: said to the figures that tell the two apart.
+    with pytest.raises(ValidationError, match=r"lasts 7200\.44 s \(1 set of 13 repetitions of "):
+        PrescriptionInput.model_validate(_timeline(repetitions=13, repetition_s=553.88))
+    with pytest.raises(ValidationError, match="longer than the 7200 s a session may last"):
+        PrescriptionInput.model_validate(_timeline(repetitions=13, repetition_s=553.88))
+    # A stored prescription loads whatever it holds.
+    PrescriptionBody.model_validate(_timeline(sets=20, repetitions=100, repetition_s=600.0))
+
+
+def test_the_longest_session_s_recording_fits_the_default_upload_limit() -> None:
+    """What SESSION_S_MAX rests on: a recording of a session that long, sampled at the
+    device's fastest telemetry, is still smaller than the server takes by default; at the
+    default rate, under a third of it."""
+    limit = Settings.model_fields["upload_max_bytes"].default
+    per_second = SAMPLE_DTYPE.itemsize
+    assert SESSION_S_MAX * per_second * TELEMETRY_HZ_MAX < limit
+    assert 3 * SESSION_S_MAX * per_second * ServiceConfig().telemetry_hz < limit
 
 
 def test_the_library_covers_the_clinical_exercises_with_valid_defaults() -> None:

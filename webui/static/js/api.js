@@ -304,8 +304,12 @@ export const fmt = {
   },
   duration(s) {
     if (s === null || s === undefined) return "–";
-    const m = Math.floor(s / 60);
-    const r = Math.round(s % 60);
+    const whole = Math.round(s);
+    const h = Math.floor(whole / 3600);
+    const m = Math.floor(whole / 60) % 60;
+    const r = whole % 60;
+    // An hour or more as the API's sentences say it ("338 h 5 min"), not "20285 min 0 s".
+    if (h) return [`${h} h`, m ? `${m} min` : "", r ? `${r} s` : ""].filter(Boolean).join(" ");
     return m ? `${m} min ${r} s` : `${r} s`;
   },
   exercise(kind) {
