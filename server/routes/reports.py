@@ -4,7 +4,8 @@ audited as data leaving the system (``patient.export``, with the format, period 
 
 Who may: the patient's therapist, or an admin (read-only, as for sessions); anyone else
 gets the 404 of a patient that does not exist. The period is whole days (UTC), both ends
-included; it defaults to the :data:`DEFAULT_DAYS` days up to today.
+included, ending today at the latest (:data:`AHEAD_OF_UTC`); it defaults to the
+:data:`DEFAULT_DAYS` days up to today.
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ router = APIRouter(prefix="/patients", tags=["reports"])
 
 DEFAULT_DAYS = 90
 """The period a report covers when not told: this many days up to today, inclusive."""
+AHEAD_OF_UTC = timedelta(hours=14)
+"""How far a clock anywhere runs ahead of UTC (UTC+14, the Line Islands). A report ends on
+today at the latest, and today is the therapist's own day: their page sends their local
+date, which is UTC's or the next day; the latest day begun anywhere is never refused."""
 _WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
 """How a refusal names each parameter: as the patient page labels it, and as the API does."""
 
@@ -46,7 +51,9 @@ Since = Annotated[
 Until = Annotated[
     str | None,
     Query(
-        description=f"Last day of the period. {_DATE_DOC} Default: today.", examples=["2026-03-31"]
+        description=f"Last day of the period. {_DATE_DOC} Today at the latest (the "
+        "latest date anywhere: up to UTC+14). Default: today (UTC).",
+        examples=["2026-03-31"],
     ),
 ]
 
@@ -70,6 +77,14 @@ def _day(field: str, text: str | None) -> date | None:
 def period(since: str | None, until: str | None) -> tuple[date, date]:
     """The first and last day of the period asked for; 422 with a sentence if it is not one."""
     first, last = _day("since", since), _day("until", until)
+    latest = (utcnow() + AHEAD_OF_UTC).date()
+    if last is not None and last > latest:
+        # A signed report is a record of what happened: it never covers days still to come.
+        raise refuse(
+            "until",
+            f"{_WORDS['until']}, {last}, is still to come: a report covers days that have "
+            f"begun, up to today ({latest} at the latest)",
+        )
     last = last or utcnow().date()
     first = first or last - timedelta(days=DEFAULT_DAYS - 1)
     if first > last:

@@ -4,78 +4,49 @@ server's file name and read back."""
 
 from __future__ import annotations
 
-import concurrent.futures
 import hashlib
 import io
 import json
-import os
-import subprocess
-import sys
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from zoneinfo import ZoneInfo
 
 import httpx
 import numpy as np
 import pytest
-from playwright.sync_api import Page, expect
+from playwright.sync_api import Browser, BrowserContext, Page, expect
 from pypdf import PdfReader
 
-from server.cli import provision_demo, wait_healthy
-from server.config import Settings
 from tests.browser.a11y import assert_controls_labelled
+from tests.browser.clinic import API, Clinic, clinic, therapist
 from tests.server.test_series import HZ, recording_bytes, samples
-from tests.system.harness import free_port
 
-API = "/api/v1"
+__all__ = ["clinic", "therapist"]  # fixtures (tests.browser.clinic)
 
 
-@dataclass
-class Clinic:
-    """The server alone (``ankle server`` in a process of its own) with the demo's records:
-    the report needs no device."""
-
-    url: str
-    creds: dict[str, Any]
+def away_from_utc() -> str:
+    """A time zone whose date is not UTC's now: UTC+14 from 10:00 UTC, UTC-11 before."""
+    return "Pacific/Kiritimati" if datetime.now(UTC).hour >= 10 else "Pacific/Pago_Pago"
 
 
 @pytest.fixture
-def therapist(clinic: Clinic) -> Iterator[httpx.Client]:
-    """The demo therapist's REST client: the independent witness of what the page did."""
-    with httpx.Client(base_url=f"{clinic.url}{API}", timeout=30) as client:
-        r = client.post(
-            "/auth/login",
-            json={
-                "email": clinic.creds["therapist_email"],
-                "password": clinic.creds["therapist_password"],
-            },
-        )
-        assert r.status_code == 200, r.text
-        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
-        yield client
+def zone() -> str:
+    return away_from_utc()
 
 
 @pytest.fixture
-def clinic(tmp_path: Path) -> Iterator[Clinic]:
-    port = free_port()
-    settings = Settings(data_dir=tmp_path / "server", port=port)
-    with concurrent.futures.ThreadPoolExecutor(1) as pool:  # Playwright holds this loop
-        creds = pool.submit(provision_demo, settings).result()
-    env = {**os.environ, "ANKLE_DATA_DIR": str(settings.data_dir), "ANKLE_PORT": str(port)}
-    with (tmp_path / "server.log").open("wb") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "ankle", "server"], env=env, stdout=log, stderr=log
-        )
-    url = f"http://127.0.0.1:{port}"
+def context(browser: Browser, zone: str) -> Iterator[BrowserContext]:
+    """The therapist's browser, in a time zone whose day is not UTC's: the period's default
+    is their own calendar's."""
+    ctx = browser.new_context(
+        viewport={"width": 1400, "height": 1000}, accept_downloads=True, timezone_id=zone
+    )
     try:
-        wait_healthy(url, proc, timeout=60.0)
-        yield Clinic(url, creds)
+        yield ctx
     finally:
-        proc.terminate()
-        proc.wait(30)
+        ctx.close()
 
 
 def upload_a_session(clinic: Clinic, days_ago: int) -> None:
@@ -96,7 +67,7 @@ def upload_a_session(clinic: Clinic, days_ago: int) -> None:
 
 
 def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
-    clinic: Clinic, therapist: httpx.Client, page: Page, shots: Path, tmp_path: Path
+    clinic: Clinic, therapist: httpx.Client, page: Page, shots: Path, tmp_path: Path, zone: str
 ) -> None:
     upload_a_session(clinic, days_ago=5)
     pid = clinic.creds["patient_id"]
@@ -108,7 +79,7 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
         "section", has=page.get_by_role("heading", name="Report for the medical record")
     )
     since, until = section.get_by_label("First day"), section.get_by_label("Last day")
-    today = datetime.now(UTC).date()
+    today = datetime.now(ZoneInfo(zone)).date()  # the therapist's, a day from UTC's
     expect(until).to_have_value(str(today))
     expect(since).to_have_value(str(today - timedelta(days=89)))
     assert_controls_labelled(page)
@@ -153,6 +124,15 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
     )
     expect(since).to_have_attribute("aria-invalid", "true")
     page.locator("#report").screenshot(path=shots / "patient-report-error.png")
+
+    # A period that runs into days still to come: a signed report never covers them.
+    since.fill(str(first))
+    until.fill("2099-12-31")
+    section.get_by_role("button", name="Download PDF report").click()
+    expect(page.locator('[data-error-for="query.until"]')).to_contain_text(
+        "the last day (until), 2099-12-31, is still to come"
+    )
+    expect(page.locator("#report-status")).to_have_text("")
 
     # Both downloads left the system on the record; the refused one did not.
     rows = therapist.get("/audit", params={"action": "patient.export", "patient_id": pid}).json()

@@ -513,6 +513,8 @@ async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
         ({"until": "yesterday"}, "until", "the last day (until) must be a date written YYYY-MM-DD"),
         ({"until": "9999-12-31"}, "until", "between 1900-01-01 and 9998-12-31"),
         ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
+        # A signed report headed "to 2099-12-31" would claim days still to come.
+        ({"since": "2026-01-01", "until": "2099-12-31"}, "until", "2099-12-31, is still to come"),
     ],
 )
 @pytest.mark.asyncio
@@ -528,6 +530,32 @@ async def test_a_bad_period_is_a_422_with_a_sentence(
         assert error["loc"] == ["query", field]
         assert words in error["msg"]
     assert await exports(live, world) == []
+
+
+@pytest.mark.asyncio
+async def test_a_period_ends_today_wherever_the_therapist_is(live: Live, world: World) -> None:
+    """The page sends the therapist's own date, a day ahead of UTC's for part of every day
+    east of Greenwich: the latest day begun anywhere (UTC+14) is taken; a later one is
+    refused with that day named as the latest (the next day's, if it began meanwhile)."""
+    latest = (datetime.now(UTC) + timedelta(hours=14)).date()
+    t1 = bearer(world.t1)
+    r = await live.client.get(
+        f"/patients/{world.p1}/fhir", params={"until": str(latest)}, headers=t1
+    )
+    assert r.status_code == 200, r.text
+    later = latest + timedelta(days=2)
+    r = await live.client.get(
+        f"/patients/{world.p1}/fhir", params={"until": str(later)}, headers=t1
+    )
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["loc"] == ["query", "until"]
+    assert error["msg"] in {
+        f"the last day (until), {later}, is still to come: a report covers days that have "
+        f"begun, up to today ({day} at the latest)"
+        for day in (latest, latest + timedelta(days=1))
+    }
+    assert len(await exports(live, world)) == 1  # the accepted one only
 
 
 def test_directions_follow_the_affected_side() -> None:

@@ -1,12 +1,16 @@
 // The patient's report for the medical record: a period and two downloads (the PDF to sign,
-// the FHIR bundle for the record system). The server names the files and checks the dates.
+// the FHIR bundle for the record system). The server names the files and checks the dates
+// (a period that ends after today is refused there); the page only relays its sentences.
 
 import { clearErrors, download, showErrors } from "./api.js";
 
 const DEFAULT_DAYS = 90; // as the server's default period
 
+/** The day ``d`` falls on where the therapist is (their computer's calendar), YYYY-MM-DD:
+ * not the UTC day, which is yesterday or tomorrow for part of every day away from UTC. */
 function isoDay(d) {
-  return d.toISOString().slice(0, 10);
+  const two = (n) => String(n).padStart(2, "0");
+  return `${d.getFullYear()}-${two(d.getMonth() + 1)}-${two(d.getDate())}`;
 }
 
 /** Wire the form `#report` for the patient `patientId`. */
@@ -17,7 +21,10 @@ export function setUpReport(patientId) {
   const until = form.elements.until;
   const today = new Date();
   until.value = isoDay(today);
-  since.value = isoDay(new Date(today.getTime() - (DEFAULT_DAYS - 1) * 86400000));
+  // By the calendar, not by 24-hour steps: a change to or from summer time is no day less.
+  since.value = isoDay(new Date(today.getFullYear(), today.getMonth(), today.getDate() - (DEFAULT_DAYS - 1)));
+  // The date picker offers no later day; the server refuses one (server/routes/reports.py).
+  until.max = since.max = isoDay(today);
 
   for (const button of form.querySelectorAll("button[data-report]")) {
     button.addEventListener("click", async () => {
