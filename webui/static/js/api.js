@@ -84,7 +84,64 @@ export class ApiError extends Error {
   }
 }
 
-/** Call /api/v1{path}; JSON in and out. A 401 ends the sign-in and goes back to it. */
+// ---- a form's unsaved values across an expired sign-in -------------------------------------
+// A 401 sends the page to sign-in, which brings the browser back to the same address. A page
+// with a form names how to read its values (keepDraft); they are kept in this tab's
+// sessionStorage under the page's address and the user's id, and handed back (takeDraft) once
+// the same user has signed in again. Never a password: only forms without one keep a draft.
+
+const DRAFT_KEY = "ankle.draft";
+let draftOf = null;
+
+function draftAddress() {
+  return location.pathname + location.search;
+}
+
+/** Keep ``read()``'s values (any JSON) if the sign-in expires under this page. */
+export function keepDraft(read) {
+  draftOf = read;
+}
+
+function saveDraft() {
+  const user = currentUser();
+  if (!draftOf || !user) return;
+  const draft = { address: draftAddress(), user: user.id, saved: Date.now(), values: draftOf() };
+  sessionStorage.setItem(DRAFT_KEY, JSON.stringify(draft));
+}
+
+/** The values this page kept when the signed-in user's sign-in expired, or null; taken out
+ * of storage (they are now the page's own). */
+export function takeDraft() {
+  const raw = sessionStorage.getItem(DRAFT_KEY);
+  if (!raw) return null;
+  let draft = null;
+  try {
+    draft = JSON.parse(raw);
+  } catch (e) {
+    /* not ours: dropped below */
+  }
+  if (draft?.address !== draftAddress()) return null; // another page's: kept for it
+  sessionStorage.removeItem(DRAFT_KEY);
+  // Someone else signed in on this tab: the draft is not theirs to see.
+  return draft.user === currentUser()?.id ? draft : null;
+}
+
+/** Forget a kept draft: the page saved its values. */
+export function dropDraft() {
+  sessionStorage.removeItem(DRAFT_KEY);
+}
+
+/** A number input's value for the API: a number, null when empty, or the text "not a number"
+ * when the browser could not read what was typed ("1.2.3", or 1e400, past the largest
+ * double), which the browser reports as an empty value: it is refused with a sentence, never
+ * dropped as if nothing had been typed. */
+export function numberValue(input) {
+  if (input.value === "") return input.validity.badInput ? "not a number" : null;
+  return Number(input.value);
+}
+
+/** Call /api/v1{path}; JSON in and out. A 401 ends the sign-in and goes back to it, keeping
+ * the page's draft (keepDraft). */
 export async function api(path, { method = "GET", body, raw = false } = {}) {
   const headers = { Accept: "application/json" };
   const t = token();
@@ -102,6 +159,7 @@ export async function api(path, { method = "GET", body, raw = false } = {}) {
   }
   if (r.status === 401 && path !== "/auth/login") {
     // The sign-in has expired: go back to it; the caller's code never resumes.
+    saveDraft();
     signOut();
     location.replace(loginUrl());
     return never();
@@ -277,6 +335,10 @@ export function renderHeader() {
           type: "button",
           class: "link",
           onclick: async () => {
+            // Signed out on purpose: nothing typed here is kept for later (even if the
+            // sign-in had already expired and the server answers 401).
+            keepDraft(null);
+            dropDraft();
             try {
               await api("/auth/logout", { method: "POST" });
             } catch (e) {

@@ -15,7 +15,9 @@ form.addEventListener("submit", async (ev) => {
     // Only a path on this site: never an open redirect.
     const target = next && next.startsWith("/app/") ? next : "/app/patients";
     // A printed or reset password is changed first; the API refuses the rest until then.
-    location.href = tok.user.must_change_password ? passwordUrl(target) : target;
+    // The sign-in page replaces itself in the history: Back from the page it leads to goes
+    // where the therapist was before, not to a sign-in form while signed in.
+    location.replace(tok.user.must_change_password ? passwordUrl(target) : target);
   } catch (e) {
     showErrors(form, e);
   } finally {

@@ -38,7 +38,7 @@ onSubmit(form, async () => {
   }
   rememberUser(user);
   if (mustChange) {
-    location.href = nextPage();
+    location.replace(nextPage()); // a detour on the way in: Back skips it, as it skips sign-in
     return;
   }
   const done = el("p", { class: "notice", role: "status", tabindex: "-1" }, "Your password is changed. ",

@@ -5,7 +5,23 @@
 // published bound is refused here, before submitting, with the sentence the API publishes
 // for it; everything else the API answers.
 
-import { ApiError, RAD2DEG, api, clearErrors, currentUser, el, fmt, pathId, renderHeader, requireSignIn, showErrors } from "./api.js";
+import {
+  ApiError,
+  RAD2DEG,
+  api,
+  clearErrors,
+  currentUser,
+  dropDraft,
+  el,
+  fmt,
+  keepDraft,
+  numberValue,
+  pathId,
+  renderHeader,
+  requireSignIn,
+  showErrors,
+  takeDraft,
+} from "./api.js";
 import { applyBounds, loadSchemas, prop, rangeText } from "./schema.js";
 
 await requireSignIn();
@@ -48,13 +64,6 @@ let library = new Map();
 let current = null; // the prescription being edited
 
 // --- reading and writing values ---------------------------------------------------------
-
-/** A number input's value for the API: a number, null when empty, or the typed text when
- * the browser could not read it, so that the API explains what is wrong with it. */
-function numberValue(input) {
-  if (input.value === "") return input.validity.badInput ? "not a number" : null;
-  return Number(input.value);
-}
 
 function setValue(input, v) {
   input.value = v === null || v === undefined ? "" : String(v);
@@ -267,6 +276,28 @@ function formBody() {
   return body;
 }
 
+/** What the therapist has typed, as the inputs hold it (text, not yet numbers), in the shape
+ * fill() takes: kept if the sign-in expires before it is saved (api.js keepDraft). */
+function draftValues() {
+  const raw = (input) => input.value;
+  const values = { exercise: $("exercise").value, title: $("title").value, instructions: $("instructions").value };
+  for (const k of TOP_NUMBERS) values[k] = raw($(k));
+  values.axes = [...axesBox.querySelectorAll("fieldset[data-axis]")].map((f) => {
+    const axis = { axis: f.dataset.axis };
+    for (const input of f.querySelectorAll("[name]")) axis[input.name] = raw(input);
+    return axis;
+  });
+  return values;
+}
+
+/** Put back what was typed before the sign-in expired, and say so. */
+function restoreDraft(draft) {
+  fill(draft.values);
+  const at = new Date(draft.saved).toLocaleTimeString();
+  $("draft-note").textContent = `Your sign-in had ended, so nothing was saved. What you had typed (at ${at}) is back in the form: check it, then press ${$("submit").textContent} again.`;
+  $("draft-note").hidden = false;
+}
+
 function describeExercise() {
   const t = library.get($("exercise").value);
   $("exercise-purpose").textContent = t
@@ -330,6 +361,7 @@ async function submit(ev) {
     const saved = editId
       ? await api(`/prescriptions/${editId}`, { method: "PATCH", body: formBody() })
       : await api(`/patients/${patientId}/prescriptions`, { method: "POST", body: formBody() });
+    dropDraft();
     location.href = `/app/patients/${patientId}?saved=${saved.id}`;
   } catch (e) {
     showErrors(form, e);
@@ -399,6 +431,9 @@ async function main() {
   $("add-axis-button").addEventListener("click", addAxis);
   for (const k of ["sets", "repetitions", "repetition_s", "rest_s"]) $(k).addEventListener("input", updateTotal);
   form.addEventListener("submit", submit);
+  const draft = takeDraft();
+  if (draft) restoreDraft(draft);
+  keepDraft(draftValues);
   form.hidden = false;
   $("exercise").focus();
 }
