@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import threading
 import time
-from collections.abc import Coroutine, Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from contextlib import AsyncExitStack, ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,6 +64,10 @@ class Apart:
     redis_port: int
     redis: ExitStack
     """Closed, Redis is stopped; a new one may be entered in its place."""
+    stop_viewing: Callable[[], None]
+    """Stop the therapist's server (the page loses its server; the station streams on)."""
+    start_viewing: Callable[[], None]
+    """Start it again on the same port."""
 
 
 async def exercising(ws: Any) -> None:
@@ -94,13 +99,18 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
     redis_port, port = free_port(), free_port()
     loop = Loop()
     stack = AsyncExitStack()
+    viewer = AsyncExitStack()  # the therapist's server, stopped and started on its own
+    stack.push_async_exit(viewer)
     with ExitStack() as first:
         _, url = first.enter_context(spawned_redis(tmp_path / "redis", redis_port))
         base = Settings(data_dir=data_dir, relay_url=f"{url}/0", relay_lease_s=1.5)
         viewing = base.model_copy(update={"allowed_origins": [f"http://127.0.0.1:{port}"]})
 
+        async def start_viewing() -> None:
+            await viewer.enter_async_context(running(viewing, create_app, port))
+
         async def start() -> None:
-            await stack.enter_async_context(running(viewing, create_app, port))
+            await start_viewing()
             b: Live = await stack.enter_async_context(running(base, create_app))
             ws = await stack.enter_async_context(station_ws(b, world.s1))
             await welcomed(ws)
@@ -109,7 +119,15 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
 
         try:
             loop.run(start())
-            yield Apart(f"http://127.0.0.1:{port}", world, f"{url}/0", redis_port, first)
+            yield Apart(
+                f"http://127.0.0.1:{port}",
+                world,
+                f"{url}/0",
+                redis_port,
+                first,
+                stop_viewing=lambda: loop.run(viewer.aclose()),
+                start_viewing=lambda: loop.run(start_viewing()),
+            )
         finally:
             loop.run(stack.aclose())
             loop.stop()
@@ -160,3 +178,51 @@ def test_the_live_page_says_when_the_station_s_server_never_answers(
     expect(page.locator("#ack")).to_contain_text(
         "HOLD: no answer, TIMEOUT: the station's server did not answer within 3 s"
     )
+
+
+def test_the_live_page_says_what_is_unknown_when_it_loses_its_server(
+    page: Page, apart: Apart
+) -> None:
+    """Cut off from its server, the page shows the patient's state as unknown, with the last
+    known and when, not "exercising" and ACTIVE as if they were news; back, as it is now."""
+    open_live(page, apart, apart.world.s1_id)
+    doing, mode = page.locator("#st-doing"), page.locator("#st-mode")
+    expect(doing).to_have_text("exercising")
+    expect(mode).to_have_text("ACTIVE")
+
+    apart.stop_viewing()
+    expect(page.locator("#st-link")).to_contain_text("server connection lost")
+    expect(doing).to_have_text(
+        re.compile(
+            r"^unknown: the connection to the server is lost "
+            r"\(last known at \d{1,2}:\d{2}:\d{2}(\s?[AP]M)?: exercising\)$"
+        )
+    )
+    expect(mode).to_have_text("–")
+    expect(page.locator("#st-pose")).to_have_text("–")
+
+    apart.start_viewing()  # the page tries again by itself, within 10 s
+    expect(doing).to_have_text("exercising", timeout=30_000)
+    expect(mode).to_have_text("ACTIVE")
+
+
+def test_the_live_k_and_b_form_refuses_what_the_browser_cannot_read(
+    page: Page, apart: Apart
+) -> None:
+    """A K typed past the largest number (1e400) reads as an empty field: it is refused
+    beside the field, not dropped while B alone is sent; a refusal clears the line that
+    answered the form before."""
+    open_live(page, apart, apart.world.s1_id)
+    expect(page.locator("#st-link")).to_have_text("station online")
+    form, ack = page.locator("#kb-form"), page.locator("#kb-ack")
+
+    form.get_by_role("button", name="Send change").click()
+    expect(ack).to_have_text("Enter a stiffness or damping to send.")
+    k = page.get_by_label("pitch stiffness K, N·m/rad")
+    k.click()
+    page.keyboard.type("1e400")
+    page.get_by_label("pitch damping B, N·m·s/rad").fill("3")
+    form.get_by_role("button", name="Send change").click()
+    expect(page.locator('[data-error-for="stiffness.pitch"]')).to_contain_text("from 0 to 500")
+    expect(k).to_have_attribute("aria-invalid", "true")
+    expect(ack).to_have_text("")  # not "sent, waiting for the device…": nothing was sent

@@ -2,7 +2,7 @@
 // B in force, HOLD/Resume/Stop), live stiffness and damping changes answered by the device's
 // own ACK or NACK, charts and the 3D view (viser, in an iframe); the engineering detail (links,
 // timing, overruns, leg pressures) under a "Technical" disclosure whose state is remembered.
-import { api, ApiError, clearErrors, el, fmt, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
+import { api, ApiError, clearErrors, el, fmt, numberValue, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
 import { AXES, AXIS_INDEX } from "./axes.js";
 
 await requireSignIn();
@@ -25,6 +25,7 @@ const state = {
   frames: 0,
   rate: 0,
   lastTelemetry: null,
+  heardAt: null, // when this page last heard from the server (ms, this browser's clock)
   pendingKB: null, // a change accepted but not yet rendered: { values, when, since }
   retryMs: 1000,
   closedForGood: false,
@@ -137,15 +138,22 @@ function showLink() {
   else if (state.online) setBadge(badge, "station online", "online");
   else if (state.unreachable) setBadge(badge, "station not reachable", "bad");
   else setBadge(badge, "station offline", "offline");
-  if (!linkOpen) return;
-  if (!state.online) showUnknown();
+  if (!linkOpen) showUnknown(`the connection to the server is lost${lastKnown()}`);
+  else if (!state.online) showUnknown(state.unreachable || "the station is not connected");
   else if (!state.status) $("st-doing").textContent = "–"; // online, no status yet
 }
 
-// Offline or out of reach, the last status and sample are not what the patient is doing now:
-// say so rather than show "exercising" and "ACTIVE" for a station nobody hears.
-function showUnknown() {
-  $("st-doing").textContent = `unknown: ${state.unreachable || "the station is not connected"}`;
+// " (last known at 17:20:35: exercising)": what the page last heard, and when.
+function lastKnown() {
+  if (!state.status || !state.online || state.heardAt === null) return "";
+  return ` (last known at ${new Date(state.heardAt).toLocaleTimeString()}: ${doing(state.status)})`;
+}
+
+// Offline, out of reach, or with the server's connection lost, the last status and sample are
+// not what the patient is doing now: say so rather than show "exercising" and "ACTIVE" for a
+// station nobody hears.
+function showUnknown(why) {
+  $("st-doing").textContent = `unknown: ${why}`;
   showMode("");
   for (const id of ["st-pose", "st-torque"]) $(id).textContent = "–";
 }
@@ -214,7 +222,7 @@ function showStatus(s) {
   showMode(s.device_mode);
   showWhy();
   $("st-doing").textContent = doing(s);
-  if (linkOpen && !state.online) showUnknown();
+  if (!linkOpen || !state.online) showLink(); // not news of now: unknown
   $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
   $("st-phase").textContent = s.phase;
   $("st-device-mode").textContent = s.device_mode || "–";
@@ -247,8 +255,9 @@ let numbersAt = 0;
 function showNewest() {
   const m = state.lastTelemetry;
   const now = performance.now();
-  // Offline, the newest sample is an old one: the status card says the state is unknown.
-  if (!m || !state.online || now - numbersAt < NUMBERS_EVERY_MS) return;
+  // Offline or cut off, the newest sample is an old one: the status card says the state is
+  // unknown.
+  if (!m || !linkOpen || !state.online || now - numbersAt < NUMBERS_EVERY_MS) return;
   numbersAt = now;
   showMode(m.mode);
   $("st-pose").textContent = state.activeAxes.map((a) => `${a} ${fmt.num(m.pose[AXIS_INDEX[a]] * RAD2DEG, 1)}°`).join(" · ");
@@ -411,6 +420,12 @@ $("kb-form").addEventListener("submit", (ev) => {
   ev.preventDefault();
   const form = $("kb-form");
   clearErrors(form);
+  // The line answers this submission only: an earlier "acknowledged by the device" beside a
+  // refusal of new values would read as if they had been applied.
+  const ack = $("kb-ack");
+  ack.textContent = "";
+  ack.className = "small";
+  delete ack.dataset.code;
   const stiffness = {};
   const damping = {};
   const errors = [];
@@ -419,13 +434,14 @@ $("kb-form").addEventListener("submit", (ev) => {
       ["k", stiffness, state.limits.stiffness, "N·m/rad"],
       ["b", damping, state.limits.damping, "N·m·s/rad"],
     ]) {
-      const input = $(`kb-${kind}-${a}`);
-      if (input.value.trim() === "") continue;
-      const v = Number(input.value);
+      // As the prescription form reads a number: text the browser cannot read (1e400, past
+      // the largest double, reads as empty) is refused, never taken for a field left blank.
+      const v = numberValue($(`kb-${kind}-${a}`));
+      if (v === null) continue;
       const field = `${kind === "k" ? "stiffness" : "damping"}.${a}`;
       // Checked here as the server's schema checks it: a message the server refuses closes
       // the live link, so the therapist's typo must never reach it.
-      if (!Number.isFinite(v) || v < 0 || v > max) {
+      if (typeof v !== "number" || !Number.isFinite(v) || v < 0 || v > max) {
         errors.push({ loc: ["body", ...field.split(".")], msg: `must be a number from 0 to ${max} ${unit}` });
       } else out[a] = v;
     }
@@ -435,7 +451,7 @@ $("kb-form").addEventListener("submit", (ev) => {
     return;
   }
   if (!Object.keys(stiffness).length && !Object.keys(damping).length) {
-    $("kb-ack").textContent = "Enter a stiffness or damping to send.";
+    ack.textContent = "Enter a stiffness or damping to send.";
     return;
   }
   send("set_impedance", { stiffness, damping }, $("kb-ack"), "Stiffness and damping");
@@ -456,6 +472,7 @@ function onMessage(m) {
     case "welcome":
       state.online = m.online;
       state.unreachable = "";
+      state.status = null; // what the server knows now; nothing from before the connection
       if (m.status) showStatus(m.status);
       showLink();
       break;
@@ -479,6 +496,7 @@ function onMessage(m) {
 link.addEventListener("message", (ev) => {
   const m = ev.data;
   if (m.op === "messages") {
+    if (linkOpen) state.heardAt = Date.now();
     for (const item of m.items) onMessage(item);
   } else if (m.op === "open") {
     linkOpen = true;
@@ -493,6 +511,7 @@ link.addEventListener("message", (ev) => {
     }
   } else if (m.op === "close") {
     linkOpen = false;
+    showLink(); // what the patient is doing is unknown from now on
     // Closed because trust ended (sessions/wire.py CLOSE_*): retrying cannot help.
     const ended = {
       1008: "You may not watch this station (signed out, or not your patient's station).",
@@ -504,7 +523,6 @@ link.addEventListener("message", (ev) => {
     }[m.code];
     if (ended) {
       state.closedForGood = true;
-      showLink();
       fail(ended);
       return;
     }

@@ -1,7 +1,7 @@
 // The patient's details form, shared by "Add a patient" and "Edit details": its limits come
 // from the API's schema and its body is what POST /patients and PATCH /patients/{id} read.
 
-import { el } from "./api.js";
+import { el, numberValue } from "./api.js";
 import { applyBounds, loadSchemas, prop } from "./schema.js";
 
 export const SIDE_WORDS = { left: "Left", right: "Right", both: "Both" };
@@ -24,15 +24,12 @@ export async function setUpPatientForm(form) {
 export function patientBody(form) {
   const f = form.elements;
   const text = (v) => (v.trim() === "" ? null : v.trim());
-  const year = f.birth_year.value.trim();
-  const weight = f.weight_kg.value.trim();
   return {
     display_name: f.display_name.value,
     reference: text(f.reference.value),
-    // A number input holding text reads as "": send what was typed so the API says why.
-    birth_year: year === "" ? (f.birth_year.validity.badInput ? "not a number" : null) : Number(year),
+    birth_year: numberValue(f.birth_year),
     affected_side: f.affected_side.value || null,
-    weight_kg: weight === "" ? (f.weight_kg.validity.badInput ? "not a number" : null) : Number(weight),
+    weight_kg: numberValue(f.weight_kg),
     notes: f.notes.value,
   };
 }
