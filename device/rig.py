@@ -318,6 +318,13 @@ class Rig:
         lim[safety.ROW_SCALARS, 0] = force_limit
         lim[safety.ROW_SCALARS, 1] = torque_limit
 
+    def narrow_range(self, low: Vector, high: Vector) -> None:
+        """The controller enforces ``low..high`` (relative to home, within the device's own)
+        as the range of motion, its wrench limits as they are."""
+        lim = self.params.limits
+        lim[safety.ROW_ROM_LOW] = low
+        lim[safety.ROW_ROM_HIGH] = high
+
     def restore_limits(self) -> None:
         """The device's own limits again."""
         self.params.limits[:] = self._limits
