@@ -1,5 +1,5 @@
 """The mode machine's segments on the real plant: the range of motion a segment was accepted
-with holds for as long as its compliance does.
+with holds for as long as its compliance does, and a live K and B never blind a check.
 
 A rig and its mode machine are stepped as the device service steps them (one pass a
 millisecond), every command checked by :mod:`device.commands` as the service checks it.
@@ -13,11 +13,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from device import commands
+from device import commands, supervision
 from device.axes import AXES
 from device.client import AxisPlan, build_segment
 from device.commands import CheckedImpedance, CheckedSegment
 from device.modes import APPROACH_SPEED, ModeMachine
+from device.plant.faults import Fault, FaultKind
 from device.plant.model import SCRIPT_RAMP
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
@@ -241,3 +242,81 @@ def test_a_narrower_segment_sent_mid_run_brings_the_pushed_axis_in_gently() -> N
     assert dev.kinds().count(EventKind.SEGMENT_DONE) == 1
     closing = np.diff(highs)
     assert closing.min() >= -APPROACH_SPEED[4] * 0.001 * 1.01
+
+
+# -- live K and B ---------------------------------------------------------------------------
+
+PITCH_SINE = AxisPlan(
+    Waveform.SINE,
+    center=math.radians(10.0),
+    amplitude=math.radians(5.0),
+    frequency=0.5,
+    stiffness=30.0,
+    damping=1.0,
+    compliant=True,
+)
+
+
+def _offset_named_ms(changes: Callable[[Device, float], None]) -> float:
+    """Milliseconds from a 3 N m offset on the pitch torque channel, 2.2 s into a compliant
+    pitch sine, to its FORCE_SENSOR trip, with ``changes(dev, t)`` called every pass."""
+    dev = Device(safety._rig("relaxed", 1))
+    dev.home()
+    dev.send(narrowed(dev, 1, 6.0, {"pitch": PITCH_SINE}))
+    dev.run(2.2)
+    hw = dev.rig.hardware
+    hw.inject(Fault(FaultKind.FT_OFFSET, float(hw.state.time[0]), 4, 3.0))  # type: ignore[attr-defined]
+    t0 = dev.rig.time
+    for _ in range(1000):
+        changes(dev, dev.rig.time - t0)
+        dev.run(0.001)
+        if dev.rig.trip != Trip.NONE:
+            break
+    assert dev.rig.trip == Trip.FORCE_SENSOR and dev.rig.trip_channel == 4, dev.rig.trip
+    return (dev.rig.time - t0) * 1e3
+
+
+def _set(k: float) -> msg.SetImpedance:
+    return msg.SetImpedance(stiffness=(0, 0, 0, 0, k, 0), damping=(0, 0, 0, 0, 1.0, 0))
+
+
+def test_the_same_impedance_again_changes_nothing() -> None:
+    """A host that re-sends its K and B (every 30 ms here) used to restart the cross-checks'
+    40 ms wait each time: a 3 N m offset on the pitch torque went unnamed for good, the
+    platform 3.7-4.0 deg from its healthy twin. Unchanged values change nothing, so it is
+    named as fast as with no command at all (20 ms)."""
+    sent = {"next": 0.0}
+
+    def resend(dev: Device, t: float) -> None:
+        if t >= sent["next"] - 1e-9:
+            armed = int(dev.rig.state.counters[supervision.C_SIDE_ARMED])
+            dev.send(_set(30.0))
+            assert int(dev.rig.state.counters[supervision.C_SIDE_ARMED]) == armed
+            sent["next"] += 0.03
+
+    assert _offset_named_ms(resend) <= 30.0
+
+
+def test_a_new_impedance_leaves_the_checks_judging() -> None:
+    """K 30 -> 100 on the compliant pitch as a 3 N m offset lands on its torque channel:
+    with the cross-checks held off for 40 ms after each change it was named in 46-56 ms
+    and the platform turned 2.4-3.0 deg; a K or B change disturbs none of them (see
+    ``Rig.apply_impedance``), so it is named as without the change (20 ms). A host changing
+    K every 30 ms cannot blind them either."""
+    changed = {"done": False}
+
+    def once(dev: Device, t: float) -> None:
+        if not changed["done"]:
+            dev.send(_set(100.0))
+            changed["done"] = True
+
+    assert _offset_named_ms(once) <= 30.0
+    turn = {"next": 0.0, "k": 30.0}
+
+    def alternate(dev: Device, t: float) -> None:
+        if t >= turn["next"] - 1e-9:
+            turn["k"] = 130.0 - turn["k"]
+            dev.send(_set(turn["k"]))
+            turn["next"] += 0.03
+
+    assert _offset_named_ms(alternate) <= 30.0
