@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +41,9 @@ HOMING_SETTLE = 0.2
 HOMING_TIMEOUT_EXTRA = 5.0
 """Seconds allowed beyond the planned homing move before it is a fault."""
 APPROACH_SPEED = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
-"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s."""
+"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s. The
+range of motion in force during the approach closes in on the segment's own at this speed
+too."""
 RETURN_SETTLE = 0.1
 """Time allowed after the move home before a segment counts as done (s)."""
 
@@ -81,6 +83,12 @@ class Segment:
     paused: float = 0.0
     """Time spent in HOLD since the run phase started (s)."""
     hold_start: float = 0.0
+    moved_at: float = 0.0
+    """Device time the approach began, later by its holds."""
+    reach_low: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    reach_high: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    """Where the command stood as the approach began (relative to home): the lowest and the
+    highest of its waveform's part and of the whole, the compliance's offset included."""
 
 
 class ModeMachine:
@@ -125,14 +133,39 @@ class ModeMachine:
         self._set_mode(DeviceMode.HOMING, "homing")
 
     def start_segment(self, plan: CheckedSegment) -> None:
+        """The segment's compliance from its start, and with it its range of motion: on the
+        way to the waveform's start a foot pushing a compliant axis moves it, and a range
+        that only narrowed as the run began found the platform past it (a foot pushing 10
+        N m on pitch took it to 10.9 deg of a 3 deg range during a 0.87 s approach, and the
+        run's first period tripped RANGE_OF_MOTION). The approach starts wherever the
+        command is (home, or inside the last segment's range when one is started during
+        another, the compliance's offset kept: a spring whose rest point jumped would throw
+        the foot). So the range in force spans that start and the segment's range, and
+        closes in on the latter at the approach speeds: a compliant axis outside it is
+        brought in as gently as the approach moves, and the run begins inside it."""
         self._end_segment()
+        path, whole = self._commanded()
         self.rig.apply_impedance(plan.stiffness, plan.damping, plan.compliant)
-        seg = Segment(plan)
-        self._move_to(np.array([t.center for t in plan.targets]), seg)
+        seg = Segment(plan, moved_at=self.time)
+        seg.reach_low = np.minimum(path, whole)
+        seg.reach_high = np.maximum(path, whole)
+        longest = self._move_to(path, np.array([t.center for t in plan.targets]))
+        speed = np.asarray(APPROACH_SPEED)
+        outside = np.maximum(
+            np.asarray(plan.rom_low) - seg.reach_low, seg.reach_high - np.asarray(plan.rom_high)
+        )
+        closing = float(np.max(np.maximum(outside, 0.0) / speed))
+        seg.phase_end = self.time + max(longest, closing)
+        self._approach_range(seg)
         self.segment = seg
         self._set_mode(DeviceMode.ACTIVE, f"segment {plan.segment_id}")
 
     def set_impedance(self, c: CheckedImpedance) -> None:
+        """Live K and B for the loaded segment; none once its run is over and it returns home
+        (nothing is compliant on the way home)."""
+        seg = self.segment
+        if seg is not None and seg.phase == "return":
+            return
         self.rig.apply_impedance(c.stiffness, c.damping, c.compliant)
 
     def resume(self) -> None:
@@ -142,6 +175,7 @@ class ModeMachine:
         pause = self.time - seg.hold_start
         self.rig.shift_trajectory(pause)  # the waveform continues where it paused
         seg.phase_end += pause
+        seg.moved_at += pause
         if seg.phase == "run":
             seg.paused += pause
         self.rig.resume_task()
@@ -368,17 +402,26 @@ class ModeMachine:
             if elapsed > planned + HOMING_TIMEOUT_EXTRA:
                 self.rig.latch_trip(Trip.HOMING)
 
-    def _move_to(self, start: NDArray[np.float64], seg: Segment) -> None:
-        """Ramp every axis from where the command is now to ``start`` (relative to home).
-
-        Built valid: the start point is clipped into the device's range and the ramps run
-        at the approach speeds, below every axis speed limit.
-        """
+    def _commanded(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Where the command stands now, relative to home and clipped into the device's
+        range: its waveform's part and the whole, the compliance's offset included (both the
+        measured pose when no task runs)."""
         s = self.rig.state
-        home = self.rig.geometry.home_pose
-        now = s.pose_cmd - home - s.x_m if self.rig.mode == Mode.TASK else s.pose - home
         lim = self.rig.limits
-        now = np.clip(now, lim.rom_low, lim.rom_high)
+        home = self.rig.geometry.home_pose
+        if self.rig.mode == Mode.TASK:
+            whole = s.pose_cmd - home
+            path = whole - s.x_m
+        else:
+            whole = path = s.pose - home
+        return np.clip(path, lim.rom_low, lim.rom_high), np.clip(whole, lim.rom_low, lim.rom_high)
+
+    def _move_to(self, now: NDArray[np.float64], start: NDArray[np.float64]) -> float:
+        """Ramp every axis from ``now`` to ``start`` (relative to home); how long it takes (s).
+
+        Built valid: both lie inside the device's range and the ramps run at the approach
+        speeds, below every axis speed limit.
+        """
         longest = 0.0
         targets = []
         for k in range(6):
@@ -386,7 +429,18 @@ class ModeMachine:
             targets.append(AxisTarget.ramp(float(now[k]), float(start[k]), rate))
             longest = max(longest, abs(float(start[k]) - float(now[k])) / rate)
         self.rig.apply_track(targets)
-        seg.phase_end = self.time + longest
+        return longest
+
+    def _approach_range(self, seg: Segment) -> None:
+        """The range in force during the approach: from where the command stood as it began
+        to the segment's range, closing in on the latter at the approach speeds. It always
+        holds the approach's ramp (which moves at those speeds towards a start inside the
+        segment's range), and is the segment's own range by the approach's end."""
+        plan = seg.plan
+        travel = np.asarray(APPROACH_SPEED) * max(self.time - seg.moved_at, 0.0)
+        low = np.minimum(np.asarray(plan.rom_low), seg.reach_low + travel)
+        high = np.maximum(np.asarray(plan.rom_high), seg.reach_high - travel)
+        self.rig.narrow_range(low, high)
 
     def _segment_step(self, seg: Segment) -> None:
         t = self.time
@@ -397,9 +451,19 @@ class ModeMachine:
             seg.phase = "run"
             seg.run_start = t
             seg.paused = 0.0
+        elif seg.phase == "approach":
+            self._approach_range(seg)
         elif seg.phase == "run" and t - seg.run_start - seg.paused >= plan.duration:
+            # Home from where the command is, its compliant offset included, held as it
+            # stands and brought back at the approach speeds; the device's limits again once
+            # nothing is compliant. The range lifted while the axis was still compliant let
+            # a foot pushing 15 N m against a 3 deg range throw pitch to 8.7 deg in 30 ms
+            # (LEG_SPEED), and the return, from the waveform's part alone, left the offset
+            # where it was.
+            _, whole = self._commanded()
+            self.rig.release_impedance()
             self.rig.restore_limits()
-            self._move_to(np.zeros(6), seg)
+            seg.phase_end = t + self._move_to(whole, np.zeros(6))
             seg.phase = "return"
         elif seg.phase == "return" and t >= seg.phase_end + RETURN_SETTLE:
             self.rig.hold()

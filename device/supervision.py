@@ -182,7 +182,7 @@ C_WOKE = 86  # 6: control periods left in which a leg that woke by drifting is w
 C_SIDE = 92
 """Control periods in a row with the sideways residual (``M_SIDE``) over its limit."""
 C_SIDE_ARMED = 93
-"""Pose periods since start-up or the last new command (a segment, an impedance), counted up
+"""Pose periods since start-up or the last new command (a segment, a resume), counted up
 to ``SIDE_ARM_PERIODS``: the pose's rate starts from nothing and its first difference is a
 jump, not a motion; and a new command sets the legs chasing a new target, which the model
 of the sideways check (no velocity products, a rigid loop) follows least well."""
