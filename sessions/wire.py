@@ -432,7 +432,9 @@ class CommandResult(BaseModel):
     code: Line = Field(
         default="",
         description="The device's NACK code; the station's REFUSED, OFFLINE or TIMEOUT; or the "
-        "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT or TIMEOUT.",
+        "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT (not recorded, "
+        "not sent), SUPERSEDED (a HOLD or Stop went out while it waited: not sent), BUSY "
+        "(too many of the view's commands in hand: not sent) or TIMEOUT.",
     )
     field: Line = ""
     text: Lines = ""
