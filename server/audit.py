@@ -207,6 +207,16 @@ class AuditWriter:
     async def write(self, **row: Any) -> None:
         """Write one row (``record``'s arguments); returns once it is committed, raises if
         it could not be (the database is away or refused it, or ``AuditBacklogFull``)."""
+        await self.submit(**row)
+
+    def submit(self, **row: Any) -> asyncio.Future[None]:
+        """Queue one row now and return what ``write`` waits for: done once it is committed,
+        its exception if it could not be. Raises ``AuditBacklogFull`` at once.
+
+        A caller that stops waiting cancels it: the row is then no longer waited for, and
+        is dropped at the next try that fails; but a try under way may still commit it (a
+        database that answers late), so such a caller writes what became of its command
+        after it, in the same queue (``server.hub``)."""
         if len(self._rows) >= self.backlog_max:
             raise AuditBacklogFull(
                 f"{len(self._rows)} audit rows already wait for the database to come back"
@@ -214,7 +224,7 @@ class AuditWriter:
         done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._put(_Row(_queued(row), done))
         self._wake.set()  # do not wait out a backoff: the command waits for this answer
-        await done
+        return done
 
     def write_soon(self, row: dict[str, Any]) -> None:
         """Queue one row without waiting for it: rows queued before it are written before it

@@ -36,8 +36,8 @@ from server.schemas import UserCreate, UserPublic
 from server.security import HashingSlots, hash_password, new_password, new_token, token_hash
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind, PrescriptionBody
 from sessions.private import write_private
+from sessions.sentences import sentence
 from sessions.text import normal_address
-from sessions.wire import error_text
 
 DEMO_EMAIL = "therapist@demo.local"
 DEMO_THERAPIST_NAME = "Demo Therapist"
@@ -156,6 +156,19 @@ class AdminError(Exception):
     """``ankle admin`` refuses: the one-line message says why (exit 2)."""
 
 
+OPTION_OF = {"email": "--email", "name": "--name", "role": "--role", "password": "--password-stdin"}
+"""The option of ``ankle admin create-user`` that gives each field of ``UserCreate``."""
+
+
+def _in_words(exc: ValidationError) -> str:
+    """The first refusal of a new account, as the API's 422 says it (``sessions.sentences``),
+    after the option that gave the value: pydantic's own words quoted the address's regular
+    expression."""
+    loc, said = sentence(exc.errors()[0], UserCreate)
+    option = OPTION_OF.get(str(loc[0])) if loc else None
+    return f"{option}: {said}" if option else said
+
+
 async def create_user_async(
     settings: Settings, email: str, name: str, role: str, password: str | None
 ) -> tuple[UserPublic, str | None]:
@@ -165,7 +178,7 @@ async def create_user_async(
     try:
         valid = UserCreate(email=email, name=name, role=role, password=password)  # type: ignore[arg-type]
     except ValidationError as exc:
-        raise AdminError(error_text(exc, limit=300)) from None
+        raise AdminError(_in_words(exc)) from None
     async with _database(settings) as sessionmaker, sessionmaker() as db:
         try:
             user, one_time = await accounts.create_user(db, HashingSlots(1), audit.SYSTEM, valid)

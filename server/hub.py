@@ -7,6 +7,9 @@ up and the newest one when it falls behind (a slow browser sees fresh data late,
 growing backlog). Events, status and command results are never dropped, and a viewer is sent
 them before any telemetry waiting with them; one ``CONTROL_QUEUE_MAX`` behind is closed.
 
+A viewer's commands are each handled in a task of their own (:mod:`server.live`): a HOLD
+or Stop goes out at once whatever else waits; a K/B change, Resume or Start waits, within
+``AUDIT_WAIT_S``, for its request row, and is not sent after a HOLD or Stop that passed it.
 A command is judged, timed and its outcome audited by the process that holds the station's
 link, wherever its viewer is; its result reaches the station's viewers on every process. A
 command from a viewer on another process is recorded (its request row) on the viewer's
@@ -61,6 +64,16 @@ RELAY_SLACK_S = 0.5
 COMMAND_TIMEOUT_S for the relay: it waits this much less for the station, so that its own
 outcome (the answer, or its TIMEOUT) reaches the asking process before that process's timer
 ends the command as unanswered by the station's server."""
+AUDIT_WAIT_S = 2.0
+"""How long a K/B change, Resume or Start may wait, from the moment its view's link reads
+it, to be sent: for its request row to be committed and, for a Start, its prescription to
+be checked. Past it, it is refused (``AUDIT``) and never sent. A K/B change, its row
+committed, is answered by the device in 5-7 ms at the median and 23-32 ms at p99 with 100
+stations (README, "The live audit writer on its own connection"); only a database that is
+away, locked or stalled takes seconds, and a change sent seconds after the click,
+when the therapist has moved on, is not the one they asked for. Before, the only bounds
+were SQLite's busy timeout (5 s) and, on PostgreSQL, none: a K change was applied 12 s
+after it was asked, once a stalled database answered. HOLD and Stop never wait for it."""
 LATE_KEPT = 1000
 """Timed-out commands remembered so that a late answer still has its outcome audited."""
 AUDIT_FLUSH_S = 5.0
@@ -78,9 +91,14 @@ one per click of HOLD, Resume, Stop, Start or "Set K/B": a therapist clicking as
 person can (some 7 a second) never meets it. Past it the link is closed
 (:data:`~sessions.wire.CLOSE_TOO_FAST`)."""
 COMMANDS_PER_S = 10.0
+VIEW_COMMANDS_MAX = COMMAND_BURST
+"""Commands of one view being handled at once (each in a task of its own, so that the link
+goes on being read): past it a command is refused (``BUSY``) and not sent. Each ends within
+``AUDIT_WAIT_S`` plus a relay look-up, so a view within its budget (:data:`COMMAND_WINDOW`)
+meets this only while the relay does not answer."""
 REFUSAL_ROWS_BURST = 5
 """Of the commands the server itself refuses (never sent: FORBIDDEN, OFFLINE, DUPLICATE,
-AUDIT, a Start's REFUSED), those of one user to one station that get an audit row each:
+AUDIT, BUSY, a Start's REFUSED), those of one user to one station that get an audit row each:
 this many at once, and in any ``REFUSAL_ROWS_BURST / REFUSAL_ROWS_PER_S`` seconds; the rest
 are counted into one ``command.refusals`` row per ``REFUSAL_SUMMARY_S``. Each refusal costs
 nothing on the device, but its row is kept for good: one browser tab sending 1,000 K/B
@@ -142,6 +160,11 @@ class Viewer:
     """Characters in ``control``."""
     too_slow: bool = False
     """Closed for falling behind: nothing more is queued for it."""
+    handling: set[asyncio.Task[None]] = field(default_factory=set)
+    """Its commands being handled (:data:`VIEW_COMMANDS_MAX`)."""
+    in_turn: asyncio.Lock = field(default_factory=asyncio.Lock)
+    """Held by the K/B change, Resume or Start of this view being handled: they go out in
+    the order they were asked (HOLD and Stop do not wait for it)."""
 
     def push(self, text: str) -> None:
         """Queue a control message; a viewer this far behind is closed at once instead:
@@ -315,7 +338,9 @@ class Hub:
         self._pending: dict[str, InFlight] = {}
         self._late: collections.OrderedDict[str, InFlight] = collections.OrderedDict()
         self._forwarded: dict[str, Forwarded] = {}
-        self._tasks: set[asyncio.Task[None]] = set()
+        self._holds: collections.Counter[int] = collections.Counter()
+        """HOLDs and Stops asked of each station on this process (:meth:`arrival`)."""
+        self._tasks: set[asyncio.Task[Any]] = set()
         self.writer = AuditWriter()
         self.refusals = Refusals(self.writer)
         self._recheck_lock = asyncio.Lock()
@@ -593,9 +618,7 @@ class Hub:
                 self.deliver(station_id, status)
 
     def _soon(self, work: Coroutine[Any, Any, None]) -> None:
-        task = asyncio.create_task(work)
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+        self.spawn(work)
 
     async def on_message(self, message: Message) -> None:
         kind, station_id = message["type"], message.get("station_id")
@@ -663,9 +686,39 @@ class Hub:
             await self.relay.close()
 
     # -- commands: each ends in exactly one audited outcome ---------------------------------
-    async def command(self, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]) -> None:
+    def arrival(self, asker: Asker, cmd: wire.Command) -> Arrival:
+        """Note a command as its link reads it (before anything is awaited for it). A
+        therapist's HOLD or Stop counts for its station at once: any K/B change, Resume or
+        Start asked of that station on this process before it, and still waiting to be
+        sent, is not sent after it (``SUPERSEDED``)."""
+        if asker.may_command and cmd.action in live_audit.SAFE_ACTIONS:
+            self._holds[asker.station_id] += 1
+        return Arrival(asyncio.get_running_loop().time(), self._holds[asker.station_id])
+
+    def spawn(self, work: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
+        """Run ``work`` in a task of its own, held until it ends (cancelled at shutdown)."""
+        task = asyncio.create_task(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    def refuse(
+        self, asker: Asker, cmd: wire.Command, reply: Callable[[str], None], code: str, text: str
+    ) -> None:
+        """Refuse a command before anything is done with it (audited, never sent)."""
+        _refuse(_asked(asker, cmd), reply, self.refusals, code, text)
+
+    async def command(
+        self,
+        asker: Asker,
+        cmd: wire.Command,
+        reply: Callable[[str], None],
+        arrival: Arrival | None = None,
+    ) -> None:
         """A viewer's command to its station, wherever the station is connected; ``reply``
-        takes a refusal meant for that viewer alone."""
+        takes a refusal meant for that viewer alone. ``arrival``: when its link read it
+        (:meth:`arrival`; now if not given)."""
+        arrival = arrival or self.arrival(asker, cmd)
         if asker.station_id not in self.stations:
             try:
                 owner = await self.relay.owner(asker.station_id)
@@ -675,12 +728,17 @@ class Hub:
                 _refuse(_asked(asker, cmd), reply, self.refusals, "OFFLINE", RELAY_REFUSED)
                 return
             if owner is not None and owner != self.relay.process:
-                await self._forward(owner, asker, cmd, reply)
+                await self._forward(owner, asker, cmd, reply, arrival)
                 return
-        await self._command_here(asker, cmd, reply)
+        await self._command_here(asker, cmd, reply, arrival=arrival)
 
     async def _forward(
-        self, owner: str, asker: Asker, cmd: wire.Command, reply: Callable[[str], None]
+        self,
+        owner: str,
+        asker: Asker,
+        cmd: wire.Command,
+        reply: Callable[[str], None],
+        arrival: Arrival,
     ) -> None:
         """Record a command here and send it on to the process ``owner`` that holds its
         station; end it here if that process does not say within COMMAND_TIMEOUT_S that it
@@ -694,7 +752,9 @@ class Hub:
             _refuse(asked, reply, self.refusals, "DUPLICATE", DUPLICATE, "request_id")
             return
         entry = self._forwarded[request_id] = Forwarded(asked, owner)
-        if not await self._record_request(asked, reply):
+        if not await self._record_request(asked, reply, arrival) or self._superseded(
+            asked, reply, arrival
+        ):
             del self._forwarded[request_id]
             return
         forward = {
@@ -766,18 +826,49 @@ class Hub:
             entry.timer.cancel()
         self._keep_late(request_id, entry)
 
-    async def _record_request(self, asked: live_audit.Asked, reply: Callable[[str], None]) -> bool:
+    async def _record_request(
+        self, asked: live_audit.Asked, reply: Callable[[str], None], arrival: Arrival
+    ) -> bool:
         """Write a command's request row: at once for a HOLD or Stop, which never wait;
-        awaited for the rest, which are refused (AUDIT) and not sent if it cannot be."""
+        awaited for the rest, which are refused (AUDIT) and not sent if it cannot be, or not
+        within ``AUDIT_WAIT_S`` of their arrival.
+
+        A row given up on may still be committed by a try of the writer already under way
+        (a database that answers late): its refusal is then written after it, in the same
+        queue, so the log never shows a request without the outcome that it was not sent."""
         if asked.command.action in live_audit.SAFE_ACTIONS:
             self.writer.write_soon(asked.request_row())
             return True
+        left = arrival.at + AUDIT_WAIT_S - asyncio.get_running_loop().time()
+        if left <= 0:  # waited its turn behind its view's commands: nothing was queued
+            log.error("a live command was not recorded within %g s", AUDIT_WAIT_S)
+            _refuse(asked, reply, self.refusals, "AUDIT", NOT_RECORDED_IN_TIME)
+            return False
         try:
-            await self.writer.write(**asked.request_row())
+            done = self.writer.submit(**asked.request_row())
+            if not (await asyncio.wait({done}, timeout=left))[0]:
+                done.cancel()
+                log.error("the audit of a live command took over %g s", AUDIT_WAIT_S)
+                _refuse_recorded(asked, reply, self.writer, "AUDIT", NOT_RECORDED_IN_TIME)
+                return False
+            done.result()
         except Exception as exc:  # a command that cannot be audited is not sent
             log.error("audit of a live command failed: %s", exc)
             _refuse(asked, reply, self.refusals, "AUDIT", NOT_RECORDED)
             return False
+        return True
+
+    def _superseded(
+        self, asked: live_audit.Asked, reply: Callable[[str], None], arrival: Arrival
+    ) -> bool:
+        """Whether a HOLD or Stop of the station came after this K/B change, Resume or
+        Start while it waited (:meth:`arrival`): it is then refused, after its request
+        row, rather than sent after the HOLD (a Resume would have undone it)."""
+        if asked.command.action in live_audit.SAFE_ACTIONS:
+            return False
+        if self._holds[asked.station_id] == arrival.holds:
+            return False
+        _refuse_recorded(asked, reply, self.writer, "SUPERSEDED", SUPERSEDED)
         return True
 
     async def _command_here(
@@ -787,27 +878,32 @@ class Hub:
         reply: Callable[[str], None],
         asked_on: str | None = None,
         timeout_s: float = COMMAND_TIMEOUT_S,
+        arrival: Arrival | None = None,
     ) -> None:
         """Judge, audit and send a command to a station connected here (or refuse it).
         ``asked_on``: the process it was forwarded from, which recorded its request."""
-        conn = self.stations.get(asker.station_id)
+        arrival = arrival or self.arrival(asker, cmd)
         asked = _asked(asker, cmd)
         cmd = asked.command
         if not asker.may_command:
             _refuse(asked, reply, self.refusals, "FORBIDDEN", FORBIDDEN)
             return
         if cmd.action == "start":
-            refused = await self._start_refusal(asker.patient_id, cmd.prescription_id)
+            refused = await self._start_refusal(asker.patient_id, cmd.prescription_id, arrival)
             if refused:
                 _refuse(asked, reply, self.refusals, *refused, "prescription_id")
                 return
+        conn = self.stations.get(asker.station_id)  # it may have gone meanwhile
         if conn is None:
             _refuse(asked, reply, self.refusals, "OFFLINE", "the station is not connected")
             return
         if not self.claim(asked, conn, asked_on):
             _refuse(asked, reply, self.refusals, "DUPLICATE", DUPLICATE, "request_id")
             return
-        if asked_on is None and not await self._record_request(asked, reply):
+        if asked_on is None and not await self._record_request(asked, reply, arrival):
+            self.release(cmd.request_id)
+            return
+        if self._superseded(asked, reply, arrival):
             self.release(cmd.request_id)
             return
         self.sent(cmd.request_id, timeout_s)
@@ -818,25 +914,44 @@ class Hub:
             self.link_lost(conn, cmd.request_id)
 
     async def _start_refusal(
-        self, patient_id: int, prescription_id: int | None
+        self, patient_id: int, prescription_id: int | None, arrival: Arrival
     ) -> tuple[str, str] | None:
         """Why a Start cannot go to the station, as (code, sentence): it names no
         prescription, or one that is not an active prescription of the station's patient
         (another patient's, or one since ended); the server knows that as well as the
         station, which would refuse it only after it was sent and audited as asked of this
-        patient. None when it may go."""
+        patient. None when it may go. A database that does not answer within
+        ``AUDIT_WAIT_S`` of the Start's arrival refuses it (the look-up goes on alone: one
+        cancelled half way would call the stalled database again to clean up)."""
         if prescription_id is None:
             return "REFUSED", wire.START_NEEDS_PRESCRIPTION
         assert self.sessionmaker is not None
-        try:
-            async with self.sessionmaker() as db:
-                found = await db.scalar(
+        maker = self.sessionmaker
+
+        async def look_up() -> int | None:
+            async with maker() as db:
+                found: int | None = await db.scalar(
                     select(Prescription.id).where(
                         Prescription.id == prescription_id,
                         Prescription.patient_id == patient_id,
                         Prescription.status == "active",
                     )
                 )
+                return found
+
+        left = arrival.at + AUDIT_WAIT_S - asyncio.get_running_loop().time()
+        if left <= 0:
+            log.error("a Start's prescription was not checked within %g s", AUDIT_WAIT_S)
+            return "AUDIT", UNCHECKED
+        task = asyncio.create_task(look_up())
+        if not (await asyncio.wait({task}, timeout=left))[0]:
+            self._tasks.add(task)  # held until it ends; its answer is not wanted any more
+            task.add_done_callback(_forgotten)
+            task.add_done_callback(self._tasks.discard)
+            log.error("a Start's prescription was not checked within %g s", AUDIT_WAIT_S)
+            return "AUDIT", UNCHECKED
+        try:
+            found = task.result()
         except Exception as exc:  # not sent unchecked
             log.error("a Start's prescription could not be checked: %s", exc)
             return "AUDIT", UNCHECKED
@@ -935,12 +1050,41 @@ class Hub:
                 self._unanswered(rid, "OFFLINE", "the station's link closed before it answered")
 
 
+@dataclass(frozen=True)
+class Arrival:
+    """When a command's link read it, and how many HOLDs and Stops its station had been
+    asked on this process by then (:meth:`Hub.arrival`)."""
+
+    at: float
+    """The event loop's clock."""
+    holds: int
+
+
+def _forgotten(task: asyncio.Task[Any]) -> None:
+    """A task whose answer nobody waits for any more: its exception, if any, is read (and
+    left) rather than reported as never retrieved."""
+    if not task.cancelled():
+        task.exception()
+
+
 FORBIDDEN = "only the patient's therapist may change a running exercise"
 DUPLICATE = "a command sent with this request_id may still be answered"
 NOT_RECORDED = "the command could not be recorded, so it was not sent; try again"
+NOT_RECORDED_IN_TIME = (
+    f"the command could not be recorded within {AUDIT_WAIT_S:g} s (the database did not "
+    "answer), so it was not sent; try again"
+)
 UNCHECKED = (
-    "the prescription could not be checked (the database did not answer), so the exercise "
-    "was not started; try again"
+    f"the prescription could not be checked within {AUDIT_WAIT_S:g} s (the database did not "
+    "answer), so the exercise was not started; try again"
+)
+SUPERSEDED = (
+    "a HOLD or Stop was asked of the station while this waited to be recorded, so it was "
+    "not sent after it; ask again if it is still wanted"
+)
+BUSY = (
+    f"{VIEW_COMMANDS_MAX} commands of this view are still being handled, so this one was "
+    "not sent; try again"
 )
 
 
@@ -952,6 +1096,17 @@ def _asked(asker: Asker, cmd: wire.Command) -> live_audit.Asked:
         patient_id=asker.patient_id,
         command=cmd.model_copy(update={"by": f"therapist:{asker.user_id}"}),
     )
+
+
+def _refuse_recorded(
+    asked: live_audit.Asked, reply: Callable[[str], None], writer: AuditWriter, code: str, text: str
+) -> None:
+    """Refuse a command whose request row was queued, and may be stored: the asking viewer
+    is told, and the refusal gets a row of its own, after the request's, never only a count
+    (:class:`Refusals`)."""
+    result = wire.CommandResult(request_id=asked.command.request_id, ok=False, code=code, text=text)
+    reply(result.model_dump_json())
+    writer.write_soon(asked.outcome_row("refused", result))
 
 
 def _refuse(

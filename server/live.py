@@ -27,12 +27,15 @@ from typing import Any
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
-from server import metrics
+from server import live_audit, metrics
 from server.deps import Id, LoginStanding, authenticate_station
 from server.hub import (
+    BUSY,
     COMMAND_BURST,
     COMMANDS_PER_S,
     LOGIN_CLOSE,
+    VIEW_COMMANDS_MAX,
+    Arrival,
     Asker,
     Hub,
     StationConn,
@@ -262,7 +265,7 @@ async def live_socket(ws: WebSocket, station_id: Id) -> None:
             if isinstance(message, wire.Command):
                 if not viewer.command_allowed():
                     raise _Close(wire.CLOSE_TOO_FAST, TOO_FAST)
-                await _on_command(hub, viewer, message)
+                _on_command(hub, viewer, message)
     except ValidationError as exc:
         await close_link(ws, wire.CLOSE_MALFORMED, wire.error_text(exc))
     except _Close as exc:
@@ -340,13 +343,43 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
             last_beat = now
 
 
-async def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
+def _on_command(hub: Hub, viewer: Viewer, cmd: wire.Command) -> None:
     """Relay a viewer's command to its station, on whichever process it is connected; every
-    command ends in one audited outcome (``server/live_audit.py``), whoever refuses it."""
+    command ends in one audited outcome (``server/live_audit.py``), whoever refuses it.
+
+    Each command is handled in a task of its own, so the link goes on being read while one
+    waits: a HOLD or Stop goes out at once whatever else is pending (a K/B change waiting
+    for its audit row), and heartbeats keep being read. Awaited here, a K/B change held the
+    HOLD read after it for as long as the database took: 4.85 s late behind a locked SQLite
+    file, and on a stalled PostgreSQL until it answered, 12 s, while the view, read by no
+    one, was closed for silence. The K/B changes, Resumes and Starts of one view still go
+    out one at a time, in the order asked (``Viewer.in_turn``); a task is bounded by
+    ``AUDIT_WAIT_S`` from the moment it was read, and a view by ``VIEW_COMMANDS_MAX``."""
     asker = Asker(
         viewer.user_id, viewer.station_id, viewer.patient_id, viewer.may_command, viewer.key
     )
-    await hub.command(asker, cmd, viewer.push)
+    if len(viewer.handling) >= VIEW_COMMANDS_MAX:
+        hub.refuse(asker, cmd, viewer.push, "BUSY", BUSY)
+        return
+    arrival = hub.arrival(asker, cmd)  # now, before any other command of the view is read
+    task = hub.spawn(_command(hub, viewer, asker, cmd, arrival))
+    viewer.handling.add(task)
+    task.add_done_callback(viewer.handling.discard)
+
+
+async def _command(
+    hub: Hub, viewer: Viewer, asker: Asker, cmd: wire.Command, arrival: Arrival
+) -> None:
+    """One command of a view, to its end: it goes on if the view closes meanwhile (a HOLD
+    sent just before the tab closed is still a HOLD)."""
+    try:
+        if cmd.action in live_audit.SAFE_ACTIONS:
+            await hub.command(asker, cmd, viewer.push, arrival)
+        else:
+            async with viewer.in_turn:
+                await hub.command(asker, cmd, viewer.push, arrival)
+    except Exception:
+        log.exception("a live command (%s) failed", cmd.action)
 
 
 @router.get("/api/v1/schemas/ws", tags=["live"], summary="WebSocket message schemas")

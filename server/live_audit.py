@@ -5,17 +5,20 @@ than one row that is later corrected:
 
 - ``<kind>.request`` when it is sent: who asked, which station and patient, what was asked.
   Resume, Start and K/B, which make the platform move or change what the patient feels, are
-  sent only once this row is committed: a command that cannot be audited is not sent. HOLD
-  and Stop are never delayed or refused for the database: their row is queued before they
-  go out and written beside.
+  sent only once this row is committed: a command that cannot be audited, or not within
+  ``server.hub.AUDIT_WAIT_S`` of its arrival, is not sent. HOLD and Stop are never delayed
+  or refused for the database: their row is queued before they go out and written beside.
 - its outcome: ``<kind>.accepted`` (K/B: ``impedance.change``, the only row that says the
   values changed; its old and new values are the station's own account of the change, the
   very values the session's event log records, and say when it applies), ``<kind>.refused``
   with the code, field and reason of whoever refused it (the device's NACK, the station, or
   the server itself: ``FORBIDDEN``, ``OFFLINE``, ``DUPLICATE``, ``AUDIT``, ``REFUSED`` for a
-  Start of no prescription or of one not active for the station's patient; a command the
-  server refuses is never sent and has no request row, unless the viewer's process had sent
-  it on to the station's, which refused it), or ``<kind>.unanswered`` (``TIMEOUT``, the
+  Start of no prescription or of one not active for the station's patient, ``SUPERSEDED``
+  for one a HOLD or Stop passed while it waited, ``BUSY``; a command the server refuses is
+  never sent and has no request row, unless the viewer's process had sent it on to the
+  station's, which refused it, or it was refused after its request row was queued:
+  ``SUPERSEDED``, or ``AUDIT`` for a row the database did not take in time, which it may
+  still take late, before the refusal row), or ``<kind>.unanswered`` (``TIMEOUT``, the
   station's link lost, the server shut down; or the station's process never said that the
   command ended, and the viewer's process ended it): what the device did is not known. An
   answer that arrives after its TIMEOUT still writes its outcome, marked ``late``.

@@ -28,6 +28,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from sessions import recording
+
 Role = Literal["therapist", "admin"]
 ROLES: tuple[Role, ...] = ("therapist", "admin")
 Side = Literal["left", "right", "both"]
@@ -48,8 +50,9 @@ NAMING = {
 ID = BigInteger().with_variant(Integer(), "sqlite")
 """Every id and every column naming one: 64-bit on PostgreSQL (migration 0003), and
 SQLite's INTEGER, whose primary key is already a 64-bit rowid that autoincrements."""
-ID_MAX = 2**63 - 1
-"""The largest id the store holds; the API refuses any outside 1..ID_MAX (``routes.common``)."""
+ID_MAX = recording.ID_MAX
+"""The largest id the store holds; the API refuses any outside 1..ID_MAX (``server.deps.Id``),
+as do the live links (``sessions.wire.Id``) and uploads (``sessions.recording.Header``)."""
 
 
 def utcnow() -> datetime:

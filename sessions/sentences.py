@@ -28,6 +28,7 @@ from pydantic.fields import FieldInfo
 from sessions.text import (
     CONTROL_CHARACTER,
     DIRECTION_CONTROL,
+    EMAIL_PATTERN,
     INVISIBLE_CHARACTER,
     MIXED_SCRIPTS,
     NOTHING_VISIBLE,
@@ -217,7 +218,11 @@ JSON_INVALID = "The request is not valid JSON."
 
 SHA256_HEX = r"^[0-9a-fA-F]{64}$"
 """A SHA-256 as hex digits, in either case (``sha256sum`` writes lower, some tools upper)."""
-PATTERN_FORMS: dict[str, str] = {SHA256_HEX: "64 hexadecimal digits (0-9 and a-f)"}
+PATTERN_FORMS: dict[str, str] = {
+    SHA256_HEX: "64 hexadecimal digits (0-9 and a-f)",
+    EMAIL_PATTERN: "an email address such as name@clinic.example: one @ with text on each "
+    "side, and no spaces",
+}
 """What a text a pattern checks must be, in words, for each pattern the API uses; a
 pattern not named here is quoted as it is."""
 

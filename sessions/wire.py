@@ -45,7 +45,7 @@ from sessions.prescription import (
     PrescriptionBody,
     plus_zero,
 )
-from sessions.recording import DeviceInfo, SessionEvent
+from sessions.recording import ID_MAX, DeviceInfo, SessionEvent
 from sessions.text import Line, Lines
 
 PROTOCOL = 4
@@ -103,6 +103,27 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 Vec6 = Annotated[list[float], Field(min_length=6, max_length=6)]
 
 
+def _id(value: int) -> int:
+    """The bounds said as the REST API says them (``Session id must be at most ...``), the
+    largest as the integer it is."""
+    if value < 1:
+        raise PydanticCustomError("id", "must be at least 1")
+    if value > ID_MAX:
+        raise PydanticCustomError("id", f"must be at most {ID_MAX}")
+    return value
+
+
+Id = Annotated[
+    int,
+    Field(strict=True, json_schema_extra={"minimum": 1, "maximum": ID_MAX}),
+    AfterValidator(_id),
+]
+"""Every id a message names: a JSON integer from 1 to 2**63-1, as the REST API takes them
+(``server.deps.Id``). A larger one names nothing the database can hold: a Start of
+prescription 2**70 reached the database, whose driver could not send it, and was refused as
+if the database were away (``AUDIT``, logged at ERROR); ``true`` was taken as 1."""
+
+
 class Heartbeat(BaseModel):
     model_config = _STRICT
     type: Literal["heartbeat"] = "heartbeat"
@@ -121,8 +142,10 @@ class Welcome(BaseModel):
     model_config = _STRICT
     type: Literal["welcome"] = "welcome"
     protocol: int = PROTOCOL
-    station_id: int
-    patient_id: int
+    station_id: Id
+    patient_id: int = Field(
+        strict=True, ge=0, le=ID_MAX, description="0 for a viewer: the station is offline."
+    )
     online: bool = Field(default=True, description="For a viewer: is the station connected.")
     status: StatusMsg | None = None
     server_time: float = Field(description="Unix s.")
@@ -279,7 +302,7 @@ class StatusMsg(BaseModel):
     trip: int = 0
     phase: Phase = "idle"
     session_id: str | None = None
-    prescription_id: int | None = None
+    prescription_id: Id | None = None
     exercise: str | None = None
     set: int = 0
     rep: int = 0
@@ -356,7 +379,7 @@ class Command(BaseModel):
     damping: dict[Axis, LiveDamping] | None = Field(
         default=None, description="set_impedance: new B per ankle axis, N·m·s/rad."
     )
-    prescription_id: int | None = Field(default=None, description="start: which exercise.")
+    prescription_id: Id | None = Field(default=None, description="start: which exercise.")
     by: str = Field(default="", description="Set by the server: therapist:<id>.")
 
 
@@ -432,7 +455,9 @@ class CommandResult(BaseModel):
     code: Line = Field(
         default="",
         description="The device's NACK code; the station's REFUSED, OFFLINE or TIMEOUT; or the "
-        "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT or TIMEOUT.",
+        "server's FORBIDDEN, OFFLINE, DUPLICATE (request_id in use), AUDIT (not recorded, "
+        "not sent), SUPERSEDED (a HOLD or Stop went out while it waited: not sent), BUSY "
+        "(too many of the view's commands in hand: not sent) or TIMEOUT.",
     )
     field: Line = ""
     text: Lines = ""
@@ -444,9 +469,9 @@ class CommandResult(BaseModel):
 
 class PrescriptionItem(BaseModel):
     model_config = _STRICT
-    id: int
+    id: Id
     version: int
-    patient_id: int
+    patient_id: Id
     body: PrescriptionBody
 
 

@@ -18,13 +18,14 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import re
 from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, PlainTextResponse, Response
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
@@ -186,13 +187,14 @@ _DOWNLOAD: dict[str, Any] = {
             "whole file's."
         },
         400: {
-            "description": "A Range header that is not one (not bytes, or a range that ends "
-            "before it starts), in plain text.",
+            "description": "A Range header that is not one (not bytes, any part of it not "
+            "first-last, first- or -suffix, or a range that ends before it starts), in plain "
+            "text.",
             "content": _RANGE_TEXT,
         },
         416: {
-            "description": "A Range that starts past the end of the file, with "
-            "Content-Range: bytes */<size> and no body.",
+            "description": "A Range that starts past the end of the file, or asks for more "
+            "than 16 ranges, with Content-Range: bytes */<size>.",
             "content": _RANGE_TEXT,
         },
         500: {
@@ -212,7 +214,7 @@ _DOWNLOAD: dict[str, Any] = {
 )
 async def download(
     session_id: Id, fmt: Format, request: Request, db: Db, user: TherapistOrAdmin
-) -> FileResponse:
+) -> Response:
     """Audited as data leaving the system (``patient.export``, entity ``session``, with the
     format), as the patient's report is, and kept by no cache on the way."""
     row = await _session_for(db, user, session_id)
@@ -235,9 +237,61 @@ async def download(
         },
         stat_result=await asyncio.to_thread(os.stat, path),
     )
+    refused = _range_refused(request, response)
+    if refused is not None:
+        return refused
     if _sends_data(request, response):
         await exported(db, user, row, fmt)
     return response
+
+
+RANGES_MAX = 16
+"""Ranges one request may ask for. A resumed download asks for one, a reader of parts a few;
+each is a part of its own in a multipart answer. Starlette serves up to 100 and, past that,
+ignores the header and sends the whole file (200): 300 one-byte ranges were a full
+download. Past this many the request is refused (416, as RFC 9110 has it for an excessive
+request of small ranges), and nothing is sent."""
+_RANGE_SPEC = re.compile(r"\d{1,30}-\d{0,30}|-\d{1,30}")
+"""One part of a byte Range (RFC 9110, 14.1.2): first-last, first- (to the end) or -suffix
+(the last so many bytes). A position has at most 30 digits: a larger one is past any file
+all the same, and Python reads no integer of more than 4,300 digits."""
+NOT_A_RANGE = (
+    "Range header: {part!r} is not a byte range; each part of bytes=... must be first-last, "
+    "first- or -suffix, separated by commas"
+)
+
+
+def _range_refused(request: Request, response: FileResponse) -> Response | None:
+    """The answer to a Range header that Starlette would read leniently, or None.
+
+    Starlette skips a part of a Range it cannot read (``bytes=0-1,abc`` is ``bytes=0-1``),
+    and ignores a header of more than 100 parts, sending the whole file; the answer then
+    was not what was asked. A part that is not a byte range is a 400, as a header that is
+    not one at all is (``bytes=abc``), and more than ``RANGES_MAX`` ranges a 416. Empty
+    parts are allowed, as in any HTTP list (RFC 9110, 5.6.1). Only a Range that would be
+    used is judged: one whose If-Range no longer matches asks for the whole file."""
+    http_range = request.headers.get("range")
+    if http_range is None or response.stat_result is None:
+        return None
+    if_range = request.headers.get("if-range")
+    should_use = getattr(response, "_should_use_range", None)
+    if if_range is not None and should_use is not None and not should_use(if_range):
+        return None
+    unit, _, ranges = http_range.partition("=")
+    if unit.strip().lower() != "bytes":
+        return None  # Starlette's own 400
+    parts = [part.strip() for part in ranges.split(",")]
+    for part in parts:
+        if part and not _RANGE_SPEC.fullmatch(part):
+            return PlainTextResponse(NOT_A_RANGE.format(part=part[:40]), status_code=400)
+    asked = sum(1 for part in parts if part)
+    if asked > RANGES_MAX:
+        return PlainTextResponse(
+            f"Range header: {asked} ranges; at most {RANGES_MAX} may be asked at once",
+            status_code=416,
+            headers={"Content-Range": f"bytes */{response.stat_result.st_size}"},
+        )
+    return None
 
 
 def _sends_data(request: Request, response: FileResponse) -> bool:

@@ -190,3 +190,15 @@ def test_bad_input_is_one_line_exit_2_and_changes_nothing(
         users = db.execute("SELECT count(*) FROM users").fetchone()
         rows = db.execute("SELECT count(*) FROM audit_log").fetchone()
     assert (users, rows) == ((1,), (1,))
+
+
+@pytest.mark.parametrize("email", ["", "not an email", "two@at@signs"])
+def test_an_address_that_is_not_one_is_refused_in_words(tmp_path: Path, email: str) -> None:
+    """The API's sentence after the option that gave it, not pydantic's words around the
+    address's regular expression ("String should match pattern '^[^@\\s]+@[^@\\s]+$'")."""
+    r = admin(tmp_path, "create-user", "--email", email, "--name", "X", "--role", "admin")
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert r.stderr.strip() == (
+        "error: --email: Email must be an email address such as name@clinic.example: one @ "
+        "with text on each side, and no spaces."
+    )

@@ -3,17 +3,25 @@ parameter) on every route, by the one type ``server.deps.Id``."""
 
 from __future__ import annotations
 
-from typing import Any
+import asyncio
+import json
+import logging
+import typing
+from typing import Annotated, Any
 
 import pytest
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute, APIWebSocketRoute, iter_route_contexts
+from pydantic import BaseModel, TypeAdapter, ValidationError
 from sqlalchemy import text
 
 from server.config import Settings
 from server.models import ID_MAX, Patient
+from sessions import wire
 from tests.server.live_server import STRENGTH, Live, World, bearer
+from tests.server.ws_client import closed_with, viewer_ws
 from webui.app import create_app
+from webui.home import messages as page
 
 pytestmark = pytest.mark.both_stores
 
@@ -137,3 +145,89 @@ async def test_new_ids_count_on_past_two_to_the_31(live: Live, world: World, sto
     r = await live.client.post("/patients", json={"display_name": "Next"}, headers=bearer(world.t1))
     assert r.status_code == 201, r.text
     assert r.json()["id"] == ABOVE_INT4
+
+
+def _wire_models() -> set[type[BaseModel]]:
+    """Every model a live link's message holds, at any depth."""
+    found: set[type[BaseModel]] = set()
+
+    def walk(annotation: Any) -> None:
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            if annotation not in found:
+                found.add(annotation)
+                for info in annotation.model_fields.values():
+                    walk(info.annotation)
+            return
+        for arg in typing.get_args(annotation):
+            walk(arg)
+
+    for union in (wire.StationUp, wire.StationDown, wire.ViewerUp, wire.ViewerDown):
+        walk(union)
+    for union in (page.PageAction, page.PageMessage):  # the patient's page, at the station
+        walk(union)
+    return found
+
+
+OFFLINE_PATIENT = ("Welcome", "patient_id")
+"""A viewer's welcome names patient 0 while its station is offline."""
+DEVICE_COUNTERS = {"segment_id"}
+"""Numbers the device counts itself (0: no segment), which name no record of the store."""
+
+
+def test_every_id_field_of_every_live_message_is_bounded() -> None:
+    """One rule for ids on the live links and the patient's page, as on the routes:
+    1..2**63-1, JSON integers. A Start of prescription 2**70 from the patient's page made a
+    Command the live link's rule refuses, raised inside the page's link, and closed it."""
+    checked, unbounded = [], []
+    for model in _wire_models():
+        for name, info in model.model_fields.items():
+            if not _names_an_id(name) or "int" not in str(info.annotation):
+                continue
+            if name in DEVICE_COUNTERS:
+                continue
+            checked.append((model.__name__, name))
+            # The field as the model reads it (an ``Id | None`` carries its rule inside).
+            form: Any = (
+                Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+            )
+            field: TypeAdapter[Any] = TypeAdapter(form)
+            low = 0 if (model.__name__, name) == OFFLINE_PATIENT else 1
+            verdicts = []
+            for value in (low, ID_MAX, low - 1, ID_MAX + 1, True):
+                try:
+                    field.validate_json(json.dumps(value))
+                    verdicts.append(True)
+                except ValidationError:
+                    verdicts.append(False)
+            if verdicts != [True, True, False, False, False]:  # ``true`` is no id
+                unbounded.append((model.__name__, name, verdicts))
+    assert unbounded == []
+    assert {("Command", "prescription_id"), ("StatusMsg", "prescription_id")} <= set(checked)
+    assert {("PrescriptionItem", "id"), ("PrescriptionItem", "patient_id")} <= set(checked)
+    assert {("Start", "prescription_id"), ("Exercise", "id")} <= set(checked)
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("prescription_id", [2**70, ID_MAX + 1, 0])
+async def test_a_start_of_an_id_out_of_range_closes_the_view_naming_it(
+    live: Live, world: World, prescription_id: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Invalid input, refused as such: the view is closed as malformed (1007), naming the
+    field and its bound, with no error logged and no audit row. A Start of prescription
+    2**70 went to the database, whose driver could not send it, and came back as the
+    database not answering (AUDIT, "try again"), logged at ERROR."""
+    command = {
+        "type": "command",
+        "request_id": "huge",
+        "action": "start",
+        "prescription_id": prescription_id,
+    }
+    async with viewer_ws(live, world.t1, world.s1_id) as ws:
+        await asyncio.wait_for(ws.recv(), 15)  # welcome
+        await ws.send(json.dumps(command))
+        code, reason = await closed_with(ws, timeout=15)
+    bound = "at least 1" if prescription_id < 1 else f"at most {ID_MAX}"
+    assert (code, reason) == (wire.CLOSE_MALFORMED, f"command.prescription_id: must be {bound}")
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
+    r = await live.client.get("/audit", params={"request_id": "huge"}, headers=bearer(world.admin))
+    assert r.status_code == 200 and r.json() == [], r.text

@@ -23,6 +23,7 @@ from sqlalchemy import update
 
 from server import fonts, report
 from server.models import Prescription
+from server.routes.sessions import RANGES_MAX
 from sessions.anatomy import LABELS
 from sessions.export import FORMATS
 from sessions.fhir import LATERALITY_EXTENSION
@@ -358,6 +359,49 @@ async def test_a_range_download_is_audited_only_when_it_sends_data(
         sent += status in (200, 206)
         assert len(await exports(live, world)) == sent, ask
     assert r.content == whole.content  # If-Range did not match: the whole file was sent
+
+
+@pytest.mark.asyncio
+async def test_a_range_list_is_served_as_asked_or_refused_never_as_the_whole_file(
+    live: Live, world: World
+) -> None:
+    """A part of a Range list that is not a byte range is malformed (400), as a header that
+    is not one at all; more than RANGES_MAX ranges are refused (416). Starlette skipped such a
+    part, and past 100 parts ignored the header: ``bytes=0-1,0-1,bytes=0-1,...`` and 300
+    one-byte ranges were answered 200 with the whole file, each audited as a full export."""
+    session_id = await upload(live, world, rows_at(TODAY))
+    url, t1 = f"/sessions/{session_id}/download/rec", bearer(world.t1)
+    whole = (await live.client.get(url, headers=t1)).content
+    sent = len(await exports(live, world))
+    cases = [
+        ("bytes=" + "0-1,0-1,bytes=" * 50 + "0-1", 400, "'bytes=0-1' is not a byte range"),
+        ("bytes=0-1,abc", 400, "'abc' is not a byte range"),
+        ("bytes=0-1,-", 400, "'-' is not a byte range"),
+        ("bytes=" + ",".join(f"{i}-{i}" for i in range(300)), 416, "300 ranges; at most 16"),
+        ("bytes=" + ",".join(f"{2 * i}-{2 * i}" for i in range(RANGES_MAX + 1)), 416, "17"),
+    ]
+    for asked, status, says in cases:
+        r = await live.client.get(url, headers={**t1, "Range": asked})
+        assert r.status_code == status, (asked[:60], r.status_code, r.text[:200])
+        assert says in r.text, r.text
+        if status == 416:
+            assert r.headers["content-range"] == f"bytes */{len(whole)}"
+        assert len(await exports(live, world)) == sent, asked[:60]  # nothing was sent
+    # What is a list of byte ranges is served as one, empty parts and all (RFC 9110, 5.6.1).
+    for asked, parts in [
+        ("bytes=0-1,", 1),
+        ("bytes= 0-1 , , -2", 2),
+        ("bytes=" + ",".join(f"{2 * i}-{2 * i}" for i in range(RANGES_MAX)), RANGES_MAX),
+    ]:
+        r = await live.client.get(url, headers={**t1, "Range": asked})
+        assert r.status_code == 206, (asked[:60], r.text[:200])
+        if parts == 1:
+            assert r.content == whole[:2]
+        else:
+            assert r.headers["content-type"].startswith("multipart/byteranges")
+            assert r.content.count(b"Content-Range: bytes ") == parts
+        sent += 1
+        assert len(await exports(live, world)) == sent, asked[:60]
 
 
 @pytest.mark.asyncio

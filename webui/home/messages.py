@@ -23,7 +23,7 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 # -- down: station to page -------------------------------------------------------------------
 class Exercise(BaseModel):
     model_config = _STRICT
-    id: int
+    id: wire.Id
     title: str
     instructions: str
     exercise: str
@@ -56,7 +56,7 @@ class PageStatus(BaseModel):
     device_mode: str
     phase: wire.Phase
     session_id: str | None
-    prescription_id: int | None
+    prescription_id: wire.Id | None
     set: int
     rep: int
     sets: int
@@ -123,7 +123,7 @@ class Start(BaseModel):
     model_config = _STRICT
     type: Literal["start"]
     id: _Id = None
-    prescription_id: int
+    prescription_id: wire.Id
 
 
 class Pause(BaseModel):
