@@ -79,6 +79,9 @@ class Station:
         self.writer: SessionWriter | None = None
         self.session_id: str | None = None
         self.message = ""
+        self._impedance = asyncio.Lock()
+        """Live K/B changes one at a time: each is merged, sent and, if refused, undone before
+        the next is merged, so that its before and after are exact."""
         self.reasons = Reasons()
         self._stall_heard: tuple[float, float] | None = None
         self._status_dirty = asyncio.Event()
@@ -451,15 +454,16 @@ class Station:
                 refused = run.impedance_refusal(cmd.stiffness, cmd.damping)
                 if refused is not None:
                     return result(False, "REFUSED", *refused)
-                change = await self._set_impedance(dev, run, cmd)
-                self._event(
-                    SessionEvent(
-                        wall=time.time(),
-                        kind="impedance",
-                        by=cmd.by or "station",
-                        detail=change.model_dump(mode="json"),
+                async with self._impedance:
+                    change = await self._set_impedance(dev, run, cmd)
+                    self._event(
+                        SessionEvent(
+                            wall=time.time(),
+                            kind="impedance",
+                            by=cmd.by or "station",
+                            detail=change.model_dump(mode="json"),
+                        )
                     )
-                )
                 code = "" if change.applies == "now" else "DEFERRED"
                 return result(True, code, "", APPLIES_TEXT[change.applies], change)
             if cmd.action == "hold":
@@ -499,10 +503,12 @@ class Station:
     ) -> wire.ImpedanceChange:
         """Merge a live K/B change into the run and send it to the device when the device
         renders one; what changed and when it applies. A change the device refuses is taken
-        out of the run again (CommandRefused is raised on)."""
+        out of the run again (CommandRefused is raised on). Called under ``_impedance``: a
+        change merged while this one waits for the device would show in this one's after,
+        and its undo would put back this one's before over it."""
         before = (dict(run.stiffness), dict(run.damping))
         k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
-        after = (run.stiffness, run.damping)
+        after = (dict(run.stiffness), dict(run.damping))
         if dev.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
             return wire.ImpedanceChange.between(before, after, cmd, "next_repetition")
         try:
