@@ -25,6 +25,8 @@ import itertools
 import logging
 import random
 import time
+from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Generic, TypeVar
@@ -109,11 +111,19 @@ class Subscription(Generic[T]):
     """An async iterator over what the device sends from its creation on; it ends when the
     link closes. :meth:`aclose` (or dropping it) stops the delivery."""
 
-    def __init__(self, subs: list[asyncio.Queue[T | None]], maxsize: int, ended: bool) -> None:
+    def __init__(
+        self,
+        subs: list[asyncio.Queue[T | None]],
+        maxsize: int,
+        ended: bool,
+        before: Iterable[T] = (),
+    ) -> None:
         self._subs = subs
         self._q: asyncio.Queue[T | None] = asyncio.Queue(maxsize)
         self._done = ended
         if not ended:
+            for item in before:
+                self._q.put_nowait(item)
             subs.append(self._q)
 
     def __aiter__(self) -> Subscription[T]:
@@ -178,6 +188,10 @@ class DeviceClient:
         self._hello: asyncio.Future[msg.DeviceHello] | None = None
         self._telemetry_subs: list[asyncio.Queue[msg.Telemetry | None]] = []
         self._event_subs: list[asyncio.Queue[msg.Event | None]] = []
+        self._unasked: deque[msg.Event] | None = deque(maxlen=EARLY_MAX)
+        """Events heard before the first :meth:`events` (None from then): the device sends
+        the event of a hold that a new HELLO causes, and its replay, while the handshake is
+        under way, before a host can subscribe. The first subscription gets them first."""
         # Subscriptions start when asked for, not at their first read: a hold that came
         # between the two was lost to a caller that asked for events, then stopped the
         # heartbeats and waited.
@@ -370,8 +384,10 @@ class DeviceClient:
         return Subscription(self._telemetry_subs, maxsize, self._closed.is_set())
 
     def events(self) -> Subscription[msg.Event]:
-        """Every event from this call on, each once, in id order as received."""
-        return Subscription(self._event_subs, 0, self._closed.is_set())
+        """Every event from this call on, each once, in id order as received; the first call
+        also gets those heard before it (since the link opened)."""
+        before, self._unasked = self._unasked or (), None
+        return Subscription(self._event_subs, 0, self._closed.is_set(), before)
 
     async def wait_for_mode(self, *modes: DeviceMode, timeout: float = 5.0) -> msg.Telemetry:
         """The first telemetry sample in one of ``modes``; :class:`LinkTimeout` otherwise.
@@ -526,6 +542,8 @@ class DeviceClient:
         while True:
             self._last_event_id = event.event_id
             self.last_event = event
+            if self._unasked is not None:
+                self._unasked.append(event)
             for eq in self._event_subs:
                 eq.put_nowait(event)
             following = self._early.pop(event.event_id + 1, None)

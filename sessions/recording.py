@@ -178,7 +178,8 @@ class SessionEvent(BaseModel):
     kind: str = Field(
         description="rep_done, set_done, rest, mode, limit, fault, watchdog, estop, "
         "supply_low, damping_raised (an axis rang with the foot on it and the device raised "
-        "its damping), impedance, hold, resume, stop, interrupted (held too long), refused "
+        "its damping), impedance, hold, resume, stop, interrupted (held too long, or the "
+        "device's link lost), refused "
         "(the device refused the exercise's segment), game_score, note."
     )
     by: str = Field(default="station", description="device, station, patient or therapist:<id>.")

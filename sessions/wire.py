@@ -265,7 +265,8 @@ class EventMsg(BaseModel):
 Phase = Literal[
     "idle", "homing", "running", "rest", "paused", "done", "stopped", "fault", "interrupted"
 ]
-"""``interrupted``: the exercise ended because it was held longer than the station's limit."""
+"""``interrupted``: the station ended the exercise early: it was held longer than the
+station's limit, or the device's link was lost (the status's message says which)."""
 
 HoldCode = Literal["pause", "therapist", "station", "watchdog", "supply_low", "device"]
 """Who or what holds the exercise: the patient's pause, the therapist's HOLD, the station

@@ -56,6 +56,9 @@ STOP_WAIT_S = 8.0
 NOTHING_HELD = "nothing to resume: no exercise is paused and the platform is not held"
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
+HEARD_KEPT = 256
+"""Device events remembered as heard (:attr:`Station._heard`): more than the device keeps
+for replay (64)."""
 REASON_MAX = 240
 """Characters of the server's reason a status gives for each refused session (the whole
 reason is in the spool, beside the session)."""
@@ -79,6 +82,20 @@ class Station:
         self.writer: SessionWriter | None = None
         self.session_id: str | None = None
         self.message = ""
+        """The last session's notice (why it ended early, why it could not start): kept until
+        the next start, across a reconnection to the device."""
+        self._link_notice = ""
+        """Why the device's link is down, while it is."""
+        self.ended_link_lost = False
+        """The last exercise ended because the device's link was lost (the patient's page
+        says so in its own words)."""
+        self._heard: dict[int, float] = {}
+        """Device time of each event heard from the device lately, by event id: the device
+        replays its newest events to a host that connects, and one heard already on an
+        earlier link is not news (its id and time match; a restarted device's do not)."""
+        self._impedance = asyncio.Lock()
+        """Live K/B changes one at a time: each is merged, sent and, if refused, undone before
+        the next is merged, so that its before and after are exact."""
         self.reasons = Reasons()
         self._stall_heard: tuple[float, float] | None = None
         self._status_dirty = asyncio.Event()
@@ -166,12 +183,13 @@ class Station:
             try:
                 dev = await DeviceClient.connect(self.config.device, self.config.baud)
             except (DeviceError, OSError) as exc:
-                self.message = f"cannot reach the platform: {exc}"
+                self._link_notice = f"cannot reach the platform: {exc}"
                 self._status_dirty.set()
                 await asyncio.sleep(1.0)
                 continue
             self.dev = dev
-            self.message = ""
+            self._link_notice = ""
+            self.reasons.link_back(time.time())
             assert dev.hello is not None
             log.info(
                 "device %s (%s) on %s", dev.hello.firmware, dev.hello.hardware, self.config.device
@@ -186,18 +204,26 @@ class Station:
                 )
             self.link.send(self._hello())
             self._status_dirty.set()
+            why = ""  # cancelled: the station is stopping, and stops a run as it does
             try:
-                await self._serve_device(dev)
+                why = await self._serve_device(dev)
             finally:
                 self.dev = None
+                self._link_notice = "lost the platform's link" + (f": {why}" if why else "")
+                if why:
+                    log.error("%s", self._link_notice)
+                    self.reasons.link_lost(why, time.time())
                 if self.run_ is not None:
-                    self.run_.stop()
+                    if why:
+                        self.run_.lost(why)
+                    else:
+                        self.run_.stop()
                 await dev.close()
-                self.message = "lost the platform's link"
                 self._status_dirty.set()
             await asyncio.sleep(1.0)
 
-    async def _serve_device(self, dev: DeviceClient) -> None:
+    async def _serve_device(self, dev: DeviceClient) -> str:
+        """Serve one link to the device until it is lost; how it was lost."""
         telemetry = asyncio.create_task(self._telemetry(dev))
         events = asyncio.create_task(self._events(dev))
         try:
@@ -205,12 +231,17 @@ class Station:
             done, _ = await asyncio.wait({telemetry, events}, return_when=asyncio.FIRST_COMPLETED)
             for t in done:
                 t.result()
+            if telemetry in done and telemetry.result():
+                return telemetry.result()
+            return dev.link_error or "the link closed"
         finally:
             telemetry.cancel()
             events.cancel()
             await asyncio.gather(telemetry, events, return_exceptions=True)
 
-    async def _telemetry(self, dev: DeviceClient) -> None:
+    async def _telemetry(self, dev: DeviceClient) -> str:
+        """Record and stream the device's telemetry until its link closes (``""``) or goes
+        silent (how long, in words)."""
         last_flush = time.monotonic()
         stream = dev.telemetry()
         while True:
@@ -219,8 +250,14 @@ class Station:
                 # with a sample (at 100 Hz that happens), and the station would never stop.
                 async with asyncio.timeout(DEVICE_STALE_S):
                     t = await anext(stream)
-            except (StopAsyncIteration, TimeoutError):
-                return  # the link closed or went silent: reconnect
+            except StopAsyncIteration:
+                return ""  # the link closed: reconnect
+            except TimeoutError:
+                # This side still runs (the watchdog's heartbeats name a stall of its own).
+                return (
+                    f"the platform sent nothing for {DEVICE_STALE_S:g} s (the device stalled, "
+                    "or its cable was cut)"
+                )
             wall = time.time()
             run = self.run_
             s, r = (run.set, run.rep) if run else (0, 0)
@@ -235,10 +272,17 @@ class Station:
 
     async def _events(self, dev: DeviceClient) -> None:
         async for e in dev.events():
-            # When it happened: an event may reach the station late (a replay after a stall).
+            if self._heard.get(e.event_id) == e.time:
+                continue  # heard on an earlier link: replayed to this one, not news
+            self._heard[e.event_id] = e.time
+            while len(self._heard) > HEARD_KEPT:
+                del self._heard[next(iter(self._heard))]
+            # When it happened: an event may reach the station late (a replay after a stall
+            # or to a station that has just connected).
             latest = dev.latest
             lag = max(0.0, latest.time - e.time) if latest is not None else 0.0
-            self.reasons.device_event(e, time.time() - lag)
+            at = time.time() - lag
+            self.reasons.device_event(e, at)
             run = self.run_
             if run is not None:
                 run.device_event(e)
@@ -246,7 +290,7 @@ class Station:
             # that has just connected) is not this session's record; what it says of the
             # device (above) may still change the status.
             if run is None or run.follows(e):
-                self._event(device_event(e, time.time()))
+                self._event(device_event(e, at))
             self._status_dirty.set()
 
     def _event(self, event: SessionEvent) -> None:
@@ -274,6 +318,7 @@ class Station:
         welcome = self.link.welcome
         hello = self.dev.hello
         self.message = ""  # the last session's notice is history now
+        self.ended_link_lost = False
         self.session_id = str(uuid.uuid4())
         header = Header(
             session_id=self.session_id,
@@ -351,28 +396,26 @@ class Station:
         self._status_dirty.set()
 
     async def _run_session(self, run: ExerciseRun) -> None:
-        try:
-            end = await run.run()
-        except DeviceError as exc:
-            log.error("exercise stopped: %s", exc)
-            self.message = str(exc)
-            end = None
+        # Every way a run ends returns its end (a lost device link too): a session closed
+        # without one is a cut-off recording, which the server refuses.
+        end = await run.run()
+        if run.link_lost:
+            log.error("exercise interrupted: %s", end.text)
         writer, self.writer = self.writer, None
         if writer is not None:
-            if end is not None:
-                writer.end(end)
+            writer.end(end)
             writer.close()
-        if end is not None and end.text:
+        if end.text:
             self.message = end.text
+        self.ended_link_lost = run.link_lost
         latest = run.dev.latest
         self.reasons.settled(latest.mode if latest is not None else None)
         self._segment_base = max(1, (run.last_segment_id + 1) & 0xFFFF)
         self.run_ = None
         self.session_id = None
         self._last_phase = run.phase  # shown until the next start: done, stopped or fault
-        if end is not None:
-            self.uploader.skip(None)
-            self.uploader.wake()
+        self.uploader.skip(None)
+        self.uploader.wake()
         after = self.config.repeat_after_s
         if self._repeating and run.phase == "done" and after is not None:
             # Known before the status that says "done" goes out: the page says both at once.
@@ -451,15 +494,16 @@ class Station:
                 refused = run.impedance_refusal(cmd.stiffness, cmd.damping)
                 if refused is not None:
                     return result(False, "REFUSED", *refused)
-                change = await self._set_impedance(dev, run, cmd)
-                self._event(
-                    SessionEvent(
-                        wall=time.time(),
-                        kind="impedance",
-                        by=cmd.by or "station",
-                        detail=change.model_dump(mode="json"),
+                async with self._impedance:
+                    change = await self._set_impedance(dev, run, cmd)
+                    self._event(
+                        SessionEvent(
+                            wall=time.time(),
+                            kind="impedance",
+                            by=cmd.by or "station",
+                            detail=change.model_dump(mode="json"),
+                        )
                     )
-                )
                 code = "" if change.applies == "now" else "DEFERRED"
                 return result(True, code, "", APPLIES_TEXT[change.applies], change)
             if cmd.action == "hold":
@@ -499,10 +543,12 @@ class Station:
     ) -> wire.ImpedanceChange:
         """Merge a live K/B change into the run and send it to the device when the device
         renders one; what changed and when it applies. A change the device refuses is taken
-        out of the run again (CommandRefused is raised on)."""
+        out of the run again (CommandRefused is raised on). Called under ``_impedance``: a
+        change merged while this one waits for the device would show in this one's after,
+        and its undo would put back this one's before over it."""
         before = (dict(run.stiffness), dict(run.damping))
         k, b = run.apply_impedance(cmd.stiffness, cmd.damping)
-        after = (run.stiffness, run.damping)
+        after = (dict(run.stiffness), dict(run.damping))
         if dev.mode not in (DeviceMode.ACTIVE, DeviceMode.HOLD):
             return wire.ImpedanceChange.between(before, after, cmd, "next_repetition")
         try:
@@ -638,7 +684,11 @@ class Station:
             refused_sessions=[f"{sid}: {_cut(why)}" for sid, why in refused[: wire.REFUSED_NAMED]],
             overruns=latest.overruns if latest else 0,
             frames_lost=dev.stats.frames_lost if dev else 0,
-            message=(run.message if run and run.message else supply_notice(latest) or self.message),
+            message=(
+                run.message
+                if run and run.message
+                else supply_notice(latest) or self._link_notice or self.message
+            ),
             hold=self._hold(),
             fault=self.reasons.fault(latest.mode if latest else None, latest.trip if latest else 0),
         )

@@ -46,6 +46,14 @@ STALL_NEAR_S = 2.0
 """A stall of this computer that ended this close to a watchdog hold's start explains it..."""
 STALL_SHARE = 0.5
 """...when it lasted at least this share of the silence the device measured."""
+LINK_BEFORE_S = 3.0
+"""A watchdog hold that began this long before the station found the device's link lost, or
+later, until it had the link back, is the lost link's: the station finds a silent link lost
+2 s after the device's last frame (station.app.DEVICE_STALE_S), and a device that hears
+nothing from then holds after its watchdog."""
+LINK_AFTER_S = 1.0
+"""...and this long after it had the link back (the device's clock and the station's, as
+the newest telemetry relates them)."""
 
 
 def asked_code(by: str) -> HoldCode:
@@ -101,6 +109,11 @@ class Reasons:
         self._unheard_since: float | None = None
         self._stall: tuple[float, float] | None = None
         self._silence_ms = 0.0
+        self._watchdog_said = ""
+        """The device's words for its newest watchdog hold."""
+        self._link: tuple[str, float, float | None] | None = None
+        """The device's link as the station last lost it: how, when, and when it had it
+        back (None while it is down)."""
 
     # -- what the station asked --------------------------------------------------------
     def asked(self, by: str, now: float | None = None) -> None:
@@ -117,6 +130,16 @@ class Reasons:
         """An exercise ended: a hold outlives it only if the device still holds."""
         if mode != DeviceMode.HOLD:
             self._hold = None
+
+    def link_lost(self, why: str, at: float) -> None:
+        """The station lost the device's link at ``at`` (Unix s); ``why``: how."""
+        self._link = (why, at, None)
+
+    def link_back(self, at: float) -> None:
+        """The station has the device's link again (a new HELLO: the device holds a motion
+        under way, which nobody on the new link commanded)."""
+        if self._link is not None and self._link[2] is None:
+            self._link = (self._link[0], self._link[1], at)
 
     # -- what the device said ------------------------------------------------------------
     def device_event(self, event: msg.Event, at: float) -> None:
@@ -136,6 +159,7 @@ class Reasons:
         if event.mode_to == DeviceMode.HOLD and event.mode_from != DeviceMode.HOLD:
             if event.kind == EventKind.WATCHDOG:
                 self._silence_ms = event.value
+                self._watchdog_said = event.text
                 self._set("watchdog", self._watchdog_text(at), "device", at)
             elif event.kind == EventKind.SUPPLY_LOW:
                 self._set("supply_low", f"the device held the platform: {event.text}", "device", at)
@@ -152,8 +176,30 @@ class Reasons:
         if hold is not None and hold.code == "watchdog":
             self._hold = hold.model_copy(update={"text": self._watchdog_text(hold.since)})
 
+    def _lost_then(self, at: float) -> str:
+        """How the station lost the device's link, if a hold at ``at`` came of it; or ""."""
+        if self._link is None:
+            return ""
+        why, lost, back = self._link
+        if at < lost - LINK_BEFORE_S or (back is not None and at > back + LINK_AFTER_S):
+            return ""
+        return why
+
     def _watchdog_text(self, since: float) -> str:
+        lost = self._lost_then(since)
+        if self._silence_ms <= 0:
+            # No silence: the device holds because a host connected anew (its value is 0),
+            # and says which way (a new HELLO, or a connection that took the link over).
+            if lost:
+                return (
+                    "the device held the platform when the station connected to it again "
+                    f"after losing its link ({lost}): a motion commanded over a lost link "
+                    "does not carry on"
+                )
+            return f"the device held the platform: {self._watchdog_said}"
         why = "the station or its cable stalled"
+        if lost:
+            why = f"the station had lost the platform's link: {lost}"
         if self._stall is not None:
             end, ms = self._stall
             if abs(end - since) <= STALL_NEAR_S and ms >= STALL_SHARE * self._silence_ms:

@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Literal
 
-from device.client import CommandRefused, DeviceClient
+from device.client import CommandRefused, DeviceClient, DeviceError, LinkTimeout
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
 from sessions.prescription import Axis, PrescriptionBody, device_segment
@@ -68,6 +68,8 @@ class ExerciseRun:
         self.began = time.time()
         """Unix s: a hold is timed from here at the earliest (see station.reasons.ends_at)."""
         self._interrupted = False
+        self._lost = ""
+        """Why the station lost the device's link during this run (:meth:`lost`), or ""."""
         self._refused = False
         """The device refused a repetition's segment: the run ended without it."""
         self._homing_note = ""
@@ -125,6 +127,25 @@ class ExerciseRun:
         self.stop()
         self._on_change()
 
+    def lost(self, why: str) -> None:
+        """End the run because the device's link is gone (``why``: how it went). Nothing more
+        can be asked of the device, and the session still ends, ``interrupted``, saying so:
+        left without an end record it was a cut-off recording the server refuses."""
+        if self._lost:
+            return
+        self._lost = why
+        self._interrupted = True
+        self.message = f"the platform's link was lost: {why}"
+        self._event("interrupted", text=self.message)
+        self.phase = "interrupted"
+        self.stop()
+        self._on_change()
+
+    @property
+    def link_lost(self) -> bool:
+        """The run ended (or is ending) because the device's link was lost."""
+        return bool(self._lost)
+
     @property
     def ending(self) -> bool:
         """Stopped or interrupted, and winding down: nothing may resume it."""
@@ -151,25 +172,16 @@ class ExerciseRun:
     async def run(self) -> End:
         reason: EndReason = "completed"
         try:
-            await self._home()
-            for s in range(1, self.body.sets + 1):
-                for r in range(1, self.body.repetitions + 1):
-                    self.set, self.rep = s, r
-                    # A pause that came as the last repetition ended holds this one back.
-                    self.phase = "running" if self._resumed.is_set() else "paused"
-                    self._on_change()
-                    if not await self._repetition():
-                        break
-                    self.reps_done += 1
-                    self._event("rep_done", set=s, rep=r)
-                if self._stop.is_set():
-                    break
-                self.sets_done += 1
-                self._event("set_done", set=s)
-                if s < self.body.sets and self.body.rest_s > 0:
-                    await self._rest(self.body.rest_s)
-                if self._stop.is_set():
-                    break
+            await self._timeline()
+        except CommandRefused as exc:
+            # Refused outside a repetition (homing with the air supply low): nothing moved.
+            self.message = f"the platform refused the exercise ({exc})"
+            self._refused = True
+            self._stop.set()
+        except DeviceError as exc:
+            # The link failed under a command or a wait (no answer, or closed): the device
+            # can be asked nothing more, and the session ends with what it has.
+            self.lost(self.dev.link_error or f"no answer from the device ({exc})")
         finally:
             latest = self.dev.latest
             if latest is not None and latest.mode in STOPPED_MODES:
@@ -190,6 +202,27 @@ class ExerciseRun:
             repetitions_completed=self.reps_done,
             text="; ".join(t for t in (said, why, self._homing_note) if t),
         )
+
+    async def _timeline(self) -> None:
+        await self._home()
+        for s in range(1, self.body.sets + 1):
+            for r in range(1, self.body.repetitions + 1):
+                self.set, self.rep = s, r
+                # A pause that came as the last repetition ended holds this one back.
+                self.phase = "running" if self._resumed.is_set() else "paused"
+                self._on_change()
+                if not await self._repetition():
+                    break
+                self.reps_done += 1
+                self._event("rep_done", set=s, rep=r)
+            if self._stop.is_set():
+                break
+            self.sets_done += 1
+            self._event("set_done", set=s)
+            if s < self.body.sets and self.body.rest_s > 0:
+                await self._rest(self.body.rest_s)
+            if self._stop.is_set():
+                break
 
     async def _home(self) -> None:
         latest = await self.dev.wait_for_mode(*DeviceMode, timeout=5.0)
@@ -254,7 +287,8 @@ class ExerciseRun:
             done.cancel()
             stop.cancel()
         if self._stop.is_set() and not self._segment_done.is_set():
-            await self._abort_segment()
+            if not self._lost:  # else there is no link to hold it over (see lost)
+                await self._abort_segment()
             return False
         return True
 
@@ -279,7 +313,13 @@ class ExerciseRun:
                 f"the platform could not go home ({exc.nack.text}) and holds where it is"
             )
             return
-        await self.dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
+        try:
+            await self.dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
+        except LinkTimeout:
+            if self.dev.link_error is not None:
+                raise  # the link closed meanwhile: see run
+            self._homing_note = f"the platform was not home within {HOMING_TIMEOUT_S:g} s"
+            return
         if self._interrupted:
             self._homing_note = "the platform went home"
 

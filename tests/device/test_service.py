@@ -491,6 +491,42 @@ def test_a_new_host_connection_holds_a_moving_platform_and_a_repeated_hello_does
     drive(device, body)
 
 
+def test_a_new_host_hears_the_hold_its_hello_caused_though_it_subscribes_after(
+    device: Running,
+) -> None:
+    """The hold a new HELLO causes is sent, and replayed, while the handshake is under way,
+    before the host can ask for events: a station that connected again after losing the
+    link found the device holding and never heard why ("the station did not hear why")."""
+
+    async def body(dev: DeviceClient) -> None:
+        await home(dev)
+        await start(dev)
+        await dev.close()  # the link lost; the segment runs on
+        other = await DeviceClient.connect(device.link.name, command_timeout=0.3, retries=5)
+        try:
+            await other.wait_for_mode(DeviceMode.HOLD, timeout=5.0)
+            newest = device.service.events[-1]
+            assert "new host connection" in newest.text
+            async with asyncio.timeout(5.0):  # everything the device sent has arrived
+                while other.last_event is None or other.last_event.event_id < newest.event_id:
+                    await asyncio.sleep(0.01)
+            events = other.events()
+            heard: list[m.Event] = []
+            async with asyncio.timeout(5.0):
+                while not heard or heard[-1].event_id < newest.event_id:
+                    heard.append(await anext(events))
+            assert heard[-1].kind == EventKind.WATCHDOG and heard[-1].mode_to == DeviceMode.HOLD
+            ids = [e.event_id for e in heard]
+            assert ids == list(range(ids[0], newest.event_id + 1))  # each once, in order
+            later = other.events()  # a second subscription starts from its call
+            await other.resume()
+            assert (await asyncio.wait_for(anext(later), 5.0)).mode_to == DeviceMode.ACTIVE
+        finally:
+            await other.close()
+
+    drive(device, body)
+
+
 async def passes_since(device: Running, steps: int) -> list[float]:
     """The pacing lags (ms) of the service's passes since it had made ``steps``, once it
     has finished the pass under way."""

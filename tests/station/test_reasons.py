@@ -176,3 +176,45 @@ def test_a_short_or_distant_stall_does_not_explain_a_watchdog_hold() -> None:
         reasons.device_event(event(EventKind.WATCHDOG, A, H, value=501.0), at=10.2)
         hold = reasons.hold(H, paused=False)
         assert hold is not None and "the station or its cable stalled" in hold.text, hold
+
+
+def test_a_hold_that_a_lost_link_caused_says_so_not_a_silence_of_0_ms() -> None:
+    """A device that holds because a host connected anew says so with a silence of 0 ms: the
+    station said "no frame from the station for 0 ms (the station or its cable stalled)",
+    after its link to a device that had itself stood still was lost and made again."""
+    lost = "the platform sent nothing for 2 s (the device stalled, or its cable was cut)"
+    hello = "a new host connection (a new HELLO)"
+
+    def said(reasons: Reasons, value: float, text: str, at: float) -> str:
+        reasons.device_event(event(EventKind.WATCHDOG, A, H, value=value, text=text), at=at)
+        hold = reasons.hold(H, paused=False)
+        assert hold is not None and hold.code == "watchdog" and hold.by == "device"
+        assert " 0 ms" not in hold.text and "station or its cable" not in hold.text, hold
+        return hold.text
+
+    # The station lost the link at 100 s and had it back at 101 s: the HELLO held.
+    reasons = Reasons()
+    reasons.link_lost(lost, 100.0)
+    reasons.link_back(101.0)
+    text = said(reasons, 0.0, hello, 101.0)
+    assert text.startswith("the device held the platform when the station connected to it")
+    assert lost in text
+    # Its watchdog held before the station came back: a silence, with the link's loss.
+    reasons = Reasons()
+    reasons.link_lost(lost, 100.0)
+    reasons.link_back(104.0)
+    text = said(reasons, 1200.0, "no valid frame for 1200 ms", 101.5)
+    assert "no frame from the station for 1200 ms" in text and lost in text
+    # Another host took the link over, no link of this station's lost: the device's words.
+    reasons = Reasons()
+    text = said(reasons, 0.0, hello, 50.0)
+    assert text == f"the device held the platform: {hello}"
+    # A watchdog hold long after the link came back is not the old loss's.
+    reasons = Reasons()
+    reasons.link_lost(lost, 100.0)
+    reasons.link_back(101.0)
+    reasons.device_event(
+        event(EventKind.WATCHDOG, A, H, value=412.0, text="no valid frame for 412 ms"), at=160.0
+    )
+    hold = reasons.hold(H, paused=False)
+    assert hold is not None and lost not in hold.text and "station or its cable" in hold.text

@@ -98,6 +98,9 @@ class PatientStation(Protocol):
     def starts_again_at(self) -> float | None: ...
 
     @property
+    def ended_link_lost(self) -> bool: ...
+
+    @property
     def home_progress(self) -> HomeProgress | None: ...
 
 
@@ -144,6 +147,7 @@ def page_status(station: PatientStation) -> PageStatus:
         reps_done=reps_done,
         rest_remaining_s=s.rest_remaining_s,
         message=s.message,
+        link_lost=s.phase == "interrupted" and station.ended_link_lost,
         starts_again_at=station.starts_again_at,
         hold=s.hold,
         supply_low=station.supply_low,

@@ -65,6 +65,11 @@ class PageStatus(BaseModel):
     reps_done: int
     rest_remaining_s: float
     message: str
+    link_lost: bool = Field(
+        default=False,
+        description="The last exercise ended because the station lost the platform's link "
+        "(phase interrupted): not because it was held too long.",
+    )
     starts_again_at: float | None = Field(
         default=None,
         description="The demo starts its exercise again by itself at this time (UNIX "

@@ -266,6 +266,12 @@ function todoWords() {
       }
       return ["warn", "Paused. Press Continue when you are ready."];
     case "interrupted":
+      if (status.link_lost) {
+        return [
+          "warn",
+          "The exercise ended because the station lost its connection to the platform. You can start again once the platform is connected, or call your therapist.",
+        ];
+      }
       return [
         "warn",
         "The exercise ended because the platform was stopped for too long. You can start again when you are ready, or call your therapist.",

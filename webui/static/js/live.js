@@ -200,7 +200,7 @@ const DOING = {
   done: "finished the exercise",
   stopped: "not exercising: the exercise was stopped",
   fault: "not exercising: the platform stopped on a fault",
-  interrupted: "not exercising: the exercise ended after a long hold",
+  interrupted: "not exercising: the station ended the exercise early",
 };
 
 function doing(s) {
