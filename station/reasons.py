@@ -13,6 +13,7 @@ Plain logic, no I/O: the station feeds it and reads it.
 from __future__ import annotations
 
 import time
+from collections import deque
 
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
@@ -46,6 +47,10 @@ STALL_NEAR_S = 2.0
 """A stall of this computer that ended this close to a watchdog hold's start explains it..."""
 STALL_SHARE = 0.5
 """...when it lasted at least this share of the silence the device measured."""
+STALLS_KEPT = 16
+"""This computer's recent stalls remembered, each judged against a hold: a loaded computer
+stands still in pieces (995 ms, then 148 and 107 ms), and keeping only the newest let a
+short one take back the explanation the long one gave."""
 LINK_BEFORE_S = 3.0
 """A watchdog hold that began this long before the station found the device's link lost, or
 later, until it had the link back, is the lost link's: the station finds a silent link lost
@@ -107,7 +112,8 @@ class Reasons:
         self._stopped_by = ""
         """The words of the event that stopped the device (an e-stop, a trip)."""
         self._unheard_since: float | None = None
-        self._stall: tuple[float, float] | None = None
+        self._stalls: deque[tuple[float, float]] = deque(maxlen=STALLS_KEPT)
+        """This computer's recent stalls: when each ended (Unix s), and how long (ms)."""
         self._silence_ms = 0.0
         self._watchdog_said = ""
         """The device's words for its newest watchdog hold."""
@@ -171,7 +177,7 @@ class Reasons:
     def host_stalled(self, ms: float, at: float) -> None:
         """This computer stood still for ``ms``, until ``at`` (Unix s): heartbeats to the
         device left that late. If it explains a watchdog hold, the hold says so."""
-        self._stall = (at, ms)
+        self._stalls.append((at, ms))
         hold = self._hold
         if hold is not None and hold.code == "watchdog":
             self._hold = hold.model_copy(update={"text": self._watchdog_text(hold.since)})
@@ -200,10 +206,12 @@ class Reasons:
         why = "the station or its cable stalled"
         if lost:
             why = f"the station had lost the platform's link: {lost}"
-        if self._stall is not None:
-            end, ms = self._stall
-            if abs(end - since) <= STALL_NEAR_S and ms >= STALL_SHARE * self._silence_ms:
-                why = f"this computer stood still for {ms:.0f} ms: too busy, or its program blocked"
+        near = [ms for end, ms in self._stalls if abs(end - since) <= STALL_NEAR_S]
+        if near and max(near) >= STALL_SHARE * self._silence_ms:
+            why = (
+                f"this computer stood still for {max(near):.0f} ms: too busy, or its program "
+                "blocked"
+            )
         return (
             f"the device's watchdog held the platform: no frame from the station for "
             f"{self._silence_ms:.0f} ms ({why})"

@@ -169,6 +169,24 @@ def test_a_watchdog_hold_names_this_computers_stall_when_one_explains_it() -> No
         assert "this computer stood still for 480 ms" in hold.text, hold.text
 
 
+def test_a_later_short_stall_does_not_take_back_the_one_that_explains_a_hold() -> None:
+    # A loaded computer stands still in several pieces: the 995 ms that explains the hold,
+    # then 148 and 107 ms. Whichever order the hold and the stalls arrive in, it stays named.
+    for hold_first in (False, True):
+        reasons = Reasons()
+        if hold_first:
+            reasons.device_event(event(EventKind.WATCHDOG, A, H, value=501.0), at=10.2)
+        reasons.host_stalled(995.0, at=10.4)
+        if not hold_first:
+            reasons.host_stalled(148.0, at=10.6)
+            reasons.device_event(event(EventKind.WATCHDOG, A, H, value=501.0), at=10.2)
+        else:
+            reasons.host_stalled(148.0, at=10.6)
+        reasons.host_stalled(107.0, at=10.8)
+        hold = reasons.hold(H, paused=False)
+        assert hold is not None and "this computer stood still for 995 ms" in hold.text, hold
+
+
 def test_a_short_or_distant_stall_does_not_explain_a_watchdog_hold() -> None:
     for ms, at in ((150.0, 10.3), (480.0, 4.0)):  # a third of the silence; 6 s before
         reasons = Reasons()
