@@ -155,8 +155,9 @@ async def test_a_hundred_wrong_sign_ins_at_once_starve_neither_health_nor_a_coll
     assert all("retry-after" in r.headers for r in answers if r.status_code == 429)
     # Starved, /health would wait for the whole flood's hashing (100 x ~0.1 s of Argon2 on
     # the loop: ~10 s). The bound leaves room for a machine busy with other work, where one
-    # request among the flood's 100 connections took 1.1 s.
-    assert health and max(health) < 3.0, max(health)
+    # request among the flood's 100 connections took 1.1 s, and 3.27 s once while another
+    # benchmark shared the two cores with the whole suite: half the starved figure.
+    assert health and max(health) < 5.0, max(health)
 
 
 @pytest.mark.asyncio
