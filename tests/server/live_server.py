@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import sqlite3
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager, contextmanager
@@ -305,3 +306,16 @@ async def empty(seeds: Seeds, store: Store, tmp_path: Path) -> AsyncIterator[Liv
     with on_store(seeds, store, tmp_path) as settings:
         async with running(settings) as server:
             yield server
+
+
+@asynccontextmanager
+async def sqlite_write_locked(path: Path) -> AsyncIterator[None]:
+    """Hold an SQLite file's write lock as another client would (a backup, a stuck writer):
+    every write waits; reads go on (WAL)."""
+    holder = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    await asyncio.to_thread(holder.execute, "BEGIN EXCLUSIVE")
+    try:
+        yield
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()

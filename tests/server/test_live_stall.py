@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import signal
-import sqlite3
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -39,7 +38,14 @@ from server.hub import (
     VIEW_COMMANDS_MAX,
 )
 from sessions import wire
-from tests.server.live_server import Live, Store, World, copy_seeded, running
+from tests.server.live_server import (
+    Live,
+    Store,
+    World,
+    copy_seeded,
+    running,
+    sqlite_write_locked,
+)
 from tests.server.redis_server import spawned_redis
 from tests.server.test_live_audit import (
     WAIT_S,
@@ -61,15 +67,8 @@ async def held(live: Live, store: Store, table: str) -> AsyncIterator[None]:
     SQLite the whole file's write lock (reads go on: WAL), on PostgreSQL the table, so that
     even reads of it wait."""
     if store == "sqlite":
-        holder = sqlite3.connect(
-            live.settings.data_dir / "ankle.db", isolation_level=None, check_same_thread=False
-        )
-        await asyncio.to_thread(holder.execute, "BEGIN EXCLUSIVE")
-        try:
+        async with sqlite_write_locked(live.settings.data_dir / "ankle.db"):
             yield
-        finally:
-            holder.execute("ROLLBACK")
-            holder.close()
         return
     async with live.sessionmaker() as db:
         await db.execute(text(f"LOCK TABLE {table} IN ACCESS EXCLUSIVE MODE"))

@@ -12,7 +12,6 @@ PostgreSQL: ``LOCK TABLE``, so that every write of it waits, as on a stalled ser
 from __future__ import annotations
 
 import asyncio
-import sqlite3
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -26,6 +25,7 @@ from sqlalchemy.ext.asyncio import create_async_engine
 from server.hub import AUDIT_WAIT_S
 from sessions import wire
 from sessions.prescription import AXIS_INDEX
+from tests.server.live_server import sqlite_write_locked
 from tests.system.harness import (
     System,
     active,
@@ -44,15 +44,8 @@ WAIT_S = 20.0
 async def audit_log_held(system: System) -> AsyncIterator[None]:
     url = system.server_env.get("ANKLE_DATABASE_URL")
     if url is None:
-        holder = sqlite3.connect(
-            system.data_dir / "server" / "ankle.db", isolation_level=None, check_same_thread=False
-        )
-        await asyncio.to_thread(holder.execute, "BEGIN EXCLUSIVE")
-        try:
+        async with sqlite_write_locked(system.data_dir / "server" / "ankle.db"):
             yield
-        finally:
-            holder.execute("ROLLBACK")
-            holder.close()
         return
     engine = create_async_engine(url)
     try:
