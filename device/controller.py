@@ -1073,6 +1073,7 @@ def build_params(
             config.calibration.valves_identified and config.supervision.use_identified_valves,
             lever=geometry.ankle_height,
             zero_area=0.0 if config.calibration.zeros_read else area_cap + area_ann,
+            read_dt=SENSOR_PERIOD * dt_tick,
         ),
         sensor_zero=config.calibration.sensor_zero(),
         valves=observed.valve_figures(),
@@ -2363,6 +2364,8 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
         s.monitor[supervision.M_RELEASE] = 0.0  # the next release starts its watch anew
     elif read:
         watch_release(s, p)
+    if read:
+        supervision.track_fills(s.monitor, s.pressure, p.sup, s.istate[I_SENSOR_READS] == 1)
     if s.istate[I_MODE] != Mode.IDLE or venting(s.istate):
         s.monitor[supervision.M_SHUT + 24] = 0.0  # shut again, the watch starts anew
     elif read:
@@ -2567,7 +2570,10 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
     and pressure's trailing averages (``shut_slow_air``, ``shut_slow_reads``). The first
     ``shut_settle_reads`` reads after the valves shut only set the references. A chamber
     the loop already named (the service warning, ``supervision.C_SERVICE``) is held at
-    once (:func:`hold_service`)."""
+    once (:func:`hold_service`). A leak slower than either is judged on its leg's air, two
+    chambers together, against the model of what the valves' seats and the piston's
+    clearance move (``shut_leg_air``, :func:`supervision.judge_leg_air`): the chamber of the
+    two that lost more is held by its intake as a stuck exhaust's would be."""
     q = p.sup
     m = supervision.M_SHUT
     n = int(s.monitor[m + 24]) + 1
@@ -2580,7 +2586,14 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
         return
     refresh = (n - q.shut_settle_reads) % q.shut_reads == 0
     slow = m + 25  # the trailing averages (air, then gauge pressure)
+    leg_air = np.empty(12)  # this build's dead volumes, pressures in atmospheres
     for c in range(12):
+        volume = chamber_volume(
+            c, s.leg_x[c // 2], p.air_dead_volume, p.area_cap, p.area_annulus, p.stroke
+        )
+        leg_air[c] = (max(s.pressure[c] + q.atm, 1.0) / q.atm) ** (1.0 / q.obs_k) * max(
+            volume, 1e-9
+        )
         air = chamber_air(s, p, c)
         if n == q.shut_settle_reads:
             s.monitor[slow + c] = air
@@ -2607,6 +2620,11 @@ def watch_shut(s: ControllerState, p: ControllerParams) -> None:
         if gained or lost:
             hold_stuck(s, c, gained, lost, q.release_balance)
             return
+    c = supervision.judge_leg_air(
+        s.monitor, leg_air, s.pressure, s.sensors[12], q, n == q.shut_settle_reads
+    )
+    if c >= 0:
+        hold_stuck(s, c, False, True)
 
 
 BLEED_RISE = 0.1e5

@@ -125,7 +125,20 @@ M_SHUT = M_RELEASE + 60
 air and its gauge pressure at the window's start, then the reads since the valves shut
 (device.controller.watch_shut; 0: not yet), then per chamber its air's and its gauge
 pressure's trailing averages over about ``shut_slow_reads`` reads."""
-M_PUSH_SEEN = M_SHUT + 49
+M_LEG_AIR = M_SHUT + 49
+"""3 x 12, 6, 1 and 2 x 6, while every valve is shut (:func:`judge_leg_air`): per chamber
+its air's trailing average over about ``shut_leg_reads`` reads (``p^(1/k) V``, pressure in
+atmospheres, this build's dead volume), and what its valves' seats and its piston's
+clearance would have moved by the model (:func:`leak_terms`) less its trailing average;
+then per leg what cooling after the fills before the shut may still take of its air (a
+share, decaying); the largest share of ``shut_leg_air`` a leg's loss beyond the model took
+since the shut; then per leg how far the seats' and the pistons' terms may be off from
+what the transducers' spans and zeros leave unknown, less its trailing average."""
+M_FILLED = M_LEG_AIR + 55
+"""12, in every mode: each chamber's gauge pressure's low envelope, which rises back to the
+reading over about ``shut_thermal_time`` (:func:`track_fills`): the reading above it is
+what the valves filled lately, whose heat a real chamber's walls take back."""
+M_PUSH_SEEN = M_FILLED + 12
 """6: the push (``M_PUSH``, N) the position loop gave a leg while its reading last changed."""
 M_STEADY_PEAK = M_PUSH_SEEN + 6
 """1: the largest share of its floor (``balance_steady_floor`` plus twice its seals'
@@ -1005,6 +1018,72 @@ class SupervisionConfig:
     builds 0-7 and 30-53) tripped none."""
     shut_slow_reads: int = 300
     """See ``shut_slow_air`` (reads, 0.3 s)."""
+    shut_leg_air: float = 0.02
+    """A leak slower than ``shut_slow_air`` sees, judged on a leg's air (its two chambers'
+    together, so what its piston's clearance passes from one side to the other does not
+    count) against its trailing average over about ``shut_leg_reads`` reads, less what its
+    valves' closed seats and its piston would have moved by their model (:func:`leak_terms`,
+    at the rates that explain the other five legs best), less what the transducers' spans
+    (``observer_span_error``) and, on a unit whose zeros were not read, their zeros
+    (``pressure_zero_unidentified``) leave unknown of that: a leg that lost this share of
+    its air more, and more than cooling may take (``shut_thermal_time``), has a leak; of
+    its two chambers the one that lost more is named and held by its intake
+    (device.controller.watch_shut). Before, a leak of a hundredth of a valve (about 2 % of
+    its leg's air a second) tilted the resting platform 7 deg and moved it 8 mm in 15 s,
+    unnamed. A leg's air alone does not tell: a worn seat passes 0.5 NL/min, as much as a
+    leak of a two-hundredth of a valve, and resting 30 s the drawn builds' legs lost up to
+    12 % (their exhausts' seats) or gained 20 % (their intakes', into a chamber near the
+    atmosphere); against the model the most a healthy leg lost was 0.64 % (recorded: 120
+    holds after the library's exercises and 42 rests after homing, the nominal unit and
+    drawn builds 0-19, both feet; 1.45 % with both of the model's indices at the observer's
+    1.2). Without the spans' allowance drawn build 33 (seats of 0.50 NL/min, a leg's two
+    transducers 1.4 % low) took 0.79 of this share. Measured with the rule on the
+    calibrated nominal unit and drawn builds 1, 3, 6, 10, 17 and 33, both feet, leaks of
+    0.005-0.05 of a valve on chambers 0, 2, 4-7, 9 and 11, injected 0.3 s or 5 s into READY
+    after homing or into a hold after the library's exercises: 448 of 448 named on their
+    chamber; a two-hundredth of a valve in 1.20-4.86 s (the slowest just after homing,
+    whose fills' cooling is allowed for), a hundredth in 0.54-2.06 s; the platform at most
+    1.18 deg and 1.96 mm off its healthy twin when named, 1.46 deg and 2.27 mm over the
+    next seconds, held. A three-hundredth: 47 of 64 named within 8 s, at most 1.36 deg and
+    1.82 mm off. Healthy: 492 holds of 20 s after the library's exercises stopped at drawn
+    moments (the nominal unit and drawn builds 0-39, both feet) took at most 0.24 of this
+    share, 62 rests of 30 s after homing (builds 0-29) 0.07, 14 of 120 s (the builds with
+    the most worn seats) 0.08, and 36 holds on builds 1, 16 and 33 with their spans drawn
+    up to 2 % off and seats of 0.5 NL/min 0.35; none named."""
+    shut_leg_reads: int = 3000
+    """See ``shut_leg_air`` (reads, 3 s): the slowest leak named loses this share over this
+    time, about 0.7 % of its leg's air a second."""
+    shut_charge_index: float = 1.4
+    """Polytropic index of air coming into a chamber through a seat or across its piston
+    (adiabatic, as the observer's ``observer_polytropic`` notes after Richer and Hurmuzlu
+    2000), and ``shut_discharge_index`` of air leaving it (near isothermal): the model of
+    ``shut_leg_air``. With both at the observer's 1.2 the healthy holds below left up to
+    1.45 % instead of 0.64 %, still under the threshold."""
+    shut_discharge_index: float = 1.0
+    """See ``shut_charge_index``."""
+    shut_seat_most: float = 2.0
+    """NL/min from 6 bar gauge to the atmosphere: the most the fit of ``shut_leg_air`` may
+    take a closed valve's seat to pass (four times a worn one), and ``shut_piston_most``
+    a piston's clearance (four times the most a plausible build's passes): a fit on legs
+    whose air hardly moves (just after the shut, or at rest near the seats' balance) is
+    not let explain a leak away as seats."""
+    shut_piston_most: float = 8.0
+    """See ``shut_seat_most``."""
+    shut_thermal_time: float = 1.0
+    """s: a real chamber's air, filled quickly (adiabatically), gives its heat back to the
+    walls over about this long ("for a second or so", :data:`device.identify.LOST_MAX`),
+    and its ``p^(1/k) V`` falls as it does: a fill of ``dp`` at most ``(1 - 1/1.4) dp / k``
+    of the chamber's absolute pressure. The plant has no such cooling. So what the valves
+    filled within about this time before the shut (each chamber's reading above its low
+    envelope, ``M_FILLED``) is allowed for on top of ``shut_leg_air`` as a share of the
+    leg's air, decaying over this time and ``shut_leg_reads`` together: a settling of this
+    time constant shows against the trailing average at most 0.58 of its whole and within
+    1 % of that decay (computed). Fills alone are counted, though a vented chamber warms
+    back and gains: the worst case. Measured over the healthy holds of ``shut_leg_air``:
+    up to 3.3 % of a leg's air after an exercise, 6.2 % after homing, which pressurises
+    the chambers; the allowance makes a leak present at the shut wait for it (a
+    two-hundredth of a valve named up to 4.86 s after it began 0.3 s after homing, 4.23 s
+    5 s after)."""
 
 
 class SupervisionParams(NamedTuple):
@@ -1125,6 +1204,17 @@ class SupervisionParams(NamedTuple):
     shut_settle_reads: int
     shut_slow_air: float
     shut_slow_reads: int
+    shut_leg_air: float
+    shut_leg_reads: int
+    shut_charge: float
+    shut_discharge: float
+    shut_seat_most: float  # the fit's largest seat rate, in leak_terms' units (m3/s)
+    shut_piston_most: float  # ...and piston's
+    shut_cooling: float  # share of a fill's dp / p that cooling takes of the air
+    shut_zero: float  # Pa a reading's zero may be off (0: the zeros were read)
+    shut_fill_alpha: float  # the fill envelope's rise per read
+    shut_allow_decay: float  # the cooling allowance's decay per read
+    read_dt: float
 
 
 def build(
@@ -1134,6 +1224,7 @@ def build(
     identified: bool = False,
     lever: float = 0.0,
     zero_area: float = 0.0,
+    read_dt: float = 1.0e-3,
 ) -> SupervisionParams:
     """The compiled thresholds; ``identified``: the calibration knows each valve's air per
     pulse (device.identify), and the air observer forgives less; ``lever``: the ankle's
@@ -1164,13 +1255,33 @@ def build(
         and config.shut_settle_reads >= 1
         and 0.0 < config.shut_slow_air < 1.0
         and config.shut_slow_reads >= 1
+        and 0.0 < config.shut_leg_air < 1.0
+        and config.shut_leg_reads >= 1
     ):
         raise ValueError(
             "release_gain must be in (0, 10), release_rise in (0, 1e6) Pa, release_judged in "
             "[0, 1e6) Pa, release_lag, release_median, release_recent_median, release_ahead "
             "shut_air and shut_slow_air in (0, 1), release_ahead_ratio in [1, 100), "
-            "release_window, shut_reads, shut_settle_reads and shut_slow_reads 1 or more"
+            "release_window, shut_reads, shut_settle_reads and shut_slow_reads 1 or more; "
+            "shut_leg_air in (0, 1) and shut_leg_reads 1 or more"
         )
+    if not (
+        1.0 <= config.shut_charge_index <= 2.0
+        and 1.0 <= config.shut_discharge_index <= 2.0
+        and config.shut_seat_most > 0.0
+        and config.shut_piston_most > 0.0
+        and config.shut_thermal_time > 0.0
+        and read_dt > 0.0
+    ):
+        raise ValueError(
+            "shut_charge_index and shut_discharge_index must be in [1, 2], shut_seat_most "
+            "and shut_piston_most over 0 NL/min, shut_thermal_time over 0 s"
+        )
+    # NL/min from 6 bar gauge to the atmosphere, laminar, as leak_terms' rate: the air
+    # (p^(1/k) V, p in atmospheres) it moves a second per unit of its term.
+    rated = ((atmosphere + 6.0e5) / atmosphere) ** 2 - 1.0
+    per_nl_min = 1.0e-3 / 60.0 * (1.0e5 / atmosphere) / (config.observer_polytropic * rated)
+    leg_reads_s = config.shut_leg_reads * read_dt
     if not (math.isfinite(config.turn_floor) and config.turn_floor > 0.0):
         raise ValueError("turn_floor must be a finite moment > 0 (N m)")
     if not (math.isfinite(config.lift_floor) and config.lift_floor > 0.0):
@@ -1319,6 +1430,17 @@ def build(
         shut_settle_reads=config.shut_settle_reads,
         shut_slow_air=config.shut_slow_air,
         shut_slow_reads=config.shut_slow_reads,
+        shut_leg_air=config.shut_leg_air,
+        shut_leg_reads=config.shut_leg_reads,
+        shut_charge=config.shut_charge_index,
+        shut_discharge=config.shut_discharge_index,
+        shut_seat_most=config.shut_seat_most * per_nl_min,
+        shut_piston_most=config.shut_piston_most * per_nl_min,
+        shut_cooling=(1.0 - 1.0 / config.shut_charge_index) / config.observer_polytropic,
+        shut_zero=config.pressure_zero_unidentified if zero_area > 0.0 else 0.0,
+        shut_fill_alpha=1.0 - math.exp(-read_dt / config.shut_thermal_time),
+        shut_allow_decay=math.exp(-read_dt / (config.shut_thermal_time + leg_reads_s)),
+        read_dt=read_dt,
     )
 
 
@@ -1490,6 +1612,172 @@ def blind_load(
         monitor[M_BLIND_SEEN + leg] = force
     monitor[M_BLIND + leg] = given - force
     return given
+
+
+@njit_inline
+def track_fills(
+    monitor: NDArray[np.float64],
+    pressure: NDArray[np.float64],
+    q: SupervisionParams,
+    first: bool,
+) -> None:
+    """Each chamber's low envelope (``M_FILLED``), every read in every mode: it follows a
+    falling reading at once and rises back to it over about ``shut_thermal_time``, so the
+    reading above it is what the valves filled lately, still warm in a real chamber. It
+    starts at the first read's (``first``): what came before is not known to be a fill."""
+    for c in range(12):
+        low = pressure[c] if first else monitor[M_FILLED + c]
+        monitor[M_FILLED + c] = min(pressure[c], low + (pressure[c] - low) * q.shut_fill_alpha)
+
+
+@njit_inline
+def leak_terms(
+    pr: NDArray[np.float64],
+    supply: float,
+    q: SupervisionParams,
+    seats: NDArray[np.float64],
+    piston: NDArray[np.float64],
+) -> None:
+    """Per chamber, the rate at which its valves' closed seats (``seats``) and its piston's
+    clearance (``piston``) move its air (``p^(1/k) V``), per unit of their rate: both leak
+    laminar (flow ``p1^2 - p2^2``), the seats from the supply in through the intake and out
+    to the atmosphere through the exhaust, the clearance in from the leg's other side; air
+    coming in raises the pressure by the charging index, air going out by the discharging
+    one, and ``p^(1/k)`` takes ``p^(1/k - 1) / k`` of that (the 1/k is in the rates).
+    ``pr``: the chambers' absolute pressures, ``supply`` the supply's, in atmospheres."""
+    for c in range(12):
+        pc = pr[c]
+        scale = pc ** (1.0 / q.obs_k - 1.0)
+        fed = supply * supply - pc * pc  # through its intake's seat
+        vented = 1.0 - pc * pc  # through its exhaust's seat (negative: out)
+        fed_index = q.shut_charge if fed > 0.0 else q.shut_discharge
+        vent_index = q.shut_charge if vented > 0.0 else q.shut_discharge
+        seats[c] = scale * (fed_index * fed + vent_index * vented)
+        across = pr[c ^ 1] * pr[c ^ 1] - pc * pc
+        piston[c] = scale * (q.shut_charge if across > 0.0 else q.shut_discharge) * across
+
+
+@njit_inline
+def _fit_leaks(
+    s11: float, s12: float, s22: float, t1: float, t2: float, q: SupervisionParams
+) -> tuple[float, float]:
+    """The seats' and the pistons' rates (both 0 or more, at most ``shut_seat_most`` and
+    ``shut_piston_most``) that best explain the chambers' air by least squares, from the
+    sums of their terms' squares and products (``s``) and of each term times the air
+    (``t``)."""
+    seat = max(t1 / s11, 0.0) if s11 > 0.0 else 0.0
+    clearance = max(t2 / s22, 0.0) if s22 > 0.0 else 0.0
+    # One rate alone: the one that takes more off the sum of squares.
+    if seat * t1 >= clearance * t2:
+        best_seat, best_clearance = seat, 0.0
+    else:
+        best_seat, best_clearance = 0.0, clearance
+    det = s11 * s22 - s12 * s12
+    if det > 1.0e-9 * s11 * s22 and s11 > 0.0 and s22 > 0.0:
+        both_seat = (t1 * s22 - t2 * s12) / det
+        both_clearance = (s11 * t2 - s12 * t1) / det
+        if both_seat >= 0.0 and both_clearance >= 0.0:
+            best_seat, best_clearance = both_seat, both_clearance
+    return min(best_seat, q.shut_seat_most), min(best_clearance, q.shut_piston_most)
+
+
+@njit_inline
+def judge_leg_air(
+    monitor: NDArray[np.float64],
+    air: NDArray[np.float64],
+    pressure: NDArray[np.float64],
+    supply_abs: float,
+    q: SupervisionParams,
+    first: bool,
+) -> int:
+    """With every valve shut, each leg's air against its trailing average (``M_LEG_AIR``)
+    and what its seats and piston moved by :func:`leak_terms`, at the rates that explain
+    the other five legs' chambers best (:func:`_fit_leaks`): the chamber to hold of the
+    leg that lost ``shut_leg_air`` more than that, and more than what cooling after the
+    fills before the shut may take (``shut_thermal_time``), the one of its two that lost
+    more; -1 if none. ``air``: each chamber's ``p^(1/k) V``, pressures in atmospheres;
+    ``first``: the references are set now (``shut_settle_reads`` after the shut).
+
+    What was measured is in ``SupervisionConfig.shut_leg_air``."""
+    m = M_LEG_AIR
+    pr = np.empty(12)
+    for c in range(12):
+        pr[c] = max(pressure[c] + q.atm, 1.0) / q.atm
+    supply = max(supply_abs, 1.0) / q.atm
+    seats = np.empty(12)
+    piston = np.empty(12)
+    leak_terms(pr, supply, q, seats, piston)
+    # What the transducers' spans and zeros leave unknown of the terms: each leg's caps'
+    # readings, then its rods', then the supply's, that far up (seats2, piston2).
+    seat_off = np.zeros(6)
+    piston_off = np.zeros(6)
+    shifted = np.empty(12)
+    seats2 = np.empty(12)
+    piston2 = np.empty(12)
+    for side in range(3):
+        for c in range(12):
+            up = q.obs_span * abs(pressure[c]) + q.shut_zero
+            shifted[c] = pr[c] + (up / q.atm if side < 2 and c % 2 == side else 0.0)
+        up = q.obs_span * abs(supply_abs - q.atm) + q.shut_zero
+        leak_terms(shifted, supply + (up / q.atm if side == 2 else 0.0), q, seats2, piston2)
+        for i in range(6):
+            a, b = 2 * i, 2 * i + 1
+            seat_off[i] += abs(seats2[a] - seats[a] + seats2[b] - seats[b])
+            piston_off[i] += abs(piston2[a] - piston[a] + piston2[b] - piston[b])
+    if first:
+        for c in range(12):
+            monitor[m + c] = air[c]
+            monitor[m + 12 + c] = 0.0
+            monitor[m + 24 + c] = 0.0
+        for i in range(6):
+            cooled = 0.0
+            for c in range(2 * i, 2 * i + 2):
+                filled = max(pressure[c] - monitor[M_FILLED + c], 0.0)
+                cooled += q.shut_cooling * filled / (pressure[c] + q.atm) * air[c]
+            monitor[m + 36 + i] = cooled / max(air[2 * i] + air[2 * i + 1], 1e-12)
+            monitor[m + 43 + i] = 0.0
+            monitor[m + 49 + i] = 0.0
+        monitor[m + 42] = 0.0
+        return -1
+    keep = 1.0 - 1.0 / q.shut_leg_reads
+    moved = np.empty(12)  # each chamber's air less its trailing average
+    s11 = s12 = s22 = t1 = t2 = 0.0
+    for c in range(12):
+        monitor[m + c] += (air[c] - monitor[m + c]) / q.shut_leg_reads
+        moved[c] = air[c] - monitor[m + c]
+        monitor[m + 12 + c] = (monitor[m + 12 + c] + seats[c] * q.read_dt) * keep
+        monitor[m + 24 + c] = (monitor[m + 24 + c] + piston[c] * q.read_dt) * keep
+        g, h = monitor[m + 12 + c], monitor[m + 24 + c]
+        s11 += g * g
+        s12 += g * h
+        s22 += h * h
+        t1 += g * moved[c]
+        t2 += h * moved[c]
+    found, worst = -1, 0.0
+    for i in range(6):
+        monitor[m + 36 + i] *= q.shut_allow_decay
+        monitor[m + 43 + i] = (monitor[m + 43 + i] + seat_off[i] * q.read_dt) * keep
+        monitor[m + 49 + i] = (monitor[m + 49 + i] + piston_off[i] * q.read_dt) * keep
+        a, b = 2 * i, 2 * i + 1
+        ga, ha = monitor[m + 12 + a], monitor[m + 24 + a]
+        gb, hb = monitor[m + 12 + b], monitor[m + 24 + b]
+        seat, clearance = _fit_leaks(
+            s11 - ga * ga - gb * gb,
+            s12 - ga * ha - gb * hb,
+            s22 - ha * ha - hb * hb,
+            t1 - ga * moved[a] - gb * moved[b],
+            t2 - ha * moved[a] - hb * moved[b],
+            q,
+        )  # on the other five legs
+        left_a = moved[a] - seat * ga - clearance * ha
+        left_b = moved[b] - seat * gb - clearance * hb
+        unknown = seat * monitor[m + 43 + i] + clearance * monitor[m + 49 + i]
+        legs = max(air[a] + air[b], 1e-12)
+        lost = -(left_a + left_b + unknown) / legs - monitor[m + 36 + i]
+        monitor[m + 42] = max(monitor[m + 42], lost / q.shut_leg_air)
+        if lost > q.shut_leg_air and lost > worst:
+            found, worst = (a if left_a < left_b else b), lost
+    return found
 
 
 @njit_inline

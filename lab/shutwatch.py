@@ -49,6 +49,8 @@ HELD: tuple[tuple[FaultKind, int, float], ...] = (
     *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in range(24)),  # every intake and exhaust
     (FaultKind.CHAMBER_LEAK, 1, 0.02),  # a fiftieth of a valve
     (FaultKind.CHAMBER_LEAK, 4, 0.1),  # a tenth
+    (FaultKind.CHAMBER_LEAK, 5, 0.005),  # a two-hundredth: only its leg's air names it
+    (FaultKind.CHAMBER_LEAK, 9, 0.01),  # a hundredth
 )
 EXERCISE_HELD: tuple[tuple[FaultKind, int, float], ...] = (
     *((FaultKind.VALVE_STUCK_OPEN, v, 0.0) for v in range(24)),
