@@ -440,9 +440,12 @@ def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
             await asyncio.sleep(0.12)
             await dev.command(m.Heartbeat())
             last = time.perf_counter()
+            lag = asyncio.create_task(loop_lag_ms())
             while (e := await asyncio.wait_for(anext(events), 2.0)).kind != EventKind.WATCHDOG:
                 pass
             host_ms = (time.perf_counter() - last) * 1e3
+            lag.cancel()
+            own_ms = LAG_MS[0]
             # On a busy machine a pass can start late; the service measures by how much. The
             # lags that count are those of every pass since the heartbeats stopped, the one
             # that held included: the service records a pass's lag after the pass has sent
@@ -453,8 +456,10 @@ def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
             assert e.mode_from == DeviceMode.ACTIVE and e.mode_to == DeviceMode.HOLD
             assert 200.0 <= e.value <= 204.0 + max(0.0, late_ms)
             # The host's own measure adds the trip over the pty and this test's own wait for a
-            # core: 221 ms was seen with two whole test suites running on two cores.
-            assert host_ms <= 204.0 + max(0.0, late_ms) + 50.0
+            # core: 221 ms was seen with two whole test suites running on two cores, 358 ms
+            # at a load of 10 on two cores. What this process stood still meanwhile (its
+            # event loop's lateness) is its own, not the device's or the link's.
+            assert host_ms <= 204.0 + max(0.0, late_ms) + 50.0 + own_ms, (host_ms, own_ms)
             assert valves_closed(device.service)
             dev.heartbeats = True
             await asyncio.sleep(0.5)  # the link is back: still holding
@@ -525,6 +530,19 @@ def test_a_new_host_hears_the_hold_its_hello_caused_though_it_subscribes_after(
             await other.close()
 
     drive(device, body)
+
+
+LAG_MS = [0.0]
+"""The longest lateness (ms) :func:`loop_lag_ms` saw since it started."""
+
+
+async def loop_lag_ms() -> None:
+    """Measure, until cancelled, how late this event loop wakes from 5 ms sleeps."""
+    LAG_MS[0] = 0.0
+    while True:
+        began = time.perf_counter()
+        await asyncio.sleep(0.005)
+        LAG_MS[0] = max(LAG_MS[0], (time.perf_counter() - began - 0.005) * 1e3)
 
 
 async def passes_since(device: Running, steps: int) -> list[float]:

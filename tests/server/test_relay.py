@@ -190,7 +190,11 @@ async def test_a_station_on_one_process_is_seen_and_commanded_from_another(
         async with viewer_ws(b, world.t1, world.s1_id) as view, AsyncExitStack() as stack:
             welcome = await next_where(view, is_(wire.Welcome))
             assert welcome.online and welcome.patient_id == world.p1
-            assert welcome.status is not None and welcome.status.device_mode == "READY"
+            # The station's status reaches the relay's store in the writer's next batch:
+            # a viewer that came first hears it as a message right after the welcome (its
+            # process watched the station before it read the store).
+            told = welcome.status or await next_where(view, is_(wire.StatusMsg))
+            assert told.device_mode == "READY"
             streaming = asyncio.create_task(stream(station, t=42.5))
             stack.callback(streaming.cancel)
             batch = await next_where(view, is_(wire.TelemetryBatch))
