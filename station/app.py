@@ -17,7 +17,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from device.client import CommandRefused, DeviceClient, DeviceError
+from device.client import CommandRefused, DeviceClient, DeviceError, Stall
 from device.commands import CommandError, check_segment_as_received, published
 from device.protocol.messages import Capability, DeviceHello, DeviceMode
 from sessions import wire
@@ -97,7 +97,7 @@ class Station:
         """Live K/B changes one at a time: each is merged, sent and, if refused, undone before
         the next is merged, so that its before and after are exact."""
         self.reasons = Reasons()
-        self._stall_heard: tuple[float, float] | None = None
+        self._stall_heard: Stall | None = None
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
@@ -626,8 +626,7 @@ class Station:
         stall = dev.stats.last_stall if dev is not None else None
         if stall is not None and stall != self._stall_heard:  # this computer stood still
             self._stall_heard = stall
-            ended, ms = stall
-            self.reasons.host_stalled(ms, ended)
+            self.reasons.host_stalled(stall.quiet_ms, stall.ended)
         latest = dev.latest if dev is not None else None
         paused = run is not None and run.phase == "paused" and not run.ending
         hold = self.reasons.hold(latest.mode if latest is not None else None, paused)
