@@ -17,9 +17,9 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from device.client import CommandRefused, DeviceClient, DeviceError, Stall
+from device.client import CommandRefused, DeviceClient, DeviceError, Stall, Subscription
 from device.commands import CommandError, check_segment_as_received, published
-from device.protocol.messages import Capability, DeviceHello, DeviceMode
+from device.protocol.messages import Capability, DeviceHello, DeviceMode, Telemetry
 from sessions import wire
 from sessions.home_progress import HomeProgress
 from sessions.recording import End, Header, RecordingWriter, SessionEvent, sample_row
@@ -45,6 +45,11 @@ FLUSH_S = 0.2
 """Session samples are written this often and then synced to the disk: at most this much
 (and the disk's own delay) is lost if the station's power is cut; nothing if it is killed."""
 DEVICE_STALE_S = 2.0
+"""The device's link is lost once it has sent nothing for this long (s) while the station ran
+(:func:`_next_sample`)."""
+STALE_STEP_S = 0.25
+"""The step :func:`_next_sample` waits in: a station that stood still through one reads what
+the device sent meanwhile in the next."""
 APPLIES_TEXT: dict[wire.Applies, str] = {
     "now": "acknowledged by the device",
     "on_resume": "accepted by the device; the platform is held, so it applies on Resume",
@@ -246,14 +251,12 @@ class Station:
         stream = dev.telemetry()
         while True:
             try:
-                # Not wait_for: on Python 3.11 it drops a cancellation that arrives together
-                # with a sample (at 100 Hz that happens), and the station would never stop.
-                async with asyncio.timeout(DEVICE_STALE_S):
-                    t = await anext(stream)
+                t = await _next_sample(stream)
             except StopAsyncIteration:
                 return ""  # the link closed: reconnect
             except TimeoutError:
-                # This side still runs (the watchdog's heartbeats name a stall of its own).
+                # Silent while this side ran (a stall of its own is not counted, and the
+                # watchdog's heartbeats name it).
                 return (
                     f"the platform sent nothing for {DEVICE_STALE_S:g} s (the device stalled, "
                     "or its cable was cut)"
@@ -702,6 +705,32 @@ class Station:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):  # not wait_for: see _telemetry
                     await self._status_dirty.wait()
+
+
+async def _next_sample(stream: Subscription[Telemetry]) -> Telemetry:
+    """The next telemetry sample; TimeoutError once the device has sent nothing for
+    DEVICE_STALE_S while this station was running.
+
+    A station that stood still (its process stopped, its loop blocked, no free core) wakes
+    with every wait past its end and the device's samples unread in the port: one wait of
+    DEVICE_STALE_S timed out before they were read, and an 11 s stall of the station closed
+    its session as the device's lost link, the watchdog's hold (waiting with them) never
+    recorded. Waited in short steps instead, each counting only as long as it was meant to
+    last: the time the station stood still is not the device's silence, and the next step
+    reads what waits."""
+    loop = asyncio.get_running_loop()
+    silent = 0.0
+    while True:
+        began = loop.time()
+        try:
+            # Not wait_for: on Python 3.11 it drops a cancellation that arrives together
+            # with a sample (at 100 Hz that happens), and the station would never stop.
+            async with asyncio.timeout(STALE_STEP_S):
+                return await anext(stream)
+        except TimeoutError:
+            silent += min(loop.time() - began, STALE_STEP_S)
+            if silent >= DEVICE_STALE_S:
+                raise
 
 
 def _cut(text: str, most: int = REASON_MAX) -> str:
