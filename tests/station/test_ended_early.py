@@ -11,6 +11,8 @@ left out of it. And a device left holding the segment of an exercise the station
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
 import time
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -23,7 +25,7 @@ from device.protocol.messages import DeviceMode
 from sessions import wire
 from sessions.prescription import PrescriptionBody
 from sessions.recording import recover
-from station.app import DEVICE_STALE_S, Station
+from station.app import DEVICE_STALE_S, ENDED, Station
 from station.config import StationConfig
 from station.timeline import HOMING_TIMEOUT_S
 from tests.processes import free_port
@@ -124,3 +126,52 @@ async def test_a_station_that_stood_still_keeps_its_exercise_and_the_watchdogs_h
     assert rec.end is not None and rec.end.reason == "stopped", rec.end
     kinds = [(e.kind, e.by) for e in rec.events]
     assert ("watchdog", "device") in kinds and ("interrupted", "station") not in kinds, kinds
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("action", ["resume", "stop"])
+async def test_a_segment_left_by_a_lost_link_goes_home_and_is_never_resumed(
+    running: Station, device: ServiceProcess, action: wire.Action
+) -> None:
+    run, first = running.run_, running.dev
+    assert run is not None
+    os.kill(device.pid, signal.SIGSTOP)  # the device stalls: the station loses its link
+    try:
+        await until("the link lost", lambda: running.run_ is None, STILL_S + 30.0)
+    finally:
+        os.kill(device.pid, signal.SIGCONT)
+    assert run.link_lost and run.phase == "interrupted", run.message
+    # Connected again, the device holds the ended exercise's segment.
+    await until(
+        "the device holding, connected again",
+        lambda: (
+            running.dev is not None
+            and running.dev is not first
+            and running.dev.mode == DeviceMode.HOLD
+        ),
+        30.0,
+    )
+    dev = running.dev
+    assert dev is not None and dev.latest is not None and dev.latest.segment_id != 0
+    result = await running.command(command(action))
+    if action == "resume":
+        # Nothing would record the motion: refused, in words.
+        assert not result.ok and result.code == "REFUSED" and result.text == ENDED, result
+    else:
+        # It ends that segment, rather than saying nothing runs while the platform holds.
+        assert result.ok, result
+    # Either way (the station sends it home by itself), the platform goes home, and never
+    # moves as the ended exercise again.
+    modes: list[DeviceMode] = []
+
+    def home() -> bool:
+        modes.append(dev.mode or DeviceMode.IDLE)
+        return dev.mode == DeviceMode.READY
+
+    await until("home", home, HOMING_TIMEOUT_S + 10.0)
+    assert DeviceMode.ACTIVE not in modes, modes
+    assert DeviceMode.HOMING in modes, modes
+    assert running.run_ is None and running.status().hold is None, running.status()
+    # Nothing is left to resume now either.
+    again = await running.command(command("resume"))
+    assert not again.ok and again.code == "REFUSED", again
