@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 from device.protocol import messages as msg
 from device.protocol.framing import HANDSHAKE_TYPE, PROTOCOL_VERSION, Frame, FrameDecoder
@@ -85,6 +85,19 @@ class CommandRefused(DeviceError):
         self.nack = nack
 
 
+class Stall(NamedTuple):
+    """One time this host stood still (:meth:`DeviceClient._check_stall`)."""
+
+    ended: float
+    """Unix time when it ended."""
+    ms: float
+    """How late the heartbeat's wait ended past its bound."""
+    quiet_ms: float
+    """How long the device had then heard nothing from this host (since the last frame
+    written): the silence this stall made, at least. A hold whose silence is longer is not
+    this stall's alone."""
+
+
 @dataclass
 class ClientStats:
     frames: int = 0
@@ -103,8 +116,8 @@ class ClientStats:
     nothing meanwhile."""
     stall_ms_max: float = 0.0
     """The longest such stall (ms)."""
-    last_stall: tuple[float, float] | None = None
-    """(Unix time when it ended, its length in ms) of the newest."""
+    last_stall: Stall | None = None
+    """The newest."""
 
 
 class Subscription(Generic[T]):
@@ -203,6 +216,8 @@ class DeviceClient:
         self._replay_at = 0.0
         self._replay_seq: int | None = None
         self._replay_lost = 0
+        self._sent_at = time.perf_counter()
+        """Host clock when the last frame was written to the device."""
         self._closed = asyncio.Event()
         self.link_error: str | None = None
         """Why nothing more arrives, once the link has closed or failed."""
@@ -300,7 +315,7 @@ class DeviceClient:
             for attempt in range(retries + 1):
                 if attempt:
                     self.stats.retries += 1
-                self._writer.write(frame)
+                self._send(frame)
                 try:
                     # Not wait_for: on Python 3.11 it drops a cancellation that arrives as
                     # the ACK does, and a task that sends commands in a loop never stops.
@@ -422,7 +437,11 @@ class DeviceClient:
             eq.put_nowait(None)
 
     def _write(self, message: msg.Message, seq: int) -> None:
-        self._writer.write(msg.encode(message, seq))
+        self._send(msg.encode(message, seq))
+
+    def _send(self, frame: bytes) -> None:
+        self._writer.write(frame)
+        self._sent_at = time.perf_counter()
 
     async def _heartbeat_loop(self) -> None:
         # Each wait is bounded (the sleep by its period, the ACK by its timeout): a wait that
@@ -448,7 +467,8 @@ class DeviceClient:
         ms = late * 1e3
         self.stats.stalls += 1
         self.stats.stall_ms_max = max(self.stats.stall_ms_max, ms)
-        self.stats.last_stall = (time.time(), ms)
+        quiet_ms = (time.perf_counter() - self._sent_at) * 1e3
+        self.stats.last_stall = Stall(time.time(), ms, quiet_ms)
         log.warning(
             "this computer stood still for %.0f ms and sent the device nothing meanwhile "
             "(the device's watchdog holds the platform after its set silence): the event "

@@ -17,9 +17,9 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from device.client import CommandRefused, DeviceClient, DeviceError
+from device.client import CommandRefused, DeviceClient, DeviceError, Stall, Subscription
 from device.commands import CommandError, check_segment_as_received, published
-from device.protocol.messages import Capability, DeviceHello, DeviceMode
+from device.protocol.messages import Capability, DeviceHello, DeviceMode, Telemetry
 from sessions import wire
 from sessions.home_progress import HomeProgress
 from sessions.recording import End, Header, RecordingWriter, SessionEvent, sample_row
@@ -36,7 +36,7 @@ from station.reasons import (
 )
 from station.server_link import ServerLink
 from station.spool import Spool
-from station.timeline import ExerciseRun, segment_for
+from station.timeline import ExerciseRun, segment_for, send_home
 from station.uploader import Uploader
 
 log = logging.getLogger("ankle.station")
@@ -45,6 +45,11 @@ FLUSH_S = 0.2
 """Session samples are written this often and then synced to the disk: at most this much
 (and the disk's own delay) is lost if the station's power is cut; nothing if it is killed."""
 DEVICE_STALE_S = 2.0
+"""The device's link is lost once it has sent nothing for this long (s) while the station ran
+(:func:`_next_sample`)."""
+STALE_STEP_S = 0.25
+"""The step :func:`_next_sample` waits in: a station that stood still through one reads what
+the device sent meanwhile in the next."""
 APPLIES_TEXT: dict[wire.Applies, str] = {
     "now": "acknowledged by the device",
     "on_resume": "accepted by the device; the platform is held, so it applies on Resume",
@@ -54,6 +59,13 @@ APPLIES_TEXT: dict[wire.Applies, str] = {
 STOP_WAIT_S = 8.0
 """How long a station asked to stop (SIGTERM) waits for the exercise to end as on STOP."""
 NOTHING_HELD = "nothing to resume: no exercise is paused and the platform is not held"
+ENDED = (
+    "the exercise has ended, so there is nothing to resume: the platform goes home "
+    "(start the exercise again to carry on)"
+)
+SEGMENT_MODES = (DeviceMode.ACTIVE, DeviceMode.HOLD)
+"""The device's modes with a segment loaded: one that no exercise runs is sent home
+(:meth:`Station._left_watch`)."""
 HOLD_CHECK_S = 0.25
 """How often a held exercise is checked against the hold limit (s)."""
 HEARD_KEPT = 256
@@ -97,7 +109,7 @@ class Station:
         """Live K/B changes one at a time: each is merged, sent and, if refused, undone before
         the next is merged, so that its before and after are exact."""
         self.reasons = Reasons()
-        self._stall_heard: tuple[float, float] | None = None
+        self._stall_heard: Stall | None = None
         self._status_dirty = asyncio.Event()
         self._started = False
         self._session_task: asyncio.Task[None] | None = None
@@ -109,6 +121,11 @@ class Station:
         self._segment_base = max(1, int(time.time()) & 0xFFFF)
         self._stopping = ""
         """Why the station is stopping (:meth:`wind_down`); nothing starts from then on."""
+        self._homing: asyncio.Task[None] | None = None
+        """Sending home a segment that no exercise runs (:meth:`_send_home`)."""
+        self._left_tried: int | None = None
+        """The segment id last sent home that way: the station tries each once by itself (a
+        device that refuses to home says why, each time); a Stop tries again."""
 
     # -- running -------------------------------------------------------------------------
     async def run(self) -> None:
@@ -226,6 +243,7 @@ class Station:
         """Serve one link to the device until it is lost; how it was lost."""
         telemetry = asyncio.create_task(self._telemetry(dev))
         events = asyncio.create_task(self._events(dev))
+        left = asyncio.create_task(self._left_watch(dev))
         try:
             self._autostart()
             done, _ = await asyncio.wait({telemetry, events}, return_when=asyncio.FIRST_COMPLETED)
@@ -235,9 +253,11 @@ class Station:
                 return telemetry.result()
             return dev.link_error or "the link closed"
         finally:
-            telemetry.cancel()
-            events.cancel()
-            await asyncio.gather(telemetry, events, return_exceptions=True)
+            homing = self._homing
+            tasks = [telemetry, events, left] + ([homing] if homing is not None else [])
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
 
     async def _telemetry(self, dev: DeviceClient) -> str:
         """Record and stream the device's telemetry until its link closes (``""``) or goes
@@ -246,14 +266,12 @@ class Station:
         stream = dev.telemetry()
         while True:
             try:
-                # Not wait_for: on Python 3.11 it drops a cancellation that arrives together
-                # with a sample (at 100 Hz that happens), and the station would never stop.
-                async with asyncio.timeout(DEVICE_STALE_S):
-                    t = await anext(stream)
+                t = await _next_sample(stream)
             except StopAsyncIteration:
                 return ""  # the link closed: reconnect
             except TimeoutError:
-                # This side still runs (the watchdog's heartbeats name a stall of its own).
+                # Silent while this side ran (a stall of its own is not counted, and the
+                # watchdog's heartbeats name it).
                 return (
                     f"the platform sent nothing for {DEVICE_STALE_S:g} s (the device stalled, "
                     "or its cable was cut)"
@@ -293,6 +311,57 @@ class Station:
                 self._event(device_event(e, at))
             self._status_dirty.set()
 
+    async def _left_watch(self, dev: DeviceClient) -> None:
+        """Send home a segment that no exercise runs: the device holds (or runs) the segment
+        of an exercise that ended while the station could not end it there (its link was
+        lost: the device held the platform on its own), or from before the station started.
+        Left so, a Resume moved the platform as that exercise, with no session recording
+        it and no Stop that would end it."""
+        while True:
+            await asyncio.sleep(HOLD_CHECK_S)
+            latest = dev.latest
+            if (
+                latest is None
+                or self._stopping
+                or self.run_ is not None
+                or self._sending_home
+                or dev.mode not in SEGMENT_MODES
+                or latest.segment_id == self._left_tried
+            ):
+                continue
+            self._send_home(dev, "station")
+
+    @property
+    def _sending_home(self) -> bool:
+        return self._homing is not None and not self._homing.done()
+
+    def _send_home(self, dev: DeviceClient, by: str) -> None:
+        """End the segment the device has (no exercise runs) and bring the platform home."""
+        if not self._sending_home:
+            self._homing = asyncio.create_task(self._home_left(dev, by), name="send-home")
+
+    async def _home_left(self, dev: DeviceClient, by: str) -> None:
+        latest = dev.latest
+        segment = latest.segment_id if latest is not None else 0
+        self._left_tried = segment
+        mode = dev.mode.name if dev.mode is not None else "UNKNOWN"
+        text = (
+            f"the platform was in {mode} on segment {segment}, which no exercise runs now: "
+            "sent home"
+        )
+        log.warning("%s (by %s)", text, by)
+        self._event(SessionEvent(wall=time.time(), kind="stop", by=by, detail={"text": text}))
+        try:
+            home, note = await send_home(dev)
+        except DeviceError as exc:
+            note, home = f"the platform could not be sent home ({exc})", False
+        if note:
+            log.error("%s", note)
+            self.message = "; ".join(m for m in (self.message, note) if m)
+        elif home:
+            log.info("the platform is home")
+        self._status_dirty.set()
+
     def _event(self, event: SessionEvent) -> None:
         if self.writer is not None:
             self.writer.event(event)
@@ -310,6 +379,8 @@ class Station:
             return "the station is stopping"
         if self.run_ is not None:
             return "an exercise is already running"
+        if self._sending_home:
+            return "the platform is going home from an exercise that ended: start once it is home"
         if self.dev is None or self.dev.hello is None:
             return "the platform is not connected"
         item = next((p for p in self.prescriptions if p.id == prescription_id), None)
@@ -411,6 +482,10 @@ class Station:
         latest = run.dev.latest
         self.reasons.settled(latest.mode if latest is not None else None)
         self._segment_base = max(1, (run.last_segment_id + 1) & 0xFFFF)
+        if not run.link_lost:
+            # It ended its segment on the device itself (or said why it could not): the
+            # device holds it only over a lost link, which _left_watch then sends home.
+            self._left_tried = run.last_segment_id
         self.run_ = None
         self.session_id = None
         self._last_phase = run.phase  # shown until the next start: done, stopped or fault
@@ -513,6 +588,10 @@ class Station:
                     self.reasons.asked(cmd.by or "station")  # else it holds nothing
                 await dev.hold()
             elif cmd.action == "resume":
+                if run is None and (dev.mode in SEGMENT_MODES or self._sending_home):
+                    # The device holds the segment of an exercise that has ended: resumed,
+                    # it moved as that exercise with no session recording it.
+                    return result(False, "REFUSED", "action", ENDED)
                 if run is not None and run.ending:
                     return result(False, "REFUSED", "action", "the exercise is ending")
                 if dev.mode != DeviceMode.HOLD and (run is None or run.phase != "paused"):
@@ -529,7 +608,14 @@ class Station:
                     run.resume()
             elif cmd.action == "stop":
                 if run is None:
-                    return result(False, "REFUSED", "action", "no exercise is running")
+                    if self._sending_home:
+                        return result(True, text="the platform is going home")
+                    if dev.mode not in SEGMENT_MODES:
+                        return result(False, "REFUSED", "action", "no exercise is running")
+                    # A segment no exercise runs: held at once, then sent home.
+                    await dev.hold()
+                    self._send_home(dev, cmd.by or "station")
+                    return result(True, text="acknowledged by the device; the platform goes home")
                 run.stop()
             self._event(SessionEvent(wall=time.time(), kind=cmd.action, by=cmd.by or "station"))
             return result(True, text="acknowledged by the device")
@@ -626,8 +712,7 @@ class Station:
         stall = dev.stats.last_stall if dev is not None else None
         if stall is not None and stall != self._stall_heard:  # this computer stood still
             self._stall_heard = stall
-            ended, ms = stall
-            self.reasons.host_stalled(ms, ended)
+            self.reasons.host_stalled(stall.quiet_ms, stall.ended)
         latest = dev.latest if dev is not None else None
         paused = run is not None and run.phase == "paused" and not run.ending
         hold = self.reasons.hold(latest.mode if latest is not None else None, paused)
@@ -703,6 +788,32 @@ class Station:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):  # not wait_for: see _telemetry
                     await self._status_dirty.wait()
+
+
+async def _next_sample(stream: Subscription[Telemetry]) -> Telemetry:
+    """The next telemetry sample; TimeoutError once the device has sent nothing for
+    DEVICE_STALE_S while this station was running.
+
+    A station that stood still (its process stopped, its loop blocked, no free core) wakes
+    with every wait past its end and the device's samples unread in the port: one wait of
+    DEVICE_STALE_S timed out before they were read, and an 11 s stall of the station closed
+    its session as the device's lost link, the watchdog's hold (waiting with them) never
+    recorded. Waited in short steps instead, each counting only as long as it was meant to
+    last: the time the station stood still is not the device's silence, and the next step
+    reads what waits."""
+    loop = asyncio.get_running_loop()
+    silent = 0.0
+    while True:
+        began = loop.time()
+        try:
+            # Not wait_for: on Python 3.11 it drops a cancellation that arrives together
+            # with a sample (at 100 Hz that happens), and the station would never stop.
+            async with asyncio.timeout(STALE_STEP_S):
+                return await anext(stream)
+        except TimeoutError:
+            silent += min(loop.time() - began, STALE_STEP_S)
+            if silent >= DEVICE_STALE_S:
+                raise
 
 
 def _cut(text: str, most: int = REASON_MAX) -> str:

@@ -44,11 +44,12 @@ _ASKED: dict[HoldCode, str] = {
 }
 _STOPPED = (DeviceMode.FAULT, DeviceMode.ESTOP)
 STALL_NEAR_S = 2.0
-"""A stall of this computer that ended this close to a watchdog hold's start explains it..."""
-STALL_SHARE = 0.5
-"""...when it lasted at least this share of the silence the device measured."""
+"""A stall of the station's computer that ended this close to a watchdog hold's start, and
+that left the device without a frame at least as long as the silence it measured, explains
+the hold. A shorter one does not (a 121 ms stall was named as the cause of a 201 ms silence,
+under a 200 ms watchdog): the device heard nothing for longer than the stall can account for."""
 STALLS_KEPT = 16
-"""This computer's recent stalls remembered, each judged against a hold: a loaded computer
+"""The computer's recent stalls remembered, each judged against a hold: a loaded computer
 stands still in pieces (995 ms, then 148 and 107 ms), and keeping only the newest let a
 short one take back the explanation the long one gave."""
 LINK_BEFORE_S = 3.0
@@ -113,7 +114,8 @@ class Reasons:
         """The words of the event that stopped the device (an e-stop, a trip)."""
         self._unheard_since: float | None = None
         self._stalls: deque[tuple[float, float]] = deque(maxlen=STALLS_KEPT)
-        """This computer's recent stalls: when each ended (Unix s), and how long (ms)."""
+        """The station's computer's recent stalls: when each ended (Unix s), and how long the
+        device had then heard nothing from the station (ms)."""
         self._silence_ms = 0.0
         self._watchdog_said = ""
         """The device's words for its newest watchdog hold."""
@@ -174,10 +176,11 @@ class Reasons:
         elif event.mode_from == DeviceMode.HOLD and event.mode_to != DeviceMode.HOLD:
             self._hold = None
 
-    def host_stalled(self, ms: float, at: float) -> None:
-        """This computer stood still for ``ms``, until ``at`` (Unix s): heartbeats to the
-        device left that late. If it explains a watchdog hold, the hold says so."""
-        self._stalls.append((at, ms))
+    def host_stalled(self, quiet_ms: float, at: float) -> None:
+        """The station's computer stood still until ``at`` (Unix s), and the device had then
+        heard nothing from it for ``quiet_ms`` (device.client.Stall). If that covers a
+        watchdog hold's silence, the hold says so."""
+        self._stalls.append((at, quiet_ms))
         hold = self._hold
         if hold is not None and hold.code == "watchdog":
             self._hold = hold.model_copy(update={"text": self._watchdog_text(hold.since)})
@@ -203,14 +206,14 @@ class Reasons:
                     "does not carry on"
                 )
             return f"the device held the platform: {self._watchdog_said}"
-        why = "the station or its cable stalled"
+        why = "the cause is unknown: the station's program, its computer or its cable"
         if lost:
             why = f"the station had lost the platform's link: {lost}"
         near = [ms for end, ms in self._stalls if abs(end - since) <= STALL_NEAR_S]
-        if near and max(near) >= STALL_SHARE * self._silence_ms:
+        if near and max(near) >= self._silence_ms:
             why = (
-                f"this computer stood still for {max(near):.0f} ms: too busy, or its program "
-                "blocked"
+                f"the home station's computer stood still and sent nothing for {max(near):.0f} "
+                "ms: too busy, or its program blocked"
             )
         return (
             f"the device's watchdog held the platform: no frame from the station for "

@@ -37,6 +37,35 @@ def segment_for(
     return device_segment(hello, segment_id, body, stiffness, damping)
 
 
+async def send_home(dev: DeviceClient) -> tuple[bool, str]:
+    """End the device's segment as STOP does: hold where it is, then home slowly to READY.
+    Whether the platform is home, and why not when it could have been (``""`` for a device
+    stopped by a fault or an e-stop, which stays where it is until re-armed).
+
+    A device that refuses to home (its air supply is low) keeps holding where it is, valves
+    closed; the caller ends what it ends all the same, and says so."""
+    latest = dev.latest
+    if latest is None or latest.mode in STOPPED_MODES:
+        return False, ""
+    # Held whatever the newest telemetry says: a segment the device ACKed a moment ago
+    # may not show as ACTIVE in it yet (and homing is refused while ACTIVE, so the
+    # platform would run the repetition out after STOP). HOLD changes nothing in READY;
+    # its ACK says the mode the device is in now.
+    if (await dev.hold()).mode in STOPPED_MODES:
+        return False, ""
+    try:
+        await dev.arm_home()
+    except CommandRefused as exc:
+        return False, f"the platform could not go home ({exc.nack.text}) and holds where it is"
+    try:
+        sample = await dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
+    except LinkTimeout:
+        if dev.link_error is not None:
+            raise  # the link closed meanwhile: the caller's link is lost
+        return False, f"the platform was not home within {HOMING_TIMEOUT_S:g} s"
+    return sample.mode == DeviceMode.READY, ""
+
+
 class ExerciseRun:
     """One run of a prescription; :meth:`run` returns how it ended."""
 
@@ -293,34 +322,11 @@ class ExerciseRun:
         return True
 
     async def _abort_segment(self) -> None:
-        """Stop a running segment: hold where it is, then home slowly to READY.
-
-        A device that refuses to home (its air supply is low) keeps holding where it is,
-        valves closed: the run still ends, and says so."""
-        latest = self.dev.latest
-        if latest is None or latest.mode in STOPPED_MODES:
-            return
-        # Held whatever the newest telemetry says: a segment the device ACKed a moment ago
-        # may not show as ACTIVE in it yet (and homing is refused while ACTIVE, so the
-        # platform would run the repetition out after STOP). HOLD changes nothing in READY;
-        # its ACK says the mode the device is in now.
-        if (await self.dev.hold()).mode in STOPPED_MODES:
-            return
-        try:
-            await self.dev.arm_home()
-        except CommandRefused as exc:
-            self._homing_note = (
-                f"the platform could not go home ({exc.nack.text}) and holds where it is"
-            )
-            return
-        try:
-            await self.dev.wait_for_mode(DeviceMode.READY, *STOPPED_MODES, timeout=HOMING_TIMEOUT_S)
-        except LinkTimeout:
-            if self.dev.link_error is not None:
-                raise  # the link closed meanwhile: see run
-            self._homing_note = f"the platform was not home within {HOMING_TIMEOUT_S:g} s"
-            return
-        if self._interrupted:
+        """Stop a running segment (:func:`send_home`)."""
+        home, note = await send_home(self.dev)
+        if note:
+            self._homing_note = note
+        elif home and self._interrupted:
             self._homing_note = "the platform went home"
 
     async def _rest(self, seconds: float) -> None:

@@ -2,7 +2,8 @@
 (SIGSTOP) for longer than the station waits for its telemetry, then goes on. The station
 ends the session ``interrupted``, saying the link was lost, and uploads it like any other;
 after it connects again it tells the truth about the hold the device is in and does not
-send the device's past to the live view a second time."""
+send the device's past to the live view a second time; the platform, held on the ended
+exercise's segment, it sends home."""
 
 from __future__ import annotations
 
@@ -67,23 +68,27 @@ async def test_a_device_link_lost_mid_exercise_ends_the_session_and_it_is_upload
             await asyncio.sleep(FROZEN_S)
         finally:
             os.kill(system.device.pid, signal.SIGCONT)
-        # Connected again, the device holding what was under way, the exercise over (and
-        # the device's event that says why heard: until then the hold is "device", unheard).
+        # Connected again, the device holding what was under way, the exercise over: the
+        # station sends the platform home (nothing would record it moving on a Resume).
         state = await gather_until(
             ws,
             seen,
-            lambda s: (
-                s.device_link == "connected" and s.hold is not None and s.hold.code != "device"
-            ),
+            lambda s: s.device_link == "connected" and s.device_mode == "READY",
             60,
         )
         assert state.session_id is None and state.phase == "interrupted", state
         assert state.message.startswith("the platform's link was lost: "), state.message
-        # Why the device holds: the lost link, not a silence of "0 ms" blamed on the station.
-        hold = state.hold
-        assert state.device_mode == "HOLD" and hold is not None and hold.code == "watchdog"
-        text = hold.text
-        assert "link" in text and " 0 ms" not in text and "station or its cable" not in text, text
+        assert state.hold is None, state
+        assert "HOMING" in [m.device_mode for m in seen if isinstance(m, wire.StatusMsg)]
+        (sent,) = [m for m in seen if isinstance(m, wire.EventMsg) and m.event.kind == "stop"]
+        assert (sent.event.by, sent.session_id) == ("station", None), sent
+        assert "which no exercise runs now: sent home" in sent.event.detail["text"], sent
+        # While it held, why: the lost link, not a silence of "0 ms" blamed on the station.
+        for s in seen:
+            if isinstance(s, wire.StatusMsg) and s.hold is not None and s.hold.code != "device":
+                text = s.hold.text
+                assert s.hold.code == "watchdog" and s.device_mode == "HOLD", s
+                assert "link" in text and " 0 ms" not in text and "unknown" not in text, text
         # The patient's page says why in the patient's words (home.js reads link_lost).
         async with connect(
             f"ws://127.0.0.1:{system.page_port}/ws",

@@ -70,7 +70,11 @@ async def test_a_watchdog_hold_past_the_limit_ends_the_exercise_homed_and_interr
         # The station's heartbeats left as late as it was frozen: the hold names this
         # computer, not the cable (within a status or two of the station waking).
         named = await status_until(
-            ws, lambda s: s.hold is not None and "this computer stood still" in s.hold.text, 15
+            ws,
+            lambda s: (
+                s.hold is not None and "the home station's computer stood still" in s.hold.text
+            ),
+            15,
         )
         assert named.hold is not None and named.hold.since == hold.since, named.hold
         assert hold.ends_at is not None and hold.ends_at - hold.since == pytest.approx(LIMIT_S)
