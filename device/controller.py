@@ -1976,6 +1976,8 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
             s.monitor[supervision.M_TWIST_PREV + k] = twist[k]
         if s.counters[supervision.C_SIDE_ARMED] < supervision.SIDE_ARM_PERIODS:
             s.counters[supervision.C_SIDE_ARMED] += 1
+        elif s.counters[supervision.C_SIDE_JUDGED] < supervision.SIDE_ARM_PERIODS:
+            s.counters[supervision.C_SIDE_JUDGED] += 1
         if moving(s.istate) and p.load_compensation:
             # Each leg's measured pneumatic force against the force that holds the load, less
             # what it pushed beyond that at start-up (the plate's weight off its model, the

@@ -297,6 +297,25 @@ def test_the_same_impedance_again_changes_nothing() -> None:
     assert _offset_named_ms(resend) <= 30.0
 
 
+@pytest.mark.parametrize("every_ms", [5, 30])
+def test_a_host_sending_segments_fast_cannot_blind_the_cross_checks(every_ms: int) -> None:
+    """Each new segment makes the moment check wait 40 ms (its legs chase a new target). A
+    host that sent the same compliant pitch sine again every 30 ms restarted that wait each
+    time: a 3 N m offset on the pitch torque went unnamed for good (no trip in 4 s). A
+    command that comes while the checks wait no longer lengthens the wait, and they judge
+    at least as long as they waited before the next one, so it is named within a wait and
+    a judging spell."""
+    sent = {"next": 0.0, "id": 2}
+
+    def resend(dev: Device, t: float) -> None:
+        if t >= sent["next"] - 1e-9:
+            dev.send(narrowed(dev, sent["id"], 6.0, {"pitch": PITCH_SINE}))
+            sent["id"] += 1
+            sent["next"] += every_ms / 1e3
+
+    assert _offset_named_ms(resend) <= 100.0
+
+
 def test_a_new_impedance_leaves_the_checks_judging() -> None:
     """K 30 -> 100 on the compliant pitch as a 3 N m offset lands on its torque channel:
     with the cross-checks held off for 40 ms after each change it was named in 46-56 ms
