@@ -101,7 +101,16 @@ I_RELEASE_STOP = 11
 ``c`` gained air (an intake stuck open), ``13 + c`` chamber ``c`` kept its air (its exhaust
 stuck shut), ``25 + c`` chamber ``c`` emptied ahead of the others (its exhaust stuck open,
 or a leak)."""
-N_ISTATE = 12
+I_BAD_SENSORS = 12
+"""Sensors judged faulty since the last re-arm (bit ``k``: sensor ``k`` of the vector, 0-12
+pressures, 13-18 leg lengths, 19-24 the force/torque sensor; see :func:`mark_sensor`): the
+trip's own and any the checks name after it. Their readings are no longer taken, and no
+chamber is held on them (:func:`bleed`)."""
+I_HELD_MORE = 13
+"""Chambers held after a trip besides ``I_BLEED``'s (:func:`bleed`): bit ``c`` chamber ``c``
+by its exhaust (it gained air, an intake stuck open), bit ``12 + c`` by its intake (it lost
+air, an exhaust stuck open or a leak)."""
+N_ISTATE = 14
 
 
 def controller_tasks() -> tuple[Task, ...]:
@@ -1165,9 +1174,29 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
     return state
 
 
+@njit_inline
+def mark_sensor(istate: NDArray[np.int64], code: int, channel: int) -> None:
+    """Record the sensor a sensor trip (``code``, ``channel``) names in ``I_BAD_SENSORS``:
+    a chamber's or the supply's transducer, a leg's length sensor, the whole force/torque
+    sensor (its rules judge the six channels together)."""
+    if code == Trip.PRESSURE_SENSOR and 0 <= channel < 13:
+        istate[I_BAD_SENSORS] |= 1 << channel
+    elif code == Trip.LEG_SENSOR and 0 <= channel < 6:
+        istate[I_BAD_SENSORS] |= 1 << (13 + channel)
+    elif code == Trip.FORCE_SENSOR:
+        istate[I_BAD_SENSORS] |= 0x3F << 19
+
+
+@njit_inline
+def sensor_bad(istate: NDArray[np.int64], k: int) -> bool:
+    """Whether sensor ``k`` of the vector was judged faulty since the last re-arm."""
+    return bool((istate[I_BAD_SENSORS] >> k) & 1)
+
+
 @njit
 def trip(s: ControllerState, code: int, channel: int = -1) -> None:
     """Latch a fault: valves close at this very tick's duty update or the next."""
+    mark_sensor(s.istate, code, channel)
     if s.istate[I_MODE] != Mode.FAULT:
         s.istate[I_TRIPS] += 1
     s.istate[I_MODE] = Mode.FAULT
@@ -1286,11 +1315,18 @@ def sensor_task(s: ControllerState, p: ControllerParams, sensors: NDArray[np.flo
         p.pressure_still,
         drawing,
     )
-    if fault != Trip.NONE:
+    if fault != Trip.NONE and s.istate[I_MODE] != Mode.FAULT:
         trip(s, fault, channel)
         return
+    # After a trip the readings are still taken but for the sensors judged faulty, which
+    # keep their last: the hold after the trip (bleed) follows the chambers' air. Before,
+    # a faulty sensor that stayed faulty froze every reading at the trip, and a valve that
+    # stuck open later emptied its chamber unseen (measured after a FORCE_SENSOR trip mid
+    # pitch exercise: 14.6 deg and 19.6 mm, no event).
+    mark_sensor(s.istate, fault, channel)
     for k in range(25):
-        s.sensors[k] = sensors[k] - p.sensor_zero[k]
+        if not sensor_bad(s.istate, k):
+            s.sensors[k] = sensors[k] - p.sensor_zero[k]
     code, part = safety.check_sensors(s.sensors, p.stroke, p.limits, int(s.istate[I_OUTSIDE]))
     if code != Trip.NONE and moving(s.istate):
         trip(s, code, part)
@@ -2379,6 +2415,7 @@ def controller_tick(s: ControllerState, p: ControllerParams, sensors: NDArray[np
             vent_valves(s.istate, s.valves, p.pwm_phase, p.vent_pulse_slots, p.vent_every_periods)
             if s.istate[I_MODE] == Mode.FAULT:
                 s.istate[I_BLEED] = BLEED_RELEASED
+                s.istate[I_HELD_MORE] = 0
         else:
             for v in range(24):
                 s.valves[v] = 0
@@ -2540,6 +2577,7 @@ def hold_stuck(s: ControllerState, c: int, gained: bool, lost: bool, balance: bo
     for v in range(24):
         s.valves[v] = 0
     s.trip_air[0] = math.nan
+    s.istate[I_HELD_MORE] = 0
     s.istate[I_BLEED] = c if gained else (HOLD_FEED + c if lost else -1)
     s.p_desired[c] = s.pressure[c]
     if gained and balance:
@@ -2683,6 +2721,18 @@ def _bleed_air(
 
 
 @njit_inline
+def _blind(istate: NDArray[np.int64], k: int) -> bool:
+    """Whether chamber ``k``'s air cannot be judged: its transducer or its leg's length
+    sensor was judged faulty (``I_BAD_SENSORS``) or is the one the latched trip names."""
+    code, named = istate[I_TRIP], istate[I_TRIP_CHANNEL]
+    if (code == Trip.PRESSURE_SENSOR and named == k) or (
+        code == Trip.LEG_SENSOR and named == k // 2
+    ):
+        return True
+    return sensor_bad(istate, k) or sensor_bad(istate, 13 + k // 2)
+
+
+@njit_inline
 def bleed(
     istate: NDArray[np.int64],
     pressure: NDArray[np.float64],
@@ -2757,39 +2807,65 @@ def bleed(
     ):
         c = HOLD_BOTH + service
         p_desired[service] = pressure[service]  # held where the trip found it
-    if record or c == -1:  # once the chamber is found, only hold it
-        for k in range(12):
-            leg = k // 2
-            air = _bleed_air(k, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup)
-            if record:
-                trip_air[k] = air
-                if k != c and k != c - HOLD_FEED and k != c - HOLD_BOTH:  # set by the hold
-                    p_desired[k] = pressure[k]
-            elif c == -1 and not (
-                (code == Trip.PRESSURE_SENSOR and named == k)
-                or (code == Trip.LEG_SENSOR and named == leg)
-            ):
-                rise = pressure[k] - p_desired[k]
-                gained = rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]
-                lost = rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]
-                if not (gained or lost):
-                    continue
-                # Air the leg gained or lost, not air its piston let from one side to the
-                # other (its other chamber's reading, unless the trip named that transducer).
-                moved = air - trip_air[k]
-                new_air = moved
-                o = k ^ 1
-                if not (code == Trip.PRESSURE_SENSOR and named == o):
-                    other = _bleed_air(
-                        o, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup
-                    )
-                    new_air = moved + other - trip_air[o]
-                if gained and new_air > BLEED_NEW * moved:
-                    c = k
-                elif lost and new_air < BLEED_NEW * moved:
-                    c = HOLD_FEED + k
-        istate[I_BLEED] = c
-    supply_named = code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL
+    # The chamber I_BLEED holds: neither it nor its leg's other chamber is judged by its air
+    # any more (its air moves with the hold's valves, and the other's leg sum with it).
+    first = -1 if c < 0 else (c % HOLD_FEED)
+    more = istate[I_HELD_MORE]
+    for k in range(12):
+        air = _bleed_air(k, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup)
+        if record:
+            trip_air[k] = air
+            if k != first:  # set by the hold
+                p_desired[k] = pressure[k]
+            continue
+        # Held already, or on a held chamber's leg: a second stuck valve on one leg is left
+        # to the first's hold (a leg's air is judged on both its chambers' together).
+        held = ((more | (more >> 12)) & ((1 << k) | (1 << (k ^ 1)))) != 0
+        if held or k // 2 == first // 2 or _blind(istate, k):
+            continue
+        rise = pressure[k] - p_desired[k]
+        gained = rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]
+        lost = rise < -BLEED_RISE and air < (1.0 - BLEED_AIR) * trip_air[k]
+        if not (gained or lost):
+            continue
+        # Air the leg gained or lost, not air its piston let from one side to the other
+        # (its other chamber's reading, unless that transducer is not believed).
+        moved = air - trip_air[k]
+        new_air = moved
+        o = k ^ 1
+        if not (_blind(istate, o) or (code == Trip.PRESSURE_SENSOR and named == o)):
+            other = _bleed_air(o, pressure, leg_x, dead_volume, area_cap, area_annulus, stroke, sup)
+            new_air = moved + other - trip_air[o]
+        if gained and new_air > BLEED_NEW * moved:
+            if c == -1:
+                c = k
+            else:
+                more |= 1 << k
+        elif lost and new_air < BLEED_NEW * moved:
+            if c == -1:
+                c = HOLD_FEED + k
+            else:
+                more |= 1 << (12 + k)
+        first = -1 if c < 0 else (c % HOLD_FEED)
+    istate[I_BLEED] = c
+    istate[I_HELD_MORE] = more
+    supply_named = (code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL) or sensor_bad(
+        istate, SUPPLY_CHANNEL
+    )
+    for k in range(12):  # the chambers found besides I_BLEED's, each by a valve of its own
+        if _blind(istate, k):
+            continue  # a transducer judged faulty after the chamber was found: shut
+        if ((more >> k) & 1) != 0 and pressure[k] > p_desired[k]:
+            valves[2 * k + 1] = 1
+        elif (
+            ((more >> (12 + k)) & 1) != 0
+            and pressure[k] < p_desired[k]
+            and not supply_named
+            and supervision.intake_allowed(supply_abs, pressure[k], sup)
+        ):
+            valves[2 * k] = 1
+    if first >= 0 and _blind(istate, first):
+        return
     if 0 <= c < HOLD_FEED and pressure[c] > p_desired[c]:
         valves[2 * c + 1] = 1
     elif HOLD_FEED <= c < HOLD_BALANCE:

@@ -103,8 +103,8 @@ class ModeMachine:
         self._service_reported = False
         self._supply_reported = False
         self._release_reported = False
-        self._held = -1
-        """The chamber a valve of its own holds after the stop (ctl.bleed) that is said."""
+        self._held: set[int] = set()
+        """The chambers valves of their own hold after the stop (ctl.bleed) that are said."""
         self._rings = np.zeros(6)
         self._factors = np.ones(6)
         self._homing_start = 0.0
@@ -199,7 +199,7 @@ class ModeMachine:
         # the air checks named from the next tick, which the event says.
         chamber = self.rig.service_chamber if self.rig.trip == Trip.NONE else -1
         if chamber >= 0:
-            self._held = chamber  # this event says so
+            self._held = {chamber}  # this event says so
         self.rig.estop()
         self.rig.set_vent(False)
         self._end_segment()
@@ -213,7 +213,7 @@ class ModeMachine:
 
     def rearm(self) -> None:
         self.rig.rearm()
-        self._held = -1
+        self._held = set()
         if self.mode in (DeviceMode.ESTOP, DeviceMode.FAULT):
             self._set_mode(DeviceMode.IDLE, "re-armed; home before moving")
 
@@ -246,7 +246,7 @@ class ModeMachine:
             kind = EventKind.FAULT if trip in FAULT_TRIPS else EventKind.LIMIT
             text = event_text(trip, self.rig.trip_channel)
             if trip == Trip.VALVE:
-                self._held = self.rig.trip_channel  # the trip's event names its chamber
+                self._held = {self.rig.trip_channel}  # the trip's event names its chamber
             self._set_mode(DeviceMode.FAULT, text, kind=kind, code=trip)
             return
         self._report_release()
@@ -332,19 +332,20 @@ class ModeMachine:
         )  # fmt: skip
 
     def _report_held(self) -> None:
-        """An event, once, when after a trip or an e-stop the controller holds a chamber by a
-        valve of its own (ctl.bleed: its air moved with every valve shut, a valve stuck open
-        or a leak); not again for a chamber the stop's own event named."""
+        """An event, once per chamber, when after a trip or an e-stop the controller holds a
+        chamber by a valve of its own (ctl.bleed: its air moved with every valve shut, a valve
+        stuck open or a leak; a second fault's chamber as well as the first's); not again for
+        a chamber the stop's own event named."""
         if self.mode not in (DeviceMode.ESTOP, DeviceMode.FAULT):
             return
-        chamber = self.rig.held_chamber
-        if chamber < 0 or chamber == self._held or chamber == self.rig.release_stopped[0]:
-            return
-        self._held = chamber
-        self._valve_event(
-            chamber,
-            "its air moved with every valve shut (stuck valve, leak): its own valves hold it",
-        )
+        for chamber in self.rig.held_chambers:
+            if chamber in self._held or chamber == self.rig.release_stopped[0]:
+                continue
+            self._held.add(chamber)
+            self._valve_event(
+                chamber,
+                "its air moved with every valve shut (stuck valve, leak): its own valves hold it",
+            )
 
     def _report_rings(self) -> None:
         """An event for each ring the guard damped since the last pass (device.ring)."""

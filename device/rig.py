@@ -320,6 +320,15 @@ class Rig:
         return c
 
     @property
+    def held_chambers(self) -> list[int]:
+        """Every chamber a valve of its own holds after a trip or an e-stop (ctl.bleed):
+        ``held_chamber`` first, then any found after it, in chamber order."""
+        first = self.held_chamber
+        more = int(self.state.istate[ctl.I_HELD_MORE])
+        found = [c for c in range(12) if c != first and (more >> c | more >> (12 + c)) & 1]
+        return ([first] if first >= 0 else []) + found
+
+    @property
     def venting(self) -> bool:
         return bool(self.state.istate[ctl.I_VENT])
 
@@ -393,6 +402,8 @@ class Rig:
         s.istate[ctl.I_TRIP_CHANNEL] = -1
         self.tripped_at = None
         s.istate[ctl.I_BLEED] = -1
+        s.istate[ctl.I_HELD_MORE] = 0
+        s.istate[ctl.I_BAD_SENSORS] = 0
         s.istate[ctl.I_RELEASE_STOP] = 0
         s.trip_air[:] = np.nan
         s.counters[supervision.C_SERVICE] = 0

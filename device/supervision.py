@@ -1467,16 +1467,24 @@ def check_reading(
     pressure channel (13), then per force/torque channel (6), the reads in a row its
     reading may stay the same (0: not judged so; ``Calibration.still_reads``), ``drawing``
     whether an intake draws from the supply in this control period
-    (``supply_frozen_reads``)."""
+    (``supply_frozen_reads``).
+
+    The first fault found is the one returned, but every check runs on every read and keeps
+    its references: after a trip the readings are still taken (device.controller.
+    sensor_task, for the post-trip hold), and a reference left at the trip's read would
+    take a chamber or a leg that moved since for a sensor that jumped."""
+    code, part = Trip.NONE, -1
     counters[C_READS] += 1
     first = counters[C_READS] == 1
     # Pressure transducers: open wire, short, a jump no air makes, or a reading that stood
     # still longer than its noise lets a live one, whatever the mode.
     for c in range(13):
         if sensors[c] < q.open_below or sensors[c] > q.short_above:
-            return Trip.PRESSURE_SENSOR, c
+            if code == Trip.NONE:
+                code, part = Trip.PRESSURE_SENSOR, c
         if not first and abs(sensors[c] - monitor[M_P_READ + c]) > q.pressure_jump:
-            return Trip.PRESSURE_SENSOR, c
+            if code == Trip.NONE:
+                code, part = Trip.PRESSURE_SENSOR, c
     for c in range(13):
         changed = first or sensors[c] != monitor[M_P_READ + c]
         if c < 12 and changed and not first:
@@ -1484,14 +1492,16 @@ def check_reading(
         monitor[M_P_READ + c] = sensors[c]
         counters[C_P_STILL + c] = 0 if changed else counters[C_P_STILL + c] + 1
         if still[c] > 0 and counters[C_P_STILL + c] >= still[c]:
-            return Trip.PRESSURE_SENSOR, c
+            if code == Trip.NONE:
+                code, part = Trip.PRESSURE_SENSOR, c
     # The supply's reading, while an intake draws from it (C_P_STILL is 0 where it changed).
     if counters[C_P_STILL + 12] == 0:
         counters[C_SUPPLY_DRAWN] = 0
     elif drawing:
         counters[C_SUPPLY_DRAWN] += 1
     if q.supply_frozen_reads > 0 and counters[C_SUPPLY_DRAWN] >= q.supply_frozen_reads:
-        return Trip.PRESSURE_SENSOR, 12
+        if code == Trip.NONE:
+            code, part = Trip.PRESSURE_SENSOR, 12
     # The supply.
     supply = sensors[12] - q.atm
     counters[C_SUPPLY_LOSS] = counters[C_SUPPLY_LOSS] + 1 if supply < q.supply_loss else 0
@@ -1503,9 +1513,11 @@ def check_reading(
     elif counters[C_SUPPLY_OK] >= q.supply_resume_reads:
         counters[C_LOW_FLAG] = 0
     if moving and counters[C_SUPPLY_LOSS] >= q.supply_trip_reads:
-        return Trip.SUPPLY_LOSS, 12
+        if code == Trip.NONE:
+            code, part = Trip.SUPPLY_LOSS, 12
     if moving and counters[C_SUPPLY_HIGH] >= q.supply_trip_reads:
-        return Trip.SUPPLY_HIGH, 12
+        if code == Trip.NONE:
+            code, part = Trip.SUPPLY_HIGH, 12
     # The force/torque sensor.
     saturated = False
     zero = True
@@ -1514,7 +1526,8 @@ def check_reading(
         v = sensors[19 + k]
         jump = q.ft_force_jump if k < 3 else q.ft_torque_jump
         if moving and not first and abs(v - monitor[M_FT_PREV + k]) > jump:
-            return Trip.FORCE_SENSOR, k
+            if code == Trip.NONE:
+                code, part = Trip.FORCE_SENSOR, k
         if k >= 3 and not first and abs(v - monitor[M_FT_PREV + k]) > q.ft_torque_step:
             counters[C_FT_STEPPED] = 1
         limit = q.ft_force_sat if k < 3 else q.ft_torque_sat
@@ -1533,13 +1546,14 @@ def check_reading(
         counters[C_FT_SAT] >= q.ft_saturated_reads
         or counters[C_FT_ZERO] >= q.ft_zero_reads
         or counters[C_FT_SAME] >= q.ft_frozen_reads
-    ):
-        return Trip.FORCE_SENSOR, -1
+    ) and code == Trip.NONE:
+        code, part = Trip.FORCE_SENSOR, -1
     # One channel dead or frozen alone (the whole sensor's rules above want all six): it
     # stood still longer than its noise lets a live one (tens of reads, after theirs).
     for k in range(6):
         if still[13 + k] > 0 and counters[C_FT_STILL + k] >= still[13 + k]:
-            return Trip.FORCE_SENSOR, k
+            if code == Trip.NONE:
+                code, part = Trip.FORCE_SENSOR, k
     # Leg length sensors.
     alone = leg_alone(monitor, q)
     if counters[C_POSE_ROUGH] > 0:
@@ -1555,7 +1569,8 @@ def check_reading(
             monitor[M_LEG_PREV2 + i] = x
             continue
         if abs(x - prev) > q.leg_jump:
-            return Trip.LEG_SENSOR, i
+            if code == Trip.NONE:
+                code, part = Trip.LEG_SENSOR, i
         if abs(x - 2.0 * prev + prev2) > q.side_leg_rough:
             counters[C_POSE_ROUGH] = q.side_rough_reads
         push = monitor[M_PUSH + i]
@@ -1590,10 +1605,11 @@ def check_reading(
         if moving and x == prev and driven:
             counters[C_LEG_SAME + i] += 1
             if counters[C_LEG_SAME + i] >= q.leg_stuck_reads:
-                return Trip.LEG_SENSOR, i
+                if code == Trip.NONE:
+                    code, part = Trip.LEG_SENSOR, i
         else:
             counters[C_LEG_SAME + i] = 0
-    return Trip.NONE, -1
+    return code, part
 
 
 @njit_inline

@@ -741,6 +741,82 @@ def test_a_valve_that_fails_after_an_estop_is_held_and_said(kind: FaultKind, cha
     assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
 
 
+@pytest.mark.parametrize(
+    ("kind", "channel", "trip"),
+    [
+        (FaultKind.FT_DEAD, -1, Trip.FORCE_SENSOR),
+        (FaultKind.PRESSURE_STUCK, 4, Trip.PRESSURE_SENSOR),
+    ],
+)
+def test_a_valve_that_fails_after_a_sensor_trip_is_held_and_said(
+    kind: FaultKind, channel: int, trip: Trip
+) -> None:
+    """A sensor fails mid-exercise and trips; 0.5 s later leg 4's rod-side exhaust sticks
+    open. The faulty sensor stayed faulty, and each read that named it again was dropped
+    whole: every reading froze at the trip, the hold never saw the chamber empty, and the
+    platform turned 14.5-14.6 deg and moved 19-19.6 mm with no event (a 10 deg, 0.5 Hz pitch
+    sine). The readings of the
+    sensors still believed are taken after the trip: the chamber is held by its intake, as
+    after an e-stop, and named in 12 ms; the platform moves at most 0.68 deg and 0.87 mm
+    over 2 s."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode, EventKind
+
+    rig, *_ = safety._run(kind, "exercise", 1, channel, after=0.5)
+    assert rig.trip == trip and rig.held_chamber == -1, rig.trip
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.step()
+    assert machine.mode == DeviceMode.FAULT
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    start = hw.state.pose.copy()
+    hw.inject(Fault(FaultKind.VALVE_STUCK_OPEN, float(hw.state.time[0]), 15, 0.0))
+    moved = np.zeros(6)
+    for _ in range(1000):
+        rig.run(0.002, log_hz=0)
+        machine.step()
+        moved = np.maximum(moved, np.abs(hw.state.pose - start))
+    assert rig.trip == trip and rig.held_chamber == 7
+    said = [e for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert len(said) == 1 and said[0][4] == 7.0, events
+    assert math.degrees(moved[3:].max()) <= 1.0 and 1e3 * moved[:3].max() <= 1.5, moved
+
+
+def test_two_valves_stuck_open_on_two_legs_are_each_held_and_said() -> None:
+    """Leg 3's cap-side and leg 4's rod-side exhausts stick open together mid-exercise: the
+    air checks name chamber 5, the air of two legs trips SUPPLY_LOSS, and the hold after it
+    kept one chamber: chamber 5 was held, chamber 8 emptied and the platform turned 12 deg
+    in pitch and 15 in yaw within 0.25 s (a 10 deg, 0.5 Hz pitch sine). Each chamber whose air moves with every valve
+    shut is held by its own valves and named by its own event: at most 0.39 deg and
+    1.12 mm from where the trip stopped it over 1.5 s."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import EventKind
+
+    rig = safety._rig("relaxed", 1)
+    safety._start(rig, "exercise")
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    start = hw.state.pose.copy()
+    for valve in (8, 15):
+        hw.inject(Fault(FaultKind.VALVE_STUCK_OPEN, float(hw.state.time[0]), valve, 0.0))
+    moved = np.zeros(6)
+    for _ in range(750):
+        rig.run(0.002, log_hz=0)
+        machine.step()
+        if rig.trip != Trip.NONE:
+            moved = np.maximum(moved, np.abs(hw.state.pose - start))
+        else:
+            start = hw.state.pose.copy()
+    assert rig.trip != Trip.NONE
+    said = [float(str(e[4])) for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert sorted(said) == [4.0, 7.0], events
+    assert sorted(rig.held_chambers) == [4, 7], rig.held_chambers
+    assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
+
+
 def test_homing_with_a_leaking_chamber_ends_in_a_valve_fault_that_holds_it() -> None:
     """A leak of half a valve's conductance on chamber 5 struck while homing lifted the
     platform off its stops: the air checks name it (SERVICE), homing finishes under control,
@@ -852,6 +928,34 @@ def test_after_any_trip_a_chamber_whose_air_moves_with_every_valve_shut_is_held(
     pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
     _bleed(istate, pressure, held, air, 0.05)
     pressure[8] = 4.5e5  # the named transducer drifting
+    assert not _bleed(istate, pressure, held, air, 0.05).any()
+
+
+def test_every_chamber_whose_air_moves_after_a_trip_is_held_by_its_own_valves() -> None:
+    """Two faults on two legs: the first chamber found was the only one held, and the
+    second's air ran on with every valve shut. Each is held, each by a valve of its own
+    (``I_HELD_MORE`` beside ``I_BLEED``), and a chamber whose transducer is judged faulty
+    after the trip is neither followed nor held."""
+    istate = np.zeros(ctl.N_ISTATE, dtype=np.int64)
+    istate[ctl.I_TRIP], istate[ctl.I_BLEED] = Trip.FOLLOWING, -1
+    pressure, held, air = np.full(12, 3.0e5), np.zeros(12), np.full(12, np.nan)
+    _bleed(istate, pressure, held, air, 0.05)  # records the trip
+    pressure[3] = 1.5e5  # an exhaust stuck open
+    assert list(np.flatnonzero(_bleed(istate, pressure, held, air, 0.05))) == [6]
+    assert istate[ctl.I_BLEED] == ctl.HOLD_FEED + 3
+    pressure[8] = 4.5e5  # then an intake stuck open on another leg
+    assert list(np.flatnonzero(_bleed(istate, pressure, held, air, 0.05))) == [6, 17]
+    assert istate[ctl.I_BLEED] == ctl.HOLD_FEED + 3
+    assert istate[ctl.I_HELD_MORE] == 1 << 8
+    pressure[10] = 1.5e5  # and a third
+    assert list(np.flatnonzero(_bleed(istate, pressure, held, air, 0.05))) == [6, 17, 20]
+    pressure[3], pressure[8], pressure[10] = 3.0e5, 3.0e5, 3.0e5  # each back: all shut
+    assert not _bleed(istate, pressure, held, air, 0.05).any()
+    pressure[8] = 4.5e5
+    istate[ctl.I_BAD_SENSORS] = 1 << 8  # its transducer judged faulty since
+    assert not _bleed(istate, pressure, held, air, 0.05).any()
+    pressure[1] = 1.5e5  # nor is a chamber on a leg sensor judged faulty followed
+    istate[ctl.I_BAD_SENSORS] |= 1 << 13
     assert not _bleed(istate, pressure, held, air, 0.05).any()
 
 
