@@ -311,6 +311,14 @@ def _measures_text(measures: list[Measure]) -> str:
     )
 
 
+def session_name(record: PatientRecord, s: Session) -> str:
+    """What a session ran, as the therapist named it: its prescription's title (every session
+    was "Strength (resistive)", the library's name for its kind, whatever its title said),
+    else the exercise's name."""
+    titles = {rx.id: rx.title for rx in record.prescriptions}
+    return titles.get(s.prescription_id or 0) or exercise_name(s.exercise)
+
+
 def _session_rows(record: PatientRecord) -> list[list[Any]]:
     rows = []
     for s in record.sessions:
@@ -320,7 +328,7 @@ def _session_rows(record: PatientRecord) -> list[list[Any]]:
         rows.append(
             [
                 f"{s.started_at:%Y-%m-%d %H:%M}",
-                exercise_name(s.exercise),
+                session_name(record, s),
                 s.end_reason or "no end record",
                 reps,
                 _measures_text(record.measures(s)) or "no summary",
@@ -349,7 +357,7 @@ def notable_events(s: Session) -> list[str]:
 
 def _event_rows(record: PatientRecord) -> list[list[Any]]:
     return [
-        [f"{s.started_at:%Y-%m-%d %H:%M}", exercise_name(s.exercise), text]
+        [f"{s.started_at:%Y-%m-%d %H:%M}", session_name(record, s), text]
         for s in record.sessions
         for text in notable_events(s)
     ]

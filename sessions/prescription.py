@@ -27,7 +27,13 @@ from pydantic.config import JsonDict
 from device.axes import AXIS_INDEX as DEVICE_AXIS_INDEX
 from device.axes import ROTATION_AXES as ROTATION_AXES  # re-exported for the server
 from device.axes import RotationAxis
-from device.commands import CommandError, check_segment_as_received, figures
+from device.commands import (
+    FORCE_LIMIT_MIN,
+    TORQUE_LIMIT_MIN,
+    CommandError,
+    check_segment_as_received,
+    figures,
+)
 from device.geometry import DEFAULT_GEOMETRY
 from device.limits import SafetyLimits, to_float32
 from device.protocol import messages as msg
@@ -74,6 +80,9 @@ SPEED_MAX_DEG_S = math.degrees(DEVICE_LIMITS.axis_speed_max[3])
 """Fastest target motion the device accepts on a rotation axis, deg/s."""
 TORQUE_LIMIT_MAX = DEVICE_LIMITS.torque_limit
 FORCE_LIMIT_MAX = DEVICE_LIMITS.force_limit
+"""The largest torque (N·m) and force (N) limits: the device's own. The least are the
+device's too (``device.commands.TORQUE_LIMIT_MIN``, ``FORCE_LIMIT_MIN``: a foot at rest
+would trip a lower one), so the form publishes the bounds the device enforces."""
 SEGMENT_S_MAX = 600.0
 """Longest repetition (s): one device segment."""
 SLACK_DEG = 1e-9
@@ -393,7 +402,7 @@ class PrescriptionBody(BaseModel):
     torque_limit: float = Field(
         strict=True,
         default=TORQUE_LIMIT_MAX,
-        gt=0.0,
+        ge=TORQUE_LIMIT_MIN,
         le=TORQUE_LIMIT_MAX,
         title="Torque limit",
         description="N·m: the device stops if the foot's torque exceeds it.",
@@ -402,7 +411,7 @@ class PrescriptionBody(BaseModel):
     force_limit: float = Field(
         strict=True,
         default=FORCE_LIMIT_MAX,
-        gt=0.0,
+        ge=FORCE_LIMIT_MIN,
         le=FORCE_LIMIT_MAX,
         title="Force limit",
         description="N: the device stops if the force on the foot plate exceeds it.",

@@ -91,6 +91,12 @@ class LiveScenes:
         server = viser.ViserServer(host=VIEW_HOST, port=0, verbose=False)
         server.gui.configure_theme(show_logo=False, show_share_button=False)
         server.gui.main_panel.minimize()  # the scene, not viser's controls, fills the frame
+        # viser shows its own server controls (the WebSocket address, Save Canvas, Dev
+        # Settings, the scene tree) in its panel whenever the application put no GUI there,
+        # and on a phone the panel is a bottom sheet that opens over the scene and ignores
+        # minimize(). One element of ours, never shown, folds them behind viser's settings
+        # icon: the sheet is its handle alone.
+        server.gui.add_markdown("", visible=False)
         return LiveView(station_id, server, PlatformScene(server))
 
     async def _feed(self, view: LiveView) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from PIL import Image
-from playwright.sync_api import Page, expect
+from playwright.sync_api import Page, ViewportSize, expect
 
 from server.cli import demo_prescription
 from tests.browser import rest
@@ -373,3 +373,49 @@ def test_the_3d_view_comes_through_the_api_port(system: System, page: Page, shot
     # The same address without the ticket's rights is refused.
     r = rest.get(f"{system.url}/scene/{'A' * 43}/")
     assert r.status_code == 403 and "ticket" in r.json()["detail"]
+
+
+PHONE: ViewportSize = {"width": 375, "height": 667}
+
+
+def test_on_a_phone_every_page_fits_and_the_3d_view_is_the_scene_alone(
+    system: System, page: Page, shots: Path
+) -> None:
+    """At 375 px every dashboard page was 490 px wide: the header's name, "Change password" and
+    "Sign out" ran past its dark bar (white on the light page) and tables and grids kept
+    their desktop widths. The live page's 3D view opened viser's own panel over the scene
+    (the WebSocket address, Save Canvas, Dev Settings, the scene tree)."""
+    page.set_viewport_size(PHONE)
+    pid = system.creds["patient_id"]
+    sign_in(page, system, "/app/patients")
+    for path in (
+        "/app/patients",
+        f"/app/patients/{pid}",
+        f"/app/patients/{pid}/prescribe",
+        "/app/password",
+        f"/app/live/{system.station_id}",
+    ):
+        page.goto(f"{system.url}{path}")
+        expect(page.locator("header#top a.brand")).to_be_visible()
+        page.wait_for_load_state("networkidle")
+        width = page.evaluate("document.documentElement.scrollWidth")
+        assert width <= PHONE["width"], (path, width)
+        bar = page.locator("header#top").bounding_box()
+        assert bar is not None
+        for name in ("Change password", "Sign out"):
+            box = page.locator("header#top").get_by_text(name, exact=True).bounding_box()
+            assert box is not None, (path, name)
+            inside = (
+                box["x"] >= bar["x"]
+                and box["x"] + box["width"] <= bar["x"] + bar["width"]
+                and box["y"] + box["height"] <= bar["y"] + bar["height"]
+            )
+            assert inside, (path, name, box, bar)
+    page.screenshot(path=shots / "phone-live.png", full_page=True, timeout=SHOT_MS)
+
+    frame = page.frame_locator("#scene")
+    expect(frame.locator("canvas").first).to_be_visible(timeout=60_000)
+    expect(frame.get_by_text("Connected")).to_be_visible(timeout=60_000)
+    for dev in ("Dev Settings", "Scene tree", "Save Canvas"):
+        expect(frame.get_by_text(dev, exact=True)).to_be_hidden()
+    page.locator("#scene").screenshot(path=shots / "phone-live-3d.png", timeout=SHOT_MS)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+import httpx
 import pytest
 import redis
 from playwright.sync_api import Page, expect
@@ -26,6 +27,7 @@ from playwright.sync_api import Page, expect
 from server.config import Settings
 from server.hub import RELAY_LOST
 from sessions import wire
+from tests.browser.clinic import API
 from tests.server.live_server import PASSWORD, Live, World, copy_seeded, running, seeded
 from tests.server.redis_server import free_port, spawned_redis
 from tests.server.ws_client import station_ws, telemetry, welcomed
@@ -68,10 +70,13 @@ class Apart:
     """Stop the therapist's server (the page loses its server; the station streams on)."""
     start_viewing: Callable[[], None]
     """Start it again on the same port."""
+    status_changes: dict[str, Any]
+    """Fields the station's next statuses carry in place of an unheld exercise's."""
 
 
-async def exercising(ws: Any) -> None:
-    """A station running an exercise: its status every second, telemetry 25 times."""
+async def exercising(ws: Any, changes: dict[str, Any]) -> None:
+    """A station running an exercise: its status (with ``changes``, which a test may make
+    while it runs) every second, telemetry 25 times."""
     status = wire.StatusMsg(
         sent=time.time(),
         device_link="connected",
@@ -86,7 +91,8 @@ async def exercising(ws: Any) -> None:
     n = 0
     while True:
         if n % 25 == 0:
-            await ws.send(status.model_copy(update={"sent": time.time()}).model_dump_json())
+            now = status.model_copy(update={**changes, "sent": time.time()})
+            await ws.send(now.model_dump_json())
         await ws.send(json.dumps(telemetry(t=n * 0.04, mode="ACTIVE")))
         n += 1
         await asyncio.sleep(0.04)
@@ -100,6 +106,7 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
     loop = Loop()
     stack = AsyncExitStack()
     viewer = AsyncExitStack()  # the therapist's server, stopped and started on its own
+    changes: dict[str, Any] = {}
     stack.push_async_exit(viewer)
     with ExitStack() as first:
         _, url = first.enter_context(spawned_redis(tmp_path / "redis", redis_port))
@@ -114,7 +121,7 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
             b: Live = await stack.enter_async_context(running(base, create_app))
             ws = await stack.enter_async_context(station_ws(b, world.s1))
             await welcomed(ws)
-            streaming = asyncio.create_task(exercising(ws))
+            streaming = asyncio.create_task(exercising(ws, changes))
             stack.callback(streaming.cancel)
 
         try:
@@ -127,19 +134,24 @@ def apart(seeded: tuple[Path, World], tmp_path: Path) -> Iterator[Apart]:
                 first,
                 stop_viewing=lambda: loop.run(viewer.aclose()),
                 start_viewing=lambda: loop.run(start_viewing()),
+                status_changes=changes,
             )
         finally:
             loop.run(stack.aclose())
             loop.stop()
 
 
+def sign_in(page: Page) -> None:
+    page.get_by_label("Email").fill("t1@clinic.test")
+    page.get_by_label("Password").fill(PASSWORD)
+    page.get_by_role("button", name="Sign in").click()
+
+
 def open_live(page: Page, apart: Apart, station_id: int) -> None:
     page.add_init_script("localStorage.setItem('ankle.live.scene', 'off')")  # not tested here
     page.goto(f"{apart.url}/app/live/{station_id}")
     if page.get_by_label("Email").count():
-        page.get_by_label("Email").fill("t1@clinic.test")
-        page.get_by_label("Password").fill(PASSWORD)
-        page.get_by_role("button", name="Sign in").click()
+        sign_in(page)
     expect(page).to_have_url(f"{apart.url}/app/live/{station_id}")
 
 
@@ -156,7 +168,9 @@ def test_the_live_page_says_when_its_server_lost_the_station_s_server(
     expect(page.locator("#st-doing")).to_have_text(f"unknown: {RELAY_LOST}")
     expect(page.locator("#st-mode")).to_have_text("–")
     page.get_by_role("button", name="HOLD").click()
-    expect(page.locator("#ack")).to_contain_text("HOLD: refused, OFFLINE: this server cannot")
+    # In words (the code stays in data-code for programs), never "refused, OFFLINE:".
+    expect(page.locator("#ack")).to_contain_text("HOLD: not done: this server cannot")
+    expect(page.locator("#ack")).to_have_attribute("data-code", "OFFLINE")
 
     apart.redis.enter_context(spawned_redis(tmp_path / "redis", apart.redis_port))
     expect(page.locator("#st-link")).to_have_text("station online")
@@ -176,7 +190,7 @@ def test_the_live_page_says_when_the_station_s_server_never_answers(
     expect(page.locator("#st-link")).to_have_text("station online")
     page.get_by_role("button", name="HOLD").click()
     expect(page.locator("#ack")).to_contain_text(
-        "HOLD: no answer, TIMEOUT: the station's server did not answer within 3 s"
+        "HOLD: no answer: the station's server did not answer within 3 s"
     )
 
 
@@ -226,3 +240,55 @@ def test_the_live_k_and_b_form_refuses_what_the_browser_cannot_read(
     expect(page.locator('[data-error-for="stiffness.pitch"]')).to_contain_text("from 0 to 500")
     expect(k).to_have_attribute("aria-invalid", "true")
     expect(ack).to_have_text("")  # not "sent, waiting for the device…": nothing was sent
+
+
+def test_signed_out_the_live_page_says_so_clears_the_stale_state_and_offers_sign_in(
+    page: Page, apart: Apart, shots: Path
+) -> None:
+    """Signed out from elsewhere (the page's token, POST /auth/logout): the page said "server
+    connection lost" and "the connection to the server is lost", kept the red "Held for ..."
+    banner counting as if current, and left HOLD, Resume, Stop, Start and Send enabled to
+    answer "not sent, the connection to the server is down", with no way to sign in again."""
+    apart.status_changes["hold"] = wire.HoldInfo(
+        code="therapist",
+        text="the therapist pressed HOLD",
+        by="therapist:1",
+        since=time.time(),
+        patient_may_resume=False,
+    )
+    open_live(page, apart, apart.world.s1_id)
+    banner, trip = page.locator("#why"), page.locator("#st-trip")
+    expect(banner).to_contain_text("Held for")
+    expect(trip).to_have_text("held: the therapist pressed HOLD")  # not "none; held: ..."
+    buttons = [
+        page.get_by_role("button", name=name, exact=True)
+        for name in ("HOLD", "Resume", "Stop exercise", "Start", "Send change")
+    ]
+    for button in buttons:
+        expect(button).to_be_enabled()
+
+    token = page.evaluate("sessionStorage.getItem('ankle.token')")
+    r = httpx.post(f"{apart.url}{API}/auth/logout", headers={"Authorization": f"Bearer {token}"})
+    assert r.status_code == 204, r.text
+    expect(page.locator("#st-link")).to_have_text("signed out")
+    expect(page.locator("#st-doing")).to_have_text("unknown: signed out")
+    expect(banner).to_be_hidden()
+    expect(trip).to_have_text("–")
+    for stale in ("#st-mode", "#st-exercise", "#st-uploads", "#kb-now-pitch"):
+        expect(page.locator(stale)).to_have_text("–")
+    for button in buttons:
+        expect(button).to_be_disabled()
+    expect(page.get_by_label("pitch stiffness K, N·m/rad")).to_be_disabled()
+    expect(page.locator("#page-error")).to_contain_text("You were signed out.")
+    page.wait_for_timeout(2000)  # the page's once-a-second refresh must not bring them back
+    expect(banner).to_be_hidden()
+    expect(page.locator("#st-link")).to_have_text("signed out")
+    page.screenshot(path=str(shots / "live-signed-out.png"), full_page=True)
+
+    page.get_by_role("link", name="Sign in again").click()
+    sign_in(page)
+    expect(page).to_have_url(f"{apart.url}/app/live/{apart.world.s1_id}")
+    expect(page.locator("#st-link")).to_have_text("station online")
+    expect(banner).to_contain_text("Held for")
+    for button in buttons:
+        expect(button).to_be_enabled()

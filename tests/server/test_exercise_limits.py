@@ -151,3 +151,89 @@ async def test_the_envelope_is_checked_as_the_device_receives_k_and_its_sentence
             said_least, said_k = float(said[1]), float(said[2])
             assert said_least == pytest.approx(least, abs=0.05), (axis, k, error["msg"])
             assert published(float(np.float32(said_k))) == least, (axis, k, error["msg"])
+
+
+CROSS_FIELD = {("amplitude", "max"), ("rom_low", "max"), ("rom_high", "min")}
+"""Bounds no prescription reaches for another rule's sake: a sine of 90° leaves every axis's
+range, and the lowest angle at the top of the range (the highest at its bottom) leaves none
+above (below) it. At these the API refuses with that other rule's sentence; past them, with
+the published one."""
+
+
+def _top_level(name: str, value: float) -> dict[str, Any]:
+    """A prescription whose only unusual number is ``name`` = ``value``: one short repetition
+    so that no count or time at its bound makes the session too long."""
+    body = {**STRENGTH, "sets": 1, "repetitions": 1, "repetition_s": 1.0, "rest_s": 0.0}
+    if name == "rest_s":
+        body["sets"] = 2
+    if name in ("sets", "repetitions", "sessions_per_week"):
+        value = int(value)
+    return {**body, name: value}
+
+
+def _on_axis(axis: str, name: str, value: float) -> dict[str, Any]:
+    """A prescription on ``axis`` whose only unusual number is ``name`` = ``value``, with the
+    waveform that uses it and companions every other rule takes (a damping the envelope asks
+    at any stiffness; the isometric exercise, which asks neither, for a damping of 0)."""
+    a: dict[str, Any] = {**STRENGTH["axes"][0], "axis": axis, "damping": 50.0}
+    exercise = "strength"
+    if name == "damping" and value == 0.0:
+        exercise, a["stiffness"] = "isometric", 0.0
+    elif name in ("amplitude", "frequency"):
+        a |= {"waveform": "sine", "amplitude": 1.0, "frequency": 0.5}
+        if value == 0.0:  # a sine of no amplitude needs no frequency, one of some does
+            a["frequency" if name == "amplitude" else "amplitude"] = 0.0
+    elif name in ("ramp_end", "ramp_rate"):
+        a |= {"waveform": "ramp", "ramp_end": 10.0, "ramp_rate": 10.0}
+        if name == "ramp_rate" and value == 0.0:
+            a["ramp_end"] = 0.0
+    a[name] = value
+    return {**STRENGTH, "exercise": exercise, "axes": [a]}
+
+
+@pytest.mark.asyncio
+async def test_every_published_bound_is_the_one_the_api_enforces(live: Live, world: World) -> None:
+    """Each number field's published bounds, against the API: a value at an inclusive bound
+    (just above an exclusive least) is taken, or, at a bound another rule keeps out of reach,
+    refused by that rule; one just past it is refused at that field with the published
+    sentence. The torque and force limits were published as "above 0" while the device
+    refused under 2 N·m and 60 N."""
+    t1 = bearer(world.t1)
+    limits = (await live.client.get("/exercises/limits", headers=t1)).json()
+    cases: list[tuple[list[Any], str, dict[str, Any], Any]] = [
+        ([name], name, bounds, lambda v, n=name: _top_level(n, v))
+        for name, bounds in limits["fields"].items()
+    ]
+    for axis, published in limits["axes"].items():
+        cases += [
+            (["axes", 0, name], name, bounds, lambda v, x=axis, n=name: _on_axis(x, n, v))
+            for name, bounds in published["fields"].items()
+        ]
+    assert {"torque_limit", "force_limit", "sets", "rest_s"} <= set(limits["fields"])
+    url = f"/patients/{world.p1}/prescriptions"
+    checked = 0
+    for loc, name, bounds, body in cases:
+        for end, sentence, past_by in (("min", "below", -1.0), ("max", "above", 1.0)):
+            bound = bounds[end]
+            if bound is None:
+                continue
+            # Past the bound by a step no rounding hides: a count by one, a number by a
+            # millionth of a unit (angles are compared with 1e-9° of slack).
+            step = 1.0 if name in ("sets", "repetitions", "sessions_per_week") else 1e-6
+            past = await live.client.post(url, json=body(bound + past_by * step), headers=t1)
+            assert past.status_code == 422, (loc, end, past.text)
+            (error,) = past.json()["detail"]
+            assert (error["loc"], error["msg"]) == (["body", *loc], bounds[sentence]), (loc, end)
+            if end == "min" and bounds["min_exclusive"]:  # refused at it, taken just above
+                at = await live.client.post(url, json=body(bound), headers=t1)
+                assert at.status_code == 422, (loc, end, at.text)
+                assert at.json()["detail"][0]["msg"] == bounds["below"]
+                bound += step
+            at = await live.client.post(url, json=body(bound), headers=t1)
+            if (name, end) in CROSS_FIELD:
+                assert at.status_code == 422, (loc, end, at.text)
+                assert at.json()["detail"][0]["msg"] != bounds[sentence], (loc, end)
+            else:
+                assert at.status_code == 201, (loc, end, at.text)
+            checked += 1
+    assert checked == 2 * len(cases)

@@ -75,16 +75,14 @@ INVALID = [
     pytest.param(
         as_json({**STRENGTH, "torque_limit": 1e-300}),
         ["body", "torque_limit"],
-        "Torque limit: the platform refuses it as it receives it (in single precision): "
-        "torque_limit 0 N m is below 2 N m: a foot at rest would trip it.",
-        id="torque-limit-zero-as-float32",
+        "Torque limit must be at least 2 N·m.",
+        id="torque-limit-below-the-devices-least",
     ),
     pytest.param(
         as_json({**STRENGTH, "force_limit": 1e-300}),
         ["body", "force_limit"],
-        "Force limit: the platform refuses it as it receives it (in single precision): "
-        "force_limit 0 N is below 60 N: a foot at rest would trip it.",
-        id="force-limit-zero-as-float32",
+        "Force limit must be at least 60 N.",
+        id="force-limit-below-the-devices-least",
     ),
     pytest.param(
         as_json({**STRENGTH, "surprise": 1}),

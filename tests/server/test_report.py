@@ -118,6 +118,12 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
         f"/patients/{world.p1}", json={"reference": "CL 7/ä", "birth_year": 1950}, headers=t1
     )
     assert r.status_code == 200, r.text
+    # Titled by the therapist: sessions are named by it, not by the library's "Strength
+    # (resistive)" (every session was, whatever its prescription's title).
+    r = await live.client.patch(
+        f"/prescriptions/{world.rx1}", json={**STRENGTH, "title": "Toe pushes"}, headers=t1
+    )
+    assert r.status_code == 200, r.text
     # Prescribed two weeks ago: week 1 holds the completed session, week 2 the one ended early.
     async with live.app.state.sessionmaker() as db:
         await db.execute(
@@ -142,14 +148,18 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
 
     for fact in ("Pat One", "CL 7/ä", "1950", "Left", f"{since} to {until}"):
         assert fact in text, fact
-    assert "Strength (resistive)" in text and "2 sessions in the period" in text
+    assert "Toe pushes Strength (resistive) active" in text, text  # title, then its kind
+    assert "2 sessions in the period" in text
+    sessions = text[text.index("Date Exercise Ended") :]
+    assert "Strength (resistive)" not in sessions, sessions
+    assert sessions.count("Toe pushes") == 2 + 3, sessions  # 2 sessions, 3 notable events
     # Per direction, named for a left foot's pitch (the same words on either foot).
     assert f"{LABELS['plantarflexion']}: {PEAK_DEG:.1f}°" in text
     assert f"{LABELS['dorsiflexion']}: {-TROUGH_DEG:.1f}°" in text
     assert f"Peak torque about the pitch axis: {abs(TORQUE_PEAK_NM):.1f} N·m" in text
     # Per prescribed week that is over (5 a week, two weeks): 1 completed, none extra, 1 ended
     # early, 8 missed, 10 % done: the same computation as the patient's page.
-    assert "Strength (resistive) 5 10 1 0 1 8 10 %" in text, text
+    assert "Toe pushes 5 10 1 0 1 8 10 %" in text, text
     # The trend: the peak plantarflexion grew with the second session's larger angles.
     assert "Progress over the period" in text
     grown = PEAK_DEG * 1.2

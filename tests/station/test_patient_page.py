@@ -422,10 +422,11 @@ async def test_a_therapists_command_with_nothing_to_act_on_is_refused_alike(home
 
 @pytest.mark.asyncio
 async def test_a_start_the_device_would_refuse_is_refused_and_recorded(home: Home) -> None:
-    """A torque limit of 1e-300 N·m passes "above 0" but reaches the device as float32 0: a
-    prescription stored before the server refused it must not start (ok false, the device's
-    own sentence) and must leave a session that tells the therapist (an early end)."""
-    tiny = PrescriptionBody.model_validate({**BODY.model_dump(mode="json"), "torque_limit": 1e-300})
+    """A torque limit of 1e-300 N·m reaches the device as float32 0: a prescription stored
+    before the server refused it (the server's bound is the device's least, 2 N·m, since)
+    must not start (ok false, the device's own sentence) and must leave a session that tells
+    the therapist (an early end)."""
+    tiny = BODY.model_copy(update={"torque_limit": 1e-300})  # as stored then: not re-checked
     home.station.prescriptions.append(
         wire.PrescriptionItem(id=PRESCRIPTION_ID + 1, version=1, patient_id=3, body=tiny)
     )

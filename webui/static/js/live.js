@@ -2,7 +2,7 @@
 // B in force, HOLD/Resume/Stop), live stiffness and damping changes answered by the device's
 // own ACK or NACK, charts and the 3D view (viser, in an iframe); the engineering detail (links,
 // timing, overruns, leg pressures) under a "Technical" disclosure whose state is remembered.
-import { api, ApiError, clearErrors, el, fmt, numberValue, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, token } from "./api.js";
+import { api, ApiError, clearErrors, el, fmt, loginUrl, numberValue, pathId, RAD2DEG, renderHeader, requireSignIn, showErrors, signOut, token } from "./api.js";
 import { AXES, AXIS_INDEX } from "./axes.js";
 
 await requireSignIn();
@@ -28,7 +28,7 @@ const state = {
   heardAt: null, // when this page last heard from the server (ms, this browser's clock)
   pendingKB: null, // a change accepted but not yet rendered: { values, when, since }
   retryMs: 1000,
-  closedForGood: false,
+  ended: null, // why the server closed the link for good (signed out, expired...): see END
 };
 
 function fail(message) {
@@ -134,6 +134,7 @@ function setBadge(node, text, cls) {
 
 function showLink() {
   const badge = $("st-link");
+  if (state.ended) return showEnded();
   if (!linkOpen) setBadge(badge, "server connection lost", "bad");
   else if (state.online) setBadge(badge, "station online", "online");
   else if (state.unreachable) setBadge(badge, "station not reachable", "bad");
@@ -156,6 +157,33 @@ function showUnknown(why) {
   $("st-doing").textContent = `unknown: ${why}`;
   showMode("");
   for (const id of ["st-pose", "st-torque"]) $(id).textContent = "–";
+}
+
+// Closed for good (signed out, expired, no longer allowed): nothing on the page is news any
+// more and nothing can be sent. The last status is cleared rather than left to read as now
+// (a red "Held for 2 min" that goes on counting), the controls are greyed, and the page says
+// why and what to do (sign in again) instead of "the connection to the server is lost".
+function showEnded() {
+  const end = state.ended;
+  setBadge($("st-link"), end.badge, "offline");
+  showUnknown(end.badge);
+  state.status = null;
+  state.lastTelemetry = null;
+  state.pendingKB = null;
+  showWhy();
+  for (const id of ["st-exercise", "st-progress", "st-rest", "st-message", "st-uploads"]) $(id).textContent = "–";
+  for (const a of AXES) {
+    const cell = $(`kb-now-${a}`);
+    if (!cell) continue;
+    cell.textContent = "–"; // "in force" no longer known
+    delete cell.dataset.shown;
+  }
+  for (const node of document.querySelectorAll("#hold, #resume, #stop, #start-form :is(select, button), #kb-form :is(input, button)")) {
+    node.disabled = true;
+  }
+  const box = $("page-error");
+  box.replaceChildren(end.text, ...(end.signIn ? [" ", el("a", { href: loginUrl(), id: "sign-in-again" }, "Sign in again")] : []));
+  box.hidden = false;
 }
 
 function showMode(mode) {
@@ -187,7 +215,9 @@ function showWhy() {
   banner.hidden = !words;
   banner.dataset.level = level;
   if (banner.textContent !== words) banner.textContent = words;
-  $("st-trip").textContent = s && s.fault ? s.fault : s && s.hold ? `none; held: ${s.hold.text}` : "none";
+  // No status yet (connecting, or cleared once signed out): not "none", which would say the
+  // device is known to be neither faulted nor held.
+  $("st-trip").textContent = !s ? "–" : s.fault ? s.fault : s.hold ? `held: ${s.hold.text}` : "none";
 }
 
 // What the patient is doing, in a therapist's words, from the station's phase.
@@ -223,7 +253,10 @@ function showStatus(s) {
   showWhy();
   $("st-doing").textContent = doing(s);
   if (!linkOpen || !state.online) showLink(); // not news of now: unknown
-  $("st-exercise").textContent = s.exercise ? fmt.exercise(s.exercise) + (s.prescription_id ? ` (prescription ${s.prescription_id})` : "") : "none running";
+  const rx = state.prescriptions.find((p) => p.id === s.prescription_id);
+  // The prescription's title, as the therapist named it; its kind only when the page does not
+  // hold it (one cancelled since it started).
+  $("st-exercise").textContent = !s.exercise ? "none running" : rx?.body.title || fmt.exercise(s.exercise);
   $("st-phase").textContent = s.phase;
   $("st-device-mode").textContent = s.device_mode || "–";
   $("st-progress").textContent = s.sets ? `set ${s.set} of ${s.sets} · repetition ${s.rep} of ${s.repetitions}` : "–";
@@ -232,7 +265,6 @@ function showStatus(s) {
   $("st-frames").textContent = String(s.frames_lost);
   $("st-message").textContent = s.message || "–";
   $("st-uploads").textContent = uploadWords(s);
-  const rx = state.prescriptions.find((p) => p.id === s.prescription_id);
   if (rx) {
     showActiveAxes(rx.body.axes.map((a) => a.axis));
     fillKB(rx.body.axes);
@@ -359,9 +391,11 @@ function onResult(r) {
     numbersAt = 0; // show the pending change at the next frame
     drawSoon();
   } else {
-    // TIMEOUT: nobody answered, so nothing was refused (the device may have acted).
-    const how = r.code === "TIMEOUT" ? "no answer" : "refused";
-    p.ackNode.textContent = `${p.label}: ${how}, ${r.code}${r.field ? ` (${r.field})` : ""}: ${r.text}`;
+    // TIMEOUT: nobody answered, so nothing was refused (the device may have acted). OFFLINE:
+    // the command did not reach the device. The code (and the field) stay in data-code for
+    // programs; the therapist reads the answer's sentence.
+    const how = r.code === "TIMEOUT" ? "no answer" : r.code === "OFFLINE" ? "not done" : "refused";
+    p.ackNode.textContent = `${p.label}: ${how}: ${r.text}`;
     p.ackNode.className = "small ack-bad";
   }
   p.ackNode.dataset.code = r.ok ? r.code || "ACK" : r.code;
@@ -458,6 +492,17 @@ $("kb-form").addEventListener("submit", (ev) => {
 });
 
 // ---- the link (its socket lives in a worker: live-link.js) ----------------------------------
+// Closed because trust ended (sessions/wire.py CLOSE_*): retrying cannot help. The badge says
+// it in a few words, the text what to do; signIn: signing in again is the way back.
+const END = {
+  1008: { badge: "not allowed to watch", text: "You may not watch this station (signed out, or not your patient's station).", signIn: true },
+  4004: { badge: "signed out", text: "You were signed out. Sign in again to keep watching.", signIn: true },
+  4005: { badge: "sign-in expired", text: "Your sign-in expired. Sign in again to keep watching.", signIn: true },
+  4006: { badge: "account deactivated", text: "Your account was deactivated. Ask your administrator.", signIn: false },
+  4007: { badge: "no longer your patient", text: "You may no longer see this patient, so the live view was closed.", signIn: false },
+  4008: { badge: "password must be changed", text: "Your password must be changed before you can watch. Sign in again to change it.", signIn: true },
+};
+
 const link = new Worker("/static/js/live-link.js", { type: "module" });
 let linkOpen = false;
 
@@ -506,24 +551,18 @@ link.addEventListener("message", (ev) => {
     const p = state.pending.get(m.request_id);
     state.pending.delete(m.request_id);
     if (p) {
-      p.ackNode.textContent = `${p.label}: not sent, the connection to the server is down`;
+      const why = state.ended ? state.ended.badge : "the connection to the server is down";
+      p.ackNode.textContent = `${p.label}: not sent, ${why}`;
       p.ackNode.className = "small ack-bad";
     }
   } else if (m.op === "close") {
     linkOpen = false;
+    state.ended = END[m.code] || null;
+    if (m.code === 4004 || m.code === 4005) signOut(); // its token is dead: sign in afresh
     showLink(); // what the patient is doing is unknown from now on
-    // Closed because trust ended (sessions/wire.py CLOSE_*): retrying cannot help.
-    const ended = {
-      1008: "You may not watch this station (signed out, or not your patient's station).",
-      4004: "You were signed out. Sign in again to keep watching.",
-      4005: "Your sign-in expired. Sign in again to keep watching.",
-      4006: "Your account was deactivated. Ask your administrator.",
-      4007: "You may no longer see this patient, so the live view was closed.",
-      4008: "Your password must be changed before you can watch. Sign in again to change it.",
-    }[m.code];
-    if (ended) {
-      state.closedForGood = true;
-      fail(ended);
+    if (state.ended) {
+      // The 3D view's ticket was this sign-in's: it stops with it.
+      $("scene").src = "about:blank";
       return;
     }
     const wait = state.retryMs;
