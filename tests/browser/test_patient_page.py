@@ -4,6 +4,8 @@ on and stops, and the game's score reaches the therapist in the uploaded session
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -329,3 +331,38 @@ def test_a_low_air_supply_is_on_the_platform_light_not_ready(
     expect(page.locator("#todo")).to_contain_text("You can start once the air is back")
     expect(page.locator("#todo")).not_to_contain_text("press Start")
     expect(platform).to_have_text(SUPPLY_LOW_WORDS)
+
+
+LINK_LOST = "The exercise ended because the station lost its connection to the platform."
+
+
+def test_after_a_lost_platform_link_the_page_says_when_to_start_again(
+    system: System, therapist: httpx.Client, page: Page, shots: Path
+) -> None:
+    """The device stands still mid-exercise (SIGSTOP) longer than the station waits for it:
+    the exercise ends. Once the platform answers again and is home, the page used to go on
+    saying to wait until the platform is connected; it says it is connected again and that
+    the patient can start again."""
+    r = therapist.patch(f"/api/v1/prescriptions/{system.creds['prescription_id']}", json=BODY)
+    assert r.status_code == 200, r.text
+    system.start_station()
+    wait_for_page(system)
+    page.goto(system.page_url)
+    todo, platform = page.locator("#todo"), page.locator("#platform")
+    expect(platform).to_have_text("The platform is ready", timeout=MINUTE_MS)
+    page.get_by_role("button", name="Start Ankle strength").click()
+    expect(todo).to_have_text(INSTRUCTIONS, timeout=MINUTE_MS)
+    os.kill(system.device.pid, signal.SIGSTOP)
+    try:
+        expect(todo).to_contain_text(LINK_LOST, timeout=MINUTE_MS)
+        expect(todo).to_contain_text("once the platform is connected")
+    finally:
+        os.kill(system.device.pid, signal.SIGCONT)
+    expect(todo).to_have_text(
+        f"{LINK_LOST} It is connected again: you can start again when you are ready, or call"
+        " your therapist.",
+        timeout=MINUTE_MS,
+    )
+    expect(platform).to_have_text("The platform is ready")
+    expect(page.get_by_role("button", name="Start Ankle strength")).to_be_enabled()
+    page.screenshot(path=shots / "patient-link-back.png")

@@ -267,9 +267,21 @@ function todoWords() {
       return ["warn", "Paused. Press Continue when you are ready."];
     case "interrupted":
       if (status.link_lost) {
+        // Once the platform answers again, saying to wait for it would keep the patient
+        // waiting for nothing.
+        const lost = "The exercise ended because the station lost its connection to the platform.";
+        if (status.device === "lost") {
+          return [
+            "warn",
+            `${lost} You can start again once the platform is connected, or call your therapist.`,
+          ];
+        }
+        if (status.device_mode === "HOMING") {
+          return ["warn", `${lost} It is connected again: keep your foot still while it gets ready.`];
+        }
         return [
           "warn",
-          "The exercise ended because the station lost its connection to the platform. You can start again once the platform is connected, or call your therapist.",
+          `${lost} It is connected again: you can start again when you are ready, or call your therapist.`,
         ];
       }
       return [
