@@ -301,17 +301,17 @@ def test_the_same_impedance_again_changes_nothing() -> None:
 def test_a_host_sending_segments_fast_cannot_blind_the_cross_checks(every_ms: int) -> None:
     """Each new segment makes the moment check wait 40 ms (its legs chase a new target). A
     host that sent the same compliant pitch sine again every 30 ms restarted that wait each
-    time: a 3 N m offset on the pitch torque went unnamed for good (no trip in 4 s). A
-    command that comes while the checks wait no longer lengthens the wait, and they judge
-    at least as long as they waited before the next one, so it is named within a wait and
-    a judging spell."""
-    sent = {"next": 0.0, "id": 2}
+    time: a 3 N m offset on the pitch torque went unnamed for good (3 s; sent every 5 ms,
+    until a leg sensor was blamed at 259 ms). A command that comes while the checks wait no
+    longer lengthens the wait, and they judge at least as long as they waited before the
+    next one, so it is named within a wait and a judging spell (57 ms)."""
+    next_at, seg_id = [0.0], [2]
 
     def resend(dev: Device, t: float) -> None:
-        if t >= sent["next"] - 1e-9:
-            dev.send(narrowed(dev, sent["id"], 6.0, {"pitch": PITCH_SINE}))
-            sent["id"] += 1
-            sent["next"] += every_ms / 1e3
+        if t >= next_at[0] - 1e-9:
+            dev.send(narrowed(dev, seg_id[0], 6.0, {"pitch": PITCH_SINE}))
+            seg_id[0] += 1
+            next_at[0] += every_ms / 1e3
 
     assert _offset_named_ms(resend) <= 100.0
 
