@@ -737,7 +737,8 @@ def test_a_valve_that_fails_after_an_estop_is_held_and_said(kind: FaultKind, cha
     assert rig.held_chamber == c
     said = [e for e in events if e[0] == EventKind.FAULT]
     assert len(said) == 1 and said[0][4] == float(c), events
-    assert str(said[0][5]).startswith(f"VALVE on {trips.where(Trip.VALVE, c)}: its air moved")
+    said_text = str(said[0][5])
+    assert said_text.startswith(f"VALVE on {trips.where(Trip.VALVE, c)}: its air reading moved")
     assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
 
 
@@ -787,9 +788,9 @@ def test_two_valves_stuck_open_on_two_legs_are_each_held_and_said() -> None:
     """Leg 3's cap-side and leg 4's rod-side exhausts stick open together mid-exercise: the
     air checks name chamber 5, the air of two legs trips SUPPLY_LOSS, and the hold after it
     kept one chamber: chamber 5 was held, chamber 8 emptied and the platform turned 12 deg
-    in pitch and 15 in yaw within 0.25 s (a 10 deg, 0.5 Hz pitch sine). Each chamber whose air moves with every valve
-    shut is held by its own valves and named by its own event: at most 0.39 deg and
-    1.12 mm from where the trip stopped it over 1.5 s."""
+    in pitch and 15 in yaw within 0.25 s (a 10 deg, 0.5 Hz pitch sine). Each chamber whose
+    air moves with every valve shut is held by its own valves and named by its own event:
+    at most 0.39 deg and 1.12 mm from where the trip stopped it over 1.5 s."""
     from device.modes import ModeMachine
     from device.protocol.messages import EventKind
 
