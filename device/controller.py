@@ -2450,11 +2450,23 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
     a recent window (:func:`judge_recent_loss`), so a valve that fails halfway through a
     release is caught too.
 
-    Not judged: a chamber whose transducer the latched trip named, both chambers of a leg
-    whose sensor it named, anything after a trip on sensors that gave no number or legs
+    Not judged: a chamber whose transducer was judged faulty (``I_BAD_SENSORS``: the
+    latched trip's, or one named after it, whose reading is no longer taken), both chambers
+    of a leg whose sensor was, anything after a trip on sensors that gave no number or legs
     that fit no pose. Air is ``p^(1/k) V`` (k the observer's polytropic index): a leg the
-    foot pushes compresses one chamber and expands the other without changing either's."""
-    code, named = s.istate[I_TRIP], s.istate[I_TRIP_CHANNEL]
+    foot pushes compresses one chamber and expands the other without changing either's.
+
+    Nor is a chamber named at a read where its raw reading is bit for bit the one before
+    (on a unit whose start-up identified that transducer's noise,
+    ``Calibration.pressure_still_reads``): a live transducer's noise flickers it by a count
+    every few reads even behind an exhaust stuck shut (measured on the nominal unit: at
+    most 7 reads still there, 18 through a healthy release), so a stuck valve is named at
+    its next flicker; a frozen transducer never flickers, and the supervision's still rule
+    names it (``PRESSURE_SENSOR``) once it has stood still longer than its noise lets a
+    live one, while its chamber vents with the others. Before, its chamber's reading kept
+    its pressure while the others vented, and 89 ms into the freeze the release stopped
+    on a VALVE trip for an exhaust stuck shut: the technician was sent to a good valve."""
+    code = s.istate[I_TRIP]
     if s.istate[I_MODE] == Mode.FAULT and (code == Trip.SENSOR_INVALID or code == Trip.KINEMATICS):
         return
     q = p.sup
@@ -2474,13 +2486,16 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
     for c in range(12):  # each chamber's loss against its air's trailing average
         s.monitor[m + 48 + c] += (air[c] - s.monitor[m + 48 + c]) / q.release_window
         recent[c] = 1.0 - air[c] / s.monitor[m + 48 + c]
-    skip_chamber = named if code == Trip.PRESSURE_SENSOR else -1
-    skip_leg = named if code == Trip.LEG_SENSOR else -1
+    skip = np.zeros(12, dtype=np.bool_)  # not believed: neither judged nor in the median
+    wait = np.zeros(12, dtype=np.bool_)  # believed, but not named at this read
+    for c in range(12):
+        skip[c] = sensor_bad(s.istate, c) or sensor_bad(s.istate, 13 + c // 2)
+        wait[c] = skip[c] or (p.pressure_still[c] > 0 and s.counters[supervision.C_P_STILL + c] > 0)
     found = -1
     losses = np.empty(12)
     judged = 0
     for c in range(12):
-        if c == skip_chamber or c // 2 == skip_leg:
+        if skip[c]:
             continue
         least, low = s.monitor[m + 12 + c], s.monitor[m + 24 + c]
         if s.pressure[c] <= q.release_rise:
@@ -2488,7 +2503,7 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
             # its air is judged only from where it stays above.
             least, low = air[c], s.pressure[c]
         elif air[c] > (1.0 + q.release_gain) * least and s.pressure[c] > low + q.release_rise:
-            if found < 0:
+            if found < 0 and not wait[c]:
                 found = 1 + c
         s.monitor[m + 12 + c] = min(least, air[c])
         s.monitor[m + 24 + c] = min(low, s.pressure[c])
@@ -2498,21 +2513,21 @@ def watch_release(s: ControllerState, p: ControllerParams) -> None:
     median = np.median(losses[:judged]) if judged >= 4 else 0.0
     if found < 0 and judged >= 4:
         for c in range(12):
-            if c == skip_chamber or c // 2 == skip_leg or s.pressure[c] <= q.release_rise:
+            if wait[c] or s.pressure[c] <= q.release_rise:
                 continue
             if 1.0 - air[c] / s.monitor[m + c] > q.release_ahead + q.release_ahead_ratio * median:
                 found = 25 + c
                 break
         if found < 0 and median >= q.release_median:
             for c in range(12):
-                if c == skip_chamber or c // 2 == skip_leg:
+                if wait[c]:
                     continue
                 if s.monitor[m + 36 + c] > q.release_judged and s.pressure[c] > q.release_judged:
                     if 1.0 - air[c] / s.monitor[m + c] < q.release_lag * median:
                         found = 13 + c
                         break
     if found < 0:
-        found = judge_recent_loss(s.pressure, recent, q, skip_chamber, skip_leg)
+        found = judge_recent_loss(s.pressure, recent, q, skip, wait)
     if found < 0:
         return
     s.istate[I_VENT] = 0
@@ -2533,32 +2548,34 @@ def judge_recent_loss(
     pressure: NDArray[np.float64],
     recent: NDArray[np.float64],
     q: supervision.SupervisionParams,
-    skip_chamber: int,
-    skip_leg: int,
+    skip: NDArray[np.bool_],
+    wait: NDArray[np.bool_],
 ) -> int:
     """The release's lost and kept rules over a recent window (``release_window``): each
     chamber's ``recent`` loss against its air's trailing average, judged against the median
     of the chambers above ``release_judged`` now. A valve that fails halfway through a
     release shows here at once, while its chamber's loss since the start still looks like
-    the others'. ``I_RELEASE_STOP``'s value (13 + c kept, 25 + c lost) or -1."""
+    the others'. Chambers in ``skip`` are neither judged nor counted in the median, those
+    in ``wait`` not named at this read (:func:`watch_release`). ``I_RELEASE_STOP``'s value
+    (13 + c kept, 25 + c lost) or -1."""
     losses = np.empty(12)
     judged = 0
     for c in range(12):
-        if c != skip_chamber and c // 2 != skip_leg and pressure[c] > q.release_judged:
+        if not skip[c] and pressure[c] > q.release_judged:
             losses[judged] = recent[c]
             judged += 1
     if judged < 4:
         return -1
     median = np.median(losses[:judged])
     for c in range(12):
-        if c == skip_chamber or c // 2 == skip_leg or pressure[c] <= q.release_rise:
+        if wait[c] or pressure[c] <= q.release_rise:
             continue
         if recent[c] > q.release_ahead + q.release_ahead_ratio * median:
             return 25 + c
     if median < q.release_recent_median:
         return -1
     for c in range(12):
-        if c == skip_chamber or c // 2 == skip_leg or pressure[c] <= q.release_judged:
+        if wait[c] or pressure[c] <= q.release_judged:
             continue
         if recent[c] < q.release_lag * median:
             return 13 + c

@@ -208,7 +208,10 @@ class ModeMachine:
             text = "emergency stop"
             if chamber >= 0:
                 part = where(Trip.AIR_BALANCE, chamber)
-                text += f"; {part} held by its own valves (a leak or a stuck valve: service)"
+                text += (
+                    f"; {part} held by its own valves (a leak, a stuck valve or its "
+                    "transducer: service)"
+                )
             self._set_mode(DeviceMode.ESTOP, text, kind=EventKind.ESTOP, code=Trip.ESTOP)
 
     def rearm(self) -> None:
@@ -261,7 +264,7 @@ class ModeMachine:
                 self.mode,
                 int(Trip.AIR_BALANCE),
                 float(chamber),
-                f"AIR_BALANCE on {part}: a leak or a stuck valve; "
+                f"AIR_BALANCE on {part}: a leak, a stuck valve or its transducer; "
                 f"{'homing' if self.mode == DeviceMode.HOMING else 'this segment'} ends under "
                 "control, then its own valves hold it until serviced",
             )
@@ -333,18 +336,27 @@ class ModeMachine:
 
     def _report_held(self) -> None:
         """An event, once per chamber, when after a trip or an e-stop the controller holds a
-        chamber by a valve of its own (ctl.bleed: its air moved with every valve shut, a valve
-        stuck open or a leak; a second fault's chamber as well as the first's); not again for
-        a chamber the stop's own event named."""
+        chamber by a valve of its own (ctl.bleed; a second fault's chamber as well as the
+        first's); not again for a chamber the stop's own event named. Each says why, and
+        only what the controller saw: a chamber the air checks had named while the loop ran
+        (its valves were driven then, not shut), or one whose air reading moved after the
+        stop with every valve shut. Either is read through the chamber's transducer, so a
+        transducer off by a little (under the jump rule) is named so too: the sentence
+        lists it with the valve and the leak."""
         if self.mode not in (DeviceMode.ESTOP, DeviceMode.FAULT):
             return
         for chamber in self.rig.held_chambers:
             if chamber in self._held or chamber == self.rig.release_stopped[0]:
                 continue
             self._held.add(chamber)
+            why = (
+                "its air did not add up with its valves while the loop ran"
+                if chamber == self.rig.service_chamber
+                else "its air reading moved with every valve shut"
+            )
             self._valve_event(
                 chamber,
-                "its air moved with every valve shut (stuck valve, leak): its own valves hold it",
+                f"{why} (a stuck valve, a leak, or its transducer): its own valves hold it",
             )
 
     def _report_rings(self) -> None:

@@ -737,7 +737,8 @@ def test_a_valve_that_fails_after_an_estop_is_held_and_said(kind: FaultKind, cha
     assert rig.held_chamber == c
     said = [e for e in events if e[0] == EventKind.FAULT]
     assert len(said) == 1 and said[0][4] == float(c), events
-    assert str(said[0][5]).startswith(f"VALVE on {trips.where(Trip.VALVE, c)}: its air moved")
+    said_text = str(said[0][5])
+    assert said_text.startswith(f"VALVE on {trips.where(Trip.VALVE, c)}: its air reading moved")
     assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
 
 

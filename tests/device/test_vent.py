@@ -727,3 +727,62 @@ def test_an_intake_that_sticks_half_a_second_into_a_release_meets_the_targets(
     r, tilt, shift = _released_then_failing(FaultKind.VALVE_STUCK_OPEN, valve, 0.5)
     assert r.release_stopped == (valve // 2, "gained")
     assert tilt < 2.0 and shift < 3.0, (tilt, shift)
+
+
+def _calibrated() -> ControllerConfig:
+    """The nominal unit's own start-up identification (its transducers' noise among it)."""
+    from lab.experiments import calibration_of
+
+    return ControllerConfig(calibration=calibration_of(PlantConfig(patient="relaxed")))
+
+
+@pytest.mark.parametrize("chamber", [3, 4])
+def test_a_transducer_frozen_as_the_platform_is_released_is_named_not_its_valve(
+    chamber: int,
+) -> None:
+    """While the exhausts pulse, a frozen chamber reading keeps its pressure as a chamber
+    whose exhaust stuck shut would: before, the release stopped 89 ms into the freeze on a
+    VALVE trip for that exhaust. A live transducer behind a stuck exhaust still flickers
+    by its noise, a frozen one never: the watch does not name a chamber whose reading is
+    bit for bit the one before, and the still rule names the transducer (measured: 183 ms
+    on chamber 3, whose reading may stand still 189 reads) while its chamber, healthy,
+    vents with the others."""
+    kind = FaultKind.PRESSURE_STUCK
+    r, _, _ = _released_then_failing(kind, chamber, 0.3, _calibrated())
+    assert r.trip == Trip.PRESSURE_SENSOR and r.trip_channel == chamber
+    assert r.release_stopped == (-1, "") and r.venting
+    assert plant_gauge(r).max() < VENT_BELOW  # released all the same
+
+
+@pytest.mark.parametrize(("valve", "after"), [(9, 0.3), (7, 0.3), (11, 1.0)])
+def test_an_exhaust_stuck_shut_is_still_named_on_a_unit_that_knows_its_transducers_noise(
+    valve: int, after: float
+) -> None:
+    """The rule above waits for the reading's next flicker, a few reads behind a stuck
+    exhaust (measured: at most 7 reads still): the valve is named as before."""
+    r, tilt, shift = _released_then_failing(
+        FaultKind.VALVE_STUCK_CLOSED, valve, after, _calibrated()
+    )
+    assert r.release_stopped == (valve // 2, "kept")
+    assert r.trip == Trip.VALVE and r.trip_channel == valve // 2
+    assert tilt < 2.0 and shift < 3.0, (tilt, shift)
+
+
+def test_a_transducer_named_after_a_stop_is_not_judged_by_the_release() -> None:
+    """After an e-stop a transducer that jumps is judged faulty (its reading is no longer
+    taken, the controller keeps its last): the release watch must not take that kept
+    reading for a chamber that kept its air. Before, it judged only the transducer the
+    latched trip named, and stopped the release on the good exhaust of that chamber."""
+    r = Rig(SimulatedHardware(PlantConfig(patient="relaxed"), seed=2))
+    r.move_legs(r.state.leg_x.copy())
+    r.run(1.0, log_hz=0)
+    r.estop()
+    r.run(0.1, log_hz=0)
+    r.set_vent(True)
+    r.run(0.3, log_hz=0)
+    hw = r.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.PRESSURE_OFFSET, float(hw.state.time[0]), 4, 1.0e5))
+    r.run(3.0, log_hz=0)
+    assert (r.state.istate[ctl.I_BAD_SENSORS] >> 4) & 1 and r.trip == Trip.ESTOP
+    assert r.release_stopped == (-1, "") and r.venting

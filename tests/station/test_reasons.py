@@ -96,7 +96,7 @@ def test_what_the_device_finds_after_a_stop_is_told_beside_what_stopped_it() -> 
     reasons.device_event(
         event(EventKind.ESTOP, A, DeviceMode.ESTOP, int(Trip.ESTOP), text="emergency stop"), 1.0
     )
-    held = "VALVE on chamber 2 (leg 1, rod side): its air moved with every valve shut"
+    held = "VALVE on chamber 2 (leg 1, rod side): its air reading moved with every valve shut"
     later = event(EventKind.FAULT, DeviceMode.ESTOP, DeviceMode.ESTOP, int(Trip.VALVE), text=held)
     reasons.device_event(later, 2.0)
     assert reasons.fault(DeviceMode.ESTOP, int(Trip.ESTOP)) == f"emergency stop; then {held}"
