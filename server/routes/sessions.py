@@ -33,7 +33,7 @@ from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 
 from device.protocol.messages import DeviceMode
 from server import audit
-from server.deps import Db, Id, TherapistOrAdmin, record_for
+from server.deps import Db, Id, Offset, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment, file_sha256
 from server.routes.dates import day_or_time, refuse
@@ -112,7 +112,7 @@ async def list_sessions(
         ),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[Offset, Query()] = 0,
 ) -> list[SessionPublic]:
     """Newest first. A therapist sees their own patients' sessions; an admin sees all.
     ``since`` and ``until`` are read as the progress page, the report and the FHIR bundle
