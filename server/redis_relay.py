@@ -147,6 +147,9 @@ class RedisRelay(Relay):
             asyncio.create_task(self._heartbeat(), name="relay-heartbeat"),
         ]
 
+    async def answers(self) -> None:
+        await self.redis.ping()
+
     async def close(self) -> None:
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(2.0):
