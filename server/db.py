@@ -135,13 +135,18 @@ def unreachable(database_url: str, exc: BaseException) -> DatabaseUnreachable:
     )
 
 
-async def check_reachable(settings: Settings) -> None:
+async def check_reachable(settings: Settings, schema: bool = False) -> None:
     """Open one connection to the database and close it; :class:`DatabaseUnreachable` if
-    that fails, so that a command says so in one line before anything else starts."""
+    that fails, so that a command says so in one line before anything else starts. With
+    ``schema``, a server that may not migrate (``migrate_on_start`` false) also checks
+    that the schema is current (:class:`SchemaNotCurrent`): found in each process's
+    start-up instead, it was uvicorn's traceback of 130 lines."""
     engine = create_engine(settings)
     try:
         async with engine.connect():
             pass
+        if schema and not settings.migrate_on_start:
+            await require_current(engine)
     except (DBAPIError, OSError) as exc:
         raise unreachable(settings.database_url, exc) from None
     finally:

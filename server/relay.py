@@ -201,6 +201,11 @@ class LocalRelay(Relay):
         return None
 
 
+class RelayUnreachable(Exception):
+    """The relay ``ANKLE_RELAY_URL`` names does not answer: one line saying where and why,
+    never the password."""
+
+
 def open_relay(url: str, lease_s: float, view_hz: float) -> Relay:
     """The engine ``url`` names (``Settings.relay_url``): empty for this process alone,
     ``redis://host:port/db`` (or ``rediss://``) for a Redis shared by every server process."""
