@@ -178,7 +178,12 @@ def _server(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return device_cli.USAGE_ERROR
-    asyncio.run(check_reachable(settings))  # one line, not uvicorn's traceback
+    # One line each, not a traceback from every process's start-up.
+    asyncio.run(check_reachable(settings, schema=True))
+    if settings.relay_url:
+        from server.redis_relay import check_reachable as check_relay
+
+        asyncio.run(check_relay(settings.relay_url))
     settings_into_environment(settings, overrides)
     serve(settings, create_app, workers=args.workers, worker_factory="webui.app:create_app")
     return 0
@@ -241,8 +246,10 @@ def _main(argv: Sequence[str] | None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return device_cli.USAGE_ERROR
         if args.command in ("admin", "db", "server"):
+            from server.cli import ServerStartError
             from server.config import SettingsError
-            from server.db import DatabaseUnreachable
+            from server.db import DatabaseUnreachable, SchemaNotCurrent
+            from server.relay import RelayUnreachable
 
             command = {"admin": _admin, "db": _db, "server": _server}[args.command]
             try:
@@ -250,7 +257,13 @@ def _main(argv: Sequence[str] | None) -> int:
             except SettingsError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return device_cli.USAGE_ERROR
-            except DatabaseUnreachable as exc:  # the setting may be right, the database away
+            # The setting may be right, and what it names away or not ready.
+            except (
+                DatabaseUnreachable,
+                SchemaNotCurrent,
+                RelayUnreachable,
+                ServerStartError,
+            ) as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return 1
         if args.command == "console":

@@ -22,6 +22,8 @@ from fastapi import FastAPI
 from pydantic import ValidationError
 from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
+from uvicorn.config import STARTUP_FAILURE
+from uvicorn.supervisors.multiprocess import Multiprocess
 
 from server import accounts, audit
 from server.app import create_app
@@ -101,9 +103,23 @@ def serve(
         **protocols(settings),
     }
     if workers > 1:
-        uvicorn.run(worker_factory, factory=True, workers=workers, **options)
+        _supervise(uvicorn.Config(worker_factory, factory=True, workers=workers, **options))
     else:
         uvicorn.Server(uvicorn.Config(factory(settings), **options)).run()
+
+
+def _supervise(config: uvicorn.Config) -> None:
+    """uvicorn's supervisor of ``config.workers`` processes, as ``uvicorn.run`` starts it;
+    ServerStartError when it stopped because one of them failed to start. ``uvicorn.run``
+    returns normally then, and ``ankle server --workers`` exited 0 with none serving."""
+    supervisor = Multiprocess(config, sockets=[config.bind_socket()])
+    supervisor.run()
+    failed = [p for p in supervisor.processes if p.exitcode == STARTUP_FAILURE]
+    if failed:
+        raise ServerStartError(
+            f"{len(failed)} of {config.workers} server processes failed to start (the log "
+            "above says why); none is serving"
+        )
 
 
 def settings_into_environment(settings: Settings, names: Iterable[str]) -> None:

@@ -7,6 +7,7 @@ and the one-machine demo run servers side by side on different data directories.
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -14,6 +15,7 @@ from urllib.parse import urlsplit
 from limits import parse
 from pydantic import Field, SecretStr, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import SettingsError as PydanticSettingsError
 
 from server.audit import BACKLOG_MAX
 from server.logs import LogFormat
@@ -238,11 +240,39 @@ class Settings(BaseSettings):
     @field_validator("fhir_base")
     @classmethod
     def _fhir_base(cls, value: str) -> str:
-        parts = urlsplit(value)
-        if parts.scheme not in ("http", "https") or not parts.netloc or parts.query:
+        if not _is_base_url(value):
             raise ValueError(
                 f"{value!r} is not a base URL such as https://records.clinic.example/fhir"
             )
+        return value
+
+    @field_validator("public_url")
+    @classmethod
+    def _public_url(cls, value: str) -> str:
+        if not _is_base_url(value):
+            raise ValueError(f"{value!r} is not a base URL such as https://ankle.clinic.example")
+        return value
+
+    @field_validator("allowed_origins")
+    @classmethod
+    def _origins(cls, value: list[str]) -> list[str]:
+        if "*" in value:
+            # The API's CORS would take it, but a live link's handshake compares origins
+            # as written (server.live.origin_ok): every browser's view would be refused.
+            raise ValueError(
+                '"*" is not an origin: list each origin the pages are loaded from, such as '
+                '["https://ankle.clinic.example"]'
+            )
+        return value
+
+    @field_validator("data_dir")
+    @classmethod
+    def _data_dir(cls, value: Path) -> Path:
+        for path in (value, *value.absolute().parents):
+            if path.exists():  # the nearest that does: a directory, or nothing can be made
+                if not path.is_dir():
+                    raise ValueError(f"{path} is a file, not a directory")
+                break
         return value
 
     @field_validator("login_throttle_storage")
@@ -307,7 +337,10 @@ class Settings(BaseSettings):
                 shown = f"[{shown}]"
             data["public_url"] = public = f"http://{shown}:{port}"
         if not data.get("fhir_base"):
-            data["fhir_base"] = f"{public.rstrip('/')}/api/v1/fhir"  # routes.fhir serves it
+            # routes.fhir serves it. From a public URL that is not one, nothing: its own
+            # check names ANKLE_PUBLIC_URL, and this one must not blame ANKLE_FHIR_BASE.
+            base = public.rstrip("/") if _is_base_url(public) else "http://127.0.0.1"
+            data["fhir_base"] = f"{base}/api/v1/fhir"
         data["fhir_base"] = str(data["fhir_base"]).rstrip("/")
         return data
 
@@ -326,6 +359,12 @@ def load_settings(**overrides: Any) -> Settings:
     own report is several lines that quote the value, which may hold a password."""
     try:
         return Settings(**overrides)
+    except PydanticSettingsError as exc:  # a list or object that is not JSON
+        field = re.search(r'field "(\w+)"', str(exc))
+        name = f"ANKLE_{field.group(1).upper()}" if field else "an ANKLE_* variable"
+        raise SettingsError(
+            f'{name}: not JSON; a list is written as JSON, such as ["https://clinic.example"]'
+        ) from None
     except ValidationError as exc:
         wrong = []
         for error in exc.errors():
@@ -333,6 +372,12 @@ def load_settings(**overrides: Any) -> Settings:
             text = str(error["msg"]).removeprefix("Value error, ")
             wrong.append(f"ANKLE_{name}: {text}" if name else text)
         raise SettingsError("; ".join(wrong)) from None
+
+
+def _is_base_url(url: str) -> bool:
+    """An http(s) URL with a host and no query: what a base URL setting must be."""
+    parts = urlsplit(url)
+    return parts.scheme in ("http", "https") and bool(parts.netloc) and not parts.query
 
 
 def _origin(url: str) -> str:

@@ -25,17 +25,26 @@ from sqlalchemy.ext.asyncio import (
     async_sessionmaker,
     create_async_engine,
 )
+from sqlalchemy.pool import NullPool
 
 from server.config import Settings
 from sessions.private import PRIVATE_FILE, private_data_dir
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
+DATABASE_WAIT_S = 5.0
+"""The longest a request waits on the database before it is answered 503 (the database is
+away or busy): SQLite's busy timeout; on PostgreSQL the connect timeout, the lock timeout
+and the time a statement may go unanswered (a server that stopped answering, a table
+locked by another client). Before PostgreSQL had these, a frozen server held every route,
+``/health`` included, until it answered again (150 s), and a table lock held elsewhere held
+``GET /stations`` for as long as the lock (39 s)."""
+
 # WAL lets the dashboard read while a station's upload writes; FULL makes an acknowledged
 # write (an audit row, an upload's progress) survive a power cut, not only a process kill.
 _SQLITE_PRAGMAS = (
     "PRAGMA journal_mode=WAL",
-    "PRAGMA busy_timeout=5000",
+    f"PRAGMA busy_timeout={DATABASE_WAIT_S * 1000:.0f}",
     "PRAGMA foreign_keys=ON",
     "PRAGMA synchronous=FULL",
 )
@@ -80,10 +89,27 @@ def create_engine(settings: Settings) -> AsyncEngine:
         private_sqlite_file(db_file)
     # Pre-ping: a pooled connection the database dropped (it restarted) is replaced before a
     # request uses it, instead of failing that request.
-    engine = create_async_engine(settings.database_url, pool_pre_ping=True)
+    engine = create_async_engine(
+        settings.database_url, pool_pre_ping=True, connect_args=_bounded_waits(settings)
+    )
     if engine.dialect.name == "sqlite":
         event.listen(engine.sync_engine, "connect", _sqlite_pragmas)
     return engine
+
+
+def _bounded_waits(settings: Settings) -> dict[str, Any]:
+    """asyncpg's arguments bounding each wait by ``DATABASE_WAIT_S``: the connection
+    (``timeout``), every statement's answer (``command_timeout``: the driver gives up and
+    cancels it) and, on the server, a lock (``lock_timeout``: SQLSTATE 55P03).
+    Nothing for SQLite, whose busy timeout is a PRAGMA; migrations lift them
+    (:func:`_unbounded`)."""
+    if settings.is_sqlite:
+        return {}
+    return {
+        "timeout": DATABASE_WAIT_S,
+        "command_timeout": DATABASE_WAIT_S,
+        "server_settings": {"lock_timeout": f"{DATABASE_WAIT_S * 1000:.0f}"},
+    }
 
 
 class DatabaseUnreachable(Exception):
@@ -109,13 +135,18 @@ def unreachable(database_url: str, exc: BaseException) -> DatabaseUnreachable:
     )
 
 
-async def check_reachable(settings: Settings) -> None:
+async def check_reachable(settings: Settings, schema: bool = False) -> None:
     """Open one connection to the database and close it; :class:`DatabaseUnreachable` if
-    that fails, so that a command says so in one line before anything else starts."""
+    that fails, so that a command says so in one line before anything else starts. With
+    ``schema``, a server that may not migrate (``migrate_on_start`` false) also checks
+    that the schema is current (:class:`SchemaNotCurrent`): found in each process's
+    start-up instead, it was uvicorn's traceback of 130 lines."""
     engine = create_engine(settings)
     try:
         async with engine.connect():
             pass
+        if schema and not settings.migrate_on_start:
+            await require_current(engine)
     except (DBAPIError, OSError) as exc:
         raise unreachable(settings.database_url, exc) from None
     finally:
@@ -159,13 +190,31 @@ async def _sqlite_lock(engine: AsyncEngine) -> AsyncIterator[None]:
         os.close(fd)  # closing releases the lock
 
 
+@asynccontextmanager
+async def _unbounded(engine: AsyncEngine) -> AsyncIterator[AsyncEngine]:
+    """For migrating on PostgreSQL, an engine of one connection whose statements and locks
+    may take as long as they need (``engine``'s give up after ``DATABASE_WAIT_S``): a
+    migration of a large table takes longer, and a process starting beside the one that
+    migrates waits for its lock until it is done."""
+    if engine.dialect.name != "postgresql":
+        yield engine
+        return
+    unbounded = create_async_engine(
+        engine.url, poolclass=NullPool, connect_args={"timeout": DATABASE_WAIT_S}
+    )
+    try:
+        yield unbounded
+    finally:
+        await unbounded.dispose()
+
+
 async def migrate(engine: AsyncEngine, revision: str = "head") -> None:
     """Bring the schema to ``revision`` (all migrations by default), in one transaction.
 
     Processes starting together on one database take turns (an advisory lock on
     PostgreSQL, a file lock beside an SQLite file): the first migrates, the others then
     find the schema at ``revision`` and do nothing."""
-    async with _sqlite_lock(engine), engine.begin() as connection:
+    async with _sqlite_lock(engine), _unbounded(engine) as engine, engine.begin() as connection:
         if engine.dialect.name == "postgresql":
             # Released at commit, when the schema and alembic_version are both visible.
             await connection.execute(

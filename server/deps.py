@@ -34,6 +34,11 @@ Id = Annotated[int, Ge(1), Le(ID_MAX)]
 names no record and is a 422 naming the parameter, before the database is asked (where the
 driver would overflow). ``tests/server/test_ids.py`` checks every route uses it."""
 
+Offset = Annotated[int, Ge(0), Le(ID_MAX)]
+"""The type of every page's offset: rows to skip, 0..2**63-1. Past it a 422 naming the
+parameter, as an id's, where PostgreSQL's driver refused the 64-bit overflow (a 500) and
+SQLite's the same number differently."""
+
 _user_bearer = HTTPBearer(
     auto_error=False,
     scheme_name="UserToken",

@@ -45,9 +45,11 @@ DATABASE_AWAY = (
 RETRY_AFTER_S = 5
 """What a 503 for a database that is away tells a client to wait, seconds."""
 _SQLITE_AWAY = {sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED, sqlite3.SQLITE_CANTOPEN}
-# SQLSTATE classes of a database that is not there: 08 connection exception, 57P operator
-# intervention (shutting down, crashed, still starting up).
-_SQLSTATE_AWAY = ("08", "57P")
+# SQLSTATEs of a database that is not there or busy: class 08 connection exception, 57P
+# operator intervention (shutting down, crashed, still starting up), 55P03 a lock held past
+# the lock timeout and 57014 a statement cancelled (by the driver, past its wait:
+# server.db.DATABASE_WAIT_S), SQLite's busy timeout on PostgreSQL.
+_SQLSTATE_AWAY = ("08", "57P", "55P03", "57014")
 
 
 class _Full(Exception):

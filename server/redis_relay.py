@@ -36,11 +36,13 @@ import socket
 import time
 from collections.abc import Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
 import redis.asyncio as aioredis
 from redis.asyncio.client import PubSub
+from redis.exceptions import RedisError
 
-from server.relay import RECENT_BATCHES, Listener, Message, Relay
+from server.relay import RECENT_BATCHES, Listener, Message, Relay, RelayUnreachable
 
 log = logging.getLogger("ankle.server.relay")
 
@@ -95,6 +97,36 @@ def _name(kind: str, what: object) -> str:
     return f"{PREFIX}{kind}:{what}"
 
 
+CHECK_WAIT_S = 5.0
+"""How long ``check_reachable`` waits for the relay to connect and answer, seconds."""
+
+
+def where(url: str) -> str:
+    """The Redis a URL names, for a message: host, port and database (no password)."""
+    parts = urlsplit(url)
+    if parts.scheme == "unix":
+        return f"Redis at {parts.path}"
+    return f"Redis at {parts.hostname or 'localhost'}:{parts.port or 6379}{parts.path or '/0'}"
+
+
+async def check_reachable(url: str) -> None:
+    """Connect to the relay and PING it; RelayUnreachable, in one line, if it does not
+    answer: ``ankle server`` says so before it starts, where a process's start-up failing
+    in the hub printed a traceback of 180 lines."""
+    client = aioredis.Redis.from_url(
+        url, socket_connect_timeout=CHECK_WAIT_S, socket_timeout=CHECK_WAIT_S
+    )
+    try:
+        await client.ping()
+    except (RedisError, OSError) as exc:
+        said = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise RelayUnreachable(
+            f"cannot reach the relay (ANKLE_RELAY_URL: {where(url)}): {said}"
+        ) from None
+    finally:
+        await client.aclose()
+
+
 class RedisRelay(Relay):
     def __init__(self, url: str, lease_s: float = 10.0, view_hz: float = 50.0) -> None:
         self.redis = aioredis.Redis.from_url(url, decode_responses=True)
@@ -146,6 +178,9 @@ class RedisRelay(Relay):
             asyncio.create_task(self._telemetry_out(), name="relay-telemetry"),
             asyncio.create_task(self._heartbeat(), name="relay-heartbeat"),
         ]
+
+    async def answers(self) -> None:
+        await self.redis.ping()
 
     async def close(self) -> None:
         with contextlib.suppress(TimeoutError):

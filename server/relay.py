@@ -73,6 +73,10 @@ class Relay(abc.ABC):
         """Begin hearing the others."""
 
     @abc.abstractmethod
+    async def answers(self) -> None:
+        """Return once the relay answered a request (``/health``); raise if it cannot."""
+
+    @abc.abstractmethod
     async def close(self) -> None:
         """Stop; the stations claimed here are released."""
 
@@ -151,6 +155,9 @@ class LocalRelay(Relay):
     async def close(self) -> None:
         return None
 
+    async def answers(self) -> None:
+        return None  # one process: nothing to ask
+
     async def claim(self, station_id: int) -> str | None:
         return None
 
@@ -192,6 +199,11 @@ class LocalRelay(Relay):
 
     def everyone(self, message: Message) -> None:
         return None
+
+
+class RelayUnreachable(Exception):
+    """The relay ``ANKLE_RELAY_URL`` names does not answer: one line saying where and why,
+    never the password."""
 
 
 def open_relay(url: str, lease_s: float, view_hz: float) -> Relay:

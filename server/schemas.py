@@ -408,6 +408,17 @@ class HealthPublic(BaseModel):
     status: Literal["ok", "degraded"]
     version: str = Field(description="The server's package version.")
     database: bool = Field(description="The database answered a query.")
+    relay: bool | None = Field(
+        default=None,
+        description="The relay between server processes (ANKLE_RELAY_URL) answered; null "
+        "without one. Down, live links between processes are lost.",
+    )
+    login_throttle_storage: bool | None = Field(
+        default=None,
+        description="The shared store of failed sign-ins (ANKLE_LOGIN_THROTTLE_STORAGE) "
+        "answered; null when they are counted in this process. Down, every sign-in is "
+        "refused (503).",
+    )
     disk_free_bytes: int = Field(description="Free space where the data directory is, bytes.")
     disk_ok: bool = Field(description="At least the configured minimum of it is free.")
     audit_backlog: int = Field(

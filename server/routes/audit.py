@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query
 from sqlalchemy import ColumnElement, Text, cast, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from server.deps import Db, Id, TherapistOrAdmin
+from server.deps import Db, Id, Offset, TherapistOrAdmin
 from server.models import AuditEntry, Patient
 from server.routes.common import UNAUTHORIZED
 from server.schemas import AuditPublic
@@ -43,7 +43,7 @@ async def list_audit(
         ),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=500, description="Rows per page.")] = 100,
-    offset: Annotated[int, Query(ge=0, description="Rows to skip (newest first).")] = 0,
+    offset: Annotated[Offset, Query(description="Rows to skip (newest first).")] = 0,
 ) -> list[AuditPublic]:
     """An admin reads every row; a therapist the rows about their own patients (rows about
     accounts or other therapists' patients are not shown).

@@ -2,46 +2,95 @@
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import shutil
+from collections.abc import Awaitable
 
 from fastapi import APIRouter, Request, Response, status
+from limits.aio.storage import MemoryStorage
 from sqlalchemy import text
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.ext.asyncio import AsyncEngine
 
 from device import installed_version
-from server.deps import Db
 from server.errors import RETRY_AFTER_S
 from server.schemas import HealthPublic
 
 router = APIRouter(tags=["health"])
-
+log = logging.getLogger("ankle.server")
 
 server_version = installed_version
 
+HEALTH_WAIT_S = 2.0
+"""How long ``/health`` waits for each thing it asks (the database, the relay, the store of
+failed sign-ins), all at once: a monitor polling it gets an answer within this whatever
+stopped answering, and a dependency that takes longer is reported down."""
 
-@router.get("/health", response_model=HealthPublic, summary="Server version and database state")
-async def health(db: Db, request: Request, response: Response) -> HealthPublic:
-    """No authentication: it says nothing about patients. 503 ("degraded") when the
-    database fails or the data directory has less free space than ``disk_free_min_bytes``
-    (uploads and sign-ins would soon fail)."""
-    settings = request.app.state.settings
+
+async def _answers(what: str, call: Awaitable[object]) -> bool:
+    """Whether ``call`` returned within ``HEALTH_WAIT_S``; why not is logged."""
     try:
-        await db.execute(text("SELECT 1"))
-        database = True
-    except (SQLAlchemyError, OSError):  # OSError: the driver could not even connect
-        database = False
+        async with asyncio.timeout(HEALTH_WAIT_S):
+            await call
+    except TimeoutError:
+        log.warning("health: %s did not answer within %g s", what, HEALTH_WAIT_S)
+        return False
+    except Exception as exc:  # whatever the driver raises, the answer is "down"
+        log.warning("health: %s did not answer: %s", what, exc)
+        return False
+    return True
+
+
+async def _select_one(engine: AsyncEngine) -> None:
+    async with engine.connect() as connection:
+        await connection.execute(text("SELECT 1"))
+
+
+async def _counts_answer(request: Request) -> bool | None:
+    throttle = getattr(request.app.state, "login_throttle", None)
+    if throttle is None or isinstance(throttle.storage, MemoryStorage):
+        return None  # this process's own memory: nothing to ask
+    storage = throttle.storage
+
+    async def check() -> None:
+        if not await storage.check():  # limits' own health check: False, never a raise
+            raise ConnectionError("the storage's check failed")
+
+    return await _answers("the store of failed sign-ins", check())
+
+
+@router.get("/health", response_model=HealthPublic, summary="Server version and dependencies")
+async def health(request: Request, response: Response) -> HealthPublic:
+    """No authentication: it says nothing about patients. 503 ("degraded") when the
+    database, the relay between server processes or the store of failed sign-ins does not
+    answer within ``HEALTH_WAIT_S``, or the data directory has less free space than
+    ``disk_free_min_bytes`` (uploads and sign-ins would soon fail)."""
+    settings = request.app.state.settings
+    hub = getattr(request.app.state, "hub", None)
+    relay = hub.relay if hub is not None and settings.relay_url else None
+    database, relayed, counts = await asyncio.gather(
+        _answers("the database", _select_one(request.app.state.engine)),
+        _answers("the relay", relay.answers()) if relay is not None else _none(),
+        _counts_answer(request),
+    )
     free = shutil.disk_usage(settings.data_dir).free
     disk = free >= settings.disk_free_min_bytes
-    if not (database and disk):
+    away = not database or relayed is False or counts is False
+    if away or not disk:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
-    if not database:
+    if away:
         response.headers["Retry-After"] = str(RETRY_AFTER_S)
-    hub = getattr(request.app.state, "hub", None)
     return HealthPublic(
         audit_backlog=hub.writer.backlog if hub is not None else 0,
-        status="ok" if database and disk else "degraded",
+        status="degraded" if away or not disk else "ok",
         version=server_version(),
         database=database,
+        relay=relayed,
+        login_throttle_storage=counts,
         disk_free_bytes=free,
         disk_ok=disk,
     )
+
+
+async def _none() -> None:
+    return None

@@ -33,7 +33,7 @@ from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 
 from device.protocol.messages import DeviceMode
 from server import audit
-from server.deps import Db, Id, TherapistOrAdmin, record_for
+from server.deps import Db, Id, Offset, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment, file_sha256
 from server.routes.dates import day_or_time, refuse
@@ -112,7 +112,7 @@ async def list_sessions(
         ),
     ] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[Offset, Query()] = 0,
 ) -> list[SessionPublic]:
     """Newest first. A therapist sees their own patients' sessions; an admin sees all.
     ``since`` and ``until`` are read as the progress page, the report and the FHIR bundle
@@ -226,7 +226,7 @@ async def download(
     else:
         path, digest = await _cached_export(request, row, fmt, source, source_digest)
         media, filename = MEDIA_TYPES[fmt], f"{name}{FILE_SUFFIX[fmt]}"
-    response = FileResponse(
+    response = _Download(
         path,
         media_type=media,
         headers={
@@ -259,6 +259,27 @@ NOT_A_RANGE = (
     "Range header: {part!r} is not a byte range; each part of bytes=... must be first-last, "
     "first- or -suffix, separated by commas"
 )
+
+
+_INT_RANGE = re.compile(r"\s*(\d{1,30})-(\d{1,30})\s*")
+
+
+class _Download(FileResponse):
+    """A file whose Range is ignored, and the whole file sent (200), when one of its parts
+    ends before it starts (``bytes=5-2``): RFC 9110 (14.1.1, 14.2) makes such a
+    ranges-specifier invalid and lets the server ignore it. Starlette answered it 400,
+    "start must be less than end", the sentence it also has for a range it cannot read."""
+
+    @classmethod
+    def _parse_range_header(cls, http_range: str, file_size: int) -> list[tuple[int, int]]:
+        unit, _, ranges = http_range.partition("=")
+        if unit.strip().lower() == "bytes":
+            for part in ranges.split(","):
+                spec = _INT_RANGE.fullmatch(part)
+                if spec is not None and int(spec[2]) < int(spec[1]):
+                    return []  # Starlette's "no range": the whole file
+        ranges_asked: list[tuple[int, int]] = super()._parse_range_header(http_range, file_size)
+        return ranges_asked
 
 
 def _range_refused(request: Request, response: FileResponse) -> Response | None:

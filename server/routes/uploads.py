@@ -197,7 +197,11 @@ async def upload_append(
         raise HTTPException(413, f"a chunk may be at most {CHUNK_MAX} bytes")
     uploads, _ = _dirs(request.app)
     async with _lock(request.app, sid):
-        if await db.scalar(select(Session.id).where(Session.session_uuid == sid)):
+        done = await db.scalar(select(Session).where(Session.session_uuid == sid))
+        if done is not None:
+            # Another patient's station is told what HEAD tells it: nothing of this upload.
+            if not await _sends_for(db, done.station_id, station):
+                raise HTTPException(404, "no such upload")
             raise HTTPException(409, "this session is already complete")
         up = await db.get(Upload, sid)
         if up is not None and not await _take_over(db, up, station):

@@ -13,6 +13,7 @@ import contextlib
 import os
 import pwd
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -97,6 +98,23 @@ class Cluster:
         """Stop at once (every connection dropped, as in a crash) and start again."""
         self.stop("immediate")
         self.start()
+
+    @contextlib.contextmanager
+    def frozen(self) -> Iterator[None]:
+        """The cluster's processes stopped (SIGSTOP) for the block, then resumed: a server
+        that accepts connections and answers nothing, as one swapping or stuck on its disk."""
+        postmaster = int((self.data / "postmaster.pid").read_text().split()[0])
+        children = subprocess.run(
+            ["pgrep", "-P", str(postmaster)], capture_output=True, text=True, check=False
+        ).stdout.split()
+        pids = [postmaster, *map(int, children)]
+        for pid in pids:
+            os.kill(pid, signal.SIGSTOP)
+        try:
+            yield
+        finally:
+            for pid in pids:
+                os.kill(pid, signal.SIGCONT)
 
     def psql(self, sql: str, database: str = "postgres") -> str:
         """Run ``sql`` as the superuser; the rows as psql prints them unaligned."""

@@ -87,6 +87,41 @@ async def test_an_id_out_of_range_is_a_422_naming_it(
     assert [where, name] in [e["loc"] for e in r.json()["detail"]]
 
 
+def test_every_integer_parameter_of_every_route_stops_at_the_largest_stored(
+    tmp_path: Any,
+) -> None:
+    """Not only ids: a page's offset reaches SQL too, where PostgreSQL's driver refused
+    2**63 with a 500 (SQLite's with a 422). Every integer a path or query names is refused
+    past 2**63-1 before the database is asked."""
+    app = create_app(Settings(data_dir=tmp_path))
+    checked, unbounded = [], []
+    for context in iter_route_contexts(app.routes):
+        route, path = context.original_route, context.path_format or ""
+        if not isinstance(route, APIRoute | APIWebSocketRoute):
+            continue
+        for param in _params(route.dependant):
+            if "int" not in str(param.field_info.annotation):
+                continue
+            checked.append((path, param.name))
+            if not param.validate(str(ID_MAX + 1), {}, loc=("x",))[1]:
+                unbounded.append((path, param.name))
+    assert unbounded == []
+    assert {("/api/v1/sessions", "offset"), ("/api/v1/audit", "offset")} <= set(checked)
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("path", ["/sessions", "/audit"])
+async def test_an_offset_past_the_largest_stored_is_a_422_naming_it(
+    live: Live, world: World, path: str
+) -> None:
+    for offset in (str(ID_MAX + 1), str(2**70)):
+        r = await live.client.get(path, params={"offset": offset}, headers=bearer(world.t1))
+        assert r.status_code == 422, r.text
+        assert ["query", "offset"] in [e["loc"] for e in r.json()["detail"]]
+    r = await live.client.get(path, params={"offset": str(ID_MAX)}, headers=bearer(world.t1))
+    assert (r.status_code, r.json()) == (200, [])
+
+
 @pytest.mark.asyncio
 @pytest.mark.parametrize(
     ("value", "sentence"),

@@ -65,6 +65,11 @@ def test_a_database_that_cannot_be_reached_is_one_line_and_exit_1(
         ("ANKLE_DATABASE_URL", "postgresql://ankle:s3cret@db/ankle", "postgresql+asyncpg://"),
         ("ANKLE_PORT", "abc", "valid integer"),
         ("ANKLE_PORT", "70000", "65535"),
+        ("ANKLE_ALLOWED_ORIGINS", "notjson", 'not JSON; a list is written as JSON, such as ["'),
+        ("ANKLE_ALLOWED_ORIGINS", '["*"]', '"*" is not an origin'),
+        ("ANKLE_DATA_DIR", "/dev/null", "/dev/null is a file, not a directory"),
+        ("ANKLE_DATA_DIR", "/dev/null/ankle", "/dev/null is a file, not a directory"),
+        ("ANKLE_PUBLIC_URL", "garbage", "'garbage' is not a base URL"),
     ],
 )
 @pytest.mark.parametrize("command", COMMANDS)
@@ -77,9 +82,34 @@ def test_a_setting_that_cannot_work_is_one_line_naming_it_and_exit_2(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     with pytest.MonkeyPatch.context() as env:
-        env.setenv(name, value)
         env.setenv("ANKLE_DATA_DIR", str(tmp_path))
+        env.setenv(name, value)
         assert main(COMMANDS[command]) == 2
     line = one_line(capsys)
     assert line.startswith(f"error: {name}: "), line
     assert says in line and "s3cret" not in line
+    assert line.count("ANKLE_") == 1, line  # no other setting blamed (one derived from it)
+
+
+def test_a_relay_that_cannot_be_reached_is_one_line_and_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("ANKLE_DATA_DIR", str(tmp_path))
+        env.setenv("ANKLE_RELAY_URL", f"redis://:s3cret@127.0.0.1:{closed_port()}/0")
+        assert main(["server", "--port", "0"]) == 1
+    line = one_line(capsys)
+    assert line.startswith("error: cannot reach the relay (ANKLE_RELAY_URL: Redis at 127.0.0.1:")
+    assert "s3cret" not in line
+
+
+def test_a_schema_not_current_without_migrating_is_one_line_and_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("ANKLE_DATA_DIR", str(tmp_path))
+        env.setenv("ANKLE_MIGRATE_ON_START", "false")
+        assert main(["server", "--port", "0"]) == 1
+    line = one_line(capsys)
+    assert line.startswith("error: the database's schema is at revision none (empty)"), line
+    assert line.endswith("run `ankle db upgrade` (or set ANKLE_MIGRATE_ON_START=true)")

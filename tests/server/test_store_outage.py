@@ -11,14 +11,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import asyncpg
 import httpx
 import pytest
 from sqlalchemy import select
 from websockets.exceptions import InvalidStatus
 
 from server.audit import AuditWriter
+from server.db import DATABASE_WAIT_S
 from server.errors import DATABASE_AWAY
 from server.models import AuditEntry
+from server.routes.health import HEALTH_WAIT_S
 from tests.server.live_server import Live, Seeds, World, bearer, on_store, running
 from tests.server.postgres import Cluster
 from tests.server.ws_client import station_ws, viewer_ws
@@ -153,3 +156,57 @@ async def test_the_live_audit_writer_outlives_a_postgresql_restart(
                     )
                 ).scalars()
                 assert sorted(actions) == ["test.after", "test.before"]
+
+
+@pytest.mark.asyncio
+async def test_postgresql_that_stops_answering_is_a_503_within_the_wait(
+    seeds: Seeds, tmp_path: Path
+) -> None:
+    """A PostgreSQL server that accepts connections and answers nothing (stopped, swapping,
+    stuck on its disk) holds no request past the database wait: the routes answer 503 with
+    the sentence, ``/health`` says ``database: false``. Before, every route and ``/health``
+    waited until the database answered again (150 s)."""
+    template, world = seeds.get("postgres")
+    cluster: Cluster = seeds.cluster
+    with on_store(seeds, "postgres", tmp_path, template) as settings:
+        async with running(settings) as live:
+            await _works_again(live, world)  # pooled connections to a server that will hang
+            with cluster.frozen():
+                started = time.monotonic()
+                await _health_says_away(live)
+                health_s = time.monotonic() - started
+                started = time.monotonic()
+                answers = await _answers_while_away(live, world)
+                routes_s = time.monotonic() - started
+            print(f"health {health_s:.1f} s, {len(answers)} routes {routes_s:.1f} s")
+            _assert_away(answers)
+            assert health_s < HEALTH_WAIT_S + DATABASE_WAIT_S
+            await _works_again(live, world)
+
+
+@pytest.mark.asyncio
+async def test_a_postgresql_table_locked_elsewhere_is_a_503_after_the_lock_timeout(
+    seeds: Seeds, tmp_path: Path
+) -> None:
+    """Another client holding a table's lock (a long migration, a DBA's LOCK TABLE) is a 503
+    for the requests that wait on it past the lock timeout, as SQLite's busy timeout; before,
+    they waited as long as the lock was held."""
+    template, world = seeds.get("postgres")
+    with on_store(seeds, "postgres", tmp_path, template) as settings:
+        async with running(settings) as live:
+            dsn = settings.database_url.replace("postgresql+asyncpg", "postgresql")
+            holder = await asyncpg.connect(dsn)
+            try:
+                locked = holder.transaction()
+                await locked.start()
+                await holder.execute("LOCK TABLE patients IN ACCESS EXCLUSIVE MODE")
+                started = time.monotonic()
+                r = await live.client.get("/patients", headers=bearer(world.t1))
+                waited = time.monotonic() - started
+                await locked.rollback()
+            finally:
+                await holder.close()
+            print(f"answered {r.status_code} after {waited:.1f} s")
+            assert waited >= DATABASE_WAIT_S * 0.8  # it did wait for the lock first
+            _assert_away([r])
+            await _works_again(live, world)

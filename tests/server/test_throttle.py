@@ -273,7 +273,11 @@ async def test_a_redis_that_is_away_refuses_sign_ins_with_a_sentence(
             change = {"current_password": "wrong password", "new_password": "x" * 12}
             r = await live.client.post("/auth/password", json=change, headers=bearer(world.t1))
             assert r.status_code == 503, r.text  # checked like a sign-in, so refused alike
-            assert (await live.client.get("/health")).status_code == 200  # the rest goes on
+            # /health says so (it said "ok" while every sign-in was refused).
+            health = await live.client.get("/health")
+            assert health.status_code == 503, health.text
+            assert health.json()["login_throttle_storage"] is False
+            assert health.json()["database"] is True
 
 
 @pytest.mark.parametrize(

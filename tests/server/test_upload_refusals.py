@@ -748,3 +748,26 @@ async def test_a_sha256_in_upper_case_is_taken_and_one_not_hex_says_what_it_must
     r = await live.client.post(f"/uploads/{sid}/complete", json=body, headers=bearer(world.s1))
     assert r.status_code == 201, r.text
     assert r.json()["sha256"] == digest
+
+
+@pytest.mark.asyncio
+async def test_another_patients_station_learns_nothing_of_a_filed_session(
+    live: Live, world: World
+) -> None:
+    """A filed session's uuid sent to by another patient's station is a 404, as HEAD
+    answers it: PATCH answered 409 "already complete", saying the uuid is a session."""
+    sid = str(uuid.uuid4())
+    data = recording_bytes(sid, samples()[:200], world.s1_id, world.p1, world.rx1)
+    assert await put(live, world, sid, data) == 204
+    assert (await complete(live, world, sid, data)).status_code == 201
+    other = bearer(world.s2)
+    assert (await live.client.head(f"/uploads/{sid}", headers=other)).status_code == 404
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=data[:CHUNK], headers={**other, "Upload-Offset": "0"}
+    )
+    assert (r.status_code, r.json()) == (404, {"detail": "no such upload"})
+    # Its own station is still told it is complete.
+    r = await live.client.patch(
+        f"/uploads/{sid}", content=data[:CHUNK], headers={**bearer(world.s1), "Upload-Offset": "0"}
+    )
+    assert r.status_code == 409, r.text

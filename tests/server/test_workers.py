@@ -13,11 +13,13 @@ from pathlib import Path
 
 import httpx
 import pytest
+import redis
 
 from server.cli import wait_healthy
 from server.config import Settings
 from tests.server.live_server import Seeds, Store, World, bearer, on_store, running
 from tests.server.postgres import free_port
+from tests.server.redis_server import spawned_redis
 from tests.server.test_series import recording_bytes, samples
 from tests.server.test_upload_refusals import complete, held, put, put_from
 
@@ -77,6 +79,31 @@ def test_ankle_server_workers_share_one_port(tmp_path: Path, relay_url: str) -> 
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, log.read_text()
+
+
+def test_ankle_server_exits_non_zero_when_a_worker_fails_to_start(tmp_path: Path) -> None:
+    """A Redis that takes one client more than the start-up check but not one per worker
+    (maxclients): the second worker's hub cannot subscribe and its start-up fails. uvicorn's
+    supervisor then stops every process and returned normally: ``ankle server`` exited 0,
+    none serving. Now it says so in its last line and exits 1."""
+    with spawned_redis(tmp_path / "redis") as (_, url):
+        with redis.Redis.from_url(url) as client:
+            client.config_set("maxclients", 1)  # kept once this client has gone
+        out = subprocess.run(
+            [sys.executable, "-m", "ankle", "server", "--workers", "2", "--port", "0"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+            env=os.environ
+            | {"ANKLE_RELAY_URL": f"{url}/0", "ANKLE_DATA_DIR": str(tmp_path / "data")},
+        )
+    assert "failed to start" in out.stderr, out.stderr  # uvicorn's word: one did fail
+    assert out.returncode == 1, out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    assert last == (
+        "error: 1 of 2 server processes failed to start (the log above says why); none is serving"
+    )
 
 
 def test_workers_must_be_at_least_one(tmp_path: Path) -> None:
