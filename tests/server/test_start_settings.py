@@ -5,6 +5,7 @@ traceback of hundreds of lines from the driver, uvicorn or ``int()``."""
 from __future__ import annotations
 
 import socket
+import threading
 from pathlib import Path
 
 import pytest
@@ -36,6 +37,27 @@ def closed_port() -> int:
     return port
 
 
+def refused(argv: list[str]) -> int:
+    """``main(argv)``'s exit code. It must refuse at once: a regression that starts serving
+    instead fails the test after a minute, where called here it would hang the run."""
+    codes: list[int] = []
+    raised: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            codes.append(main(argv))
+        except BaseException as exc:  # handed to the test below
+            raised.append(exc)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(60.0)
+    assert not worker.is_alive(), f"`ankle {' '.join(argv)}` did not refuse within 60 s"
+    if raised:
+        raise raised[0]
+    return codes[0]
+
+
 def one_line(capsys: pytest.CaptureFixture[str]) -> str:
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
@@ -52,7 +74,7 @@ def test_a_database_that_cannot_be_reached_is_one_line_and_exit_1(
     with pytest.MonkeyPatch.context() as env:
         env.setenv("ANKLE_DATABASE_URL", url)
         env.setenv("ANKLE_DATA_DIR", str(tmp_path))
-        assert main(COMMANDS[command]) == 1
+        assert refused(COMMANDS[command]) == 1
     line = one_line(capsys)
     assert line.startswith("error: cannot open the database (ANKLE_DATABASE_URL: PostgreSQL")
     assert "s3cret" not in line  # the line reaches a log
@@ -84,7 +106,7 @@ def test_a_setting_that_cannot_work_is_one_line_naming_it_and_exit_2(
     with pytest.MonkeyPatch.context() as env:
         env.setenv("ANKLE_DATA_DIR", str(tmp_path))
         env.setenv(name, value)
-        assert main(COMMANDS[command]) == 2
+        assert refused(COMMANDS[command]) == 2
     line = one_line(capsys)
     assert line.startswith(f"error: {name}: "), line
     assert says in line and "s3cret" not in line
@@ -97,7 +119,7 @@ def test_a_relay_that_cannot_be_reached_is_one_line_and_exit_1(
     with pytest.MonkeyPatch.context() as env:
         env.setenv("ANKLE_DATA_DIR", str(tmp_path))
         env.setenv("ANKLE_RELAY_URL", f"redis://:s3cret@127.0.0.1:{closed_port()}/0")
-        assert main(["server", "--port", "0"]) == 1
+        assert refused(["server", "--port", "0"]) == 1
     line = one_line(capsys)
     assert line.startswith("error: cannot reach the relay (ANKLE_RELAY_URL: Redis at 127.0.0.1:")
     assert "s3cret" not in line
@@ -109,7 +131,7 @@ def test_a_schema_not_current_without_migrating_is_one_line_and_exit_1(
     with pytest.MonkeyPatch.context() as env:
         env.setenv("ANKLE_DATA_DIR", str(tmp_path))
         env.setenv("ANKLE_MIGRATE_ON_START", "false")
-        assert main(["server", "--port", "0"]) == 1
+        assert refused(["server", "--port", "0"]) == 1
     line = one_line(capsys)
     assert line.startswith("error: the database's schema is at revision none (empty)"), line
     assert line.endswith("run `ankle db upgrade` (or set ANKLE_MIGRATE_ON_START=true)")
