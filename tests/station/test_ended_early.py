@@ -26,12 +26,10 @@ from sessions import wire
 from sessions.prescription import PrescriptionBody
 from sessions.recording import recover
 from station.app import DEVICE_STALE_S, ENDED, Station
-from station.config import StationConfig
 from station.timeline import HOMING_TIMEOUT_S
-from tests.processes import free_port
+from tests.station.offline import exercising
 from tests.system.harness import WATCHDOG_MS, short_strength
 
-PRESCRIPTION_ID = 7
 BODY = PrescriptionBody.model_validate(short_strength("Ended early", 3))
 STILL_S = DEVICE_STALE_S + 1.0
 """Longer than the station waits for the device's telemetry before it drops the link."""
@@ -58,35 +56,8 @@ async def until(what: str, done: object, timeout: float) -> None:
 @pytest_asyncio.fixture
 async def running(device: ServiceProcess, tmp_path: Path) -> AsyncIterator[Station]:
     """A station whose exercise is in a repetition (the device ACTIVE)."""
-    station = Station(
-        StationConfig(
-            device=device.link,
-            server=f"http://127.0.0.1:{free_port()}",  # nobody listens: offline
-            token="not-used-offline",
-            spool=tmp_path / "spool",
-        )
-    )
-    station.prescriptions = [
-        wire.PrescriptionItem(id=PRESCRIPTION_ID, version=1, patient_id=3, body=BODY)
-    ]
-    task = asyncio.create_task(station.run())
-    try:
-        await until("the device connected", lambda: station.dev is not None, 60.0)
-        assert station.start(PRESCRIPTION_ID) == ""
-        await until(
-            "a repetition running",
-            lambda: (
-                station.run_ is not None
-                and station.run_.phase == "running"
-                and station.dev is not None
-                and station.dev.mode == DeviceMode.ACTIVE
-            ),
-            60.0,
-        )
+    async with exercising(device.link, tmp_path / "spool", BODY) as station:
         yield station
-    finally:
-        task.cancel()
-        await asyncio.wait({task}, timeout=20.0)
 
 
 def command(action: wire.Action) -> wire.Command:

@@ -8,7 +8,6 @@ real pty; no server (the station works offline)."""
 from __future__ import annotations
 
 import asyncio
-import socket
 import time
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -19,26 +18,18 @@ import pytest_asyncio
 
 from device.hardware import SimulatedHardware
 from device.plant.params import PlantConfig
-from device.protocol.messages import DeviceMode
 from device.service import WATCHDOG_MS_MAX, ServiceConfig
 from device.transport import PtyLink
 from sessions import wire
 from sessions.prescription import PrescriptionBody
 from sessions.recording import recover
 from station.app import Station
-from station.config import StationConfig
 from tests.device.service_thread import service_in_thread
+from tests.station.offline import exercising
 from tests.system.harness import short_strength
 
-PRESCRIPTION_ID = 7
 BODY = PrescriptionBody.model_validate(short_strength("Overlapping changes", 3))
 """K 40 N m/rad and B 2 N m s/rad in pitch, 4 s repetitions."""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture
@@ -53,34 +44,8 @@ def device() -> Iterator[PtyLink]:
 @pytest_asyncio.fixture
 async def running(device: PtyLink, tmp_path: Path) -> AsyncIterator[Station]:
     """A station whose exercise is in a repetition (the device ACTIVE)."""
-    station = Station(
-        StationConfig(
-            device=device.name,
-            server=f"http://127.0.0.1:{free_port()}",  # nobody listens: offline
-            token="not-used-offline",
-            spool=tmp_path / "spool",
-        )
-    )
-    station.prescriptions = [
-        wire.PrescriptionItem(id=PRESCRIPTION_ID, version=1, patient_id=3, body=BODY)
-    ]
-    task = asyncio.create_task(station.run())
-    try:
-        async with asyncio.timeout(60.0):
-            while station.dev is None:
-                assert not task.done(), task
-                await asyncio.sleep(0.05)
-            assert station.start(PRESCRIPTION_ID) == ""
-            while not (
-                station.run_ is not None
-                and station.run_.phase == "running"
-                and station.dev.mode == DeviceMode.ACTIVE
-            ):
-                await asyncio.sleep(0.02)
+    async with exercising(device.name, tmp_path / "spool", BODY) as station:
         yield station
-    finally:
-        task.cancel()
-        await asyncio.wait({task}, timeout=20.0)
 
 
 def change(request_id: str, **values: Any) -> wire.Command:
