@@ -18,6 +18,7 @@ import pytest
 
 from server.cli import provision_demo, wait_healthy
 from server.config import Settings
+from tests.browser.rest import signed_in
 from tests.system.harness import free_port
 
 API = "/api/v1"
@@ -35,16 +36,7 @@ class Clinic:
 def therapist(clinic: Clinic) -> Iterator[httpx.Client]:
     """The demo therapist's REST client: the independent witness of what the page did."""
     with httpx.Client(base_url=f"{clinic.url}{API}", timeout=30) as client:
-        r = client.post(
-            "/auth/login",
-            json={
-                "email": clinic.creds["therapist_email"],
-                "password": clinic.creds["therapist_password"],
-            },
-        )
-        assert r.status_code == 200, r.text
-        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
-        yield client
+        yield signed_in(client, clinic.creds, "/auth/login")
 
 
 @pytest.fixture

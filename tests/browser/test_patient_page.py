@@ -16,6 +16,7 @@ import pytest
 from playwright.sync_api import Page, expect
 
 from tests.browser.a11y import assert_controls_labelled
+from tests.browser.rest import signed_in
 from tests.system.harness import System
 
 MINUTE_MS = 60_000
@@ -35,20 +36,7 @@ BODY: dict[str, Any] = {
 @pytest.fixture
 def therapist(system: System) -> Iterator[httpx.Client]:
     with httpx.Client(base_url=system.url, timeout=30.0) as client:
-        yield signed_in(client, system)
-
-
-def signed_in(client: httpx.Client, system: System) -> httpx.Client:
-    r = client.post(
-        "/api/v1/auth/login",
-        json={
-            "email": system.creds["therapist_email"],
-            "password": system.creds["therapist_password"],
-        },
-    )
-    assert r.status_code == 200, r.text
-    client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
-    return client
+        yield signed_in(client, system.creds, "/api/v1/auth/login")
 
 
 def wait_for_page(system: System, timeout: float = 60.0) -> None:

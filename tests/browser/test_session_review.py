@@ -40,16 +40,7 @@ FORMATS = ("csv", "parquet", "mcap", "json", "rec")
 def therapist(system: System) -> Iterator[httpx.Client]:
     """An API client signed in as the demo therapist."""
     with httpx.Client(base_url=f"{system.url}/api/v1", timeout=30.0) as client:
-        r = client.post(
-            "/auth/login",
-            json={
-                "email": system.creds["therapist_email"],
-                "password": system.creds["therapist_password"],
-            },
-        )
-        r.raise_for_status()
-        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
-        yield client
+        yield rest.signed_in(client, system.creds, "/auth/login")
 
 
 def run_one_session(system: System) -> dict[str, Any]:
