@@ -7,6 +7,7 @@ import asyncio
 import json
 import logging
 import typing
+from collections.abc import Iterator
 from typing import Annotated, Any
 
 import pytest
@@ -42,23 +43,28 @@ def _names_an_id(name: str) -> bool:
     return name == "id" or name.endswith("_id")
 
 
-def test_every_id_parameter_of_every_route_is_bounded(tmp_path: Any) -> None:
+def _int_params(tmp_path: Any) -> Iterator[tuple[str, Any]]:
+    """(path, parameter) for each integer path or query parameter of every route."""
     app = create_app(Settings(data_dir=tmp_path))
-    checked, unbounded = [], []
     for context in iter_route_contexts(app.routes):
         route, path = context.original_route, context.path_format or ""
         if not isinstance(route, APIRoute | APIWebSocketRoute):
             continue
         for param in _params(route.dependant):
-            if not _names_an_id(param.name) or param.field_info.annotation is None:
-                continue
-            if "int" not in str(param.field_info.annotation):
-                continue  # an upload's uuid, say
-            checked.append((path, param.name))
-            # As the route validates it: the bounds pass, one past either is an error.
-            verdicts = [not param.validate(v, {}, loc=("x",))[1] for v in GOOD + BAD]
-            if verdicts != [True] * len(GOOD) + [False] * len(BAD):
-                unbounded.append((path, param.name))
+            if "int" in str(param.field_info.annotation):  # not an upload's uuid, say
+                yield path, param
+
+
+def test_every_id_parameter_of_every_route_is_bounded(tmp_path: Any) -> None:
+    checked, unbounded = [], []
+    for path, param in _int_params(tmp_path):
+        if not _names_an_id(param.name):
+            continue
+        checked.append((path, param.name))
+        # As the route validates it: the bounds pass, one past either is an error.
+        verdicts = [not param.validate(v, {}, loc=("x",))[1] for v in GOOD + BAD]
+        if verdicts != [True] * len(GOOD) + [False] * len(BAD):
+            unbounded.append((path, param.name))
     assert unbounded == []
     # The walk does find them: the patient's, the session's, the live view's.
     paths = {path for path, _ in checked}
@@ -93,18 +99,11 @@ def test_every_integer_parameter_of_every_route_stops_at_the_largest_stored(
     """Not only ids: a page's offset reaches SQL too, where PostgreSQL's driver refused
     2**63 with a 500 (SQLite's with a 422). Every integer a path or query names is refused
     past 2**63-1 before the database is asked."""
-    app = create_app(Settings(data_dir=tmp_path))
     checked, unbounded = [], []
-    for context in iter_route_contexts(app.routes):
-        route, path = context.original_route, context.path_format or ""
-        if not isinstance(route, APIRoute | APIWebSocketRoute):
-            continue
-        for param in _params(route.dependant):
-            if "int" not in str(param.field_info.annotation):
-                continue
-            checked.append((path, param.name))
-            if not param.validate(str(ID_MAX + 1), {}, loc=("x",))[1]:
-                unbounded.append((path, param.name))
+    for path, param in _int_params(tmp_path):
+        checked.append((path, param.name))
+        if not param.validate(str(ID_MAX + 1), {}, loc=("x",))[1]:
+            unbounded.append((path, param.name))
     assert unbounded == []
     assert {("/api/v1/sessions", "offset"), ("/api/v1/audit", "offset")} <= set(checked)
 
