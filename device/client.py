@@ -85,6 +85,10 @@ class CommandRefused(DeviceError):
         self.nack = nack
 
 
+GAPS_KEPT = 16
+"""The newest writes whose preceding silence is remembered (:meth:`DeviceClient._send`)."""
+
+
 class Stall(NamedTuple):
     """One time this host stood still (:meth:`DeviceClient._check_stall`)."""
 
@@ -218,6 +222,10 @@ class DeviceClient:
         self._replay_lost = 0
         self._sent_at = time.perf_counter()
         """Host clock when the last frame was written to the device."""
+        self._gaps: deque[tuple[float, float]] = deque(maxlen=GAPS_KEPT)
+        """(host clock of a write, how long the device had heard nothing before it) of the
+        newest writes: a stall's silence may have been ended by another task's frame before
+        the heartbeat loop, waking too, measured it."""
         self._closed = asyncio.Event()
         self.link_error: str | None = None
         """Why nothing more arrives, once the link has closed or failed."""
@@ -441,7 +449,9 @@ class DeviceClient:
 
     def _send(self, frame: bytes) -> None:
         self._writer.write(frame)
-        self._sent_at = time.perf_counter()
+        now = time.perf_counter()
+        self._gaps.append((now, now - self._sent_at))
+        self._sent_at = now
 
     async def _heartbeat_loop(self) -> None:
         # Each wait is bounded (the sleep by its period, the ACK by its timeout): a wait that
@@ -450,24 +460,31 @@ class DeviceClient:
             period = self.heartbeat_interval  # a configure changes it
             start = time.perf_counter()
             await asyncio.sleep(period)
-            self._check_stall(time.perf_counter() - start - period)
+            self._check_stall(start, period)
             if not self.heartbeats:
                 continue
             start = time.perf_counter()
             with contextlib.suppress(DeviceError):
                 await self.command(msg.Heartbeat(), timeout=period, retries=0)
-            self._check_stall(time.perf_counter() - start - period)
+            self._check_stall(start, period)
 
-    def _check_stall(self, late: float) -> None:
-        """A heartbeat's wait ended ``late`` s past its bound: over :attr:`stall_threshold`,
-        this host stood still; count it and say so, so that a hold by the device's watchdog
-        can be told from a broken cable."""
+    def _check_stall(self, start: float, period: float) -> None:
+        """A heartbeat's wait that began at ``start`` (host clock) was bounded by ``period``
+        s: ended later by over :attr:`stall_threshold`, this host stood still; count it and
+        say so, so that a hold by the device's watchdog can be told from a broken cable."""
+        now = time.perf_counter()
+        late = now - start - period
         if late <= self.stall_threshold:
             return
         ms = late * 1e3
         self.stats.stalls += 1
         self.stats.stall_ms_max = max(self.stats.stall_ms_max, ms)
-        quiet_ms = (time.perf_counter() - self._sent_at) * 1e3
+        # The device's silence through the stall: since the last write, or, where a frame
+        # of another task that woke first went out before this check, the gap it ended (a
+        # station frozen for 1 s was measured as quiet for less than the device's 501 ms
+        # of silence, and its hold's cause said "unknown").
+        quiet = max([now - self._sent_at] + [gap for at, gap in self._gaps if at >= start])
+        quiet_ms = quiet * 1e3
         self.stats.last_stall = Stall(time.time(), ms, quiet_ms)
         log.warning(
             "this computer stood still for %.0f ms and sent the device nothing meanwhile "

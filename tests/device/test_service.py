@@ -683,6 +683,29 @@ def test_a_platform_resting_on_its_stops_homes_over_the_wire() -> None:
         asyncio.run(main(link.name))
 
 
+def test_a_stall_ended_by_another_tasks_frame_still_counts_the_devices_silence(
+    device: Running,
+) -> None:
+    """The event loop blocked 400 ms, and the first thing to run after it sends a command
+    (as a station's other tasks do on waking). The stall's measure of the device's silence
+    was the time since the last frame written, taken when the heartbeat task woke, after
+    that command: next to nothing, and a watchdog hold the stall caused was said to have an
+    unknown cause. It is the gap the command ended."""
+    stats = ClientStats()
+
+    async def body(dev: DeviceClient) -> None:
+        nonlocal stats
+        await asyncio.sleep(0.2)  # heartbeats running
+        time.sleep(0.4)  # the host's event loop blocked: no frame can leave
+        await dev.command(m.Heartbeat())  # written before the heartbeat task wakes
+        await asyncio.sleep(0.2)
+        stats = dev.stats
+
+    drive(device, body)
+    assert stats.last_stall is not None, stats
+    assert stats.last_stall.quiet_ms >= 340.0, stats.last_stall
+
+
 def test_a_host_that_stands_still_counts_the_stall_and_says_so(
     device: Running, caplog: pytest.LogCaptureFixture
 ) -> None:
