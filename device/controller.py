@@ -1396,25 +1396,51 @@ def chamber_volume(
 
 
 @njit_inline
+def rest_leg(s: ControllerState, leg: int) -> None:
+    """Leg ``leg`` is not driven: no pulse left to drive, its integrals and pushes cleared,
+    and its valve, air and observer windows start again when it is next driven (what went
+    in and out of a window that a stop cut short is not what its valves were told)."""
+    lo, up = 2 * leg, 2 * leg + 1
+    s.slots[lo] = 0
+    s.slots[up] = 0
+    s.integral[lo] = 0.0
+    s.integral[up] = 0.0
+    s.integral[12 + leg] = 0.0
+    s.friction_track[leg] = 0.0
+    s.monitor[supervision.M_PUSH + leg] = 0.0
+    s.step_push[leg] = 0.0
+    s.beside[leg] = 0.0
+    s.counters[supervision.C_WINDOW + lo] = 0
+    s.counters[supervision.C_WINDOW + up] = 0
+    s.counters[supervision.C_AIR + lo] = 0
+    s.counters[supervision.C_AIR + up] = 0
+    s.counters[supervision.C_OBS + lo] = 0
+    s.counters[supervision.C_OBS + up] = 0
+    quiet.reset(s.rest, leg)
+
+
+@njit
+def halt(s: ControllerState) -> None:
+    """Stop driving now (a hold; a latched trip is left as it is): every valve shut and
+    every leg at rest (:func:`rest_leg`) at this tick, not at each leg's next PWM period.
+    A hold and a resume inside one period used to leave that period's pulses counted in
+    the valve windows while the valves had been shut for part of it, and the resume drove
+    what was left of them: a host sending hold and resume 1-3 ms apart made a healthy
+    chamber look dead to its exhaust (a VALVE trip within 40 pairs on a healthy plant)."""
+    if s.istate[I_MODE] == Mode.FAULT:
+        return
+    s.istate[I_MODE] = Mode.IDLE
+    for v in range(24):
+        s.valves[v] = 0
+    for leg in range(6):
+        rest_leg(s, leg)
+
+
+@njit_inline
 def cylinder_task(s: ControllerState, p: ControllerParams, leg: int) -> None:
     lo, up = 2 * leg, 2 * leg + 1
     if not moving(s.istate):
-        s.slots[lo] = 0
-        s.slots[up] = 0
-        s.integral[lo] = 0.0
-        s.integral[up] = 0.0
-        s.integral[12 + leg] = 0.0
-        s.friction_track[leg] = 0.0
-        s.monitor[supervision.M_PUSH + leg] = 0.0
-        s.step_push[leg] = 0.0
-        s.beside[leg] = 0.0
-        s.counters[supervision.C_WINDOW + lo] = 0
-        s.counters[supervision.C_WINDOW + up] = 0
-        s.counters[supervision.C_AIR + lo] = 0
-        s.counters[supervision.C_AIR + up] = 0
-        s.counters[supervision.C_OBS + lo] = 0
-        s.counters[supervision.C_OBS + up] = 0
-        quiet.reset(s.rest, leg)
+        rest_leg(s, leg)
         return
     # While an axis renders an impedance the integral sees only the error beyond a band.
     rendering = False

@@ -105,6 +105,7 @@ class Rig:
         safety.outside_at_start(s.sensors[13:19], s.pose, g.home_pose, g.stroke, self.params.limits)
         supervision.disarm_following(s.counters)
         supervision.settle_side(s.counters)
+        ctl.halt(s)
         ctl.trip(s, int(Trip.NONE))
         if isinstance(self.hardware, SimulatedHardware):
             hw = self.hardware
@@ -358,10 +359,9 @@ class Rig:
         self.params.limits[:] = self._limits
 
     def hold(self) -> None:
-        """Close every valve and hold; leaves FAULT untouched."""
-        if self.mode != Mode.FAULT:
-            self.state.istate[ctl.I_MODE] = Mode.IDLE
-            self.state.valves[:] = 0
+        """Close every valve and hold, every leg at rest now (``ctl.halt``); leaves FAULT
+        untouched."""
+        ctl.halt(self.state)
 
     def forget_rings(self) -> None:
         """A new exercise: the ring guard's factors (device.ring) start again at 1."""

@@ -458,8 +458,12 @@ def test_watchdog_holds_within_one_pwm_period_and_never_resumes_by_itself(
             # The host's own measure adds the trip over the pty and this test's own wait for a
             # core: 221 ms was seen with two whole test suites running on two cores, 358 ms
             # at a load of 10 on two cores. What this process stood still meanwhile (its
-            # event loop's lateness) is its own, not the device's or the link's.
-            assert host_ms <= 204.0 + max(0.0, late_ms) + 50.0 + own_ms, (host_ms, own_ms)
+            # event loop's lateness) is its own, not the device's or the link's. Nor is the
+            # kernel's: a pty hands what is written to its reader from a worker thread of
+            # its own, which neither lateness above measures (once 291 ms, with the passes
+            # 4.5 ms and this loop 3.5 ms late). The bound is for a device that counts its
+            # silence from the wrong frame (a hold a whole watchdog later), not a latency.
+            assert host_ms <= 204.0 + max(0.0, late_ms) + 150.0 + own_ms, (host_ms, own_ms)
             assert valves_closed(device.service)
             dev.heartbeats = True
             await asyncio.sleep(0.5)  # the link is back: still holding
