@@ -13,8 +13,9 @@ import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from reportlab.graphics.charts.legends import LineLegend
 from reportlab.graphics.charts.lineplots import LinePlot
@@ -114,8 +115,36 @@ def value_text(value: float, unit: str) -> str:
     return f"{value:.1f}{_UNIT.get(unit, ' ' + unit)}"
 
 
-def _date(t: datetime) -> str:
-    return f"{t:%Y-%m-%d}"
+def _date(t: datetime, zone: ZoneInfo) -> str:
+    """The day ``t`` fell on in ``zone``."""
+    return f"{t.astimezone(zone):%Y-%m-%d}"
+
+
+def utc_offset(t: datetime) -> str:
+    """``t``'s offset from UTC as ``UTC+01:00`` (to the minute)."""
+    minutes = (t.utcoffset() or timedelta()) // timedelta(minutes=1)
+    sign = "-" if minutes < 0 else "+"
+    return f"UTC{sign}{abs(minutes) // 60:02d}:{abs(minutes) % 60:02d}"
+
+
+def _start_offset(record: PatientRecord) -> str:
+    return utc_offset(record.since.astimezone(record.zone))
+
+
+def zone_line(record: PatientRecord) -> str:
+    """The zone the report's times are in, named once: with its offset at the period's start
+    (a time at another offset, across a change to or from summer time, names its own)."""
+    return f"times are in {record.zone.key} ({_start_offset(record)})"
+
+
+def clock(record: PatientRecord, t: datetime) -> str:
+    """``t`` on the report's clock (:attr:`PatientRecord.zone`), to the minute; its offset
+    added where it is not the one :func:`zone_line` names, so that no time is ambiguous (the
+    hour a clock goes back runs twice)."""
+    local = t.astimezone(record.zone)
+    text = f"{local:%Y-%m-%d %H:%M}"
+    offset = utc_offset(local)
+    return text if offset == _start_offset(record) else f"{text} {offset}"
 
 
 def _p(text: str, style: ParagraphStyle = _SMALL) -> Paragraph:
@@ -260,13 +289,14 @@ def _adherence_rows(rows: Sequence[PrescriptionAdherence]) -> list[list[Any]]:
     ]
 
 
-def baseline_section(progress: Progress, side: str | None) -> list[Flowable]:
+def baseline_section(progress: Progress, side: str | None, zone: ZoneInfo) -> list[Flowable]:
     """Active range per direction in the ROM assessments against the first one, each change
-    judged against the MDC95 of the device's own repeated trials."""
+    judged against the MDC95 of the device's own repeated trials; days are ``zone``'s."""
     out: list[Flowable] = [Paragraph("Range of motion against the baseline", _H2)]
     if progress.baseline is None:
         return [*out, _p("No ROM assessment yet: there is no baseline.", _BODY)]
-    out.append(_p(f"Baseline: the first ROM assessment, {_date(progress.baseline.at)}.", _BODY))
+    first = _date(progress.baseline.at, zone)
+    out.append(_p(f"Baseline: the first ROM assessment, {first}.", _BODY))
     mdc = {(m.axis, m.sign): m for m in progress.mdc}
     rows: list[list[Any]] = []
     for ex in progress.exercises:
@@ -286,7 +316,7 @@ def baseline_section(progress: Progress, side: str | None) -> list[Flowable]:
                 [
                     label(m.axis, m.sign, side),  # type: ignore[arg-type]
                     value_text(m.baseline, "deg"),
-                    f"{value_text(last.value, 'deg')} ({_date(last.at)})",
+                    f"{value_text(last.value, 'deg')} ({_date(last.at, zone)})",
                     "" if last.change is None else f"{last.change:+.1f}°",
                     limit.text if limit is not None else "",
                     judged,
@@ -327,7 +357,7 @@ def _session_rows(record: PatientRecord) -> list[list[Any]]:
         reps = "" if done is None else f"{done} of {asked}" if asked is not None else str(done)
         rows.append(
             [
-                f"{s.started_at:%Y-%m-%d %H:%M}",
+                clock(record, s.started_at),
                 session_name(record, s),
                 s.end_reason or "no end record",
                 reps,
@@ -357,7 +387,7 @@ def notable_events(s: Session) -> list[str]:
 
 def _event_rows(record: PatientRecord) -> list[list[Any]]:
     return [
-        [f"{s.started_at:%Y-%m-%d %H:%M}", session_name(record, s), text]
+        [clock(record, s.started_at), session_name(record, s), text]
         for s in record.sessions
         for text in notable_events(s)
     ]
@@ -425,7 +455,7 @@ def pdf(record: PatientRecord) -> bytes:
             ],
             [45 * mm, 30 * mm, 20 * mm, 25 * mm, 50 * mm],
         ),
-        _p(f"Generated {record.generated_at:%Y-%m-%d %H:%M} UTC.", _SMALL),
+        _p(f"Generated {clock(record, record.generated_at)}; {zone_line(record)}.", _SMALL),
         Paragraph("Prescriptions", _H2),
     ]
     if record.prescriptions:
@@ -438,7 +468,7 @@ def pdf(record: PatientRecord) -> bytes:
                         exercise_name(rx.exercise),
                         rx.status,
                         "" if rx.sessions_per_week is None else str(rx.sessions_per_week),
-                        _date(rx.created_at),
+                        _date(rx.created_at, record.zone),
                     ]
                     for rx in record.prescriptions
                 ],
@@ -486,7 +516,7 @@ def pdf(record: PatientRecord) -> bytes:
     else:
         story.append(_p("No sessions in this period.", _BODY))
     story += progress_section(trends(record))
-    story += baseline_section(record.progress, record.patient.affected_side)
+    story += baseline_section(record.progress, record.patient.affected_side, record.zone)
     story.append(Paragraph("Notable events", _H2))
     events = _event_rows(record)
     if events:

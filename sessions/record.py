@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from sessions.measures import Measure, measures
 from sessions.progress import Progress
@@ -60,6 +61,9 @@ class PatientRecord:
     """The period's start, included."""
     until: datetime
     """The period's end, excluded (midnight after its last day)."""
+    zone: ZoneInfo
+    """Whose days the period's are (``since`` and ``until`` are its midnights), and whose
+    clock the report prints times on."""
     generated_at: datetime
     prescriptions: list[Prescription]
     sessions: list[Session]
@@ -70,8 +74,9 @@ class PatientRecord:
 
     @property
     def days(self) -> tuple[date, date]:
-        """The period's first and last day."""
-        return self.since.date(), (self.until - timedelta(microseconds=1)).date()
+        """The period's first and last day, in :attr:`zone`."""
+        last = self.until.astimezone(self.zone) - timedelta(microseconds=1)
+        return self.since.astimezone(self.zone).date(), last.date()
 
     def measures(self, session: Session) -> list[Measure]:
         """The measures of one of the sessions, for this patient's side; none without a

@@ -3,17 +3,20 @@ and a FHIR R4 bundle. Both are made from one ``sessions.record.PatientRecord`` a
 audited as data leaving the system (``patient.export``, with the format, period and counts).
 
 Who may: the patient's therapist, or an admin (read-only, as for sessions); anyone else
-gets the 404 of a patient that does not exist. The period is whole days (UTC), both ends
-included, ending today at the latest (:data:`AHEAD_OF_UTC`); it defaults to the
-:data:`DEFAULT_DAYS` days up to today.
+gets the 404 of a patient that does not exist. The period is whole days of one time zone
+(``tz``, an IANA name; UTC if not given), both ends included, ending today at the latest
+(:data:`AHEAD_OF_UTC`); it defaults to the :data:`DEFAULT_DAYS` days up to today. The PDF
+prints every time on that zone's clock, and names it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
-from datetime import UTC, date, datetime, time, timedelta
+from datetime import date, datetime, time, timedelta
+from functools import cache
 from typing import Annotated, Any
+from zoneinfo import ZoneInfo, available_timezones
 
 from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy import select
@@ -39,7 +42,7 @@ date, which is UTC's or the next day; the latest day begun anywhere is never ref
 _WORDS = {"since": "the first day (since)", "until": "the last day (until)"}
 """How a refusal names each parameter: as the patient page labels it, and as the API does."""
 
-_DATE_DOC = "A date, YYYY-MM-DD (UTC), included in the period."
+_DATE_DOC = "A date, YYYY-MM-DD (in the time zone tz), included in the period."
 Since = Annotated[
     str | None,
     Query(
@@ -52,10 +55,42 @@ Until = Annotated[
     str | None,
     Query(
         description=f"Last day of the period. {_DATE_DOC} Today at the latest (the "
-        "latest date anywhere: up to UTC+14). Default: today (UTC).",
+        "latest date anywhere: up to UTC+14; with tz, that zone's today). Default: today in tz.",
         examples=["2026-03-31"],
     ),
 ]
+TZ_EXAMPLE = "Europe/Berlin"
+Tz = Annotated[
+    str | None,
+    Query(
+        description="The IANA time zone whose calendar days since and until are, and whose "
+        "clock the PDF prints times on, naming it (the patient's page sends the browser's "
+        f"own). Default: UTC. Such as {TZ_EXAMPLE}, America/New_York or UTC.",
+        examples=[TZ_EXAMPLE],
+    ),
+]
+
+
+@cache
+def _zone_names() -> frozenset[str]:
+    """The IANA names the server knows (its system's tz database, else the tzdata package).
+    The one test of a name: ``ZoneInfo`` alone also opens ``localtime`` (whatever the
+    server's own clock is set to) and ``right/...`` files, and fails on a long name with an
+    OSError rather than saying it knows no such zone."""
+    return frozenset(available_timezones() - {"localtime"})
+
+
+def zone(text: str | None) -> ZoneInfo:
+    """The time zone ``tz`` names; UTC if none; a 422 naming ``tz`` for a name not known."""
+    if text is None:
+        return ZoneInfo("UTC")
+    if text not in _zone_names():
+        raise refuse(
+            "tz",
+            f"the time zone (tz) must be an IANA time zone name such as {TZ_EXAMPLE} or UTC; "
+            f"got {shown(text)!r}",
+        )
+    return ZoneInfo(text)
 
 
 def _day(field: str, text: str | None) -> date | None:
@@ -74,10 +109,13 @@ def _day(field: str, text: str | None) -> date | None:
     return day
 
 
-def period(since: str | None, until: str | None) -> tuple[date, date]:
-    """The first and last day of the period asked for; 422 with a sentence if it is not one."""
+def period(since: str | None, until: str | None, tz: ZoneInfo | None = None) -> tuple[date, date]:
+    """The first and last day of the period asked for, days of ``tz`` (a zone the client
+    named) or, if it named none, of UTC; 422 with a sentence if it is not one."""
     first, last = _day("since", since), _day("until", until)
-    latest = (utcnow() + AHEAD_OF_UTC).date()
+    now = utcnow()
+    # With its zone named, a client's today is known; without, it may be any day begun.
+    latest = now.astimezone(tz).date() if tz is not None else (now + AHEAD_OF_UTC).date()
     if last is not None and last > latest:
         # A signed report is a record of what happened: it never covers days still to come.
         raise refuse(
@@ -85,7 +123,7 @@ def period(since: str | None, until: str | None) -> tuple[date, date]:
             f"{_WORDS['until']}, {last}, is still to come: a report covers days that have "
             f"begun, up to today ({latest} at the latest)",
         )
-    last = last or utcnow().date()
+    last = last or now.astimezone(tz or ZoneInfo("UTC")).date()
     first = first or last - timedelta(days=DEFAULT_DAYS - 1)
     if first > last:
         raise refuse(
@@ -96,16 +134,19 @@ def period(since: str | None, until: str | None) -> tuple[date, date]:
     return first, last
 
 
-def _start(day: date) -> datetime:
-    return datetime.combine(day, time(), tzinfo=UTC)
+def midnight(day: date, tz: ZoneInfo) -> datetime:
+    """The instant ``day`` begins in ``tz``: its first wall-clock time, which zoneinfo
+    places by that day's own offset (a day that changes to or from summer time is 23 or
+    25 hours long; never a fixed offset)."""
+    return datetime.combine(day, time(), tzinfo=tz)
 
 
 async def patient_record(
-    request: Request, db: Db, patient: Patient, first: date, last: date
+    request: Request, db: Db, patient: Patient, first: date, last: date, tz: ZoneInfo
 ) -> record.PatientRecord:
-    """The patient's prescriptions in force and sessions started within the days, and their
-    progress over those days (the same as the patient's page shows)."""
-    since, until = _start(first), _start(last + timedelta(days=1))
+    """The patient's prescriptions in force and sessions started within the days of ``tz``,
+    and their progress over those days (the same as the patient's page shows)."""
+    since, until = midnight(first, tz), midnight(last + timedelta(days=1), tz)
     progress = await load_progress(request, db, patient, since=since, until=until)
     prescriptions = (
         await db.scalars(
@@ -163,6 +204,7 @@ async def patient_record(
         ),
         since=since,
         until=until,
+        zone=tz,
         generated_at=utcnow(),
         prescriptions=rxs,
         sessions=sessions,
@@ -184,9 +226,10 @@ def disposition(patient: Patient, first: date, last: date, suffix: str) -> str:
 
 
 async def _exported(
-    db: Db, user: Any, patient: Patient, fmt: str, first: date, last: date, **counts: int
+    db: Db, user: Any, patient: Patient, fmt: str, data: record.PatientRecord, **counts: int
 ) -> None:
-    what = {"format": fmt, "since": str(first), "until": str(last), **counts}
+    first, last = data.days
+    what = {"format": fmt, "since": str(first), "until": str(last), "tz": data.zone.key, **counts}
     await audit.export(db, audit.user_actor(user), "patient", patient.id, patient.id, what)
 
 
@@ -219,15 +262,17 @@ async def report_pdf(
     user: TherapistOrAdmin,
     since: Since = None,
     until: Until = None,
+    tz: Tz = None,
 ) -> Response:
     """Patient, period, prescriptions, sessions done against prescribed, each session's
     range of motion per direction, torque and work, their trend, notable events (faults,
     holds, early ends) and a signature block. Audited as ``patient.export`` (format pdf)."""
     patient = await patient_for(db, user, patient_id)
-    first, last = period(since, until)
-    data = await patient_record(request, db, patient, first, last)
+    where = zone(tz)
+    first, last = period(since, until, where if tz is not None else None)
+    data = await patient_record(request, db, patient, first, last, where)
     body = await asyncio.to_thread(pdf, data)
-    await _exported(db, user, patient, "pdf", first, last, sessions=len(data.sessions))
+    await _exported(db, user, patient, "pdf", data, sessions=len(data.sessions))
     return _attachment(body, "application/pdf", disposition(patient, first, last, ".pdf"))
 
 
@@ -252,22 +297,23 @@ async def report_fhir(
     user: TherapistOrAdmin,
     since: Since = None,
     until: Until = None,
+    tz: Tz = None,
 ) -> Response:
     """Codes: the project's session-measures code system (docs/measures.md; served at
     ``{fhir_base}/CodeSystem/session-measures``), SNOMED CT for
     the body site, laterality and a passive range-of-motion assessment. Audited as
     ``patient.export`` (format fhir)."""
     patient = await patient_for(db, user, patient_id)
-    first, last = period(since, until)
-    data = await patient_record(request, db, patient, first, last)
+    where = zone(tz)
+    first, last = period(since, until, where if tz is not None else None)
+    data = await patient_record(request, db, patient, first, last, where)
     bundle = fhir.bundle(request.app.state.settings.fhir_base, data)
     await _exported(
         db,
         user,
         patient,
         "fhir",
-        first,
-        last,
+        data,
         sessions=len(data.sessions),
         observations=len(bundle["entry"]) - 1,
     )

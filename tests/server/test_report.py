@@ -10,6 +10,7 @@ from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
+from zoneinfo import ZoneInfo
 
 import numpy as np
 import pytest
@@ -173,7 +174,13 @@ async def test_the_pdf_report_says_what_happened_over_the_period(live: Live, wor
 
     (row,) = await exports(live, world)
     assert row["actor"] == f"user:{world.t1_id}" and row["patient_id"] == world.p1
-    assert row["new"] == {"format": "pdf", "since": str(since), "until": str(until), "sessions": 2}
+    assert row["new"] == {
+        "format": "pdf",
+        "since": str(since),
+        "until": str(until),
+        "tz": "UTC",
+        "sessions": 2,
+    }
 
 
 @pytest.mark.asyncio
@@ -229,6 +236,7 @@ async def test_the_fhir_bundle_is_valid_r4_with_ucum_units_and_laterality(
         "format": "fhir",
         "since": str(first_day),
         "until": str(TODAY),
+        "tz": "UTC",
         "sessions": 2,
         "observations": 16,
     }
@@ -577,6 +585,11 @@ async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
         ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
         # A signed report headed "to 2099-12-31" would claim days still to come.
         ({"since": "2026-01-01", "until": "2099-12-31"}, "until", "2099-12-31, is still to come"),
+        # A zone the server does not know, its own clock's (whichever that is), or a name
+        # longer than any file name (an OSError inside zoneinfo, not a 500).
+        ({"tz": "Mars/Olympus_Mons"}, "tz", "an IANA time zone name such as Europe/Berlin"),
+        ({"tz": "localtime"}, "tz", "got 'localtime'"),
+        ({"tz": "Europe/" + "x" * 300}, "tz", "such as Europe/Berlin or UTC; got 'Europe/xxx"),
     ],
 )
 @pytest.mark.asyncio
@@ -618,6 +631,105 @@ async def test_a_period_ends_today_wherever_the_therapist_is(live: Live, world: 
         for day in (latest, latest + timedelta(days=1))
     }
     assert len(await exports(live, world)) == 1  # the accepted one only
+
+
+@pytest.mark.asyncio
+async def test_a_named_zone_ends_the_period_on_its_own_today(live: Live, world: World) -> None:
+    """Kiritimati (UTC+14) is always a day or two ahead of Pago Pago (UTC-11): its today is
+    taken without a zone (some clock has begun it) but not as a day of Pago Pago's."""
+    ahead = datetime.now(ZoneInfo("Pacific/Kiritimati")).date()
+    t1, path = bearer(world.t1), f"/patients/{world.p1}/fhir"
+    r = await live.client.get(path, params={"until": str(ahead)}, headers=t1)
+    assert r.status_code == 200, r.text
+    r = await live.client.get(
+        path, params={"until": str(ahead), "tz": "Pacific/Pago_Pago"}, headers=t1
+    )
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["loc"] == ["query", "until"] and "is still to come" in error["msg"]
+
+
+LATE = datetime(2025, 12, 7, 23, 59, 50, tzinfo=UTC)
+"""A session begun ten seconds before midnight UTC: 8 December in Berlin, the evening of the
+7th in New York."""
+
+
+async def upload_at(live: Live, world: World, at: datetime) -> None:
+    await upload(live, world, samples()[:3000], started_at=at.timestamp())
+
+
+async def report_text(live: Live, world: World, params: dict[str, str]) -> str:
+    r = await live.client.get(
+        f"/patients/{world.p1}/report.pdf", params=params, headers=bearer(world.t1)
+    )
+    assert r.status_code == 200, r.text
+    return pdf_text(r.content)
+
+
+async def fhir_starts(live: Live, world: World, params: dict[str, str]) -> set[str]:
+    """The start of every observation's effectivePeriod in the bundle of ``params``."""
+    r = await live.client.get(f"/patients/{world.p1}/fhir", params=params, headers=bearer(world.t1))
+    assert r.status_code == 200, r.text
+    return {
+        e["resource"]["effectivePeriod"]["start"]
+        for e in r.json()["entry"]
+        if e["resource"]["resourceType"] == "Observation"
+    }
+
+
+@pytest.mark.parametrize(
+    ("tz", "day", "row", "header"),
+    [
+        ("Europe/Berlin", "2025-12-08", "2025-12-08 00:59", "Europe/Berlin (UTC+01:00)"),
+        (None, "2025-12-07", "2025-12-07 23:59", "UTC (UTC+00:00)"),
+        ("UTC", "2025-12-07", "2025-12-07 23:59", "UTC (UTC+00:00)"),
+        ("America/New_York", "2025-12-07", "2025-12-07 18:59", "America/New_York (UTC-05:00)"),
+    ],
+)
+@pytest.mark.asyncio
+async def test_a_day_is_the_therapists_own_in_the_report_and_the_bundle(
+    live: Live, world: World, tz: str | None, day: str, row: str, header: str
+) -> None:
+    """The report page sends the therapist's calendar day and zone: a session shows on the
+    day their dashboard shows it, at their clock's time, and only on that day."""
+    await upload_at(live, world, LATE)
+    zone = {} if tz is None else {"tz": tz}
+    other = str(date.fromisoformat(day) + timedelta(days=1 if day.endswith("07") else -1))
+    before = datetime.now(ZoneInfo(tz or "UTC")).date()
+    text = await report_text(live, world, {"since": day, "until": day, **zone})
+    after = datetime.now(ZoneInfo(tz or "UTC")).date()
+    assert "1 session in the period" in text, text
+    assert any(f"Generated {d}" in text for d in (before, after)), text  # the zone's today
+    assert f"times are in {header}." in text, text
+    sessions = text[text.index("Date Exercise Ended") :]
+    assert row in sessions, sessions
+    text = await report_text(live, world, {"since": other, "until": other, **zone})
+    assert "0 sessions in the period" in text, text
+
+    # FHIR: the same day holds its observations, stamped with an ISO 8601 offset.
+    (start,) = await fhir_starts(live, world, {"since": day, "until": day, **zone})
+    assert datetime.fromisoformat(start) == LATE and start.endswith("+00:00"), start
+    assert await fhir_starts(live, world, {"since": other, "until": other, **zone}) == set()
+
+
+@pytest.mark.asyncio
+async def test_a_day_that_changes_to_summer_time_is_23_hours_of_its_zone(
+    live: Live, world: World
+) -> None:
+    """Berlin's 29 March 2026 runs from 00:00 UTC+01:00 to 24:00 UTC+02:00 (22:00 UTC); a
+    fixed UTC+01:00 would end it at 23:00 UTC and take in 00:30 of the 30th. A time past the
+    change names its offset, the header naming the day's first."""
+    for at in ("2026-03-28T23:30:00Z", "2026-03-29T21:30:00Z", "2026-03-29T22:30:00Z"):
+        await upload_at(live, world, datetime.fromisoformat(at))
+    params = {"since": "2026-03-29", "until": "2026-03-29", "tz": "Europe/Berlin"}
+    text = await report_text(live, world, params)
+    assert "2 sessions in the period" in text, text
+    assert "times are in Europe/Berlin (UTC+01:00)." in text, text
+    sessions = text[text.index("Date Exercise Ended") : text.index("Progress over the period")]
+    assert "2026-03-29 00:30" in sessions and "2026-03-29 23:30 UTC+02:00" in sessions, sessions
+    assert "2026-03-30" not in sessions, sessions
+    starts = await fhir_starts(live, world, params)
+    assert starts == {"2026-03-28T23:30:00+00:00", "2026-03-29T21:30:00+00:00"}
 
 
 def test_directions_follow_the_affected_side() -> None:

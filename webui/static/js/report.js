@@ -1,6 +1,8 @@
 // The patient's report for the medical record: a period and two downloads (the PDF to sign,
 // the FHIR bundle for the record system). The server names the files and checks the dates
 // (a period that ends after today is refused there); the page only relays its sentences.
+// The days are the therapist's own, and so is the report's clock: the page names their time
+// zone, else the server counts UTC days and a late-evening session falls on another one.
 
 import { clearErrors, download, showErrors } from "./api.js";
 
@@ -32,6 +34,8 @@ export function setUpReport(patientId) {
       const query = new URLSearchParams();
       if (since.value) query.set("since", since.value);
       if (until.value) query.set("until", until.value);
+      const zone = Intl.DateTimeFormat().resolvedOptions().timeZone;
+      if (zone) query.set("tz", zone);
       clearErrors(form);
       button.disabled = true;
       status.textContent = `Preparing the ${label}…`;
