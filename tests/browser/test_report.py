@@ -11,6 +11,7 @@ import uuid
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 from zoneinfo import ZoneInfo
 
 import httpx
@@ -96,6 +97,8 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
         section.get_by_role("button", name="Download PDF report").click()
     assert answer.value.status == 200
     assert answer.value.headers["content-type"] == "application/pdf"
+    # The therapist's zone goes with their days: the report counts and prints on their clock.
+    assert parse_qs(urlsplit(answer.value.url).query)["tz"] == [zone]
     pdf = got.value
     assert pdf.suggested_filename == f"{stem}.pdf"
     pdf.save_as(tmp_path / pdf.suggested_filename)
@@ -104,6 +107,7 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
         for p in PdfReader(io.BytesIO((tmp_path / f"{stem}.pdf").read_bytes())).pages
     )
     assert clinic.creds["patient_name"] in text and "1 session in the period" in text
+    assert f"times are in {zone} (UTC" in text, text
     expect(page.locator("#report-status")).to_contain_text(f"saved as {stem}.pdf")
 
     with page.expect_response(lambda r: "/fhir" in r.url) as answer, page.expect_download() as got:
