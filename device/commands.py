@@ -80,6 +80,7 @@ class CommandError(ValueError):
         field: str = "",
         code: NackCode = NackCode.OUT_OF_RANGE,
         axis: int | None = None,
+        amount: tuple[float, float] | None = None,
     ) -> None:
         super().__init__(text)
         self.code = code
@@ -87,6 +88,10 @@ class CommandError(ValueError):
         self.axis = axis
         """The axis (index into ``AXES``) the refused value belongs to, where there is one:
         for a host that maps the refusal back onto its own field (not sent in the NACK)."""
+        self.amount = amount
+        """What the refused targets need and the bound it passes, where the sentence is
+        about a quantity no field holds (a leg's length or speed, :func:`check_reachable`,
+        :func:`check_planned_leg_speed`): for a host that says it in its own words."""
 
 
 class Geometry(Protocol):
@@ -472,10 +477,12 @@ def check_reachable(
             # 95.0 mm, beyond 5..95 mm" for 95.00001.
             low_text, low = figures(worst_low[leg], lo, digits=3)
             high_text, high = figures(worst_high[leg], hi, digits=3)
+            past = (worst_low[leg], lo) if worst_low[leg] < lo else (worst_high[leg], hi)
             raise CommandError(
                 f"these targets together need leg {leg + 1} at {low_text}..{high_text} mm, "
                 f"beyond its usable {low}..{high} mm",
                 "center",
+                amount=(float(past[0]), float(past[1])),
             )
 
 
@@ -518,6 +525,7 @@ def check_planned_leg_speed(
             f"these targets together move leg {leg + 1} at up to {v} m/s, above the {top} m/s "
             "they may plan",
             "waveform",
+            amount=(float(planned[leg]), float(bound)),
         )
 
 

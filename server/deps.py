@@ -13,6 +13,7 @@ handlers, which have no HTTP dependencies of this kind, check tokens the same wa
 
 from __future__ import annotations
 
+import re
 from collections.abc import AsyncIterator
 from datetime import datetime, timedelta
 from typing import Annotated, Literal, NamedTuple, Protocol, TypeVar
@@ -20,6 +21,8 @@ from typing import Annotated, Literal, NamedTuple, Protocol, TypeVar
 from annotated_types import Ge, Le
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import BeforeValidator
+from pydantic_core import PydanticCustomError
 from sqlalchemy import select, text
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
@@ -29,10 +32,24 @@ from server.security import same_secret, token_hash
 # Writing last_seen_at on every request of a polling station would be a write per poll.
 LAST_SEEN_RESOLUTION = timedelta(seconds=30)
 
-Id = Annotated[int, Ge(1), Le(ID_MAX)]
-"""The type of every id a request names (path or query): anything outside 1..2**63-1
-names no record and is a 422 naming the parameter, before the database is asked (where the
-driver would overflow). ``tests/server/test_ids.py`` checks every route uses it."""
+_DIGITS = re.compile(r"-?[0-9]+")
+
+
+def _whole_number(value: object) -> object:
+    """A path or query id as written: digits only. Read as any integer, "1.0", "+1", " 1"
+    and "1_0" named records 1 and 10 (``/users/1.0``, ``/ws/live/1.0``)."""
+    if isinstance(value, str) and not _DIGITS.fullmatch(value):
+        raise PydanticCustomError(
+            "int_parsing", "Input should be a valid integer, unable to parse string as an integer"
+        )
+    return value
+
+
+Id = Annotated[int, BeforeValidator(_whole_number), Ge(1), Le(ID_MAX)]
+"""The type of every id a request names (path or query): anything but digits, or outside
+1..2**63-1, names no record and is a 422 naming the parameter, before the database is asked
+(where the driver would overflow). ``tests/server/test_ids.py`` checks every route uses
+it."""
 
 Offset = Annotated[int, Ge(0), Le(ID_MAX)]
 """The type of every page's offset: rows to skip, 0..2**63-1. Past it a 422 naming the

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any, TypeVar
 
-from fastapi import WebSocket
+from fastapi import WebSocket, WebSocketDisconnect
 from limits import RateLimitItem, RateLimitItemPerSecond
 from limits.storage import MemoryStorage
 from limits.strategies import MovingWindowRateLimiter
@@ -279,6 +279,18 @@ class Forwarded:
     timer: asyncio.TimerHandle | None = None
 
 
+async def send_text(ws: WebSocket, text: str) -> None:
+    """Send on a live link; a link closed meanwhile ends as a disconnect
+    (``WebSocketDisconnect``), as a read on it does. Starlette raises ``RuntimeError``
+    (``WebSocketDisconnected``) for a send after the close, which the handlers did not
+    expect: a station revoked just after its Welcome had the next send, its prescriptions,
+    end in "Exception in ASGI application" with a traceback."""
+    try:
+        await ws.send_text(text)
+    except RuntimeError as exc:
+        raise WebSocketDisconnect(1006, str(exc)) from None
+
+
 async def close_link(ws: WebSocket, code: int, reason: str) -> None:
     if ws.client_state != WebSocketState.DISCONNECTED:
         with contextlib.suppress(Exception):
@@ -475,7 +487,7 @@ class Hub:
             async with self.sessionmaker() as db:
                 message = await prescriptions_of(db, conn.patient_id)
             with contextlib.suppress(Exception):
-                await conn.ws.send_text(message.model_dump_json())
+                await send_text(conn.ws, message.model_dump_json())
 
     def after(self, station_id: int, seq: int) -> list[tuple[int, str]]:
         """The telemetry batches (raw, numbered) of the station a viewer that has had batch
@@ -908,7 +920,7 @@ class Hub:
             return
         self.sent(cmd.request_id, timeout_s)
         try:
-            await conn.ws.send_text(cmd.model_dump_json())
+            await send_text(conn.ws, cmd.model_dump_json())
             metrics.sent("station", "command")
         except Exception:
             self.link_lost(conn, cmd.request_id)
@@ -983,7 +995,11 @@ class Hub:
             metrics.command_sent(request_id, entry.asked.command.action)
 
     def result(self, station_id: int, result: wire.CommandResult) -> None:
-        """A station's answer: to the viewers, and its outcome to the audit log."""
+        """A station's answer to a command sent to it and not yet answered (or ended
+        unanswered: then audited as late): to the viewers, and its outcome to the audit log.
+        Any other is dropped: a second answer to one Resume (ok, then refused) showed the
+        live page accepted then refused with only the first audited, and a station could
+        show the viewers results for request ids nobody sent."""
         for book in (self._pending, self._late):
             entry = book.get(result.request_id)
             if entry is not None and entry.asked.station_id == station_id:
@@ -996,8 +1012,15 @@ class Hub:
                 )
                 self.writer.write_soon(row)
                 self._tell_asker(entry)
-                break
-        self.broadcast(station_id, result.model_dump_json())
+                self.broadcast(station_id, result.model_dump_json())
+                return
+        metrics.result_dropped()
+        log.warning(
+            "station %d answered request %r, which is not awaiting its answer (answered "
+            "already, or never sent to it): dropped",
+            station_id,
+            result.request_id,
+        )
 
     def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:
         entry = self._pending.pop(request_id, None)

@@ -42,6 +42,7 @@ from server.hub import (
     Viewer,
     close_link,
     prescriptions_of,
+    send_text,
     view_standing,
 )
 from server.models import Station, utcnow
@@ -167,14 +168,15 @@ async def station_socket(ws: WebSocket) -> None:
             )
         await hub.station_joined(conn)
         await _seen(hub, station.id)
-        await ws.send_text(
+        await send_text(
+            ws,
             wire.Welcome(
                 station_id=station.id, patient_id=station.patient_id, server_time=time.time()
-            ).model_dump_json()
+            ).model_dump_json(),
         )
         assert hub.sessionmaker is not None
         async with hub.sessionmaker() as db:
-            await ws.send_text((await prescriptions_of(db, station.patient_id)).model_dump_json())
+            await send_text(ws, (await prescriptions_of(db, station.patient_id)).model_dump_json())
         hub.broadcast(station.id, wire.Presence(online=True).model_dump_json())
         beat = asyncio.create_task(_heartbeats(ws))
         try:
@@ -226,7 +228,7 @@ async def _heartbeats(ws: WebSocket) -> None:
     with contextlib.suppress(Exception):
         while True:
             await asyncio.sleep(wire.HEARTBEAT_S)
-            await ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
+            await send_text(ws, wire.Heartbeat(sent=time.time()).model_dump_json())
 
 
 # -- /ws/live/{station_id} -----------------------------------------------------------------
@@ -256,7 +258,7 @@ async def live_socket(ws: WebSocket, station_id: Id) -> None:
     silence = _Silence()
     writer: asyncio.Task[None] | None = None
     try:
-        await ws.send_text((await hub.welcome(station_id, station.patient_id)).model_dump_json())
+        await send_text(ws, (await hub.welcome(station_id, station.patient_id)).model_dump_json())
         writer = asyncio.create_task(_viewer_writer(hub, viewer))  # after the welcome
         while not writer.done():
             raw = await _receive(ws, silence)
@@ -328,18 +330,18 @@ async def _viewer_writer(hub: Hub, v: Viewer) -> None:
         if v.too_slow:
             return  # being closed (Viewer.push)
         while v.control:  # never behind telemetry: results and events go first
-            await v.ws.send_text(v.pop())
+            await send_text(v.ws, v.pop())
             metrics.sent("viewer", "control")
         for seq, raw in hub.after(v.station_id, v.seq):
             while v.control:
-                await v.ws.send_text(v.pop())
+                await send_text(v.ws, v.pop())
                 metrics.sent("viewer", "control")
             v.seq = seq
-            await v.ws.send_text(raw)
+            await send_text(v.ws, raw)
             metrics.sent("viewer", "telemetry")
         now = loop.time()
         if now - last_beat >= wire.HEARTBEAT_S:
-            await v.ws.send_text(wire.Heartbeat(sent=time.time()).model_dump_json())
+            await send_text(v.ws, wire.Heartbeat(sent=time.time()).model_dump_json())
             last_beat = now
 
 

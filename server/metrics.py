@@ -64,6 +64,12 @@ LIVE_MESSAGES = Counter(
     ["direction", "peer", "type"],
     registry=REGISTRY,
 )
+RESULTS_DROPPED = Counter(
+    "ankle_live_results_dropped",
+    "Command results a station sent for no command awaiting its answer (a second answer to "
+    "one command, or a request id never sent to it): logged, not shown to the viewers.",
+    registry=REGISTRY,
+)
 COMMAND_SECONDS = Histogram(
     "ankle_live_command_round_trip_seconds",
     "From sending a live command to the station to its answer (the device's ACK or NACK), "
@@ -129,6 +135,11 @@ def command_answered(request_id: str, outcome: str) -> None:
     if started is not None:
         action, at = started
         COMMAND_SECONDS.labels(action, outcome).observe(time.perf_counter() - at)
+
+
+def result_dropped() -> None:
+    """A station's command result answered nothing awaiting it (``RESULTS_DROPPED``)."""
+    RESULTS_DROPPED.inc()
 
 
 def audit_row_lost(reason: str) -> None:

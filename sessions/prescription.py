@@ -486,11 +486,33 @@ def _envelope_stiffness(axis: int, stiffness: float) -> str:
     return np.format_float_positional(np.float32(stiffness), trim="-")
 
 
+def _unused_by_waveform(a: AxisPrescription) -> list[tuple[str, str]]:
+    """The settings of ``a`` its target motion does not render, each with why: a hold stays
+    at its center, a sine moves only with an amplitude and a ramp only to another angle.
+    Their bounds are checked only where they are used, so a hold took and stored an
+    amplitude of 60° at 7 Hz and a ramp to -20° at 100°/s, and a sine of amplitude 0 took
+    5 Hz: numbers on the record that nothing renders."""
+    sine, ramp = ("amplitude", "frequency"), ("ramp_end", "ramp_rate")
+    if a.waveform == "hold":
+        return [(f, "a hold stays at its center") for f in sine + ramp]
+    if a.waveform == "sine":
+        moves = "a sine moves about its center by its amplitude at its frequency"
+        unused = [(f, moves) for f in ramp]
+        if a.amplitude == 0:
+            unused.append(("frequency", "a sine of amplitude 0 stays at its center"))
+        return unused
+    unused = [(f, "a ramp moves from its center to its end at its rate") for f in sine]
+    if a.ramp_end == a.center:
+        unused.append(("ramp_rate", "a ramp that ends at its center stays there"))
+    return unused
+
+
 class PrescriptionInput(PrescriptionBody):
     """A prescription as a therapist writes it (new, or a new version). Besides the body's
     checks, an exercise in which the platform does not yield (isometric, passive range of
     motion) takes no stiffness or damping: a K or B there would be a number on the record
-    that nothing renders, so it is refused rather than silently kept. The title and the
+    that nothing renders, so it is refused rather than silently kept; so is a setting of a
+    target motion that does not use it (:func:`_unused_by_waveform`). The title and the
     instructions hold no control characters (``sessions.text``). Stored prescriptions are
     read back as :class:`PrescriptionBody` and load whatever they hold."""
 
@@ -499,6 +521,13 @@ class PrescriptionInput(PrescriptionBody):
 
     @model_validator(mode="after")
     def _only_used_settings(self) -> PrescriptionInput:
+        for i, a in enumerate(self.axes):
+            for field, why in _unused_by_waveform(a):
+                if getattr(a, field) != 0:
+                    raise FieldError(
+                        ("axes", i, field),
+                        f"{a._label(field)} is not used: {why}, so leave it at 0.",
+                    )
         if self.exercise in COMPLIANT_KINDS:
             return self
         name = EXERCISE_LIBRARY[self.exercise].name
@@ -567,7 +596,52 @@ class PrescriptionInput(PrescriptionBody):
         for i, a in enumerate(self.axes):
             if exc.axis == AXIS_INDEX[a.axis] and exc.field in AxisPrescription.model_fields:
                 return FieldError(("axes", i, exc.field), f"{a._label(exc.field)}: {why}")
-        return FieldError(("axes",), f"These targets together: {why}")
+        if exc.amount is not None:
+            return FieldError(("axes",), self._together(exc.field == "center", *exc.amount))
+        return FieldError(("axes",), f"The platform refuses these targets together: {exc}.")
+
+    def _together(self, reach: bool, need: float, bound: float) -> str:
+        """The device's refusal of targets each within its own bounds but not all at once
+        (``device.commands.check_reachable``: a leg's length, ``reach``; else
+        ``check_planned_leg_speed``: a leg's speed), said as a therapist acts on it: which
+        axes combine, how far past the platform they go, and what to lower. The device's
+        own sentence names a leg and "what they may plan", which nobody prescribing can
+        change: a corner hold (roll 20°, pitch 22.9°, yaw 15°, each inside its range) needs
+        leg 2 at 102.071 mm of 95."""
+        if reach:
+            axes = [a for a in self.axes if a.target_span_deg() != (0.0, 0.0)]
+        else:
+            axes = [a for a in self.axes if a.peak_speed_deg_s() > 0]
+        axes = axes or list(self.axes)
+        names = [a.axis for a in axes]
+        said = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+        waves = {a.waveform for a in axes}
+        if reach:
+            mm, top = _said(need, bound)
+            lower = (["lower the amplitude"] if "sine" in waves else []) + [
+                "move the center" + (" or the ramp end" if "ramp" in waves else "") + " nearer 0°"
+            ]
+            verb = "reach"
+            what = (
+                f"beyond what the platform can do (a leg would need {mm} mm where its travel "
+                f"ends at {top} mm)"
+            )
+        else:
+            speed, top = _said(need, bound)
+            lower = ["lower the amplitude or the frequency"] if "sine" in waves else []
+            lower += ["lower the ramp rate"] if "ramp" in waves else []
+            verb = "move"
+            what = (
+                f"faster than the platform can (a leg at up to {speed} m/s, above the {top} "
+                "m/s it may be asked for)"
+            )
+        fix = " or ".join(lower)
+        if len(names) == 1:
+            return f"The target on {said} {verb}s {what}: {fix}."
+        return (
+            f"{said[0].upper()}{said[1:]} together {verb} {what}, though each is within its "
+            f"own bounds: {fix} on one of them."
+        )
 
 
 _WAVEFORM = {"hold": DeviceWaveform.HOLD, "sine": DeviceWaveform.SINE, "ramp": DeviceWaveform.RAMP}

@@ -31,9 +31,13 @@ from server.throttle import CountsAway, LoginThrottle, Throttled
 router = APIRouter(prefix="/auth", tags=["auth"])
 log = logging.getLogger("ankle.server.auth")
 
-# One message for an unknown email, a wrong password and a deactivated account: the answer
-# must not tell an attacker which addresses have accounts.
+# One message for an unknown email and a wrong password (a deactivated account's too): the
+# answer must not tell an attacker which addresses have accounts.
 BAD_LOGIN = "wrong email or password"
+DEACTIVATED = "this account is deactivated: ask your clinic's administrator to reactivate it"
+"""Said only to someone who gave the account's right password: it tells nothing to anyone
+without it, and tells its owner why the password they know is refused (they were told
+"wrong email or password" and could only guess)."""
 WRONG_CURRENT = "current_password is not this account's password"
 
 THROTTLED: Responses = {
@@ -80,7 +84,8 @@ def _client(request: Request) -> str:
 )
 async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
     """A bearer token valid for ``token_ttl_s`` (12 h by default). A wrong email and a wrong
-    password get the same 401 and take the same time. Repeated failures are slowed down and
+    password get the same 401 and take the same time; a deactivated account's right
+    password a 401 that says it is deactivated. Repeated failures are slowed down and
     then refused with 429 (see ``server.throttle``). If ``user.must_change_password``, the
     token serves only to change the password, read /auth/me and log out (403 elsewhere)."""
     settings: Settings = request.app.state.settings
@@ -101,7 +106,7 @@ async def login(body: LoginRequest, db: Db, request: Request) -> TokenPublic:
                 if user is not None:
                     # Only known accounts: the log must not collect what people mistype.
                     await _failed(db, audit.SYSTEM, "auth.login_failed", user, address)
-                raise unauthorized(BAD_LOGIN)
+                raise unauthorized(DEACTIVATED if ok else BAD_LOGIN)
             await attempt.succeeded()
     except Throttled as exc:
         raise _too_many(exc) from None

@@ -8,6 +8,7 @@ period's end is the next midnight), so no date a client sends reaches an overflo
 
 from __future__ import annotations
 
+import re
 from datetime import UTC, date, datetime, time, timedelta
 
 from fastapi import HTTPException
@@ -52,19 +53,35 @@ def utc_time(name: str, when: datetime, text: str | None = None) -> datetime:
     return utc
 
 
-def day_or_time(name: str, text: str | None, *, end_of_day: bool = False) -> datetime | None:
-    """A query's date (YYYY-MM-DD, midnight UTC; with ``end_of_day`` the next midnight, so
-    the day is included) or ISO 8601 time (UTC if it names no offset), checked by
-    :func:`utc_time`; a 422 that names the parameter and the range for anything else."""
-    if text is None or text == "":
+_DAY = re.compile(r"([0-9]{4}-[0-9]{2}-[0-9]{2})([Tt ].*)?", re.DOTALL)
+
+
+def iso_day(text: str) -> date | None:
+    """The day ``text`` names if it is one written YYYY-MM-DD, else None. Python reads
+    more as a date (``2025-W50``, ``20251207``, ``2025-341``), which every refusal and
+    description here does not offer, and a client that sent them could not tell which day
+    was meant."""
+    if _DAY.fullmatch(text) is None or len(text) != 10:
         return None
     try:
-        day = date.fromisoformat(text)
+        return date.fromisoformat(text)
     except ValueError:
-        pass
-    else:
+        return None
+
+
+def day_or_time(name: str, text: str | None, *, end_of_day: bool = False) -> datetime | None:
+    """A query's date (exactly YYYY-MM-DD, :func:`iso_day`; midnight UTC, with
+    ``end_of_day`` the next midnight, so the day is included) or ISO 8601 time on such a
+    day (UTC if it names no offset), checked by :func:`utc_time`; a 422 that names the
+    parameter and the range for anything else."""
+    if text is None or text == "":
+        return None
+    day = iso_day(text)
+    if day is not None:
         midnight = utc_time(name, datetime.combine(day, time()), text)
         return midnight + timedelta(days=1) if end_of_day else midnight
+    if _DAY.fullmatch(text) is None:  # a time's day is written YYYY-MM-DD too
+        raise _outside(name, text)
     try:
         when = datetime.fromisoformat(text)
     except ValueError:

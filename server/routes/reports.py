@@ -27,7 +27,7 @@ from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ascii_name, attachment, name_part
-from server.routes.dates import FIRST_DAY, LAST_DAY, refuse, shown
+from server.routes.dates import FIRST_DAY, LAST_DAY, iso_day, refuse, shown
 from server.routes.progress import load_progress
 from sessions import fhir, record
 
@@ -96,10 +96,7 @@ def zone(text: str | None) -> ZoneInfo:
 def _day(field: str, text: str | None) -> date | None:
     if text is None:
         return None
-    try:
-        day = date.fromisoformat(text)
-    except ValueError:
-        day = None
+    day = iso_day(text)
     if day is None or not FIRST_DAY <= day <= LAST_DAY:
         raise refuse(
             field,

@@ -187,9 +187,10 @@ _DOWNLOAD: dict[str, Any] = {
             "whole file's."
         },
         400: {
-            "description": "A Range header that is not one (not bytes, any part of it not "
-            "first-last, first- or -suffix, or a range that ends before it starts), in plain "
-            "text.",
+            "description": "A Range header that is not one (not bytes, or any part of it "
+            "not first-last, first- or -suffix), in plain text. A range that ends before it "
+            "starts (bytes=5-2) is not refused: the header is ignored and the whole file "
+            "sent (200), as RFC 9110 allows.",
             "content": _RANGE_TEXT,
         },
         416: {

@@ -63,6 +63,15 @@ async def test_a_deactivated_account_cannot_log_in_or_use_its_tokens(
     r = await live.client.post(
         "/auth/login", json={"email": "t1@clinic.test", "password": PASSWORD}
     )
+    # The right password: told why, and whom to ask (it was "wrong email or password").
+    assert (r.status_code, r.json()["detail"]) == (
+        401,
+        "this account is deactivated: ask your clinic's administrator to reactivate it",
+    )
+    # A wrong one learns nothing of the account.
+    r = await live.client.post(
+        "/auth/login", json={"email": "t1@clinic.test", "password": PASSWORD + "x"}
+    )
     assert (r.status_code, r.json()["detail"]) == (401, "wrong email or password")
     assert (await live.client.get("/auth/me", headers=bearer(world.t1))).status_code == 401
 

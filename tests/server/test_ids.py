@@ -28,7 +28,8 @@ pytestmark = pytest.mark.both_stores
 
 ABOVE_INT4 = 2**31 + 7
 GOOD = ("1", str(ID_MAX))
-BAD = ("0", str(ID_MAX + 1))
+BAD = ("0", str(ID_MAX + 1), "1.0", "+1", "1_0")
+"""Out of range, or not written as a whole number: "1.0" was read as 1 (``/users/1.0``)."""
 
 
 def _params(dependant: Dependant) -> list[Any]:
@@ -82,6 +83,8 @@ def test_every_id_parameter_of_every_route_is_bounded(tmp_path: Any) -> None:
         (f"/patients/{ID_MAX + 1}", {}, "path", "patient_id"),
         (f"/sessions/{2**70}/series", {}, "path", "session_id"),
         ("/sessions", {"station_id": "0"}, "query", "station_id"),
+        ("/patients/1.0", {}, "path", "patient_id"),
+        ("/sessions", {"station_id": "1.0"}, "query", "station_id"),
         ("/stations", {"patient_id": str(ID_MAX + 1)}, "query", "patient_id"),
     ],
 )
@@ -127,6 +130,7 @@ async def test_an_offset_past_the_largest_stored_is_a_422_naming_it(
     [
         (str(ID_MAX + 1), f"Session id must be at most {ID_MAX}."),
         ("0", "Session id must be at least 1."),
+        ("1.0", "Session id must be a whole number."),
     ],
 )
 async def test_an_id_out_of_range_is_refused_with_the_exact_bound(

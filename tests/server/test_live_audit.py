@@ -303,6 +303,32 @@ async def test_an_unanswered_command_is_recorded_as_such_and_a_late_answer_too(
 
 
 @pytest.mark.asyncio
+async def test_only_the_first_answer_to_a_command_sent_reaches_the_viewers(
+    live: Live, world: World
+) -> None:
+    """A station answered one Resume twice (ACK, then a refusal): the viewers were shown it
+    accepted, then refused, and only the ACK was audited; a result for a request id nobody
+    sent reached them too. Each is dropped: the viewers see the one audited answer."""
+    async with (
+        viewer(live, world.t1, world.s1_id) as v,
+        station(live, world, silent) as link,
+    ):
+        await v.next_of(wire.Presence)
+        await v.send("twice", "resume")
+        cmd = await link.next_command()
+        await link.send(ack(cmd))
+        await link.send(wire.CommandResult(request_id="twice", ok=False, code="E", text="no"))
+        await link.send(wire.CommandResult(request_id="invented", ok=True, text=ACK_TEXT))
+        await v.send("after", "resume")
+        await link.send(ack(await link.next_command()))
+        await v.next_of(wire.CommandResult, "after")
+    results = [(m.request_id, m.ok) for m in v.seen if isinstance(m, wire.CommandResult)]
+    assert results == [("twice", True), ("after", True)]
+    request, outcome = await rows_of(live, world, "twice", 2)
+    assert (request["action"], outcome["action"]) == ("resume.request", "resume.accepted")
+
+
+@pytest.mark.asyncio
 async def test_a_command_whose_station_link_closes_is_unanswered(live: Live, world: World) -> None:
     async with viewer(live, world.t1, world.s1_id) as v:
         async with station(live, world, silent) as link:

@@ -122,6 +122,10 @@ async def test_progress_over_uploaded_assessments(live: Live, world: World) -> N
 BAD: list[tuple[dict[str, Any], str, str]] = [
     ({"since": "2026-13-01"}, "since", "since '2026-13-01' is not a day or time"),
     ({"until": "yesterday"}, "until", "until 'yesterday' is not a day or time"),
+    # Python reads these as days (ISO week, basic format); the refusal offers YYYY-MM-DD.
+    ({"since": "2025-W50"}, "since", "since '2025-W50' is not a day or time"),
+    ({"since": "20251207"}, "since", "since '20251207' is not a day or time"),
+    ({"until": "20251207T090000Z"}, "until", "until '20251207T090000Z' is not a day"),
     ({"until": "9999-12-31"}, "until", "from 1900-01-01 to 9998-12-31"),
     ({"since": "0001-01-01T00:00:00+01:00"}, "since", "from 1900-01-01 to 9998-12-31"),
     ({"since": "2026-03-10", "until": "2026-03-01"}, "since", "since (2026-03-10) must be before"),

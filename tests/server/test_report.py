@@ -581,6 +581,9 @@ async def test_another_therapists_patient_is_not_found_and_nothing_is_audited(
             "the first day (since) must be a date written YYYY-MM-DD",
         ),
         ({"until": "yesterday"}, "until", "the last day (until) must be a date written YYYY-MM-DD"),
+        # An ISO week or the basic format: Python reads them as days, the sentence asks not.
+        ({"since": "2025-W50"}, "since", "the first day (since) must be a date written"),
+        ({"since": "20251207"}, "since", "the first day (since) must be a date written"),
         ({"until": "9999-12-31"}, "until", "between 1900-01-01 and 9998-12-31"),
         ({"since": "2026-03-02", "until": "2026-03-01"}, "since", "the period must start"),
         # A signed report headed "to 2099-12-31" would claim days still to come.

@@ -207,3 +207,92 @@ def test_a_sine_past_the_range_or_the_speed_is_refused_in_degrees_on_its_field()
     (error,) = err.value.errors()
     assert _field(error) == ("axes", 0, "frequency"), error
     assert "moves at up to 114.595°/s, faster than the device allows (114.59°/s)" in error["msg"]
+
+
+def _strength(*axes: dict[str, object]) -> dict[str, object]:
+    body = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+    body["axes"] = [axis(**a) for a in axes]
+    return body
+
+
+def _refusal(body: dict[str, object]) -> tuple[tuple[object, ...], str]:
+    with pytest.raises(ValidationError) as err:
+        PrescriptionInput.model_validate(body)
+    (error,) = err.value.errors()
+    return _field(error), str(error["msg"])
+
+
+@pytest.mark.parametrize(
+    ("axes", "said"),
+    [
+        (  # a corner hold: each angle inside its range, leg 2 at 102.071 mm of 95
+            [
+                {"axis": "roll", "center": 20.0},
+                {"axis": "pitch", "center": 22.9},
+                {"axis": "yaw", "center": 15.0},
+            ],
+            "Roll, pitch and yaw together reach beyond what the platform can do (a leg would "
+            "need 102.1 mm where its travel ends at 95 mm), though each is within its own "
+            "bounds: move the center nearer 0° on one of them.",
+        ),
+        (  # each sine within its speed, leg 1 planned at 0.321919 m/s of 0.256
+            [
+                {"axis": "roll", "waveform": "sine", "amplitude": 10.0, "frequency": 1.8},
+                {"axis": "pitch", "waveform": "sine", "amplitude": 10.0, "frequency": 1.8},
+            ],
+            "Roll and pitch together move faster than the platform can (a leg at up to 0.322 "
+            "m/s, above the 0.256 m/s it may be asked for), though each is within its own "
+            "bounds: lower the amplitude or the frequency on one of them.",
+        ),
+    ],
+)
+def test_targets_refused_together_say_which_axes_and_what_to_lower(
+    axes: list[dict[str, object]], said: str
+) -> None:
+    """The device refuses these in its own words ("these targets together need leg 2 at
+    49.5071..102.071 mm", "...above the 0.256 m/s they may plan", after "as it receives it
+    (in single precision)"): the prescription says which axes combine and what to lower."""
+    where, msg = _refusal(_strength(*axes))
+    assert where == ("axes",)
+    assert msg == f"Value error, {said}"
+
+
+@pytest.mark.parametrize(
+    ("kw", "field", "why"),
+    [
+        ({"amplitude": 60.0}, "amplitude", "Amplitude on pitch is not used: a hold stays at"),
+        ({"frequency": 7.0}, "frequency", "Frequency on pitch is not used: a hold stays at"),
+        ({"ramp_end": -20.0}, "ramp_end", "Ramp end on pitch is not used: a hold stays at"),
+        ({"ramp_rate": 100.0}, "ramp_rate", "Ramp rate on pitch is not used: a hold stays at"),
+        (
+            {"waveform": "sine", "amplitude": 0.0, "frequency": 5.0},
+            "frequency",
+            "Frequency on pitch is not used: a sine of amplitude 0 stays at its center",
+        ),
+        (
+            {"waveform": "sine", "amplitude": 5.0, "frequency": 0.5, "ramp_end": -20.0},
+            "ramp_end",
+            "Ramp end on pitch is not used: a sine moves about its center by its amplitude",
+        ),
+        (
+            {"waveform": "ramp", "ramp_end": 10.0, "ramp_rate": 5.0, "amplitude": 60.0},
+            "amplitude",
+            "Amplitude on pitch is not used: a ramp moves from its center to its end",
+        ),
+        (
+            {"waveform": "ramp", "center": 5.0, "ramp_end": 5.0, "ramp_rate": 100.0},
+            "ramp_rate",
+            "Ramp rate on pitch is not used: a ramp that ends at its center stays there",
+        ),
+    ],
+)
+def test_a_setting_the_target_motion_does_not_use_is_refused_on_its_field(
+    kw: dict[str, object], field: str, why: str
+) -> None:
+    """A strength hold took and stored an amplitude of 60° at 7 Hz and a ramp to -20° at
+    100°/s (past every bound, none checked where unused), and a sine of amplitude 0 at 5 Hz."""
+    where, msg = _refusal(_strength({"axis": "pitch", **kw}))
+    assert where == ("axes", 0, field)
+    assert msg.startswith(f"Value error, {why}") and msg.endswith(", so leave it at 0."), msg
+    # The same target is taken with the unused setting at 0.
+    PrescriptionInput.model_validate(_strength({"axis": "pitch", **kw, field: 0.0}))
