@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Annotated
 
-from fastapi import Depends, Header, HTTPException, Request, status
+from fastapi import Depends, Header, Request, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
@@ -167,7 +167,10 @@ class Once:
 
     def _answer(self, row: IdempotencyKey) -> JSONResponse:
         if row.request_sha256 != self._sha256:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, detail=OTHER_REQUEST)
+            # The shape of every other 422 (the documented one), on the header.
+            raise RequestValidationError(
+                [{"type": "value_error", "loc": ("header", HEADER), "msg": OTHER_REQUEST}]
+            )
         return JSONResponse(row.answer, status_code=row.status, headers={REPLAYED: "true"})
 
 
