@@ -24,6 +24,7 @@ from server.db import create_engine, create_sessionmaker, prepare
 from server.guard import RequestGuard
 from server.headers import AllowedMethods, SecurityHeaders
 from server.hub import VIEW_HZ, Hub
+from server.idempotency import HEADER, Replay, replayed
 from server.logs import RequestIds
 from server.relay import open_relay
 from server.routes import API_PREFIX, ROUTERS
@@ -133,13 +134,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(OverflowError, errors.overflow_error)
     app.add_exception_handler(OSError, errors.os_error)
     app.add_exception_handler(DBAPIError, errors.database_error)
+    app.add_exception_handler(errors.CommitUnknown, errors.commit_unknown)
+    app.add_exception_handler(Replay, replayed)
     # Bearer tokens, not cookies: no credentials mode, so a listed origin can call the API
     # but a browser never attaches anything on its own.
     app.add_middleware(
         CORSMiddleware,
         allow_origins=settings.allowed_origins,
         allow_methods=["GET", "POST", "PATCH", "PUT", "DELETE"],
-        allow_headers=["Authorization", "Content-Type"],
+        allow_headers=["Authorization", "Content-Type", HEADER],
     )
     # Added last, so outermost: a body is refused before CORS or any route sees it, and
     # every answer, refusals included, carries the security headers.

@@ -153,9 +153,24 @@ async def check_reachable(settings: Settings, schema: bool = False) -> None:
         await engine.dispose()
 
 
+COMMIT_SENT = "commit_sent"
+"""The key of a session's ``info`` set once it sent a COMMIT: from then on, a database
+that goes away leaves the outcome unknown (``server.errors.CommitUnknown``)."""
+
+
+class Session(AsyncSession):
+    """A session that says when its commit was sent: its changes are flushed first (a
+    failure there rolls them back: nothing was stored), then ``COMMIT_SENT`` is set."""
+
+    async def commit(self) -> None:
+        await self.flush()
+        self.info[COMMIT_SENT] = True
+        await super().commit()
+
+
 def create_sessionmaker(engine: AsyncEngine) -> async_sessionmaker[AsyncSession]:
     # Objects stay readable after commit: a route commits, then builds its response from them.
-    return async_sessionmaker(engine, expire_on_commit=False)
+    return async_sessionmaker(engine, class_=Session, expire_on_commit=False)
 
 
 def alembic_config() -> Config:

@@ -24,8 +24,11 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BeforeValidator
 from pydantic_core import PydanticCustomError
 from sqlalchemy import select, text
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.ext.asyncio import AsyncSession, async_sessionmaker
 
+from server.db import COMMIT_SENT
+from server.errors import CommitUnknown, database_unavailable
 from server.models import ID_MAX, AuthToken, Patient, Station, User, utcnow
 from server.security import same_secret, token_hash
 
@@ -69,9 +72,17 @@ _station_bearer = HTTPBearer(
 
 
 async def get_db(request: Request) -> AsyncIterator[AsyncSession]:
+    """The request's session. The database going away after its commit was sent
+    (``server.db.COMMIT_SENT``) is :class:`server.errors.CommitUnknown`, whatever the
+    driver raised: only before that does its 503 say that nothing was done."""
     sessionmaker: async_sessionmaker[AsyncSession] = request.app.state.sessionmaker
     async with sessionmaker() as session:
-        yield session
+        try:
+            yield session
+        except (DBAPIError, OSError) as exc:
+            if session.info.get(COMMIT_SENT) and database_unavailable(exc):
+                raise CommitUnknown(str(exc)) from exc
+            raise
 
 
 Db = Annotated[AsyncSession, Depends(get_db)]

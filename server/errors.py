@@ -42,6 +42,17 @@ DATABASE_AWAY = (
     "the database is unavailable (restarting, unreachable or busy): nothing of this request "
     "was done; try again in a few seconds"
 )
+OUTCOME_UNKNOWN = (
+    "the database stopped answering while this request was being saved: it may have been "
+    "saved; check before trying again (or send it again with the same Idempotency-Key)"
+)
+"""A failure once the commit was sent: the database may have stored it all (PostgreSQL
+commits locally, then waits for a standby) or nothing, and only it knows which."""
+AWAY_CODE = "database_away"
+UNKNOWN_CODE = "outcome_unknown"
+"""The ``code`` of the two 503s, for programs: ``database_away`` may be sent again as it
+is; ``outcome_unknown`` only with the ``Idempotency-Key`` it was sent with, or after
+checking what was stored."""
 RETRY_AFTER_S = 5
 """What a 503 for a database that is away tells a client to wait, seconds."""
 _SQLITE_AWAY = {sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED, sqlite3.SQLITE_CANTOPEN}
@@ -224,12 +235,31 @@ def database_unavailable(exc: BaseException) -> bool:
     return False
 
 
+class CommitUnknown(Exception):
+    """The database went away (:func:`database_unavailable`) once a request's commit was
+    sent: raised by ``server.deps.get_db`` in place of the driver's error."""
+
+
 def _database_away(request: Request, exc: BaseException) -> JSONResponse:
     log.warning("database unavailable while serving %s: %s", request.url.path, exc)
     return JSONResponse(
-        {"detail": DATABASE_AWAY},
+        {"detail": DATABASE_AWAY, "code": AWAY_CODE},
         status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
         headers={"Retry-After": str(RETRY_AFTER_S)},
+    )
+
+
+async def commit_unknown(request: Request, exc: Exception) -> JSONResponse:
+    """503 without ``Retry-After``: sending the request again as it is might store it
+    twice."""
+    log.warning(
+        "database unavailable once the commit was sent, serving %s: %s",
+        request.url.path,
+        exc.__cause__,
+    )
+    return JSONResponse(
+        {"detail": OUTCOME_UNKNOWN, "code": UNKNOWN_CODE},
+        status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
     )
 
 

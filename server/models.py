@@ -225,3 +225,19 @@ class AuditEntry(Base):
     patient_id: Mapped[int | None] = mapped_column(ID, ForeignKey("patients.id"), index=True)
     old: Mapped[dict[str, Any] | None]
     new: Mapped[dict[str, Any] | None]
+
+
+class IdempotencyKey(Base):
+    """A create sent with an ``Idempotency-Key`` (``server.idempotency``): what the same
+    request sent again by the same user with the same key is answered, for a day."""
+
+    __tablename__ = "idempotency_keys"
+
+    user_id: Mapped[int] = mapped_column(ID, ForeignKey("users.id"), primary_key=True)
+    key: Mapped[str] = mapped_column(String(128), primary_key=True)
+    request_sha256: Mapped[str] = mapped_column(String(64))
+    """Of the method, the path and the body as validated: the same key with another
+    request is refused, never answered with this one's answer."""
+    status: Mapped[int] = mapped_column(Integer)
+    answer: Mapped[dict[str, Any]]
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)

@@ -14,11 +14,13 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, status
 from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession
 
 from server import audit
 from server.attention import AttentionItem, attention
-from server.deps import Db, Id, Therapist, TherapistOrAdmin, patient_for
-from server.models import Patient, Prescription, Station, utcnow
+from server.deps import Db, Id, Therapist, TherapistOrAdmin, conflict, hold, patient_for
+from server.idempotency import Idempotent
+from server.models import Patient, Prescription, Station, User, utcnow
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.routes.prescriptions import cancel
 from server.routes.stations import revoke
@@ -38,6 +40,34 @@ _CLINICAL_FIELDS = (
 
 def clinical_fields(patient: Patient) -> dict[str, Any]:
     return {name: getattr(patient, name) for name in _CLINICAL_FIELDS}
+
+
+async def require_free_reference(
+    db: AsyncSession, therapist: User, reference: str | None, patient_id: int | None = None
+) -> None:
+    """409 if another of ``therapist``'s patients, current or archived, has ``reference``
+    (the clinic's identifier names one patient). Per therapist, not per server: another
+    therapist's patients are not theirs to know of. The therapist's account is held
+    (``server.deps.hold``) until the commit, so two saves of one reference take turns and
+    the second finds the first. Patients stored with one reference before this rule keep
+    it; only a reference given now is checked."""
+    if reference is None:
+        return
+    await hold(db, therapist)
+    query = select(Patient).where(
+        Patient.therapist_id == therapist.id, Patient.reference == reference
+    )
+    if patient_id is not None:
+        query = query.where(Patient.id != patient_id)
+    other = (await db.execute(query.order_by(Patient.id).limit(1))).scalar_one_or_none()
+    if other is not None:
+        archived = other.archived_at is not None
+        raise conflict(
+            f"your {'archived ' if archived else ''}patient {other.display_name} "
+            f"(id {other.id}) already has the reference {reference}: a reference names one "
+            f"patient; {'unarchive and ' if archived else ''}open that patient instead, or "
+            "correct the reference"
+        )
 
 
 @router.get(
@@ -85,10 +115,15 @@ async def needs_attention(user: TherapistOrAdmin, db: Db, request: Request) -> l
     response_model=PatientPublic,
     status_code=status.HTTP_201_CREATED,
     summary="Add a patient",
-    responses={**UNAUTHORIZED, **FORBIDDEN},
+    responses={**UNAUTHORIZED, **FORBIDDEN, **CONFLICT},
 )
-async def create_patient(body: PatientCreate, user: Therapist, db: Db) -> PatientPublic:
-    """Therapists only: the new patient is the caller's. Audited as patient.create."""
+async def create_patient(
+    body: PatientCreate, user: Therapist, db: Db, once: Idempotent
+) -> PatientPublic:
+    """Therapists only: the new patient is the caller's. 409 if another of the caller's
+    patients has the same ``reference``. Audited as patient.create."""
+    await once.check(user, body)
+    await require_free_reference(db, user, body.reference)
     patient = Patient(therapist_id=user.id, **body.model_dump())
     db.add(patient)
     await db.flush()
@@ -102,8 +137,10 @@ async def create_patient(body: PatientCreate, user: Therapist, db: Db) -> Patien
         None,
         {"therapist_id": user.id, **clinical_fields(patient)},
     )
+    answer = PatientPublic.model_validate(patient)
+    await once.keep(answer)
     await db.commit()
-    return PatientPublic.model_validate(patient)
+    return answer
 
 
 @router.get(
@@ -126,12 +163,15 @@ async def get_patient(patient_id: Id, user: TherapistOrAdmin, db: Db) -> Patient
 async def update_patient(
     patient_id: Id, body: PatientUpdate, user: Therapist, db: Db
 ) -> PatientPublic:
-    """The patient's own therapist only; 409 if the patient is archived. Fields left out
-    keep their value. Audited as patient.update with the old and new value of each changed
-    field."""
+    """The patient's own therapist only; 409 if the patient is archived, or if another of
+    the caller's patients has the ``reference`` given. Fields left out keep their value.
+    Audited as patient.update with the old and new value of each changed field."""
     patient = await patient_for(db, user, patient_id, write=True)
+    changes = body.model_dump(exclude_unset=True)
+    if changes.get("reference") not in (None, patient.reference):
+        await require_free_reference(db, user, changes["reference"], patient.id)
     before = clinical_fields(patient)
-    for name, value in body.model_dump(exclude_unset=True).items():
+    for name, value in changes.items():
         setattr(patient, name, value)
     old, new = audit.changes(before, clinical_fields(patient))
     if new:

@@ -26,6 +26,7 @@ from server.deps import (
     patient_for,
     require_current,
 )
+from server.idempotency import Idempotent
 from server.models import Patient, Prescription, PrescriptionStatus, Station, User
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.schemas import PrescriptionCreate, PrescriptionPublic, PrescriptionUpdate
@@ -110,10 +111,16 @@ async def list_prescriptions(
     responses={**_ERRORS, **CONFLICT},
 )
 async def create_prescription(
-    patient_id: Id, body: PrescriptionCreate, user: Therapist, db: Db, request: Request
+    patient_id: Id,
+    body: PrescriptionCreate,
+    user: Therapist,
+    db: Db,
+    request: Request,
+    once: Idempotent,
 ) -> PrescriptionPublic:
     """The patient's own therapist only. Values outside anatomical ranges or the device's
     limits are a 422 naming the field and the bound. Audited as prescription.create."""
+    await once.check(user, body)
     await patient_for(db, user, patient_id, write=True)
     stored = body_json(body)
     prescription = Prescription(patient_id=patient_id, created_by=user.id, body=stored)
@@ -129,9 +136,11 @@ async def create_prescription(
         None,
         {"status": prescription.status, "version": prescription.version, "body": stored},
     )
+    answer = PrescriptionPublic.from_row(prescription)
+    await once.keep(answer)
     await db.commit()
     await notify_stations(request, db, patient_id)
-    return PrescriptionPublic.from_row(prescription)
+    return answer
 
 
 @router.get(

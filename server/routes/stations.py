@@ -18,6 +18,7 @@ from server.deps import (
     not_found,
     require_current,
 )
+from server.idempotency import Idempotent
 from server.models import Patient, Station, User
 from server.routes.common import CONFLICT, NOT_FOUND, UNAUTHORIZED
 from server.schemas import StationCreate, StationProvisioned, StationPublic
@@ -74,11 +75,18 @@ def revoke(db: AsyncSession, actor: str, station: Station, because: str = "") ->
     responses={**UNAUTHORIZED, **NOT_FOUND, **CONFLICT},
 )
 async def provision_station(
-    patient_id: Id, body: StationCreate, user: TherapistOrAdmin, db: Db, request: Request
+    patient_id: Id,
+    body: StationCreate,
+    user: TherapistOrAdmin,
+    db: Db,
+    request: Request,
+    once: Idempotent,
 ) -> StationProvisioned:
     """The patient's therapist or an admin. The answer carries the station's token; it is
     shown this once and only its hash is stored. 409 for an archived patient. Audited as
-    station.provision."""
+    station.provision. Sent again with its ``Idempotency-Key``: a 409 naming the station
+    (the token is not kept to be shown again)."""
+    await once.check(user, body)
     patient = await _manageable(db, user, patient_id)
     if patient is None:
         raise not_found("patient")
@@ -97,9 +105,13 @@ async def provision_station(
         None,
         {"name": station.name, "patient_id": patient_id},
     )
+    # A new station has never been linked: it is offline.
+    answer = StationProvisioned(**StationPublic.from_row(station, False).model_dump(), token=token)
+    await once.keep(
+        answer, secret="token", if_lost=f"revoke station {station.id} and provision another"
+    )
     await db.commit()
-    public = StationPublic.from_row(station, await _online(request, station))
-    return StationProvisioned(**public.model_dump(), token=token)
+    return answer
 
 
 @router.get(

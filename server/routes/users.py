@@ -11,6 +11,7 @@ from sqlalchemy import select
 
 from server import accounts, audit
 from server.deps import Admin, Db, Id, conflict, not_found
+from server.idempotency import Idempotent
 from server.models import User
 from server.routes.common import CONFLICT, FORBIDDEN, NOT_FOUND, UNAUTHORIZED
 from server.schemas import PasswordReset, UserCreate, UserCreated, UserPublic
@@ -48,16 +49,23 @@ async def _user(db: Db, user_id: int) -> User:
     summary="Create a therapist or admin account",
     responses={**UNAUTHORIZED, **FORBIDDEN, **CONFLICT},
 )
-async def create_user(body: UserCreate, admin: Admin, db: Db, request: Request) -> UserCreated:
+async def create_user(
+    body: UserCreate, admin: Admin, db: Db, request: Request, once: Idempotent
+) -> UserCreated:
     """Admins only. Without a password in the request the answer carries a one-time
     password, shown this once, that its owner must change at the first sign-in. 409 if the
     email is taken. Audited as user.create."""
+    await once.check(admin, body, secrets=("password",))
     with _refused_as_conflict():
         user, one_time = await accounts.create_user(
             db, _hashing(request), audit.user_actor(admin), body
         )
+    answer = UserCreated(**UserPublic.model_validate(user).model_dump(), one_time_password=one_time)
+    await once.keep(
+        answer, secret="one_time_password", if_lost=f"reset account {user.id}'s password"
+    )
     await db.commit()
-    return UserCreated(**UserPublic.model_validate(user).model_dump(), one_time_password=one_time)
+    return answer
 
 
 @router.get(

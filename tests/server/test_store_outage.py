@@ -19,7 +19,7 @@ from websockets.exceptions import InvalidStatus
 
 from server.audit import AuditWriter
 from server.db import DATABASE_WAIT_S
-from server.errors import DATABASE_AWAY
+from server.errors import AWAY_CODE, DATABASE_AWAY
 from server.models import AuditEntry
 from server.routes.health import HEALTH_WAIT_S
 from tests.server.live_server import Live, Seeds, World, bearer, on_store, running
@@ -52,7 +52,7 @@ async def _handshakes_while_away(live: Live, world: World) -> list[int]:
 def _assert_away(answers: list[httpx.Response]) -> None:
     for r in answers:
         assert r.status_code == 503, (r.request.url, r.text)
-        assert r.json() == {"detail": DATABASE_AWAY}
+        assert r.json() == {"detail": DATABASE_AWAY, "code": AWAY_CODE}
         assert int(r.headers["Retry-After"]) > 0
 
 

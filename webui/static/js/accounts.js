@@ -1,7 +1,7 @@
 // Administrators' page: every account, add one, reset a password, deactivate or reactivate.
 // One-time passwords are shown once, as station tokens are; the API enforces every rule.
 
-import { api, currentUser, el, onSubmit, renderHeader, requireSignIn } from "./api.js";
+import { CreateKey, api, currentUser, el, onSubmit, renderHeader, requireSignIn } from "./api.js";
 import { confirmButton, showSecret } from "./confirm.js";
 import { applyBounds, loadSchemas, prop } from "./schema.js";
 
@@ -105,12 +105,14 @@ async function loadList() {
 }
 
 const form = $("add-user");
+const createKey = new CreateKey();
 onSubmit(form, async () => {
   flash("");
   const f = form.elements;
   const user = await api("/users", {
     method: "POST",
     body: { name: f.name.value, email: f.email.value.trim(), role: f.role.value },
+    once: createKey,
   });
   form.reset();
   await loadList();

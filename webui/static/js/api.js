@@ -140,9 +140,37 @@ export function numberValue(input) {
   return Number(input.value);
 }
 
+/**
+ * The Idempotency-Key of one form's create (a patient, a prescription, a station, an account):
+ * a fresh one for each new submission, and the same one when the same values are sent again
+ * after an attempt whose outcome is unknown (no answer, or a 503), so that the therapist's
+ * retry is answered with what the first attempt stored instead of making a second record.
+ * Random from crypto.getRandomValues, which, unlike randomUUID, works on a plain-HTTP page.
+ */
+export class CreateKey {
+  #key = null;
+  #body = null;
+
+  keyFor(text) {
+    if (this.#key === null || this.#body !== text) {
+      const bytes = crypto.getRandomValues(new Uint8Array(16));
+      this.#key = Array.from(bytes, (b) => b.toString(16).padStart(2, "0")).join("");
+      this.#body = text;
+    }
+    return this.#key;
+  }
+
+  /** The attempt ended with ``error`` (null: it succeeded): keep the key only if the
+   * outcome is unknown. */
+  settled(error) {
+    const unknown = error instanceof ApiError && (error.status === 0 || error.status === 503);
+    if (!unknown) this.#key = null;
+  }
+}
+
 /** Call /api/v1{path}; JSON in and out. A 401 ends the sign-in and goes back to it, keeping
- * the page's draft (keepDraft). */
-export async function api(path, { method = "GET", body, raw = false } = {}) {
+ * the page's draft (keepDraft). ``once``: the form's CreateKey, for a create. */
+export async function api(path, { method = "GET", body, raw = false, once } = {}) {
   const headers = { Accept: "application/json" };
   const t = token();
   if (t) headers.Authorization = `Bearer ${t}`;
@@ -151,6 +179,18 @@ export async function api(path, { method = "GET", body, raw = false } = {}) {
     headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
+  if (once) headers["Idempotency-Key"] = once.keyFor(init.body ?? "");
+  try {
+    const answer = await send(path, init, raw);
+    once?.settled(null);
+    return answer;
+  } catch (e) {
+    once?.settled(e);
+    throw e;
+  }
+}
+
+async function send(path, init, raw) {
   let r;
   try {
     r = await fetch(`/api/v1${path}`, init);

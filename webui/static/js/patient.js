@@ -1,6 +1,6 @@
 // One patient: details, home station, prescriptions, session history and progress.
 
-import { api, clearErrors, currentUser, el, fmt, onSubmit, pathId, renderHeader, requireSignIn } from "./api.js";
+import { CreateKey, api, clearErrors, currentUser, el, fmt, onSubmit, pathId, renderHeader, requireSignIn } from "./api.js";
 import { endReasonBadge, stationBadge } from "./badges.js";
 import { confirmButton, showSecret } from "./confirm.js";
 import { SIDE_WORDS, fillPatientForm, patientBody, setUpPatientForm } from "./patient-form.js";
@@ -195,10 +195,13 @@ function showToken(station) {
   });
 }
 
+const stationKey = new CreateKey();
+
 onSubmit($("provision"), async (form) => {
   const station = await api(`/patients/${patientId}/stations`, {
     method: "POST",
     body: { name: form.elements.name.value },
+    once: stationKey,
   });
   form.reset();
   showToken(station);

@@ -1,7 +1,7 @@
 // The therapist's patients: who they are, whether their station is online, when they last
 // exercised; and a form to add one.
 
-import { api, currentUser, el, fmt, onSubmit, renderHeader, requireSignIn } from "./api.js";
+import { CreateKey, api, currentUser, el, fmt, onSubmit, renderHeader, requireSignIn } from "./api.js";
 import { attentionBadge, endReasonBadge, stationBadge } from "./badges.js";
 import { SIDE_WORDS, patientBody, setUpPatientForm } from "./patient-form.js";
 
@@ -126,9 +126,11 @@ async function setUpForm() {
   await setUpPatientForm(form);
 }
 
+const createKey = new CreateKey();
+
 onSubmit(form, async () => {
   added.textContent = "";
-  const patient = await api("/patients", { method: "POST", body: patientBody(form) });
+  const patient = await api("/patients", { method: "POST", body: patientBody(form), once: createKey });
   form.reset();
   await loadList();
   added.replaceChildren(

@@ -7,6 +7,7 @@
 
 import {
   ApiError,
+  CreateKey,
   RAD2DEG,
   api,
   clearErrors,
@@ -346,6 +347,8 @@ function sideNote(side) {
 
 // --- loading and saving -----------------------------------------------------------------
 
+const createKey = new CreateKey();
+
 async function submit(ev) {
   ev.preventDefault();
   const button = $("submit");
@@ -360,7 +363,11 @@ async function submit(ev) {
   try {
     const saved = editId
       ? await api(`/prescriptions/${editId}`, { method: "PATCH", body: formBody() })
-      : await api(`/patients/${patientId}/prescriptions`, { method: "POST", body: formBody() });
+      : await api(`/patients/${patientId}/prescriptions`, {
+          method: "POST",
+          body: formBody(),
+          once: createKey,
+        });
     dropDraft();
     location.href = `/app/patients/${patientId}?saved=${saved.id}`;
   } catch (e) {
