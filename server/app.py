@@ -21,6 +21,7 @@ from sqlalchemy.exc import DBAPIError
 from server import errors, live, metrics
 from server.config import Settings
 from server.db import create_engine, create_sessionmaker, prepare
+from server.export_workers import ExportWorkers
 from server.guard import RequestGuard
 from server.headers import AllowedMethods, SecurityHeaders
 from server.hub import VIEW_HZ, Hub
@@ -85,6 +86,9 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.hub = hub
         await hub.start()
         app.state.hashing = HashingSlots(settings.password_hash_concurrency)
+        app.state.exports = ExportWorkers(
+            settings.export_workers, settings.export_queue_max, settings.export_timeout_s
+        )
         app.state.login_throttle = LoginThrottle(settings)
         # Here, not in the dashboard, so that whatever ends a user's access can end theirs.
         app.state.view_tickets = hub.tickets = ViewTickets(settings.view_ticket_ttl_s)
@@ -102,6 +106,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             await app.state.login_throttle.close()
         if hasattr(app.state, "hashing"):
             app.state.hashing.close()
+        if hasattr(app.state, "exports"):
+            app.state.exports.close()
         await engine.dispose()
 
 

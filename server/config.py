@@ -211,6 +211,26 @@ class Settings(BaseSettings):
         description="Argon2 hashes computed at once (each takes ~64 MiB and a core for "
         "~0.1 s); more sign-ins wait their turn.",
     )
+    export_workers: int = Field(
+        default=1,
+        ge=1,
+        le=8,
+        description="Session downloads made at once, each in a process of its own (a core and "
+        "up to about 3x the recording's size in memory while it runs); more wait their turn.",
+    )
+    export_queue_max: int = Field(
+        default=8,
+        ge=1,
+        le=1000,
+        description="Session downloads being made or waiting to be; past this a new one is "
+        "refused with 503 and Retry-After.",
+    )
+    export_timeout_s: float = Field(
+        default=1800.0,
+        gt=0,
+        le=86400,
+        description="Seconds a session download may take to make before it is stopped (503).",
+    )
     public_url: str = Field(
         default="",
         description="Base URL people and stations use to reach this server (behind a reverse "

@@ -50,11 +50,11 @@ import io
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import pyarrow as pa
@@ -137,34 +137,58 @@ COLUMNS: tuple[Column, ...] = (
 _ENUMS: dict[str, type[IntEnum]] = {"mode": DeviceMode, "trip": Trip}
 
 
+BLOCK_ROWS = 32_768
+"""Samples formatted at a time (CSV rows, MCAP messages): an export is written to its file
+block by block, so that what is held at once is a block's text (about 30 MB of MCAP
+messages), not the whole session's. A 2 h session at 250 Hz made as one piece held 1.8 M
+messages and peaked at 5.2 GB."""
+
+
 def content_hash(data: bytes) -> str:
     """SHA-256 of an export, hex."""
     return hashlib.sha256(data).hexdigest()
 
 
-def export(rec: Recording, fmt: str) -> bytes:
-    """The recording as one of :data:`FORMATS`."""
+def _exporter(fmt: str) -> Callable[[Recording, IO[bytes]], None]:
     try:
-        make = _EXPORTERS[fmt]
+        return _EXPORTERS[fmt]
     except KeyError:
         raise ValueError(f"unknown export format {fmt!r}; one of {', '.join(FORMATS)}") from None
-    return make(rec)
+
+
+def export(rec: Recording, fmt: str) -> bytes:
+    """The recording as one of :data:`FORMATS`, in memory (small sessions and tests; the
+    server writes files with :func:`write_export`)."""
+    make = _exporter(fmt)
+    buf = io.BytesIO()
+    make(rec, buf)
+    return buf.getvalue()
 
 
 def write_export(rec: Recording, fmt: str, path: Path) -> str:
-    """Write an export so that ``path`` is whole or absent, never partial; its SHA-256."""
-    data = export(rec, fmt)
+    """Write an export so that ``path`` is whole or absent, never partial; its SHA-256.
+
+    Written to the file as it is made, then hashed by reading it back a megabyte at a time:
+    the whole export is never in memory."""
+    make = _exporter(fmt)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        with os.fdopen(fd, "w+b") as f:
+            make(rec, f)
             f.flush()
             os.fsync(f.fileno())
+            f.seek(0)
+            digest = hashlib.file_digest(f, "sha256").hexdigest()
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    return content_hash(data)
+    return digest
+
+
+def _blocks(samples: NDArray[np.void]) -> Iterator[NDArray[np.void]]:
+    for start in range(0, len(samples), BLOCK_ROWS):
+        yield samples[start : start + BLOCK_ROWS]
 
 
 # -- CSV and Parquet ------------------------------------------------------------------------
@@ -177,8 +201,8 @@ def _enum_names(enum: type[IntEnum], codes: NDArray[np.uint8]) -> pa.Array:
     return pc.take(table, pa.array(codes.astype(np.int64)))
 
 
-def _column_values(rec: Recording, col: Column) -> NDArray[Any]:
-    raw = rec.samples[col.field]
+def _column_values(samples: NDArray[np.void], col: Column) -> NDArray[Any]:
+    raw = samples[col.field]
     values = raw if col.index is None else raw[:, col.index]
     if col.decimals is None:
         return np.ascontiguousarray(values)
@@ -187,14 +211,14 @@ def _column_values(rec: Recording, col: Column) -> NDArray[Any]:
     return scaled if values.dtype == np.float64 else scaled.astype(np.float32)
 
 
-def _table(rec: Recording, *, rounded: bool) -> pa.Table:
+def _table(samples: NDArray[np.void], *, rounded: bool) -> pa.Table:
     arrays: list[pa.Array] = []
     fields: list[pa.Field] = []
     for col in COLUMNS:
         if col.field in _ENUMS:
-            arr = _enum_names(_ENUMS[col.field], rec.samples[col.field])
+            arr = _enum_names(_ENUMS[col.field], samples[col.field])
         else:
-            values = _column_values(rec, col)
+            values = _column_values(samples, col)
             if rounded and col.decimals is not None:
                 # Round in float64, then store in the column's type: a float32 column then
                 # prints as the short decimal, not as the float32 nearest to it in full.
@@ -206,27 +230,30 @@ def _table(rec: Recording, *, rounded: bool) -> pa.Table:
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
 
 
-def _csv(rec: Recording) -> bytes:
-    buf = io.BytesIO()
+def _csv(rec: Recording, out: IO[bytes]) -> None:
     # Arrow's writer quotes every text cell ("ACTIVE"); that is plain RFC 4180, read the same
-    # by pandas and spreadsheets, and it formats 180k rows in C++ instead of Python.
-    pa_csv.write_csv(_table(rec, rounded=True), buf, pa_csv.WriteOptions(quoting_style="needed"))
-    return buf.getvalue()
+    # by pandas and spreadsheets, and it formats 180k rows in C++ instead of Python. Each row
+    # is formatted on its own, so block by block gives the same bytes as all at once.
+    options = pa_csv.WriteOptions(quoting_style="needed")
+    schema = _table(rec.samples[:0], rounded=True).schema
+    with pa_csv.CSVWriter(out, schema, write_options=options) as w:
+        for block in _blocks(rec.samples):
+            w.write_table(_table(block, rounded=True))
 
 
-def _parquet(rec: Recording) -> bytes:
-    table = _table(rec, rounded=False).replace_schema_metadata(
+def _parquet(rec: Recording, out: IO[bytes]) -> None:
+    # One table, not blocks: its row groups (and so its bytes) follow the whole session.
+    # What is held is the session's columns, a little more than the recording itself.
+    table = _table(rec.samples, rounded=False).replace_schema_metadata(
         {
             b"ankle.header": rec.header.model_dump_json().encode(),
             b"ankle.events": _json_list(rec.events).encode(),
             b"ankle.summary": summarize(rec).model_dump_json().encode(),
         }
     )
-    buf = io.BytesIO()
     # Dictionaries pay off only for the two text columns; on noisy floats they cost time and
     # bytes. zstd: about 30% smaller than the default snappy, read by every current reader.
-    pq.write_table(table, buf, use_dictionary=["mode", "trip"], compression="zstd")
-    return buf.getvalue()
+    pq.write_table(table, out, use_dictionary=["mode", "trip"], compression="zstd")
 
 
 def _json_list(events: list[SessionEvent]) -> str:
@@ -335,9 +362,8 @@ def _json_numbers(values: NDArray[Any]) -> pa.Array:
     return text
 
 
-def _telemetry_messages(rec: Recording, ns: NDArray[np.int64]) -> list[bytes]:
-    """Every sample as one JSON message, formatted column by column in Arrow, not per row."""
-    s = rec.samples
+def _telemetry_messages(s: NDArray[np.void], ns: NDArray[np.int64]) -> list[bytes]:
+    """Each sample as one JSON message, formatted column by column in Arrow, not per row."""
     parts: list[Any] = []
 
     def lit(text: str) -> None:
@@ -403,9 +429,8 @@ def _jsonable(model: BaseModel) -> Any:
     return json.loads(model.model_dump_json())
 
 
-def _mcap(rec: Recording) -> bytes:
-    buf = io.BytesIO()
-    w = Writer(buf)
+def _mcap(rec: Recording, out: IO[bytes]) -> None:
+    w = Writer(out)
     w.start(profile="", library="ankle-telerehab")
     telemetry = w.register_channel(
         "/telemetry",
@@ -417,9 +442,12 @@ def _mcap(rec: Recording) -> bytes:
         "json",
         w.register_schema("ankle.SessionEvent", "jsonschema", json.dumps(EVENT_SCHEMA).encode()),
     )
-    ns = _unix_ns(rec.samples["wall"].astype(np.float64))
-    for seq, (data, t) in enumerate(zip(_telemetry_messages(rec, ns), ns.tolist(), strict=True)):
-        w.add_message(telemetry, t, data, t, seq)
+    seq = 0
+    for block in _blocks(rec.samples):
+        ns = _unix_ns(block["wall"].astype(np.float64))
+        for data, t in zip(_telemetry_messages(block, ns), ns.tolist(), strict=True):
+            w.add_message(telemetry, t, data, t, seq)
+            seq += 1
     event_ns = _unix_ns(np.array([e.wall for e in rec.events], dtype=np.float64)).tolist()
     for seq, (e, t) in enumerate(zip(rec.events, event_ns, strict=True)):
         body = _jsonable(e)
@@ -436,23 +464,22 @@ def _mcap(rec: Recording) -> bytes:
     if rec.end is not None:
         w.add_metadata("end", _flatten(_jsonable(rec.end)))
     w.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
-    return buf.getvalue()
 
 
 # -- JSON -------------------------------------------------------------------------------------
 
 
-def _json(rec: Recording) -> bytes:
+def _json(rec: Recording, out: IO[bytes]) -> None:
     doc = {
         "header": _jsonable(rec.header),
         "summary": _jsonable(summarize(rec)),
         "events": [_jsonable(e) for e in rec.events],
         "end": _jsonable(rec.end) if rec.end is not None else None,
     }
-    return (json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n").encode()
+    out.write((json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n").encode())
 
 
-_EXPORTERS: dict[str, Callable[[Recording], bytes]] = {
+_EXPORTERS: dict[str, Callable[[Recording, IO[bytes]], None]] = {
     "csv": _csv,
     "parquet": _parquet,
     "mcap": _mcap,

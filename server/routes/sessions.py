@@ -37,7 +37,7 @@ from server.deps import Db, Id, Offset, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment, file_sha256
 from server.routes.dates import day_or_time, refuse
-from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES, write_export
+from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import Recording, read
 from sessions.summary import Summary, prescribed_axes, summarize
@@ -355,14 +355,15 @@ async def _cached_export(
     Its name holds the SHA-256 of the recording it was made from, so an export is served
     only for the very bytes it was made from: one made before the recording changed (a
     damaged file since restored, or the other way round) is never found again. An export
-    is kept only if the recording stayed as checked while it was made."""
+    is kept only if the recording stayed as checked while it was made. It is made in a
+    process of its own (:mod:`server.export_workers`), never on the event loop."""
     exports = Path(request.app.state.settings.data_dir) / "exports"
     exports.mkdir(mode=0o700, parents=True, exist_ok=True)
     path = exports / f"{row.session_uuid}.{source_digest}{FILE_SUFFIX[fmt]}"
     sidecar = path.with_name(path.name + ".sha256")
     if not (path.exists() and sidecar.exists()):
         before = await asyncio.to_thread(_identity, source)
-        digest = await asyncio.to_thread(_export, source, fmt, path)
+        digest = await request.app.state.exports.make(source, fmt, path)
         if await asyncio.to_thread(_identity, source) != before:
             path.unlink(missing_ok=True)
             raise HTTPException(503, RECORDING_CHANGED, headers={"Retry-After": "1"})
@@ -428,10 +429,6 @@ async def intact_recording(request: Request, row: Session) -> tuple[Path, str]:
 
 def _summarize_file(source: Path) -> Summary:
     return summarize(read(source))
-
-
-def _export(source: Path, fmt: str, path: Path) -> str:
-    return write_export(read(source), fmt, path)
 
 
 def recording_path(request: Request, row: Session) -> Path:
