@@ -225,7 +225,8 @@ def database_unavailable(exc: BaseException) -> bool:
 
 
 def _database_away(request: Request, exc: BaseException) -> JSONResponse:
-    log.warning("database unavailable while serving %s: %s", request.url.path, exc)
+    said = str(exc).strip() or f"{type(exc).__name__} (it did not answer in time)"
+    log.warning("database unavailable while serving %s: %s", request.url.path, said)
     return JSONResponse(
         {"detail": DATABASE_AWAY},
         status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
