@@ -6,7 +6,8 @@ stations' samples (~650 B) at 50 Hz in one pipeline per tick: pub/sub p50 3.6–
 10–17 ms (one run 52 ms); streams (XADD with MAXLEN, one XREAD over the 100) p50 7.6–7.9 ms,
 p99 19–22 ms. Keys hold what a newcomer must find: which
 process holds each station (``station:<id>``, a lease of ``lease_s`` refreshed every third of
-it) and its last status (``status:<id>``).
+it) and its last status (``status:<id>``); ``alive:<process>`` is written at each heartbeat
+of a process holding no station, so that every process finds out when Redis holds writes.
 
 Channels: ``view:<id>`` (events, status, presence, results: ``"<process> <json>"``),
 ``tele:<id>`` (the newest telemetry, raw), ``proc:<name>`` (to one process) and ``all``.
@@ -248,11 +249,15 @@ class RedisRelay(Relay):
             hurry = not self.reachable or self._missing
             await asyncio.sleep(min(beat, RETRY_S) if hurry else beat)
             try:
-                # A write at every beat, even with no station here to renew: a Redis that
-                # takes reads but holds writes (paused for a failover) is away for this
-                # process too, and its expired leases are not read as stations gone.
+                # A write at every beat, even with no station here to renew (then a key
+                # naming this process, kept for the lease): a Redis that takes reads but
+                # holds writes (paused for a failover) is away for this process too, and
+                # its expired leases are not read as stations gone.
                 keys = [k for s in self._mine for k in (_name("station", s), _name("status", s))]
-                await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
+                if keys:
+                    await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
+                else:
+                    await self.redis.set(_name("alive", self.process), 1, px=self._lease_ms())
                 await self._check_watched(hearing=self._listening.since is None)
                 for station_id in list(self._unheard):
                     if self._watching[station_id]:
