@@ -195,6 +195,8 @@ class AuditWriter:
         self._closing = False
         self._full_since: float | None = None  # monotonic time the backlog filled up
         self._away_since: float | None = None
+        self._try_began = 0.0
+        """When the latest ``_commit`` began: a try that hangs 15 s before it fails counts."""
         self._task: asyncio.Task[None] | None = None
         self._conn: AsyncConnection | None = None
         self._engine: AsyncEngine | None = None
@@ -349,8 +351,8 @@ class AuditWriter:
                     row.done.set_exception(error)
             self._rows = collections.deque(r for r in self._rows if r.done is None)
         self.failed_tries += 1
-        if self._away_since is None:
-            self._away_since = time.monotonic()
+        if self._away_since is None:  # from when the try that found it away began
+            self._away_since = self._try_began
         return _Away(error)
 
     def _wait(self, state: RetryCallState) -> float:
@@ -392,6 +394,7 @@ class AuditWriter:
 
     async def _commit(self, batch: list[_Row]) -> Exception | None:
         """Write ``batch`` in one transaction; the error if it failed."""
+        self._try_began = time.monotonic()
         rows = [row.values for row in batch]
         error: Exception | None = None
         for _ in range(2):  # a second time on a new connection if this one was lost

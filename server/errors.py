@@ -241,7 +241,8 @@ class CommitUnknown(Exception):
 
 
 def _database_away(request: Request, exc: BaseException) -> JSONResponse:
-    log.warning("database unavailable while serving %s: %s", request.url.path, exc)
+    said = str(exc).strip() or f"{type(exc).__name__} (it did not answer in time)"
+    log.warning("database unavailable while serving %s: %s", request.url.path, said)
     return JSONResponse(
         {"detail": DATABASE_AWAY, "code": AWAY_CODE},
         status_code=status.HTTP_503_SERVICE_UNAVAILABLE,

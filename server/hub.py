@@ -74,6 +74,17 @@ away, locked or stalled takes seconds, and a change sent seconds after the click
 when the therapist has moved on, is not the one they asked for. Before, the only bounds
 were SQLite's busy timeout (5 s) and, on PostgreSQL, none: a K change was applied 12 s
 after it was asked, once a stalled database answered. HOLD and Stop never wait for it."""
+CLOCK_SKEW_S = 0.1
+"""How far apart the clocks of two server hosts may be (they keep NTP time, within
+milliseconds of each other): a forwarded command carries, by the asking host's wall clock,
+when the station's process's share of its budget ends (``COMMAND_TIMEOUT_S - RELAY_SLACK_S``
+after it was sent), and is still sent up to this much after that by the station host's
+clock. It is less than ``RELAY_SLACK_S``: a command sent in time reaches the device before
+the asking process ends it as TIMEOUT."""
+SAFE_OWNER_WAIT_S = 0.5
+"""How long a HOLD or Stop of a station held elsewhere waits for the relay to name the
+station's process, while the relay is not yet known to be away (a Redis that hangs answers
+nothing until the client's 5 s socket timeout); past it, it is refused at once (OFFLINE)."""
 LATE_KEPT = 1000
 """Timed-out commands remembered so that a late answer still has its outcome audited."""
 AUDIT_FLUSH_S = 5.0
@@ -115,6 +126,13 @@ LOGIN_CLOSE: dict[LoginFailure, tuple[int, str]] = {
 NO_ACCESS = "you may no longer see this patient"
 RELAY_LOST = "this server has lost its link to the other server processes (the relay is down)"
 """Told to the viewers of a station held elsewhere while the relay cannot be reached."""
+CONNECTED = "the station is connected"
+LEFT = "the station's link to its server closed"
+NOT_CONNECTED = "the station is not connected"
+GONE = (
+    "no server holds the station's link any more (it closed, or its server stopped), so the "
+    "station is offline"
+)
 RELAY_REFUSED = (
     "this server cannot reach the other server processes (the relay is down), so the command "
     "could not be sent to the station; try again when the station shows online"
@@ -452,6 +470,8 @@ class Hub:
         """Those of ``station_ids`` connected to this server process or another."""
         here = {s for s in station_ids if s in self.stations}
         away = [s for s in station_ids if s not in here]
+        if not away or not self.relay.reachable:  # not known: as if offline, at once
+            return here
         elsewhere = await self._ask("owners", self.relay.owners(away), {})
         return here | elsewhere.keys()
 
@@ -471,7 +491,8 @@ class Hub:
         self.link_lost(conn)
         if self.stations.get(conn.station_id) is conn:
             del self.stations[conn.station_id]
-            self.broadcast(conn.station_id, wire.Presence(online=False).model_dump_json())
+            left = wire.Presence(online=False, text=LEFT).model_dump_json()
+            self.broadcast(conn.station_id, left)
             with contextlib.suppress(Exception):
                 await self.relay.release(conn.station_id)
 
@@ -479,6 +500,8 @@ class Hub:
         """Push a station's patient's active prescriptions to it, wherever it is connected."""
         conn = self.stations.get(station_id)
         if conn is None:
+            if not self.relay.reachable:  # sent its prescriptions when it connects again
+                return
             owner = await self._ask("owner", self.relay.owner(station_id), None)
             if owner is not None and owner != self.relay.process:
                 self.relay.send(owner, {"type": "prescriptions", "station_id": station_id})
@@ -567,7 +590,7 @@ class Hub:
         self.viewers[viewer.station_id].add(viewer)
         await self.watch(viewer.station_id)
         if not self.relay.reachable and viewer.station_id not in self.stations:
-            viewer.push(wire.Presence(online=False, text=RELAY_LOST).model_dump_json())
+            viewer.push(_unknown())
 
     async def viewer_left(self, viewer: Viewer) -> None:
         self.viewers[viewer.station_id].discard(viewer)
@@ -597,22 +620,23 @@ class Hub:
 
     def gone(self, station_id: int) -> None:
         if station_id not in self.stations:
-            self.deliver(station_id, wire.Presence(online=False).model_dump_json())
+            self.deliver(station_id, wire.Presence(online=False, text=GONE).model_dump_json())
 
     def back(self, station_id: int) -> None:
         if station_id not in self.stations:
             self._soon(self._tell_presence([station_id]))
 
     def relay_reachable(self, up: bool) -> None:
-        """The relay stopped answering (or answers again): the viewers of stations held
-        elsewhere are told that their presence is not known (or what it is now)."""
-        away = [s for s, viewers in self.viewers.items() if viewers and s not in self.stations]
+        """The relay stopped answering: the viewers of stations held elsewhere are told that
+        their presence is not known. Once it answers again the relay tells each station's
+        presence (``back``, ``gone``) as soon as it is known: a station whose lease ran out
+        while Redis hung is given time for its process to renew it, and is not told gone
+        meanwhile (:class:`server.redis_relay.RedisRelay`)."""
         if up:
-            self._soon(self._tell_presence(away))
             return
-        unknown = wire.Presence(online=False, text=RELAY_LOST).model_dump_json()
+        away = [s for s, viewers in self.viewers.items() if viewers and s not in self.stations]
         for station_id in away:
-            self.deliver(station_id, unknown)
+            self.deliver(station_id, _unknown())
 
     async def _tell_presence(self, station_ids: list[int]) -> None:
         """Tell the viewers of these stations held elsewhere whether they are online, and
@@ -624,7 +648,8 @@ class Hub:
             if station_id in self.stations:
                 continue
             online = station_id in held
-            self.deliver(station_id, wire.Presence(online=online).model_dump_json())
+            text = CONNECTED if online else NOT_CONNECTED
+            self.deliver(station_id, wire.Presence(online=online, text=text).model_dump_json())
             status = await self._ask("status", self.relay.last_status(station_id), None)
             if online and status is not None:
                 self.deliver(station_id, status)
@@ -641,6 +666,7 @@ class Hub:
             cmd = wire.Command.model_validate(message["command"])
             process, key = message["reply_to"], asker.viewer
             budget = float(message.get("timeout_s", COMMAND_TIMEOUT_S))
+            expires = message.get("expires_at")
 
             def reply(text: str) -> None:
                 self.relay.send(
@@ -654,7 +680,14 @@ class Hub:
                     },
                 )
 
-            await self._command_here(asker, cmd, reply, asked_on=process, timeout_s=budget)
+            await self._command_here(
+                asker,
+                cmd,
+                reply,
+                asked_on=process,
+                timeout_s=budget,
+                expires_at=None if expires is None else float(expires),
+            )
         elif kind == "reply" and isinstance(station_id, int):
             self._settled(station_id, message.get("request_id"))
             for v in self.viewers.get(station_id, ()):
@@ -732,8 +765,15 @@ class Hub:
         (:meth:`arrival`; now if not given)."""
         arrival = arrival or self.arrival(asker, cmd)
         if asker.station_id not in self.stations:
+            if not self.relay.reachable:  # known away: refused now, not after its timeout
+                _refuse(_asked(asker, cmd), reply, self.refusals, "OFFLINE", RELAY_REFUSED)
+                return
             try:
-                owner = await self.relay.owner(asker.station_id)
+                owner = await self._owner(asker.station_id, cmd.action)
+            except TimeoutError:
+                log.warning("the relay named no station's server within %g s", SAFE_OWNER_WAIT_S)
+                _refuse(_asked(asker, cmd), reply, self.refusals, "OFFLINE", RELAY_SLOW)
+                return
             except Exception as exc:
                 level = logging.WARNING if self.relay.reachable else logging.DEBUG
                 log.log(level, "the relay is unreachable (command): %s", exc)
@@ -743,6 +783,20 @@ class Hub:
                 await self._forward(owner, asker, cmd, reply, arrival)
                 return
         await self._command_here(asker, cmd, reply, arrival=arrival)
+
+    async def _owner(self, station_id: int, action: str) -> str | None:
+        """The process the relay names as the station's. A HOLD or Stop waits for it at
+        most ``SAFE_OWNER_WAIT_S`` (TimeoutError past it; the look-up goes on alone, as a
+        call cut half way would leave Redis's connection in doubt)."""
+        if action not in live_audit.SAFE_ACTIONS:
+            return await self.relay.owner(station_id)
+        task = asyncio.create_task(self.relay.owner(station_id))
+        if not (await asyncio.wait({task}, timeout=SAFE_OWNER_WAIT_S))[0]:
+            self._tasks.add(task)
+            task.add_done_callback(_forgotten)
+            task.add_done_callback(self._tasks.discard)
+            raise TimeoutError
+        return task.result()
 
     async def _forward(
         self,
@@ -776,6 +830,7 @@ class Hub:
             "command": cmd.model_dump(mode="json"),
             "reply_to": self.relay.process,
             "timeout_s": COMMAND_TIMEOUT_S - RELAY_SLACK_S,
+            "expires_at": time.time() + COMMAND_TIMEOUT_S - RELAY_SLACK_S,
         }
         try:
             self.relay.send(owner, forward)
@@ -891,9 +946,12 @@ class Hub:
         asked_on: str | None = None,
         timeout_s: float = COMMAND_TIMEOUT_S,
         arrival: Arrival | None = None,
+        expires_at: float | None = None,
     ) -> None:
         """Judge, audit and send a command to a station connected here (or refuse it).
-        ``asked_on``: the process it was forwarded from, which recorded its request."""
+        ``asked_on``: the process it was forwarded from, which recorded its request;
+        ``expires_at``: when its budget ends there (wall clock), past which it is not sent
+        (:meth:`_expired`)."""
         arrival = arrival or self.arrival(asker, cmd)
         asked = _asked(asker, cmd)
         cmd = asked.command
@@ -915,7 +973,7 @@ class Hub:
         if asked_on is None and not await self._record_request(asked, reply, arrival):
             self.release(cmd.request_id)
             return
-        if self._superseded(asked, reply, arrival):
+        if self._superseded(asked, reply, arrival) or self._expired(asked, reply, expires_at):
             self.release(cmd.request_id)
             return
         self.sent(cmd.request_id, timeout_s)
@@ -924,6 +982,24 @@ class Hub:
             metrics.sent("station", "command")
         except Exception:
             self.link_lost(conn, cmd.request_id)
+
+    def _expired(
+        self, asked: live_audit.Asked, reply: Callable[[str], None], expires_at: float | None
+    ) -> bool:
+        """Whether a command forwarded from another process arrived after its budget ended
+        (the relay held it: a Redis paused or failing over delivers it seconds late, once
+        the asking process has told its viewer TIMEOUT). It is then refused, audited as not
+        sent, rather than carried out unasked-for: a K change applied 8 s after the viewer
+        was told its fate is not known. A HOLD or Stop is sent whenever it arrives: it only
+        brings the platform to rest, which is never wrong to do late."""
+        if expires_at is None or asked.command.action in live_audit.SAFE_ACTIONS:
+            return False
+        late_s = time.time() - expires_at
+        if late_s <= CLOCK_SKEW_S:
+            return False
+        log.warning("a forwarded command came %.1f s after its budget ended: not sent", late_s)
+        _refuse_recorded(asked, reply, self.writer, "EXPIRED", EXPIRED)
+        return True
 
     async def _start_refusal(
         self, patient_id: int, prescription_id: int | None, arrival: Arrival
@@ -1083,6 +1159,11 @@ class Arrival:
     holds: int
 
 
+def _unknown() -> str:
+    """The presence told while the relay is away."""
+    return wire.Presence(online=False, text=RELAY_LOST, known=False).model_dump_json()
+
+
 def _forgotten(task: asyncio.Task[Any]) -> None:
     """A task whose answer nobody waits for any more: its exception, if any, is read (and
     left) rather than reported as never retrieved."""
@@ -1104,6 +1185,14 @@ UNCHECKED = (
 SUPERSEDED = (
     "a HOLD or Stop was asked of the station while this waited to be recorded, so it was "
     "not sent after it; ask again if it is still wanted"
+)
+EXPIRED = (
+    "the command reached the station's server after its time was up (the relay between the "
+    "servers held it), so it was not sent; ask again if it is still wanted"
+)
+RELAY_SLOW = (
+    f"this server could not find the station's server within {SAFE_OWNER_WAIT_S:g} s (the "
+    "relay between the servers does not answer), so the command was not sent; try again"
 )
 BUSY = (
     f"{VIEW_COMMANDS_MAX} commands of this view are still being handled, so this one was "

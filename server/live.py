@@ -33,6 +33,7 @@ from server.hub import (
     BUSY,
     COMMAND_BURST,
     COMMANDS_PER_S,
+    CONNECTED,
     LOGIN_CLOSE,
     VIEW_COMMANDS_MAX,
     Arrival,
@@ -177,7 +178,7 @@ async def station_socket(ws: WebSocket) -> None:
         assert hub.sessionmaker is not None
         async with hub.sessionmaker() as db:
             await send_text(ws, (await prescriptions_of(db, station.patient_id)).model_dump_json())
-        hub.broadcast(station.id, wire.Presence(online=True).model_dump_json())
+        hub.broadcast(station.id, wire.Presence(online=True, text=CONNECTED).model_dump_json())
         beat = asyncio.create_task(_heartbeats(ws))
         try:
             while True:

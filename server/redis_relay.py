@@ -6,7 +6,8 @@ stations' samples (~650 B) at 50 Hz in one pipeline per tick: pub/sub p50 3.6–
 10–17 ms (one run 52 ms); streams (XADD with MAXLEN, one XREAD over the 100) p50 7.6–7.9 ms,
 p99 19–22 ms. Keys hold what a newcomer must find: which
 process holds each station (``station:<id>``, a lease of ``lease_s`` refreshed every third of
-it) and its last status (``status:<id>``).
+it) and its last status (``status:<id>``); ``alive:<process>`` is written at each heartbeat
+of a process holding no station, so that every process finds out when Redis holds writes.
 
 Channels: ``view:<id>`` (events, status, presence, results: ``"<process> <json>"``),
 ``tele:<id>`` (the newest telemetry, raw), ``proc:<name>`` (to one process) and ``all``.
@@ -49,6 +50,11 @@ log = logging.getLogger("ankle.server.relay")
 PREFIX = "ankle:"
 RETRY_S = 0.5
 """Between attempts to hear Redis again after the connection dropped."""
+RENEW_GRACE_S = 2 * RETRY_S
+"""How long a watched station's lease may be missing before its viewers are told it is
+gone. A Redis that hangs (a failover; ``CLIENT PAUSE``) longer than the lease lets every
+lease run out though each process is alive and holds its stations; each process renews its
+leases within ``RETRY_S`` of Redis taking writes again, and is given twice that."""
 _RELEASE = """
 if redis.call('get', KEYS[1]) == ARGV[1] then
   return redis.call('del', KEYS[1], KEYS[2])
@@ -147,6 +153,12 @@ class RedisRelay(Relay):
         the heartbeat subscribes once it is back."""
         self._holder: dict[int, str | None] = {}
         """The process each station watched here was last seen on."""
+        self._missing: dict[int, float] = {}
+        """Watched stations whose lease was first found missing then (``time.monotonic``):
+        told gone only once it stays missing ``RENEW_GRACE_S``."""
+        self._unsure: set[int] = set()
+        """Watched stations whose viewers were told the relay is away: told their presence
+        once it is known again."""
         self._recent: dict[int, collections.deque[tuple[int, str]]] = {}
         """The newest batches of each station watched here, numbered per station."""
         self._seq: collections.Counter[int] = collections.Counter()
@@ -164,6 +176,8 @@ class RedisRelay(Relay):
     def _set_reachable(self, up: bool) -> None:
         if up != self.reachable:
             self.reachable = up
+            if not up:
+                self._unsure = {s for s in self._watching if s not in self._mine}
             if self._listener is not None:
                 self._listener.relay_reachable(up)
 
@@ -232,12 +246,19 @@ class RedisRelay(Relay):
         relay reachable again."""
         while True:
             beat = self.lease_s / 3
-            await asyncio.sleep(beat if self.reachable else min(beat, RETRY_S))
+            hurry = not self.reachable or self._missing
+            await asyncio.sleep(min(beat, RETRY_S) if hurry else beat)
             try:
+                # A write at every beat, even with no station here to renew (then a key
+                # naming this process, kept for the lease): a Redis that takes reads but
+                # holds writes (paused for a failover) is away for this process too, and
+                # its expired leases are not read as stations gone.
                 keys = [k for s in self._mine for k in (_name("station", s), _name("status", s))]
                 if keys:
                     await self._refresh(keys=keys, args=[self.process, self._lease_ms()])
-                await self._check_watched()
+                else:
+                    await self.redis.set(_name("alive", self.process), 1, px=self._lease_ms())
+                await self._check_watched(hearing=self._listening.since is None)
                 for station_id in list(self._unheard):
                     if self._watching[station_id]:
                         await self._hear(station_id)
@@ -249,19 +270,36 @@ class RedisRelay(Relay):
                 if self._listening.since is None:
                     self._set_reachable(True)
 
-    async def _check_watched(self) -> None:
+    async def _check_watched(self, hearing: bool = True) -> None:
+        """Tell the listener of watched stations that went (their lease missing for
+        ``RENEW_GRACE_S``) or came back; and, once the relay is heard again (``hearing``),
+        the presence of those whose viewers were told it was away."""
         watched = [s for s in self._watching if s not in self._mine]
         holders = await self.owners(watched)
+        now = time.monotonic()
         for station_id in watched:
             holder = holders.get(station_id)
-            if holder is None and self._holder.get(station_id) is not None:
-                self._recent.pop(station_id, None)
-                if self._listener is not None:
-                    self._listener.gone(station_id)
-            elif holder is not None:
-                if self._holder.get(station_id) is None and self._listener is not None:
+            before = self._holder.get(station_id)
+            unsure = hearing and station_id in self._unsure
+            if holder is None:
+                if before is not None:
+                    since = self._missing.setdefault(station_id, now)
+                    if now - since < RENEW_GRACE_S:
+                        continue  # its process may yet renew it
+                self._missing.pop(station_id, None)
+                if before is not None:
+                    self._recent.pop(station_id, None)
+                    if self._listener is not None:
+                        self._listener.gone(station_id)
+                elif unsure and self._listener is not None:
+                    self._listener.back(station_id)  # told as it is: offline
+            else:
+                self._missing.pop(station_id, None)
+                if (before is None or unsure) and self._listener is not None:
                     self._listener.back(station_id)
                 self.send(holder, {"type": "watch", "station_id": station_id})
+            if hearing:
+                self._unsure.discard(station_id)
             self._holder[station_id] = holder
 
     # -- live data -------------------------------------------------------------------------
@@ -282,6 +320,8 @@ class RedisRelay(Relay):
 
     async def watch(self, station_id: int) -> None:
         self._watching[station_id] += 1
+        if not self.reachable:  # its viewer is told the relay is away
+            self._unsure.add(station_id)
         if self._watching[station_id] == 1:
             await self._hear(station_id)
 
@@ -306,6 +346,8 @@ class RedisRelay(Relay):
             return
         del self._watching[station_id]
         self._unheard.discard(station_id)
+        self._unsure.discard(station_id)
+        self._missing.pop(station_id, None)
         self._holder.pop(station_id, None)
         self._recent.pop(station_id, None)
         if self._pubsub is not None:

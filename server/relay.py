@@ -50,11 +50,13 @@ class Listener(Protocol):
 
     def back(self, station_id: int) -> None:
         """A watched station is held again by a process, unannounced (its lease came back
-        after the relay was away)."""
+        after the relay was away), or the relay is heard again after it was away: its
+        viewers are told its presence afresh."""
 
     def relay_reachable(self, up: bool) -> None:
         """The relay stopped answering (False), or answers again (True): meanwhile what this
-        process knows of the others' stations is not known."""
+        process knows of the others' stations is not known (once it answers, each watched
+        station's presence is told by ``back`` or ``gone``)."""
 
     async def on_message(self, message: Message) -> None:
         """A message sent to this process, or to every process."""

@@ -490,9 +490,14 @@ class Presence(BaseModel):
     online: bool
     text: str = Field(
         default="",
-        description="Why the station cannot be reached, when it is not simply that it is not "
-        "connected: its viewer's server cannot reach the station's (online is then false, "
-        "and whether the station is connected is not known).",
+        description="What happened, in a sentence: the station connected or left, its server "
+        "stopped holding it, or its viewer's server cannot reach the station's (then known is "
+        "false). The server never sends it empty.",
+    )
+    known: bool = Field(
+        default=True,
+        description="False when the viewer's server cannot reach the station's (the relay is "
+        "down): online is then false, and whether the station is connected is not known.",
     )
 
 

@@ -6,6 +6,7 @@ connected stations, which fetch their active prescriptions again.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from typing import Annotated, Any
 
@@ -62,18 +63,34 @@ async def prescription_for(
 
 
 async def notify_stations(request: Request, db: AsyncSession, patient_id: int) -> None:
-    """Tell the patient's live stations to fetch their prescriptions again."""
-    station_ids = (
-        await db.execute(
-            select(Station.id).where(Station.patient_id == patient_id, Station.revoked.is_(False))
-        )
-    ).scalars()
-    for station_id in station_ids:
+    """Tell the patient's live stations to fetch their prescriptions again.
+
+    All at once, and with the request's database connection given back first: a station
+    held by another process is found through the relay, which a hanging Redis keeps waiting
+    up to its 5 s timeout (one station after another, 10 s for two, the connection held
+    all along). While the relay is known to be away those are skipped (the hub's
+    ``prescriptions_changed``): the change is committed, and a station is sent its
+    prescriptions whenever it connects."""
+    station_ids = list(
+        (
+            await db.execute(
+                select(Station.id).where(
+                    Station.patient_id == patient_id, Station.revoked.is_(False)
+                )
+            )
+        ).scalars()
+    )
+    await db.commit()  # ends the read's transaction: the connection goes back to the pool
+    hub = request.app.state.hub
+
+    async def notify(station_id: int) -> None:
         try:
-            await request.app.state.hub.prescriptions_changed(station_id)
+            await hub.prescriptions_changed(station_id)
         except Exception:
             # The change is committed; a station that missed the nudge fetches on reconnect.
             log.exception("could not notify station %d of new prescriptions", station_id)
+
+    await asyncio.gather(*(notify(s) for s in station_ids))
 
 
 @router.get(

@@ -31,7 +31,14 @@ import redis.asyncio as aioredis
 from websockets.asyncio.client import ClientConnection
 
 from server.config import Settings
-from server.hub import COMMAND_TIMEOUT_S, RELAY_LOST, RELAY_REFUSED, RELAY_SLACK_S
+from server.hub import (
+    COMMAND_TIMEOUT_S,
+    EXPIRED,
+    RELAY_LOST,
+    RELAY_REFUSED,
+    RELAY_SLACK_S,
+    RELAY_SLOW,
+)
 from server.redis_relay import RedisRelay
 from server.relay import Message
 from sessions import wire
@@ -754,7 +761,7 @@ async def test_while_the_relay_is_away_the_other_process_s_viewers_are_told_it_i
                 first.close()
                 again.enter_context(spawned_redis(tmp_path / "redis", port))
                 back = await next_where(view, lambda m: isinstance(m, wire.Presence) and m.online)
-                assert back.text == ""
+                assert back.text and back.known
                 # Heard again: telemetry sent from now on reaches A's viewer.
                 streaming.cancel()
                 streaming = asyncio.create_task(stream(station, t=4.0))
@@ -859,3 +866,195 @@ async def test_a_redis_outage_is_logged_when_it_begins_and_ends_not_per_message(
     ]
     lost = re.search(r"; (\d+) telemetry batches were lost", works)
     assert lost is not None and int(lost[1]) >= 1, works
+
+
+@pytest.mark.asyncio
+async def test_a_forwarded_command_past_its_budget_is_not_sent_but_a_hold_is(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """The relay held a forwarded command (Redis paused for a failover) until after the
+    asking process told its viewer TIMEOUT: the station's process refuses a K/B change
+    (EXPIRED, audited as refused) instead of carrying it out; a HOLD goes out all the same."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    async with (
+        running(settings(data_dir, relay_url)) as b,
+        ghost(relay_url) as asker,
+        station_ws(b, world.s1) as station,
+    ):
+        await welcomed(station)
+        await until_online(b, world.t1, world.s1_id, True)
+        process = b.app.state.hub.relay.process
+        by = {
+            "user_id": world.t1_id,
+            "station_id": world.s1_id,
+            "patient_id": world.p1,
+            "may_command": True,
+            "viewer": 7,
+        }
+        past = time.time() - 8.0  # as the probe saw: carried out 8 s after its TIMEOUT
+        for request_id, asked in (
+            (
+                "kb-stale",
+                {"request_id": "kb-stale", "action": "set_impedance", "stiffness": {"pitch": 60.0}},
+            ),
+            ("h-stale", {"request_id": "h-stale", "action": "hold"}),
+        ):
+            message = {
+                "type": "command",
+                "station_id": world.s1_id,
+                "asker": by,
+                "command": asked,
+                "reply_to": "ghost",
+                "timeout_s": COMMAND_TIMEOUT_S - RELAY_SLACK_S,
+                "expires_at": past,
+            }
+            await asker.publish(f"proc:{process}", json.dumps(message))
+            if request_id == "kb-stale":
+                reply = await asker.heard("reply")
+                refused = wire.CommandResult.model_validate_json(reply["text"])
+                assert (refused.request_id, refused.ok, refused.code, refused.text) == (
+                    "kb-stale",
+                    False,
+                    "EXPIRED",
+                    EXPIRED,
+                )
+        got = await next_where(station, is_(wire.Command), wire.STATION_DOWN)
+        assert (got.request_id, got.action) == ("h-stale", "hold")  # the K change never came
+        await until_audited(b, world.admin, "kb-stale", ["impedance.refused"])
+        (row,) = await audit_rows(b, world.admin, "kb-stale")
+        assert row["new"]["code"] == "EXPIRED"
+
+
+async def pause(relay_url: str, ms: int, which: str) -> None:
+    """Redis holds its clients' commands (``WRITE``: writes only, as in a failover) for
+    ``ms``."""
+    client = aioredis.Redis.from_url(relay_url)
+    try:
+        await client.execute_command("CLIENT", "PAUSE", str(ms), which)  # type: ignore[no-untyped-call]
+    finally:
+        await client.aclose()
+
+
+@asynccontextmanager
+async def paused_apart(relay_url: str) -> AsyncIterator[None]:
+    """Within it, Redis may be paused; after it, Redis answers again (the next test's
+    emptying of the database does not meet the pause)."""
+    try:
+        yield
+    finally:
+        client = aioredis.Redis.from_url(relay_url, socket_timeout=30.0)
+        try:
+            await client.ping()
+        finally:
+            await client.aclose()
+
+
+async def until_away(live: Live) -> None:
+    await until(lambda: not live.app.state.hub.relay.reachable, "the relay never went away")
+
+
+@pytest.mark.asyncio
+async def test_a_hold_is_refused_at_once_while_redis_hangs(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """Redis answers nothing (paused): a HOLD of a station held elsewhere waits at most
+    SAFE_OWNER_WAIT_S to find its server, not Redis's 5 s socket timeout; once the relay is
+    known away, a HOLD or K/B change is refused OFFLINE at once."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    async with (
+        paused_apart(relay_url),
+        running(settings(data_dir, relay_url)) as a,
+        ghost(relay_url) as owner,
+    ):
+        await owner.redis.set(f"ankle:station:{world.s1_id}", "ghost", px=120_000)
+        async with viewer_ws(a, world.t1, world.s1_id) as view:
+            assert (await next_where(view, is_(wire.Welcome))).online
+            beat = asyncio.create_task(_beat(view))
+            try:
+                await pause(relay_url, 4000, "ALL")
+                began = time.monotonic()
+                await view.send(wire.Command(request_id="h-hang", action="hold").model_dump_json())
+                refused = await next_where(view, result_of("h-hang"))
+                assert time.monotonic() - began < 2.5  # else 4 s, the pause, then TIMEOUT
+                assert (refused.code, refused.text) == ("OFFLINE", RELAY_SLOW)
+                await asyncio.sleep(4.0)  # the pause ends
+
+                await pause(relay_url, 15_000, "ALL")
+                await until_away(a)
+                for asked in (
+                    wire.Command(request_id="h-away", action="hold"),
+                    wire.Command.model_validate_json(command("kb-away")),
+                ):
+                    began = time.monotonic()
+                    await view.send(asked.model_dump_json())
+                    refused = await next_where(view, result_of(asked.request_id))
+                    assert time.monotonic() - began < 2.5, asked.request_id  # else 5 s
+                    assert (refused.code, refused.text) == ("OFFLINE", RELAY_REFUSED)
+            finally:
+                beat.cancel()
+
+
+@pytest.mark.asyncio
+async def test_while_redis_hangs_a_prescription_is_saved_without_waiting_for_it(
+    seeded: tuple[Path, World], tmp_path: Path, relay_url: str
+) -> None:
+    """The patient's two stations are held elsewhere: with the relay known away, saving a
+    prescription and listing the stations do not wait on Redis (5 s a station before)."""
+    world = seeded[1]
+    data_dir = copy_seeded(seeded[0], tmp_path / "data")
+    async with (
+        paused_apart(relay_url),
+        running(settings(data_dir, relay_url)) as a,
+        ghost(relay_url) as owner,
+    ):
+        for station_id in (world.s1_id, world.s1_spare_id):
+            await owner.redis.set(f"ankle:station:{station_id}", "ghost", px=120_000)
+        await pause(relay_url, 15_000, "ALL")
+        await until_away(a)
+        began = time.monotonic()
+        r = await a.client.post(
+            f"/patients/{world.p1}/prescriptions", json=STRENGTH, headers=bearer(world.t1)
+        )
+        assert r.status_code == 201, r.text
+        assert time.monotonic() - began < 2.5  # else 5 s a station
+        began = time.monotonic()
+        r = await a.client.get("/stations", headers=bearer(world.t1))
+        assert r.status_code == 200, r.text
+        assert time.monotonic() - began < 2.5  # else 5 s
+
+
+@pytest.mark.both_stores
+@pytest.mark.asyncio
+async def test_a_redis_hang_longer_than_the_lease_is_not_told_as_the_station_gone(
+    shared: Shared,
+) -> None:
+    """Redis takes no writes for longer than the lease (a failover): every lease runs out
+    though the station stays connected. Its viewer on the other process is told the relay
+    is away, or nothing, never that the station went offline; and no presence is blank."""
+    world = shared.world
+    async with (
+        paused_apart(shared.relay_url),
+        two_servers(shared) as (a, b),
+        station_ws(b, world.s1) as station,
+        viewer_ws(a, world.t1, world.s1_id) as view,
+    ):
+        await welcomed(station)
+        await next_where(view, lambda m: isinstance(m, wire.Presence) and m.online)
+        beats = [asyncio.create_task(_beat(ws)) for ws in (station, view)]
+        told: list[wire.Presence] = []
+        try:
+            await pause(shared.relay_url, round(LEASE_S * 1000 * 3), "WRITE")
+            deadline = time.monotonic() + LEASE_S * 3 + 4.0
+            while (left := deadline - time.monotonic()) > 0:
+                with contextlib.suppress(TimeoutError):
+                    m = wire.VIEWER_DOWN.validate_json(await asyncio.wait_for(view.recv(), left))
+                    if isinstance(m, wire.Presence):
+                        told.append(m)
+        finally:
+            for task in beats:
+                task.cancel()
+        assert all(m.text for m in told), told
+        assert not [m for m in told if not m.online and m.known], told
+        assert await online(a, world.t1, world.s1_id)

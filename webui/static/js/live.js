@@ -523,7 +523,7 @@ function onMessage(m) {
       break;
     case "presence":
       state.online = m.online;
-      state.unreachable = m.online ? "" : m.text || "";
+      state.unreachable = m.online || m.known !== false ? "" : m.text || "";
       showLink();
       if (m.online && state.status) showStatus(state.status);
       break;
