@@ -27,6 +27,7 @@ from device import ring
 from device.axes import AXES
 from device.commands import CheckedImpedance, CheckedSegment
 from device.controller import Mode
+from device.limits import APPROACH_SPEED
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
 from device.trips import Trip, event_text, where
@@ -40,10 +41,6 @@ HOMING_SETTLE = 0.2
 """...for this long (s)."""
 HOMING_TIMEOUT_EXTRA = 5.0
 """Seconds allowed beyond the planned homing move before it is a fault."""
-APPROACH_SPEED = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
-"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s. The
-range of motion in force during the approach closes in on the segment's own at this speed
-too."""
 RETURN_SETTLE = 0.1
 """Time allowed after the move home before a segment counts as done (s)."""
 
