@@ -782,7 +782,7 @@ class ControllerState(NamedTuple):
     pose_cmd_rate: NDArray[np.float64]
     x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
     v_m: NDArray[np.float64]  # (6,) its rate (state of the virtual inertia)
-    catch_up: NDArray[np.float64]  # (6,) 1 while the axis's compliance catches up (resume)
+    catch_up: NDArray[np.float64]  # (6,) 1 while its compliance catches up with the foot
     # (6, 4) per axis, that rate low-passed at the lag corner: x[n-1], x[n-2], y[n-1], y[n-2]
     v_low: NDArray[np.float64]
     stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
