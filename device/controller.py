@@ -56,7 +56,7 @@ from device.kinematics import (
     solve6_augmented,
     twist_jacobian,
 )
-from device.limits import LEG_HEADROOM
+from device.limits import APPROACH_SPEED, LEG_HEADROOM
 from device.plant.params import PARAMETERS, TICK_HZ, nominal_dead_volume
 from device.safety import SafetyLimits, Trip
 from device.scheduler import Schedule, Task, schedule
@@ -722,6 +722,7 @@ class ControllerParams(NamedTuple):
     load_turn_step_unwatched: float  # N m per pose period
     virtual_inertia: NDArray[np.float64]
     virtual_omega2: float
+    catch_up: NDArray[np.float64]  # (6,) m/s, rad/s: a compliance catching up moves no faster
     lag_max: float
     lag_forget: float
     friction_ff: NDArray[np.float64]  # (6,) N fed forward per leg along its moving target
@@ -781,6 +782,7 @@ class ControllerState(NamedTuple):
     pose_cmd_rate: NDArray[np.float64]
     x_m: NDArray[np.float64]  # (6,) impedance displacement, eq. (16)
     v_m: NDArray[np.float64]  # (6,) its rate (state of the virtual inertia)
+    catch_up: NDArray[np.float64]  # (6,) 1 while its compliance catches up with the foot
     # (6, 4) per axis, that rate low-passed at the lag corner: x[n-1], x[n-2], y[n-1], y[n-2]
     v_low: NDArray[np.float64]
     stiffness: NDArray[np.float64]  # (6,) K in force (slew-limited)
@@ -1032,6 +1034,7 @@ def build_params(
         load_turn_step_unwatched=config.load_turn_slew_unwatched * CONTROL_PERIOD * dt_tick,
         virtual_inertia=np.array(config.virtual_inertia, dtype=np.float64),
         virtual_omega2=(2.0 * math.pi * config.virtual_frequency_max) ** 2,
+        catch_up=np.array(APPROACH_SPEED, dtype=np.float64),
         lag_max=config.impedance_lag_max,
         lag_forget=math.exp(-CONTROL_PERIOD * dt_tick / config.impedance_lag_window),
         friction_ff=config.friction_compensation
@@ -1140,6 +1143,7 @@ def new_state(geometry: Geometry = DEFAULT_GEOMETRY) -> ControllerState:
         pose_cmd_rate=np.zeros(6),
         x_m=np.zeros(6),
         v_m=np.zeros(6),
+        catch_up=np.zeros(6),
         v_low=np.zeros((6, 4)),
         stiffness=np.zeros(6),
         damping=np.zeros(6),
@@ -1863,6 +1867,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 # The law is J a + b_k v + K x = F + (b_k - b_low) v_low: b_low below the
                 # corner, b_k above it.
                 f_k = s.wrench[k] - s.tare[k]
+                x_was = s.x_m[k]
                 if j_k > 0.0:
                     z = s.impedance_map[k]
                     if abs(b_k - z[2]) <= LAG_B_STEP * s.damping[k]:
@@ -1890,6 +1895,21 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                         b_k,
                         p.dt_control,
                     )
+                if s.catch_up[k] > 0.5:
+                    # The foot moved on while the law stood still (a hold): the whole
+                    # mismatch at once, which only B limits, threw a compliant roll 5.6 deg
+                    # in 20 ms after a resume (LEG_SPEED). The law catches up no faster
+                    # than an approach moves, and is itself again from the first period
+                    # its own speed is that slow.
+                    cap = p.catch_up[k]
+                    if abs(v_m) <= cap:
+                        s.catch_up[k] = 0.0
+                    else:
+                        step = cap * p.dt_control
+                        s.x_m[k] = min(max(s.x_m[k], x_was - step), x_was + step)
+                        v_m = min(max(v_m, -cap), cap)
+                        if j_k > 0.0:
+                            s.v_m[k] = v_m
                 biquad(s.v_low[k], p.lag_filter, v_m)
                 if p.ring.on[k] > 0.5:
                     own = b_k / (2.0 * j_k) if j_k > 0.0 else RING_NO_MODE
@@ -1901,6 +1921,7 @@ def pose_task(s: ControllerState, p: ControllerParams) -> None:
                 s.x_m[k] = 0.0
                 s.v_m[k] = 0.0
                 s.v_low[k, :] = 0.0
+                s.catch_up[k] = 0.0
             x_c = x_d + s.x_m[k]
             lo, hi = p.limits[safety.ROW_ROM_LOW, k], p.limits[safety.ROW_ROM_HIGH, k]
             home = p.home_pose[k]

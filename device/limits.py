@@ -25,6 +25,12 @@ tracking error of a sine (under 1 mm) and a step's overshoot (under 5 % of 10 mm
 it, so a target the device accepted never drives a piston into its end stop, and a patient
 who pushes a compliant axis into a corner of the workspace meets a soft wall, not a trip."""
 
+APPROACH_SPEED: tuple[float, ...] = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
+"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s. The
+range of motion in force during the approach closes in on the segment's own at this speed
+too (device.modes), and a compliance that fell behind the foot (a hold while it pushed)
+catches up with it no faster (device.controller, ``ControllerState.catch_up``)."""
+
 
 def to_float32(value: float) -> float:
     """``value`` as the wire's float32 carries it, back as a Python float."""

@@ -27,6 +27,7 @@ from device import ring
 from device.axes import AXES
 from device.commands import CheckedImpedance, CheckedSegment
 from device.controller import Mode
+from device.limits import APPROACH_SPEED
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
 from device.trips import Trip, event_text, where
@@ -40,10 +41,6 @@ HOMING_SETTLE = 0.2
 """...for this long (s)."""
 HOMING_TIMEOUT_EXTRA = 5.0
 """Seconds allowed beyond the planned homing move before it is a fault."""
-APPROACH_SPEED = (0.01, 0.01, 0.01, 0.2, 0.2, 0.2)
-"""Speed of the moves into and out of a segment (m/s, rad/s): 0.2 rad/s is 11 deg/s. The
-range of motion in force during the approach closes in on the segment's own at this speed
-too."""
 RETURN_SETTLE = 0.1
 """Time allowed after the move home before a segment counts as done (s)."""
 
@@ -142,14 +139,21 @@ class ModeMachine:
         another, the compliance's offset kept: a spring whose rest point jumped would throw
         the foot). So the range in force spans that start and the segment's range, and
         closes in on the latter at the approach speeds: a compliant axis outside it is
-        brought in as gently as the approach moves, and the run begins inside it."""
+        brought in as gently as the approach moves, and the run begins inside it.
+
+        An axis this segment leaves stiff loses its offset (the controller renders none on
+        it from the next period), so its approach starts from the whole command, the offset
+        folded into the ramp as at the end of a run: from the waveform's part alone, a
+        pitch a foot held 13.3 deg out on K 20 was commanded to 0 in one period and
+        tripped FOLLOWING 4 ms later. Both starts lie in ``reach_low..reach_high``."""
         self._end_segment()
         path, whole = self._commanded()
         self.rig.apply_impedance(plan.stiffness, plan.damping, plan.compliant)
         seg = Segment(plan, moved_at=self.time)
         seg.reach_low = np.minimum(path, whole)
         seg.reach_high = np.maximum(path, whole)
-        longest = self._move_to(path, np.array([t.center for t in plan.targets]))
+        start = np.where(np.asarray(plan.compliant, dtype=bool), path, whole)
+        longest = self._move_to(start, np.array([t.center for t in plan.targets]))
         speed = np.asarray(APPROACH_SPEED)
         outside = np.maximum(
             np.asarray(plan.rom_low) - seg.reach_low, seg.reach_high - np.asarray(plan.rom_high)

@@ -192,6 +192,7 @@ class Rig:
             s.integral[:] = 0.0
             s.x_m[:] = 0.0
             s.v_m[:] = 0.0
+            s.catch_up[:] = 0.0
             s.v_low[:] = 0.0
             s.leg_target[:] = s.leg_x
             s.leg_target_rate[:] = 0.0
@@ -238,6 +239,7 @@ class Rig:
             self.state.tare[:] = self.state.wrench
             self.state.x_m[:] = 0.0
             self.state.v_m[:] = 0.0
+            self.state.catch_up[:] = 0.0
             self.state.v_low[:] = 0.0
             supervision.disarm_following(self.state.counters)
         self.state.istate[ctl.I_MODE] = Mode.TASK
@@ -257,7 +259,13 @@ class Rig:
         after, against 0.32, 0.48 and 0.24 with no change. When each change held them off
         for 40 ms (``supervision.settle_side``), a 3 N m offset on the pitch torque landing
         with one was named in 46-56 ms instead of 20 and turned the platform 2.4-3.0 deg,
-        and a host that re-sent its K and B every 30 ms kept them off for good."""
+        and a host that re-sent its K and B every 30 ms kept them off for good.
+
+        An axis that starts rendering while the foot pushes it meets the whole push at once
+        (its offset starts at 0): a pitch held stiff against 8 N m, made compliant at K 20 by
+        the next segment, was commanded at 4.1 rad/s. It catches up with the foot at the
+        approach speed instead (``ControllerState.catch_up``; a new exercise, which tares
+        the foot's wrench, clears it)."""
         s = self.state
         K = np.asarray(stiffness, dtype=np.float64)
         B = np.asarray(damping, dtype=np.float64)
@@ -274,6 +282,7 @@ class Rig:
         s.compliant[:] = on
         s.stiffness[starting] = K[starting]
         s.damping[starting] = B[starting]
+        s.catch_up[starting & (on > 0.5)] = 1.0
 
     def release_impedance(self) -> None:
         """Render nothing: the next segment's K and B start where it asks, not slewed."""
@@ -284,11 +293,18 @@ class Rig:
         self.state.trajectory[:, 4] += seconds
 
     def resume_task(self) -> None:
-        """Back to task mode on the loaded waveforms, from a hold; no-op if tripped."""
+        """Back to task mode on the loaded waveforms, from a hold; no-op if tripped.
+
+        The compliance stood still through the hold while the foot did not (its push
+        kept changing, often reversing): each compliant axis catches up with it at no
+        more than the approach speed (``ControllerState.catch_up``), not at once. Taring
+        again instead would move the foot's neutral."""
         if self.mode != Mode.FAULT:
             supervision.disarm_following(self.state.counters)
             supervision.settle_side(self.state.counters)
-            self.state.istate[ctl.I_MODE] = Mode.TASK
+            s = self.state
+            s.catch_up[:] = np.where(s.compliant > 0.5, 1.0, 0.0)
+            s.istate[ctl.I_MODE] = Mode.TASK
 
     def set_vent(self, on: bool) -> None:
         """Release: vent the chambers slowly while idle or tripped (see device.controller).

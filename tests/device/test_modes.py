@@ -18,9 +18,10 @@ from device.axes import AXES
 from device.client import AxisPlan, build_segment
 from device.commands import CheckedImpedance, CheckedSegment
 from device.hardware import SimulatedHardware
-from device.modes import APPROACH_SPEED, ModeMachine
+from device.limits import APPROACH_SPEED
+from device.modes import ModeMachine
 from device.plant.faults import Fault, FaultKind
-from device.plant.model import SCRIPT_RAMP
+from device.plant.model import SCRIPT_RAMP, SCRIPT_SINE
 from device.plant.params import PlantConfig
 from device.protocol import messages as msg
 from device.protocol.messages import DeviceMode, EventKind
@@ -28,6 +29,7 @@ from device.rig import Rig
 from device.safety import Trip
 from device.waveforms import Waveform
 from lab import safety
+from sessions.prescription import ExerciseKind
 
 PASS_TICKS = 7
 """Interrupts in one pass of the service (1 ms)."""
@@ -246,6 +248,57 @@ def test_a_narrower_segment_sent_mid_run_brings_the_pushed_axis_in_gently() -> N
     assert closing.min() >= -APPROACH_SPEED[4] * 0.001 * 1.01
 
 
+def test_a_segment_that_makes_a_pushed_axis_stiff_brings_it_home_gently() -> None:
+    """A compliant pitch (K 20, B 1) is pushed 8 N m to 13 deg; the next segment leaves
+    pitch stiff. Its approach started from the waveform's part alone while the compliance's
+    offset was dropped at once: the command went 13.3 -> 0 deg in one control period and
+    FOLLOWING tripped 4 ms later (21 of 1000 random segment changes that made an axis
+    stiff). The offset is now folded into the approach's ramp."""
+    dev = Device(safety._rig("relaxed", 1))
+    dev.home()
+    dev.send(narrowed(dev, 1, 10.0, {"pitch": compliant_pitch(20.0, 1.0)}))
+    dev.push(4, 8.0, 0.4)
+    dev.run(2.0)
+    assert float(dev.pose[4]) > math.radians(10.0), "the foot never pushed pitch out"
+    dev.send(narrowed(dev, 2, 2.0, {"roll": AxisPlan(Waveform.HOLD)}))
+    home_pitch = dev.rig.geometry.home_pose[4]
+    cmd: list[float] = []
+
+    def each() -> None:
+        if dev.phase() == "approach":
+            cmd.append(float(dev.rig.state.pose_cmd[4] - home_pitch))
+
+    dev.run(4.5, each)
+    assert dev.rig.trip == Trip.NONE, dev.events
+    assert dev.kinds().count(EventKind.SEGMENT_DONE) == 1
+    assert cmd[0] > math.radians(10.0) and abs(cmd[-1]) < math.radians(0.1), (cmd[0], cmd[-1])
+    # The command moves once a control period (4 ms): over any 8 ms, 8 ms at the approach
+    # speed.
+    steps = np.abs(np.array(cmd[8:]) - np.array(cmd[:-8]))
+    assert steps.max() <= APPROACH_SPEED[4] * 0.008 * 1.001, steps.max()
+
+
+def test_a_segment_that_makes_a_pushed_axis_compliant_lets_it_go_gently() -> None:
+    """Pitch held stiff at home while the foot pushes 8 N m; the next segment makes it
+    compliant (K 20, B 1). Its offset started at 0 against the whole push: the command
+    moved at 4.1 rad/s (twice the published axis speed) to 13 deg. It now catches up with
+    the foot at the approach speed and settles where the push puts it on K."""
+    dev = Device(safety._rig("relaxed", 1))
+    dev.home()
+    dev.send(narrowed(dev, 1, 10.0, {"pitch": AxisPlan(Waveform.HOLD)}))
+    dev.push(4, 8.0, 0.4)
+    dev.run(2.0)
+    dev.send(narrowed(dev, 2, 5.0, {"pitch": compliant_pitch(20.0, 1.0)}))
+    home_pitch = dev.rig.geometry.home_pose[4]
+    cmd: list[float] = []
+    dev.run(4.0, lambda: cmd.append(float(dev.rig.state.pose_cmd[4] - home_pitch)))
+    assert dev.rig.trip == Trip.NONE, dev.events
+    assert not dev.rig.state.catch_up.any(), "it never caught up"
+    steps = np.abs(np.array(cmd[8:]) - np.array(cmd[:-8]))
+    assert steps.max() <= APPROACH_SPEED[4] * 0.008 * 1.05, steps.max() / 0.008
+    assert float(dev.pose[4]) > math.radians(10.0)
+
+
 # -- live K and B ---------------------------------------------------------------------------
 
 PITCH_SINE = AxisPlan(
@@ -381,3 +434,93 @@ def test_holds_and_resumes_two_milliseconds_apart_trip_nothing(seed: int) -> Non
     assert dev.rig.trip == Trip.NONE, dev.events[-1]
     assert EventKind.SERVICE not in dev.kinds()
     assert dev.modes.mode == DeviceMode.ACTIVE
+
+
+@pytest.mark.parametrize("patient", ["relaxed", "resisting"])
+@pytest.mark.parametrize("kind", [ExerciseKind.BALANCE, ExerciseKind.ROM_ASSESSMENT])
+def test_a_resume_while_the_foot_pushes_catches_up_gently(kind: ExerciseKind, patient: str) -> None:
+    """The library's exercise, the foot pushing a 5 N m, 0.3 Hz sine on each axis (as
+    ``lab.safety.start_exercise``), held 1 s into the push and resumed 1.5 s later. The
+    compliance stood still through the hold while the push reversed, and the law took the
+    whole mismatch at once: the roll command went 6.95 -> 1.39 deg in 20 ms and LEG_SPEED
+    tripped 30 ms after the resume (14 of 72 random holds in BALANCE and ROM_ASSESSMENT).
+    Each compliant axis now catches up at no more than the approach speed, then renders
+    its K and B again."""
+    targets, K, B, compliant = safety._library_targets(kind)
+    plans = {
+        axis: AxisPlan(
+            t.kind,
+            t.center,
+            t.amplitude,
+            t.frequency,
+            stiffness=float(K[AXES.index(axis)]),
+            damping=float(B[AXES.index(axis)]),
+            compliant=compliant[AXES.index(axis)],
+        )
+        for axis, t in targets.items()
+    }
+    dev = Device(safety._rig(patient, 1))
+    dev.home()
+    dev.send(build_segment(dev.rig.limits, 1, 30.0, plans))
+    dev.run(1.0)
+    hw = dev.rig.hardware
+    for axis in targets:
+        hw.script_torque(AXES.index(axis), SCRIPT_SINE, dev.rig.time, 5.0, 0.3)  # type: ignore[attr-defined]
+    dev.run(1.0)
+    dev.send(msg.HoldCmd())
+    dev.run(1.5)
+    dev.send(msg.Resume())
+    s = dev.rig.state
+    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    dev.run(4.0, lambda: rows.append((s.pose_cmd.copy(), s.x_m.copy(), s.catch_up.copy())))
+    assert dev.rig.trip == Trip.NONE, dev.events
+    assert dev.modes.mode == DeviceMode.ACTIVE
+    cmd = np.array([r[0] for r in rows])
+    x_m = np.array([r[1] for r in rows])
+    catching = np.array([r[2] for r in rows]) > 0.5
+    axes = [AXES.index(a) for a in targets]
+    assert catching[0, axes].all(), "the resume did not start a catch-up"
+    # The command, over a control period, never as fast as the published limit.
+    speed = np.abs(cmd[4:, axes] - cmd[:-4, axes]).max() / 0.004
+    assert speed < 0.75 * max(dev.rig.limits.axis_speed_max[k] for k in axes), speed
+    # The compliance moves at most a control period's approach step per pass while it
+    # catches up, and it has caught up within 3 s.
+    for k in axes:
+        moving = catching[:-1, k]
+        step = np.abs(np.diff(x_m[:, k]))[moving]
+        assert step.max() <= APPROACH_SPEED[k] * 0.004 * 1.001, (AXES[k], step.max())
+        ends = np.flatnonzero(~catching[:, k])
+        assert ends.size and ends[0] < 3000, (AXES[k], ends[:1])
+        assert not catching[ends[0] :, k].any()
+
+
+def test_a_compliance_that_caught_up_renders_its_stiffness() -> None:
+    """The foot's push on a compliant pitch (K 20, B 1) rises to 8 N m during a hold: after
+    the resume the compliance catches up at the approach speed (1.1 s) and the platform
+    then settles where its twin that was never held did (the foot's equilibrium on K)."""
+
+    def settle(held: bool) -> tuple[float, float]:
+        """Where pitch settles, and its command's fastest over 8 ms (two control periods)
+        from the resume on."""
+        dev = Device(safety._rig("relaxed", 1))
+        dev.home()
+        dev.send(narrowed(dev, 1, 30.0, {"pitch": compliant_pitch(20.0, 1.0)}))
+        dev.run(1.0)
+        if held:
+            dev.send(msg.HoldCmd())
+        dev.push(4, 8.0, 0.4)
+        dev.run(1.0)
+        if held:
+            dev.send(msg.Resume())
+        home_pitch = dev.rig.geometry.home_pose[4]
+        cmd: list[float] = []
+        dev.run(4.0, lambda: cmd.append(float(dev.rig.state.pose_cmd[4] - home_pitch)))
+        assert dev.rig.trip == Trip.NONE, dev.events
+        assert not dev.rig.state.catch_up.any()
+        fastest = np.abs(np.array(cmd[8:]) - np.array(cmd[:-8])).max() / 0.008
+        return float(dev.pose[4]), float(fastest)
+
+    (free, _), (held, fastest) = settle(False), settle(True)
+    assert fastest <= 1.5 * APPROACH_SPEED[4], fastest
+    assert free > math.radians(10.0), free
+    assert abs(held - free) < math.radians(0.3), (math.degrees(free), math.degrees(held))
