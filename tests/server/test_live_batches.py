@@ -68,6 +68,14 @@ async def test_every_sample_sent_in_bursts_reaches_a_viewer_that_keeps_up(
             await watch_bursts(station, viewer, bursts, per_burst, per_batch)
 
 
+async def next_command(station: ClientConnection) -> wire.Command:
+    """The next command relayed to ``station`` (what else the server sends it passed over)."""
+    while True:
+        message = wire.STATION_DOWN.validate_json(await station.recv())
+        if isinstance(message, wire.Command):
+            return message
+
+
 async def watch_bursts(
     station: ClientConnection, viewer: ClientConnection, bursts: int, per_burst: int, per_batch: int
 ) -> None:
@@ -94,8 +102,10 @@ async def watch_bursts(
                 await station.send(batch(first, per_batch))
                 first += per_batch
             if k == bursts // 2:  # an answer behind telemetry in the same socket
-                late = wire.CommandResult(request_id="none-asked", ok=True)
-                await station.send(late.model_dump_json())
+                await viewer.send(wire.Command(request_id="asked", action="hold").model_dump_json())
+                asked = await asyncio.wait_for(next_command(station), WAIT_S)
+                answer = wire.CommandResult(request_id=asked.request_id, ok=True)
+                await station.send(answer.model_dump_json())
             await asyncio.sleep(0.1)
         await asyncio.wait_for(watcher, WAIT_S)
     finally:
@@ -103,4 +113,4 @@ async def watch_bursts(
         for b in beats:
             b.cancel()
     assert seen == [i / 100 for i in range(total)]  # each one, once, in order
-    assert [r.request_id for r in results] == ["none-asked"]
+    assert [r.request_id for r in results] == ["asked"]
