@@ -655,6 +655,17 @@ async def test_the_viewer_s_process_gives_up_on_an_unanswered_command_and_says_s
         ]
 
 
+def asked_by(world: World) -> dict[str, object]:
+    """Who a forwarded command says asked for it: the first therapist, from a viewer."""
+    return {
+        "user_id": world.t1_id,
+        "station_id": world.s1_id,
+        "patient_id": world.p1,
+        "may_command": True,
+        "viewer": 7,
+    }
+
+
 @pytest.mark.asyncio
 async def test_the_station_s_process_records_an_answer_after_the_asker_gave_up_as_late(
     seeded: tuple[Path, World], tmp_path: Path, relay_url: str
@@ -672,13 +683,7 @@ async def test_the_station_s_process_records_an_answer_after_the_asker_gave_up_a
         await welcomed(station)
         await until_online(b, world.t1, world.s1_id, True)
         process = b.app.state.hub.relay.process
-        by = {
-            "user_id": world.t1_id,
-            "station_id": world.s1_id,
-            "patient_id": world.p1,
-            "may_command": True,
-            "viewer": 7,
-        }
+        by = asked_by(world)
 
         async def forward(request_id: str, timeout_s: float) -> wire.Command:
             message = {
@@ -885,13 +890,7 @@ async def test_a_forwarded_command_past_its_budget_is_not_sent_but_a_hold_is(
         await welcomed(station)
         await until_online(b, world.t1, world.s1_id, True)
         process = b.app.state.hub.relay.process
-        by = {
-            "user_id": world.t1_id,
-            "station_id": world.s1_id,
-            "patient_id": world.p1,
-            "may_command": True,
-            "viewer": 7,
-        }
+        by = asked_by(world)
         past = time.time() - 8.0  # as the probe saw: carried out 8 s after its TIMEOUT
         for request_id, asked in (
             (
