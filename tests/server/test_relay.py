@@ -891,7 +891,7 @@ async def test_a_forwarded_command_past_its_budget_is_not_sent_but_a_hold_is(
         await until_online(b, world.t1, world.s1_id, True)
         process = b.app.state.hub.relay.process
         by = asked_by(world)
-        past = time.time() - 8.0  # as the probe saw: carried out 8 s after its TIMEOUT
+        past = time.time() - 8.0  # as measured with Redis paused: 8 s after its TIMEOUT
         for request_id, asked in (
             (
                 "kb-stale",
