@@ -31,6 +31,7 @@ from server.config import Settings
 from server.hub import (
     AUDIT_WAIT_S,
     BUSY,
+    COMMAND_BURST,
     COMMANDS_PER_S,
     NOT_RECORDED_IN_TIME,
     SUPERSEDED,
@@ -244,19 +245,23 @@ async def test_a_view_has_at_most_so_many_commands_in_hand_at_once(
     """Each command is a task of its own: a view within its command budget, whose commands
     cannot end (the relay that says where its station is does not answer), is refused past
     VIEW_COMMANDS_MAX (BUSY), rather than given ever more tasks; each command still gets its
-    one answer once the relay is back."""
+    one answer once the relay is back. K/B changes: a HOLD waits for the relay only
+    ``SAFE_OWNER_WAIT_S`` and is refused, so HOLDs never pile up."""
     world = seeded[1]
     data_dir = copy_seeded(seeded[0], tmp_path / "data")
     (tmp_path / "redis").mkdir()
     with spawned_redis(tmp_path / "redis") as (proc, url):
         relayed = Settings(data_dir=data_dir, relay_url=f"{url}/0")
         async with running(relayed) as a, viewer(a, world.t1, world.s1_id) as v:
-            asked = [f"hold-{n}" for n in range(VIEW_COMMANDS_MAX + 1)]
+            asked = [f"kb-{n}" for n in range(VIEW_COMMANDS_MAX + 1)]
             proc.send_signal(signal.SIGSTOP)  # Redis stands still: no answer, no error
             try:
-                for request_id in asked:
-                    await v.send(request_id, "hold")
-                    await asyncio.sleep(1.0 / (COMMANDS_PER_S * 0.8))  # within the budget
+                # The budget's whole burst at once, then one more as soon as the window lets
+                # it: all of it well inside the 5 s the relay's look-ups wait for Redis.
+                for request_id in asked[:-1]:
+                    await v.send(request_id, "set_impedance", stiffness={"pitch": 50.0})
+                await asyncio.sleep(COMMAND_BURST / COMMANDS_PER_S + 0.05)
+                await v.send(asked[-1], "set_impedance", stiffness={"pitch": 50.0})
                 busy = await v.next_of(wire.CommandResult, asked[-1])
             finally:
                 proc.send_signal(signal.SIGCONT)
