@@ -180,7 +180,9 @@ async def test_postgresql_that_stops_answering_is_a_503_within_the_wait(
                 routes_s = time.monotonic() - started
             print(f"health {health_s:.1f} s, {len(answers)} routes {routes_s:.1f} s")
             _assert_away(answers)
-            assert health_s < HEALTH_WAIT_S + DATABASE_WAIT_S
+            # Within its wait and a margin for a busy machine: the check past the wait was
+            # cancelled, and the cancel waited on the frozen server (4.0 s).
+            assert health_s < HEALTH_WAIT_S + 1.5
             await _works_again(live, world)
 
 
