@@ -30,6 +30,7 @@ from device.safety import Trip
 from device.waveforms import Waveform
 from lab import safety
 from sessions.prescription import ExerciseKind
+from tests.device.test_service import PITCH as SERVICE_PITCH
 
 PASS_TICKS = 7
 """Interrupts in one pass of the service (1 ms)."""
@@ -397,16 +398,6 @@ def test_a_new_impedance_leaves_the_checks_judging() -> None:
 
 
 # -- hold and resume ------------------------------------------------------------------------
-
-SERVICE_PITCH = AxisPlan(
-    Waveform.SINE,
-    amplitude=math.radians(6.0),
-    frequency=0.5,
-    stiffness=30.0,
-    damping=1.0,
-    compliant=True,
-)
-"""The device service tests' exercise: a compliant pitch sine from home."""
 
 
 @pytest.mark.parametrize("seed", [4, 6, 7])
