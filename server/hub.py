@@ -36,7 +36,7 @@ from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 from fastapi import WebSocket, WebSocketDisconnect
-from limits import RateLimitItem, RateLimitItemPerSecond
+from limits import RateLimitItem, RateLimitItemPerMinute, RateLimitItemPerSecond
 from limits.storage import MemoryStorage
 from limits.strategies import MovingWindowRateLimiter
 from sqlalchemy import select
@@ -155,6 +155,11 @@ def _window(burst: int, per_s: float) -> RateLimitItem:
 
 COMMAND_WINDOW = _window(COMMAND_BURST, COMMANDS_PER_S)
 REFUSAL_ROWS_WINDOW = _window(REFUSAL_ROWS_BURST, int(REFUSAL_ROWS_PER_S))
+DROPPED_LOG_WINDOW = RateLimitItemPerMinute(5)
+"""Warnings of dropped results a station may cause: 5 in any minute. A station answering
+request ids nobody sent, thousands a second, wrote a warning each; the metric
+``ankle_live_results_dropped`` still counts every one, and the next warning let through
+says how many went unlogged."""
 
 
 TOO_SLOW = "the viewer fell too far behind the events sent to it; reconnect"
@@ -373,6 +378,9 @@ class Hub:
         self._tasks: set[asyncio.Task[Any]] = set()
         self.writer = AuditWriter()
         self.refusals = Refusals(self.writer)
+        self._serial = str(next(_hubs))
+        self._unlogged: collections.Counter[int] = collections.Counter()
+        """Dropped results of each station not logged (``DROPPED_LOG_WINDOW``)."""
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
         self._recheck_done = 0
@@ -1091,11 +1099,16 @@ class Hub:
                 self.broadcast(station_id, result.model_dump_json())
                 return
         metrics.result_dropped()
+        if not _COUNTS.hit(DROPPED_LOG_WINDOW, "dropped", str(self._serial), str(station_id)):
+            self._unlogged[station_id] += 1
+            return
+        unlogged = self._unlogged.pop(station_id, 0)
         log.warning(
             "station %d answered request %r, which is not awaiting its answer (answered "
-            "already, or never sent to it): dropped",
+            "already, or never sent to it): dropped%s",
             station_id,
-            result.request_id,
+            result.request_id[:64],
+            f" ({unlogged} more like it since the last such warning)" if unlogged else "",
         )
 
     def _unanswered(self, request_id: str, code: str, text: str) -> InFlight | None:

@@ -67,7 +67,8 @@ LIVE_MESSAGES = Counter(
 RESULTS_DROPPED = Counter(
     "ankle_live_results_dropped",
     "Command results a station sent for no command awaiting its answer (a second answer to "
-    "one command, or a request id never sent to it): logged, not shown to the viewers.",
+    "one command, or a request id never sent to it): not shown to the viewers, logged at most "
+    "5 times a minute a station.",
     registry=REGISTRY,
 )
 COMMAND_SECONDS = Histogram(

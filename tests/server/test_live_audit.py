@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -19,7 +20,7 @@ import pytest
 from sqlalchemy import text
 from websockets.asyncio.client import ClientConnection
 
-from server import live_audit
+from server import hub, live_audit, metrics
 from server.hub import COMMAND_TIMEOUT_S
 from server.relay import LocalRelay, Message
 from sessions import wire
@@ -326,6 +327,28 @@ async def test_only_the_first_answer_to_a_command_sent_reaches_the_viewers(
     assert results == [("twice", True), ("after", True)]
     request, outcome = await rows_of(live, world, "twice", 2)
     assert (request["action"], outcome["action"]) == ("resume.request", "resume.accepted")
+
+
+@pytest.mark.asyncio
+async def test_a_flood_of_answers_to_nothing_is_counted_and_logged_a_few_times(
+    live: Live, world: World, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A station answering request ids nobody sent, as fast as it can, wrote a warning for
+    each: the log grew as fast as the station could send. The metric counts every one; the
+    log says a few, then how many it left out."""
+    caplog.set_level(logging.WARNING, "ankle.server.live")
+    dropped = metrics.RESULTS_DROPPED._value.get()
+    async with viewer(live, world.t1, world.s1_id) as v, station(live, world, silent) as link:
+        await v.next_of(wire.Presence)
+        for k in range(40):
+            await link.send(wire.CommandResult(request_id=f"n{k}", ok=True, text=ACK_TEXT))
+        await v.send("after", "resume")
+        await link.send(ack(await link.next_command()))
+        await v.next_of(wire.CommandResult, "after")
+    warned = [r.getMessage() for r in caplog.records if "not awaiting its answer" in r.getMessage()]
+    assert metrics.RESULTS_DROPPED._value.get() - dropped == 40
+    assert len(warned) == hub.DROPPED_LOG_WINDOW.amount, warned
+    assert "'n0'" in warned[0] and "more like it" not in warned[0]
 
 
 @pytest.mark.asyncio
