@@ -772,23 +772,24 @@ def _run_experiment(args: argparse.Namespace) -> int:
     data["plant"] = plant.describe()
     if plant.draw is not None or plant.changes:
         text += f" [on {plant.describe()}]"
+    # The trace and the figure are written for an invalid run too: a run that tripped or
+    # saturated is the one whose trace is wanted (its measurement is what is withheld).
+    if getattr(args, "csv", None) and trace is not None:
+        _write_csv(args.csv, trace[0], trace[1])
+    verdict = invalid_text or f"INVALID: {health.words()} ({what}); no measurement"
+    if getattr(args, "plot", None) and figure is not None:
+        with _plots().invalid(None if health.valid else verdict):
+            figure(args.plot)
     if not health.valid:
         if args.json:
             print(json.dumps(_jsonable(_nulled(data, measured) | _health(health))))
         else:
-            print(
-                (invalid_text or f"INVALID: {health.words()} ({what}); no measurement")
-                + _fault_lines(health.faults)
-            )
+            print(verdict + _fault_lines(health.faults))
         return INVALID
     if health.words() and args.experiment != "sweep":
         text += f" [{health.words()}]"
     text += _fault_lines(health.faults)
     print(json.dumps(_jsonable(data | _health(health))) if args.json else text)
-    if getattr(args, "csv", None) and trace is not None:
-        _write_csv(args.csv, trace[0], trace[1])
-    if getattr(args, "plot", None) and figure is not None:
-        figure(args.plot)
     return 0
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
+import textwrap
+from collections.abc import Iterator
 from pathlib import Path
 
 import matplotlib
@@ -21,10 +24,29 @@ from lab.experiments import (
 )
 from lab.frequency import Response
 
+_INVALID: list[str] = []
+
+
+@contextlib.contextmanager
+def invalid(note: str | None) -> Iterator[None]:
+    """Figures saved inside say ``note`` across their top in red: the trace of a run that
+    tripped or saturated is drawn (it is the one wanted), and must not read as a valid
+    response (a step cut short by a trip looked like a poor step)."""
+    _INVALID.append(note or "")
+    try:
+        yield
+    finally:
+        _INVALID.pop()
+
 
 def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if _INVALID and _INVALID[-1]:
+        note = textwrap.fill(_INVALID[-1], 90)
+        fig.text(0.5, 0.995, note, color="crimson", ha="center", va="top", fontsize=9)
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.025 * (note.count("\n") + 2)))
+    else:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

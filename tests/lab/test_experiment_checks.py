@@ -4,6 +4,7 @@ credits to an injected fault: as ``ankle sim`` reports them, in process."""
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,6 +55,28 @@ def test_a_step_that_does_not_settle_in_its_record_is_invalid_and_its_values_nul
     assert "did not settle" in data["invalid_reason"], data
     assert all(data[k] is None for k in ("rise_ms", "overshoot_pct", "settling_ms")), data
     assert data["steady_error_mm"] is None
+
+
+def test_an_invalid_run_still_writes_its_trace_and_a_figure_that_says_so(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A run that tripped wrote no --csv and no --plot: the trace wanted most was the one
+    withheld. Now both are written, and the verdict is on the figure."""
+    out_csv, out_png = tmp_path / "step.csv", tmp_path / "step.png"
+    code, out, _ = sim(
+        capsys,
+        "step",
+        "--fault",
+        "pressure_open@0.55:11",
+        "--csv",
+        str(out_csv),
+        "--plot",
+        str(out_png),
+    )
+    assert code == 1 and out.startswith("INVALID: tripped PRESSURE_SENSOR"), out
+    rows = out_csv.read_text().splitlines()
+    assert rows[0].startswith("t_s,") and len(rows) > 100
+    assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_an_uncompensated_step_that_swings_through_the_band_never_settles(
