@@ -44,7 +44,7 @@ def home_progress(
     sessions: Iterable[tuple[datetime, dict[str, Any] | None]], side: str | None, now: datetime
 ) -> HomeProgress:
     """``sessions``: each one's start and stored summary; ``side``: the affected foot."""
-    rows = sorted(sessions, key=lambda s: s[0])
+    rows = sorted((s for s in sessions if exercised(s[1])), key=lambda s: s[0])
     recent = [summary for started, summary in rows if now - started <= WEEK]
     if not rows:
         return HomeProgress(sessions_last_7_days=0, sessions_total=0, directions=[])
@@ -66,6 +66,25 @@ def home_progress(
                 )
     return HomeProgress(
         sessions_last_7_days=len(recent), sessions_total=len(rows), directions=directions
+    )
+
+
+EXERCISED_S = 60.0
+"""A session that neither completed nor finished a repetition counts as exercise from this
+much exercise time (device ACTIVE) on."""
+
+
+def exercised(summary: dict[str, Any] | None) -> bool:
+    """Whether a session counts as exercise for the patient's page: it completed, or finished
+    a repetition, or exercised for :data:`EXERCISED_S`. A station that stopped a second into
+    a session left one interrupted with 0 repetitions, and the page said "6 exercise sessions
+    in the last 7 days. Well done!" for it. A summary stored without those fields counts."""
+    if summary is None:
+        return True
+    return bool(
+        summary.get("end_reason", "completed") == "completed"
+        or summary.get("repetitions_completed", 1) > 0
+        or summary.get("duration_s", EXERCISED_S) >= EXERCISED_S
     )
 
 

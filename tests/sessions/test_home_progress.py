@@ -45,3 +45,27 @@ def test_no_comparison_within_the_first_week_and_nothing_without_sessions() -> N
     assert (p.sessions_last_7_days, p.sessions_total, p.directions) == (2, 2, [])
     none = home_progress([], None, NOW)
     assert (none.sessions_last_7_days, none.sessions_total, none.directions) == (0, 0, [])
+
+
+def test_a_session_that_never_got_going_is_not_counted_as_exercise() -> None:
+    """A station that stopped a second into a session left it interrupted with 0
+    repetitions, and the patient's page counted it: "6 exercise sessions ... Well done!"."""
+
+    def ended(reason: str, reps: int, active_s: float) -> dict[str, Any]:
+        return summary((-5.0, 9.0)) | {
+            "end_reason": reason,
+            "repetitions_completed": reps,
+            "duration_s": active_s,
+        }
+
+    sessions = [
+        (NOW - timedelta(days=1), ended("interrupted", 0, 1.2)),  # never got going
+        (NOW - timedelta(days=1), ended("fault", 0, 20.0)),  # nor this one
+        (NOW - timedelta(days=2), ended("completed", 0, 30.0)),  # a hold with no repetitions
+        (NOW - timedelta(days=3), ended("stopped", 4, 40.0)),  # stopped after 4 repetitions
+        (NOW - timedelta(days=4), ended("interrupted", 0, 300.0)),  # 5 minutes of exercise
+    ]
+    p = home_progress(sessions, "left", NOW)
+    assert (p.sessions_last_7_days, p.sessions_total) == (3, 3)
+    only_false_starts = home_progress(sessions[:2], "left", NOW)
+    assert (only_false_starts.sessions_total, only_false_starts.sessions_last_7_days) == (0, 0)
