@@ -1,17 +1,26 @@
-"""The days and times a query may name (``since``, ``until``), and how a query is refused.
+"""The days and times a query may name (``since``, ``until``), the time zone whose days
+they are (``tz``), and how a query is refused.
 
 One range for every route that takes a period (the session list, the progress page, the
-report and the FHIR bundle), one check (:func:`utc_time`) and one shape of refusal. The
-range holds any day a record can hold, with room to count the day after the last (a
+report and the FHIR bundle), one check (:func:`utc_time`), one reading of ``tz``
+(:func:`zone`), one rule for when a day begins (:func:`midnight`) and one shape of refusal.
+The range holds any day a record can hold, with room to count the day after the last (a
 period's end is the next midnight), so no date a client sends reaches an overflow.
+
+A day is the therapist's own: the dashboard sends the browser's zone, since a day of UTC
+begins at 16:00 or 17:00 the evening before on the US Pacific coast and leaves out the last
+evening of the period. Without ``tz`` a day is UTC's, as it always was.
 """
 
 from __future__ import annotations
 
 import re
 from datetime import UTC, date, datetime, time, timedelta
+from functools import cache
+from typing import Annotated
+from zoneinfo import ZoneInfo, available_timezones
 
-from fastapi import HTTPException
+from fastapi import HTTPException, Query
 
 FIRST_DAY, LAST_DAY = date(1900, 1, 1), date(9998, 12, 31)
 """The days a query may name, both included."""
@@ -69,21 +78,71 @@ def iso_day(text: str) -> date | None:
         return None
 
 
-def day_or_time(name: str, text: str | None, *, end_of_day: bool = False) -> datetime | None:
-    """A query's date (exactly YYYY-MM-DD, :func:`iso_day`; midnight UTC, with
-    ``end_of_day`` the next midnight, so the day is included) or ISO 8601 time on such a
-    day (UTC if it names no offset), checked by :func:`utc_time`; a 422 that names the
-    parameter and the range for anything else."""
+TZ_EXAMPLE = "Europe/Berlin"
+TZ_DOC = (
+    "The IANA time zone whose calendar days since and until are (the dashboard sends the "
+    f"browser's own). Default: UTC. Such as {TZ_EXAMPLE}, America/Los_Angeles or UTC."
+)
+Tz = Annotated[str | None, Query(description=TZ_DOC, examples=[TZ_EXAMPLE])]
+"""The ``tz`` query parameter of a route whose days are a person's (read by :func:`zone`)."""
+
+
+@cache
+def _zone_names() -> frozenset[str]:
+    """The IANA names the server knows (its system's tz database, else the tzdata package).
+    The one test of a name: ``ZoneInfo`` alone also opens ``localtime`` (whatever the
+    server's own clock is set to) and ``right/...`` files, and fails on a long name with an
+    OSError rather than saying it knows no such zone."""
+    return frozenset(available_timezones() - {"localtime"})
+
+
+def zone(text: str | None) -> ZoneInfo:
+    """The time zone ``tz`` names; UTC if none; a 422 naming ``tz`` for a name not known."""
+    if text is None:
+        return ZoneInfo("UTC")
+    if text not in _zone_names():
+        raise refuse(
+            "tz",
+            f"the time zone (tz) must be an IANA time zone name such as {TZ_EXAMPLE} or UTC; "
+            f"got {shown(text)!r}",
+        )
+    return ZoneInfo(text)
+
+
+def midnight(day: date, tz: ZoneInfo) -> datetime:
+    """The instant ``day`` begins in ``tz``: its first wall-clock time, which zoneinfo
+    places by that day's own offset (a day that changes to or from summer time is 23 or
+    25 hours long; never a fixed offset). Where the clock jumps past midnight itself, the
+    day begins at the jump."""
+    return datetime.combine(day, time(), tzinfo=tz)
+
+
+def day_or_time(
+    name: str, text: str | None, *, end_of_day: bool = False, tz: ZoneInfo | None = None
+) -> datetime | None:
+    """A query's date (exactly YYYY-MM-DD, :func:`iso_day`; its :func:`midnight` in ``tz``,
+    with ``end_of_day`` the next day's, so the day is included) or ISO 8601 time on such a
+    day (a wall-clock time of ``tz`` if it names no offset), in UTC; without ``tz`` the
+    days and clock are UTC's. A 422 that names the parameter and the range for anything
+    else: a day (a time's, as written) outside the range, or a time whose offset moves it
+    out (:func:`utc_time`)."""
     if text is None or text == "":
         return None
     day = iso_day(text)
     if day is not None:
-        midnight = utc_time(name, datetime.combine(day, time()), text)
-        return midnight + timedelta(days=1) if end_of_day else midnight
+        if not FIRST_DAY <= day <= LAST_DAY:
+            raise _outside(name, text)
+        begins = midnight(day + timedelta(days=1) if end_of_day else day, tz or ZoneInfo("UTC"))
+        return begins.astimezone(UTC)
     if _DAY.fullmatch(text) is None:  # a time's day is written YYYY-MM-DD too
         raise _outside(name, text)
     try:
         when = datetime.fromisoformat(text)
     except ValueError:
         raise _outside(name, text) from None
+    if when.tzinfo is None and tz is not None:
+        # The zone's clock, on a day of the range: no offset of its moves it past year 9999.
+        if not FIRST_DAY <= when.date() <= LAST_DAY:
+            raise _outside(name, text)
+        return when.replace(tzinfo=tz).astimezone(UTC)
     return utc_time(name, when, text)

@@ -18,7 +18,7 @@ from server.deps import Db, Id, TherapistOrAdmin, patient_for
 from server.facts import prescription_facts, session_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
-from server.routes.dates import day_or_time, refuse, shown
+from server.routes.dates import Tz, day_or_time, refuse, shown, zone
 from server.routes.sessions import with_metrics
 from sessions.anatomy import direction_table
 from sessions.prescription import ExerciseKind
@@ -94,7 +94,9 @@ async def load_progress(
     responses={
         **UNAUTHORIZED,
         **NOT_FOUND,
-        422: {"description": "A date or kind not understood, or a date outside 1900..9998."},
+        422: {
+            "description": "A date, kind or time zone not understood, or a date outside 1900..9998."
+        },
     },
 )
 async def get_progress(
@@ -103,25 +105,31 @@ async def get_progress(
     db: Db,
     user: TherapistOrAdmin,
     since: Annotated[
-        str | None, Query(description="From this day (YYYY-MM-DD) or time (ISO 8601).")
+        str | None,
+        Query(
+            description="From this day (YYYY-MM-DD, of tz) or time (ISO 8601; tz's clock if "
+            "it names no offset)."
+        ),
     ] = None,
     until: Annotated[
         str | None,
         Query(
-            description="Up to and including this day (YYYY-MM-DD), or before this time; "
-            "days from 1900-01-01 to 9998-12-31."
+            description="Up to and including this day (YYYY-MM-DD, of tz), or before this "
+            "time; days from 1900-01-01 to 9998-12-31."
         ),
     ] = None,
     kind: Annotated[
         str | None, Query(description="One exercise type (strength, rom_assessment, …).")
     ] = None,
+    tz: Tz = None,
 ) -> ProgressPublic:
     """Per exercise type, a series per direction; the baseline (the first ROM assessment);
     MDC95 from the device's own repeated trials, with a change flagged real only beyond it;
     adherence per prescription per prescribed week, never above what was prescribed. See
     ``sessions.progress`` for how each number is made."""
-    start = day_or_time("since", since)
-    end = day_or_time("until", until, end_of_day=True)
+    where = zone(tz)
+    start = day_or_time("since", since, tz=where)
+    end = day_or_time("until", until, end_of_day=True, tz=where)
     exercise = parse_kind(kind)
     if start is not None and end is not None and start >= end:
         raise refuse("since", f"since ({since}) must be before until ({until})")

@@ -4,7 +4,8 @@ audited as data leaving the system (``patient.export``, with the format, period 
 
 Who may: the patient's therapist, or an admin (read-only, as for sessions); anyone else
 gets the 404 of a patient that does not exist. The period is whole days of one time zone
-(``tz``, an IANA name; UTC if not given), both ends included, ending today at the latest
+(``tz``, an IANA name; UTC if not given; read as the session list and the progress page read
+it, ``server.routes.dates.zone`` and ``midnight``), both ends included, ending today at the latest
 (:data:`AHEAD_OF_UTC`); it defaults to the :data:`DEFAULT_DAYS` days up to today. The PDF
 prints every time on that zone's clock, and names it.
 """
@@ -13,10 +14,9 @@ from __future__ import annotations
 
 import asyncio
 import json
-from datetime import date, datetime, time, timedelta
-from functools import cache
+from datetime import date, timedelta
 from typing import Annotated, Any
-from zoneinfo import ZoneInfo, available_timezones
+from zoneinfo import ZoneInfo
 
 from fastapi import APIRouter, Query, Request, Response
 from sqlalchemy import select
@@ -27,7 +27,16 @@ from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ascii_name, attachment, name_part
-from server.routes.dates import FIRST_DAY, LAST_DAY, iso_day, refuse, shown
+from server.routes.dates import (
+    FIRST_DAY,
+    LAST_DAY,
+    TZ_EXAMPLE,
+    iso_day,
+    midnight,
+    refuse,
+    shown,
+    zone,
+)
 from server.routes.progress import load_progress
 from sessions import fhir, record
 
@@ -59,7 +68,6 @@ Until = Annotated[
         examples=["2026-03-31"],
     ),
 ]
-TZ_EXAMPLE = "Europe/Berlin"
 Tz = Annotated[
     str | None,
     Query(
@@ -69,28 +77,6 @@ Tz = Annotated[
         examples=[TZ_EXAMPLE],
     ),
 ]
-
-
-@cache
-def _zone_names() -> frozenset[str]:
-    """The IANA names the server knows (its system's tz database, else the tzdata package).
-    The one test of a name: ``ZoneInfo`` alone also opens ``localtime`` (whatever the
-    server's own clock is set to) and ``right/...`` files, and fails on a long name with an
-    OSError rather than saying it knows no such zone."""
-    return frozenset(available_timezones() - {"localtime"})
-
-
-def zone(text: str | None) -> ZoneInfo:
-    """The time zone ``tz`` names; UTC if none; a 422 naming ``tz`` for a name not known."""
-    if text is None:
-        return ZoneInfo("UTC")
-    if text not in _zone_names():
-        raise refuse(
-            "tz",
-            f"the time zone (tz) must be an IANA time zone name such as {TZ_EXAMPLE} or UTC; "
-            f"got {shown(text)!r}",
-        )
-    return ZoneInfo(text)
 
 
 def _day(field: str, text: str | None) -> date | None:
@@ -129,13 +115,6 @@ def period(since: str | None, until: str | None, tz: ZoneInfo | None = None) -> 
             "must start on or before the day it ends",
         )
     return first, last
-
-
-def midnight(day: date, tz: ZoneInfo) -> datetime:
-    """The instant ``day`` begins in ``tz``: its first wall-clock time, which zoneinfo
-    places by that day's own offset (a day that changes to or from summer time is 23 or
-    25 hours long; never a fixed offset)."""
-    return datetime.combine(day, time(), tzinfo=tz)
 
 
 async def patient_record(

@@ -36,7 +36,7 @@ from server import audit
 from server.deps import Db, Id, Offset, TherapistOrAdmin, record_for
 from server.models import Patient, Session
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ErrorPublic, attachment, file_sha256
-from server.routes.dates import day_or_time, refuse
+from server.routes.dates import Tz, day_or_time, refuse, zone
 from sessions.export import FILE_SUFFIX, FORMATS, MEDIA_TYPES
 from sessions.prescription import AXIS_INDEX, ROTATION_AXES
 from sessions.recording import Recording, read
@@ -100,25 +100,28 @@ async def list_sessions(
     since: Annotated[
         str | None,
         Query(
-            description="Started on or after this day (YYYY-MM-DD) or at or after this time "
-            "(ISO 8601; UTC if it names no offset)."
+            description="Started on or after this day (YYYY-MM-DD, of tz) or at or after this "
+            "time (ISO 8601; tz's clock, UTC without tz, if it names no offset)."
         ),
     ] = None,
     until: Annotated[
         str | None,
         Query(
-            description="Started up to and including this day (YYYY-MM-DD), or before this "
-            "time; days from 1900-01-01 to 9998-12-31."
+            description="Started up to and including this day (YYYY-MM-DD, of tz), or before "
+            "this time; days from 1900-01-01 to 9998-12-31."
         ),
     ] = None,
+    tz: Tz = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 100,
     offset: Annotated[Offset, Query()] = 0,
 ) -> list[SessionPublic]:
     """Newest first. A therapist sees their own patients' sessions; an admin sees all.
     ``since`` and ``until`` are read as the progress page, the report and the FHIR bundle
-    read them (``server.routes.dates.day_or_time``): a day ``until`` names is included."""
-    start = day_or_time("since", since)
-    end = day_or_time("until", until, end_of_day=True)
+    read them (``server.routes.dates.day_or_time``): a day ``until`` names is included, and
+    the days are those of ``tz`` if the caller names it."""
+    where = zone(tz)
+    start = day_or_time("since", since, tz=where)
+    end = day_or_time("until", until, end_of_day=True, tz=where)
     if start is not None and end is not None and start >= end:
         raise refuse("since", f"since ({since}) must be before until ({until})")
     q = select(Session).join(Patient, Patient.id == Session.patient_id)

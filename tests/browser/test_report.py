@@ -141,3 +141,14 @@ def test_the_report_and_the_fhir_bundle_download_from_the_patients_page(
     # Both downloads left the system on the record; the refused one did not.
     rows = therapist.get("/audit", params={"action": "patient.export", "patient_id": pid}).json()
     assert sorted(row["new"]["format"] for row in rows) == ["fhir", "pdf"]
+
+    # The progress filter's days are the therapist's too: the session counts on the day
+    # their calendar shows it, which is not its UTC day (without tz the server counted none).
+    (session,) = therapist.get("/sessions", params={"patient_id": pid}).json()
+    day = datetime.fromisoformat(session["started_at"]).astimezone(ZoneInfo(zone)).date()
+    page.get_by_label("From").fill(str(day))
+    page.get_by_label("Until").fill(str(day))
+    with page.expect_response(lambda r: "/progress?" in r.url) as answer:
+        page.get_by_role("button", name="Show").click()
+    assert parse_qs(urlsplit(answer.value.url).query)["tz"] == [zone]
+    assert sum(e["sessions"] for e in answer.value.json()["exercises"]) == 1

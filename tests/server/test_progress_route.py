@@ -4,7 +4,7 @@ they existed."""
 from __future__ import annotations
 
 import time
-from datetime import date, timedelta
+from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -131,6 +131,17 @@ BAD: list[tuple[dict[str, Any], str, str]] = [
     ({"since": "2026-03-10", "until": "2026-03-01"}, "since", "since (2026-03-10) must be before"),
     ({"kind": "yoga"}, "kind", "kind 'yoga' is not an exercise type"),
 ]
+BAD_ZONES: list[tuple[dict[str, Any], str, str]] = [
+    # The report's sentence, word for word (server.routes.dates.zone): one rule, one refusal.
+    (
+        {"tz": "Mars/Olympus_Mons", "since": "2026-12-01"},
+        "tz",
+        "the time zone (tz) must be an IANA time zone name such as Europe/Berlin or UTC; "
+        "got 'Mars/Olympus_Mons'",
+    ),
+    ({"tz": "localtime"}, "tz", "got 'localtime'"),
+    ({"tz": "Europe/" + "x" * 300}, "tz", "such as Europe/Berlin or UTC; got 'Europe/xxx"),
+]
 
 
 @pytest.mark.asyncio
@@ -139,10 +150,16 @@ async def test_bad_dates_and_kinds_are_a_sentence_naming_the_parameter(
 ) -> None:
     """In the list shape of every 422 (the report's and FHIR's period too); a day past the
     range the server counts is one of them, not an overflow."""
-    for params, field, words in BAD:
+    for params, field, words in BAD + BAD_ZONES:
         r = await live.client.get(
             f"/patients/{world.p1}/progress", params=params, headers=bearer(world.t1)
         )
+        assert r.status_code == 422, params
+        (error,) = r.json()["detail"]
+        assert error["loc"] == ["query", field], r.text
+        assert words in error["msg"], r.text
+    for params, field, words in BAD_ZONES:  # the session list refuses them alike
+        r = await live.client.get("/sessions", params=params, headers=bearer(world.t1))
         assert r.status_code == 422, params
         (error,) = r.json()["detail"]
         assert error["loc"] == ["query", field], r.text
@@ -151,7 +168,15 @@ async def test_bad_dates_and_kinds_are_a_sentence_naming_the_parameter(
 
 @pytest.mark.asyncio
 async def test_the_last_day_the_server_counts_is_a_period_end(live: Live, world: World) -> None:
-    for params in ({"until": "9998-12-31"}, {"since": "1900-01-01", "until": "9998-12-31T12:00"}):
+    for params in (
+        {"until": "9998-12-31"},
+        {"since": "1900-01-01", "until": "9998-12-31T12:00"},
+        # The first day begins on 31 December 1899 in UTC east of Greenwich, the last ends
+        # on 1 January 9999 west of it: days of the range all the same.
+        {"since": "1900-01-01", "tz": "Pacific/Kiritimati"},
+        {"until": "9998-12-31", "tz": "Etc/GMT+12"},
+        {"until": "9998-12-31T23:59", "tz": "Etc/GMT+12"},
+    ):
         r = await live.client.get(
             f"/patients/{world.p1}/progress", params=params, headers=bearer(world.t1)
         )
@@ -231,6 +256,85 @@ async def test_the_session_list_reads_a_day_as_progress_and_the_report_do(
         assert "from 1900-01-01 to 9998-12-31" in error["msg"], error["msg"]
     r = await live.client.get("/sessions", params={"since": after, "until": before}, headers=t1)
     assert r.status_code == 422, r.text
+
+
+LA = "America/Los_Angeles"
+EVENING_BEFORE = datetime(2026, 12, 1, 6, 0, tzinfo=UTC)
+"""22:00 on 30 November in Los Angeles (UTC-08:00), on 1 December in UTC."""
+LAST_EVENING = datetime(2026, 12, 2, 5, 30, tzinfo=UTC)
+"""21:30 on 1 December in Los Angeles, on 2 December in UTC."""
+
+
+async def assess_at(live: Live, world: World, rx: int, at: datetime) -> int:
+    rows = assessment_rows([(20.0, 10.0)])
+    return await upload(live, world, rows, rx, ExerciseKind.ROM_ASSESSMENT, at.timestamp())
+
+
+async def listed(live: Live, world: World, params: dict[str, str]) -> list[int]:
+    r = await live.client.get("/sessions", params=params, headers=bearer(world.t1))
+    assert r.status_code == 200, (params, r.text)
+    return [s["id"] for s in r.json()]
+
+
+@pytest.mark.asyncio
+async def test_a_day_is_the_therapists_own_with_tz_and_utcs_without(
+    live: Live, world: World
+) -> None:
+    """A therapist in Los Angeles asking for 1 December got the sessions from 16:00 on 30
+    November and missed the evening of the 1st (the days were UTC's); with ``tz`` the days
+    are theirs, as in the report. Without it the list and progress read UTC days, as
+    before; a time that names its offset is its own instant either way."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    before = await assess_at(live, world, rx, EVENING_BEFORE)
+    last = await assess_at(live, world, rx, LAST_EVENING)
+    day = {"since": "2026-12-01", "until": "2026-12-01"}
+    for params, ids in [
+        ({**day, "tz": LA}, [last]),
+        (day, [before]),
+        ({**day, "tz": "UTC"}, [before]),
+        ({"since": "2026-12-01", "tz": LA}, [last]),
+        ({"since": "2026-12-01"}, [last, before]),
+        ({"until": "2026-11-30", "tz": LA}, [before]),
+        ({"until": "2026-11-30"}, []),
+        # A time that names no offset is on the zone's clock; one that does, its own.
+        ({"until": "2026-11-30T23:00", "tz": LA}, [before]),
+        ({"until": "2026-11-30T23:00"}, []),
+        ({"since": "2026-12-02T05:00:00Z", "tz": LA}, [last]),
+        ({"since": "2026-12-01T21:00:00-08:00", "tz": "Asia/Tokyo"}, [last]),
+    ]:
+        assert await listed(live, world, params) == ids, params
+    for params, session in [({**day, "tz": LA}, last), (day, before)]:
+        r = await live.client.get(
+            f"/patients/{world.p1}/progress", params=params, headers=bearer(world.t1)
+        )
+        assert r.status_code == 200, r.text
+        (exercise,) = r.json()["exercises"]
+        assert exercise["sessions"] == 1, params
+        points = exercise["measures"][0]["points"]
+        assert [p["session_id"] for p in points] == [session], params
+
+
+@pytest.mark.asyncio
+async def test_a_day_that_changes_the_clock_is_23_or_25_hours_of_its_zone(
+    live: Live, world: World
+) -> None:
+    """Los Angeles's 1 November 2026 runs from 07:00 UTC (UTC-07:00) to 08:00 UTC the next
+    day (UTC-08:00), its 8 March from 08:00 UTC to 07:00 UTC the next day: a fixed offset,
+    the day's first or its last, would miss an evening or take a night of the next day."""
+    rx = await prescribe(live, world, ExerciseKind.ROM_ASSESSMENT)
+    ids = {
+        at: await assess_at(live, world, rx, datetime.fromisoformat(at))
+        for at in (
+            "2026-11-01T06:30:00Z",  # 23:30 on 31 October
+            "2026-11-02T07:30:00Z",  # 23:30 on 1 November, an hour after UTC-07:00's day
+            "2026-03-08T08:30:00Z",  # 00:30 on 8 March
+            "2026-03-09T07:30:00Z",  # 00:30 on 9 March, before UTC-08:00's day ends
+        )
+    }
+    fall = await listed(live, world, {"since": "2026-11-01", "until": "2026-11-01", "tz": LA})
+    assert fall == [ids["2026-11-02T07:30:00Z"]]
+    spring = await listed(live, world, {"since": "2026-03-08", "until": "2026-03-08", "tz": LA})
+    assert spring == [ids["2026-03-08T08:30:00Z"]]
 
 
 @pytest.mark.asyncio

@@ -275,13 +275,17 @@ export function mdcWords(progress) {
   );
 }
 
-/** The query for the progress API from the filter form; an empty field is left out. */
+/** The query for the progress API from the filter form; an empty field is left out. The
+ * days typed are the therapist's own, so the page names their time zone, as the report form
+ * does: else the server counts UTC days, and an evening session falls on the next one. */
 export function progressQuery(form) {
   const params = new URLSearchParams();
   for (const name of ["since", "until", "kind"]) {
     const v = form?.elements[name]?.value;
     if (v) params.set(name, v);
   }
+  const zone = Intl.DateTimeFormat().resolvedOptions().timeZone;
+  if (zone && (params.has("since") || params.has("until"))) params.set("tz", zone);
   const q = params.toString();
   return q ? `?${q}` : "";
 }
