@@ -304,7 +304,15 @@ async def report_fhir(
     where = zone(tz)
     first, last = period(since, until, where if tz is not None else None)
     data = await patient_record(request, db, patient, first, last, where)
-    bundle = fhir.bundle(request.app.state.settings.fhir_base, data)
+    base = request.app.state.settings.fhir_base
+
+    def make() -> tuple[int, bytes]:
+        bundle = fhir.bundle(base, data)
+        return len(bundle["entry"]) - 1, json.dumps(bundle, ensure_ascii=False).encode()
+
+    # In a thread, as the PDF is: a year of sessions (1,000) is a 9 MB bundle, over a second
+    # of pure Python in which the event loop would otherwise answer nobody else.
+    observations, body = await asyncio.to_thread(make)
     await _exported(
         db,
         user,
@@ -312,7 +320,6 @@ async def report_fhir(
         "fhir",
         data,
         sessions=len(data.sessions),
-        observations=len(bundle["entry"]) - 1,
+        observations=observations,
     )
-    body = json.dumps(bundle, ensure_ascii=False).encode()
     return _attachment(body, fhir.MEDIA_TYPE, disposition(patient, first, last, ".fhir.json"))
