@@ -28,7 +28,7 @@ from server.models import Patient, Prescription, Session, utcnow
 from server.report import pdf
 from server.routes.common import NOT_FOUND, UNAUTHORIZED, ascii_name, attachment, name_part
 from server.routes.dates import FIRST_DAY, LAST_DAY, iso_day, refuse, shown
-from server.routes.progress import load_progress
+from server.routes.progress import load_progress, session_rows
 from sessions import fhir, record
 
 router = APIRouter(prefix="/patients", tags=["reports"])
@@ -155,17 +155,12 @@ async def patient_record(
     # A prescription withdrawn or completed before the period began is not in it.
     facts = {p.id: prescription_facts(p) for p in prescriptions}
     prescriptions = [p for p in prescriptions if (facts[p.id].ended_at or until) >= since]
-    rows = (
-        await db.scalars(
-            select(Session)
-            .where(
-                Session.patient_id == patient.id,
-                Session.started_at >= since,
-                Session.started_at < until,
-            )
-            .order_by(Session.started_at, Session.id)
-        )
-    ).all()
+    rows = await session_rows(
+        request,
+        db,
+        [Session.patient_id == patient.id, Session.started_at >= since, Session.started_at < until],
+        ordered=True,
+    )
     kinds = {p.id: facts[p.id].exercise.value for p in prescriptions}
     rxs = [
         record.Prescription(
