@@ -271,6 +271,16 @@ def add_commands(sub: argparse._SubParsersAction[Parser]) -> None:
         help="with --store postgres: postgresql+asyncpg://user@host/db (default: "
         "ANKLE_DATABASE_URL)",
     )
+    p.add_argument(
+        "--heavy",
+        action="store_true",
+        help="instead: the heavy requests (the longest upload, its chart series, metrics on "
+        "read, progress and reports over 1,000 sessions), each fired in turn while /health "
+        "is asked every 10 ms",
+    )
+    p.add_argument(
+        "--repeats", type=ranged(int, 1, 100), default=5, help="with --heavy: each request, times"
+    )
     p = bs.add_parser(
         "abuse",
         help="large bodies, a sign-in flood, a WebSocket flood and malformed requests against "
@@ -437,6 +447,17 @@ def _bench(args: argparse.Namespace) -> int:
         if args.plots is not None:
             zresult["plot"] = str(zwidth.figure(zresult, args.plots / "zwidth.png"))
         print(json.dumps(_jsonable(zresult), indent=2) if args.json else zwidth.table(zresult))
+        return 0
+    if args.bench == "server" and args.heavy:
+        from lab import serverbench
+
+        hresult = serverbench.heavy(repeats=args.repeats, progress=_progress)
+        print(file=sys.stderr)
+        print(
+            json.dumps(serverbench.jsonable(hresult), indent=2)
+            if args.json
+            else serverbench.heavy_table(hresult)
+        )
         return 0
     if args.bench == "server":
         from lab import serverbench

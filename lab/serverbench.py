@@ -40,6 +40,13 @@ load generator on another, on each relay, and two processes. redis-server's CPU 
 from its clock like the servers'. A window that lost a connection, left a command
 unanswered or could not send at rate reports those figures as None, with why
 (:func:`problems`).
+
+``heavy`` (``ankle bench server --heavy``) asks instead whether one request stops the server
+answering others: the longest recording an upload takes, written by the station's own
+recorder and uploaded as the station does, then its chart series, its metrics computed on
+read, and a patient's progress and reports over a year of sessions, each fired in turn while
+a thread asks ``/api/v1/health`` every 10 ms; with each, the server's CPU time over the wall
+time.
 """
 
 from __future__ import annotations
@@ -1172,6 +1179,445 @@ async def _viewers(config: dict[str, Any]) -> dict[str, Any]:
         "ack_ms": acks,
         **stats,
     }
+
+
+# -- heavy requests: does one request stop the server answering others? -----------------------
+HEAVY_HZ = 100
+"""Telemetry rate of the long recording, as the station records by default."""
+POLL_PERIOD_S = 0.01
+"""How often the cheap route is asked while a heavy request runs."""
+HEAVY_IDLE_S = 3.0
+HEAVY_REPEATS = 5
+"""Times each heavy request is fired, one after the other."""
+HEAVY_SESSIONS = 1000
+"""Sessions of the patient whose progress and reports are asked for: three a day for a
+year, each a 3 min session."""
+STALL_MS = 50.0
+"""A cheap request this late, beyond its idle time, was held by another's work."""
+HEAVY_CASES: tuple[tuple[str, str], ...] = (
+    ("upload_complete", "upload complete: check and summarise the longest recording"),
+    ("series", "session series, default 2,000 points"),
+    ("series_max", "session series, 20,000 points (the most)"),
+    ("session_metrics", "one session whose metrics are computed on read"),
+    ("progress", "progress over all the patient's sessions"),
+    ("report_fhir", "FHIR bundle of all the patient's sessions"),
+    ("report_pdf", "PDF report of all the patient's sessions"),
+)
+
+
+def longest_samples(limit_bytes: int) -> int:
+    """Samples of the longest recording an upload of ``limit_bytes`` takes: all but a
+    kilobyte per 50,000 samples (records, header, events, end) is samples."""
+    from sessions.recording import SAMPLE_DTYPE
+
+    return int(limit_bytes // SAMPLE_DTYPE.itemsize * 0.999)
+
+
+def write_recording(
+    path: Path, samples: int, station_id: int, patient_id: int, started_at: float
+) -> None:
+    """A strength session of ``samples`` samples at :data:`HEAVY_HZ` written as the station
+    writes one (:class:`sessions.recording.RecordingWriter`): a repetition every 6 s (each
+    set of 100 repetitions, then the next; 20 sets at most, then again from the first), the
+    foot pushed through ±15° of pitch against 40 N·m/rad, its events and its end record."""
+    from device.protocol.messages import DeviceMode
+    from sessions.prescription import (
+        AXIS_INDEX,
+        EXERCISE_LIBRARY,
+        REPETITIONS_MAX,
+        SETS_MAX,
+        ExerciseKind,
+    )
+    from sessions.recording import (
+        SAMPLE_DTYPE,
+        DeviceInfo,
+        End,
+        Header,
+        RecordingWriter,
+        SessionEvent,
+    )
+
+    prescription = EXERCISE_LIBRARY[ExerciseKind.STRENGTH].defaults.model_dump(mode="json")
+    prescription |= {"sets": SETS_MAX, "repetitions": REPETITIONS_MAX}
+    header = Header(
+        session_id=path.stem,
+        station_id=station_id,
+        patient_id=patient_id,
+        prescription_id=0,
+        prescription=prescription,
+        device=DeviceInfo(
+            firmware="sim", hardware="sim", telemetry_hz=HEAVY_HZ, home_pose=[0.0] * 6
+        ),
+        software="bench",
+        started_at=started_at,
+    )
+    pitch = AXIS_INDEX["pitch"]
+    per_rep = 6 * HEAVY_HZ
+    block = 50_000
+    reps = 0
+    with RecordingWriter(path, header) as writer:
+        for first in range(0, samples, block):
+            i = np.arange(first, min(first + block, samples))
+            rows = np.zeros(len(i), SAMPLE_DTYPE)
+            rows["t"] = 10.0 + i / HEAVY_HZ
+            rows["wall"] = started_at + i / HEAVY_HZ
+            rows["mode"] = int(DeviceMode.ACTIVE)
+            n = i // per_rep
+            rows["set"] = (n // REPETITIONS_MAX) % SETS_MAX + 1
+            rows["rep"] = n % REPETITIONS_MAX + 1
+            q = np.radians(15.0) * np.sin(2 * np.pi * (i % per_rep) / per_rep)
+            rows["pose"][:, pitch] = q
+            rows["pose_cmd"][:, pitch] = 0.0
+            rows["wrench"][:, pitch] = -40.0 * q
+            rows["wrench"][:, 2] = -300.0
+            rows["pressures"] = 3e5 + 1e5 * np.sin(i / 50.0)[:, None]
+            rows["supply"] = 6e5
+            rows["stiffness"][:, pitch] = 40.0
+            rows["damping"][:, pitch] = 2.0
+            for row in rows.tolist():
+                writer.add(tuple(row))
+            done = int(n[-1]) if (i[-1] + 1) % per_rep == 0 else int(n[-1]) - 1
+            for k in range(reps, done + 1):
+                writer.event(
+                    SessionEvent(
+                        kind="rep_done",
+                        t=10.0 + (k + 1) * per_rep / HEAVY_HZ,
+                        wall=started_at + (k + 1) * per_rep / HEAVY_HZ,
+                        detail={
+                            "set": k // REPETITIONS_MAX % SETS_MAX + 1,
+                            "rep": k % REPETITIONS_MAX + 1,
+                        },
+                    )
+                )
+            reps = max(reps, done + 1)
+            writer.flush()
+        writer.end(
+            End(
+                ended_at=started_at + samples / HEAVY_HZ,
+                reason="completed",
+                text="",
+                sets_completed=min(SETS_MAX, reps // REPETITIONS_MAX),
+                repetitions_completed=min(SETS_MAX * REPETITIONS_MAX, reps),
+            )
+        )
+
+
+class Poller:
+    """Asks a cheap route every :data:`POLL_PERIOD_S` on a connection of its own, in a
+    thread, and keeps (start, latency, status) of each answer."""
+
+    def __init__(self, port: int, path: str, token: str = "") -> None:
+        self.port, self.path = port, path
+        self.headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.polls: list[tuple[float, float, int]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        import http.client
+
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            try:
+                conn.request("GET", self.path, headers=self.headers)
+                r = conn.getresponse()
+                r.read()
+                status = r.status
+            except (OSError, http.client.HTTPException):
+                status = 0
+                conn.close()
+                conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=60)
+            t1 = time.monotonic()
+            self.polls.append((t0, t1 - t0, status))
+            self._stop.wait(max(0.0, POLL_PERIOD_S - (t1 - t0)))
+        conn.close()
+
+    def between(self, start: float, end: float) -> dict[str, Any]:
+        seen = [dt * 1e3 for t, dt, _ in list(self.polls) if start <= t < end]
+        failed = sum(1 for t, _, s in list(self.polls) if start <= t < end and s != 200)
+        return {
+            "polls": len(seen),
+            "p50_ms": _pct(seen, 50),
+            "p99_ms": _pct(seen, 99),
+            "max_ms": max(seen) if seen else math.nan,
+            "failed": failed,
+        }
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(60)
+
+
+async def _heavy_provision(data_dir: Path) -> Seat:
+    (seat,) = await provision(data_dir, 1)
+    return seat
+
+
+async def _clone_sessions(data_dir: Path, template_id: int, count: int) -> None:
+    """``count`` copies of session ``template_id`` (its summary and its file), one every
+    8 hours back from it: a patient with a year of sessions."""
+    from server.config import Settings
+    from server.db import create_engine, create_sessionmaker
+    from server.models import Session
+
+    engine = create_engine(Settings(data_dir=data_dir))
+    try:
+        async with create_sessionmaker(engine)() as db:
+            row = await db.get(Session, template_id)
+            assert row is not None
+            for k in range(1, count):
+                back = timedelta(hours=8 * k)
+                db.add(
+                    Session(
+                        session_uuid=str(uuid.uuid4()),
+                        station_id=row.station_id,
+                        patient_id=row.patient_id,
+                        prescription_id=row.prescription_id,
+                        started_at=row.started_at - back,
+                        ended_at=None if row.ended_at is None else row.ended_at - back,
+                        end_reason=row.end_reason,
+                        size_bytes=row.size_bytes,
+                        sha256=row.sha256,
+                        summary=row.summary,
+                        file_path=row.file_path,
+                        upload_complete=True,
+                    )
+                )
+            await db.commit()
+    finally:
+        await engine.dispose()
+
+
+async def _forget_metrics(data_dir: Path, session_id: int) -> None:
+    """The session's summary as stored before the metrics existed: the next read computes
+    them from its recording."""
+    from server.config import Settings
+    from server.db import create_engine, create_sessionmaker
+    from server.models import Session
+
+    engine = create_engine(Settings(data_dir=data_dir))
+    try:
+        async with create_sessionmaker(engine)() as db:
+            row = await db.get(Session, session_id)
+            assert row is not None and row.summary is not None
+            row.summary = {**row.summary, "metrics": None}
+            await db.commit()
+    finally:
+        await engine.dispose()
+
+
+def _upload(client: Any, path: Path, pid: int) -> tuple[dict[str, Any], float, float, float]:
+    """Upload ``path`` as the station does (``station.uploader``): its chunks, then the
+    request that completes it. The session, the seconds the chunks and the completion took,
+    and the server's (process ``pid``) CPU seconds during the completion."""
+    from station.uploader import CHUNK, sha256_file
+
+    url = f"/api/v1/uploads/{path.stem}"
+    size = path.stat().st_size
+    t0 = time.monotonic()
+    with path.open("rb") as f:
+        offset = 0
+        while offset < size:
+            f.seek(offset)
+            r = client.patch(
+                url,
+                content=f.read(CHUNK),
+                headers={
+                    "Upload-Offset": str(offset),
+                    "Content-Type": "application/offset+octet-stream",
+                },
+            )
+            r.raise_for_status()
+            offset = int(r.headers["Upload-Offset"])
+    digest = sha256_file(path)
+    c1, t1 = cpu_seconds(pid), time.monotonic()
+    done = client.post(f"{url}/complete", json={"size": size, "sha256": digest})
+    c2, t2 = cpu_seconds(pid), time.monotonic()
+    done.raise_for_status()
+    return dict(done.json()), t1 - t0, t2 - t1, c2 - c1
+
+
+def heavy(
+    samples: int | None = None,
+    sessions: int = HEAVY_SESSIONS,
+    repeats: int = HEAVY_REPEATS,
+    cases: Sequence[str] = tuple(dict(HEAVY_CASES)),
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Each heavy request of :data:`HEAVY_CASES` fired ``repeats`` times, one after the other,
+    on a real server, while another client asks ``/api/v1/health`` every 10 ms: the cheap
+    route's latency idle and under each, each heavy request's own time, and the server's CPU
+    time over the wall time (1.0: a core busy all along)."""
+    import httpx
+
+    from server.config import Settings
+
+    say = progress or (lambda _line: None)
+    limit = Settings.model_fields["upload_max_bytes"].default
+    count = longest_samples(limit) if samples is None else samples
+    with tempfile.TemporaryDirectory(prefix="ankle-bench-heavy-") as tmp:
+        data_dir = Path(tmp)
+        seat = asyncio.run(_heavy_provision(data_dir))
+        engine_patient = _seat_patient(data_dir, seat)
+        spool = data_dir / "spool"
+        spool.mkdir()
+        say(f"writing a recording of {count} samples")
+        long_rec = spool / f"{uuid.uuid4()}.rec"
+        started = time.time() - 86400.0
+        write_recording(long_rec, count, seat.station_id, engine_patient, started)
+        short_rec = spool / f"{uuid.uuid4()}.rec"
+        write_recording(short_rec, 3 * 60 * HEAVY_HZ, seat.station_id, engine_patient, started)
+        server = ServerProcess(data_dir)
+        poller = Poller(server.port, "/api/v1/health")
+        out: dict[str, Any] = {
+            "recording_samples": count,
+            "recording_hours": count / HEAVY_HZ / 3600,
+            "recording_mb": long_rec.stat().st_size / 1e6,
+            "upload_max_bytes": limit,
+            "sessions": sessions,
+            "repeats": repeats,
+            "cases": {},
+        }
+        try:
+            station = httpx.Client(
+                base_url=server.url,
+                headers={"Authorization": f"Bearer {seat.station_token}"},
+                timeout=600.0,
+            )
+            therapist = httpx.Client(
+                base_url=server.url,
+                headers={"Authorization": f"Bearer {seat.therapist_token}"},
+                timeout=600.0,
+            )
+            time.sleep(1.0)
+            t0 = time.monotonic()
+            time.sleep(HEAVY_IDLE_S)
+            out["idle"] = poller.between(t0, time.monotonic())
+            say("uploading the longest recording")
+            c0, w0 = cpu_seconds(server.proc.pid), time.monotonic()
+            session, chunks_s, complete_s, complete_cpu = _upload(
+                station, long_rec, server.proc.pid
+            )
+            c1, w1 = cpu_seconds(server.proc.pid), time.monotonic()
+            out["upload_chunks_s"] = chunks_s
+            if "upload_complete" in cases:
+                out["cases"]["upload_complete"] = {
+                    **poller.between(w1 - complete_s, w1),
+                    "request_s": [complete_s],
+                    "server_cpu_ratio": complete_cpu / complete_s,
+                }
+            out["upload_all"] = {
+                **poller.between(w0, w1),
+                "server_cpu_ratio": (c1 - c0) / (w1 - w0),
+            }
+            short, _, _, _ = _upload(station, short_rec, server.proc.pid)
+            asyncio.run(_clone_sessions(data_dir, short["id"], sessions))
+            patient = session["patient_id"]
+            report = {"since": "2000-01-01"}
+            requests: dict[str, tuple[str, dict[str, Any]]] = {
+                "series": (f"/api/v1/sessions/{session['id']}/series", {}),
+                "series_max": (f"/api/v1/sessions/{session['id']}/series", {"points": 20000}),
+                "session_metrics": (f"/api/v1/sessions/{session['id']}", {}),
+                "progress": (f"/api/v1/patients/{patient}/progress", {}),
+                "report_fhir": (f"/api/v1/patients/{patient}/fhir", report),
+                "report_pdf": (f"/api/v1/patients/{patient}/report.pdf", report),
+            }
+            for key, (url, params) in requests.items():
+                if key not in cases:
+                    continue
+                say(key)
+                took: list[float] = []
+                cpu = wall = 0.0
+                windows: list[tuple[float, float]] = []
+                for _ in range(repeats):
+                    if key == "session_metrics":
+                        asyncio.run(_forget_metrics(data_dir, session["id"]))
+                    time.sleep(0.2)
+                    c0, w0 = cpu_seconds(server.proc.pid), time.monotonic()
+                    r = therapist.get(url, params=params)
+                    c1, w1 = cpu_seconds(server.proc.pid), time.monotonic()
+                    r.raise_for_status()
+                    took.append(w1 - w0)
+                    cpu += c1 - c0
+                    wall += w1 - w0
+                    windows.append((w0, w1))
+                seen = [poller.between(a, b) for a, b in windows]
+                polls = [
+                    dt * 1e3
+                    for t, dt, _ in list(poller.polls)
+                    if any(a <= t < b for a, b in windows)
+                ]
+                out["cases"][key] = {
+                    "polls": len(polls),
+                    "p50_ms": _pct(polls, 50),
+                    "p99_ms": _pct(polls, 99),
+                    "max_ms": max(s["max_ms"] for s in seen),
+                    "failed": sum(s["failed"] for s in seen),
+                    "request_s": took,
+                    "bytes": len(r.content),
+                    "server_cpu_ratio": cpu / wall if wall else math.nan,
+                }
+        finally:
+            poller.stop()
+            server.stop()
+    return out
+
+
+def _seat_patient(data_dir: Path, seat: Seat) -> int:
+    async def find() -> int:
+        from server.config import Settings
+        from server.db import create_engine, create_sessionmaker
+        from server.models import Station
+
+        engine = create_engine(Settings(data_dir=data_dir))
+        try:
+            async with create_sessionmaker(engine)() as db:
+                station = await db.get(Station, seat.station_id)
+                assert station is not None
+                return station.patient_id
+        finally:
+            await engine.dispose()
+
+    return asyncio.run(find())
+
+
+HEAVY_ROWS: tuple[tuple[str, str], ...] = (
+    ("idle", "idle"),
+    ("upload_all", "the whole upload of the longest recording: 1 MiB chunks, then complete"),
+    *HEAVY_CASES,
+)
+
+
+def heavy_table(result: dict[str, Any]) -> str:
+    """One row per heavy request: the cheap route's latency under it, its own time, the
+    server's CPU time over the wall time."""
+    lines = [
+        f"longest recording: {result['recording_samples']} samples "
+        f"({result['recording_hours']:.2f} h at {HEAVY_HZ} Hz, {result['recording_mb']:.0f} MB); "
+        f"{result['sessions']} sessions for progress and reports; each request "
+        f"{result['repeats']} times",
+        "",
+        "| request | /health p50 / p99 / max (ms) | request time (s) | server CPU / wall |",
+        "|---|---:|---:|---:|",
+    ]
+    for key, text in HEAVY_ROWS:
+        found = result[key] if key in ("idle", "upload_all") else result["cases"].get(key)
+        if found is None:
+            continue
+        took = found.get("request_s") or []
+        when = (
+            f"{min(took):.3f}-{max(took):.3f}"
+            if len(took) > 1
+            else (f"{took[0]:.3f}" if took else "")
+        )
+        ratio = found.get("server_cpu_ratio", math.nan)
+        lines.append(
+            f"| {text} | {found['p50_ms']:.1f} / {found['p99_ms']:.1f} / {found['max_ms']:.1f} "
+            f"| {when} | {'' if math.isnan(ratio) else f'{ratio:.2f}'} |"
+        )
+    return "\n".join(lines)
 
 
 def _worker(role: str, stdin: IO[str]) -> int:

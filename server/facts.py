@@ -5,6 +5,10 @@ the medical record and the needs-attention list alike, so all three read a row t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
 from server.models import Prescription, Session
 from sessions.prescription import PrescriptionBody
 from sessions.progress import PrescriptionFacts, SessionFacts
@@ -26,7 +30,21 @@ def prescription_facts(row: Prescription) -> PrescriptionFacts:
     )
 
 
-def session_facts(row: Session) -> SessionFacts:
+@dataclass
+class SessionRow:
+    """A stored session as progress and the report read it, its summary parsed as the ORM
+    would (``server.routes.progress.session_rows``)."""
+
+    id: int
+    session_uuid: str
+    prescription_id: int | None
+    started_at: datetime
+    ended_at: datetime | None
+    end_reason: str | None
+    summary: dict[str, Any] | None
+
+
+def session_facts(row: Session | SessionRow) -> SessionFacts:
     return SessionFacts(
         id=row.id,
         prescription_id=row.prescription_id,

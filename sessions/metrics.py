@@ -261,6 +261,35 @@ class _Columns:
             self.q_cmd[axis] = np.degrees(q_cmd)
             self.tau[axis], self.tau_ok[axis] = finite_zeroed(s["wrench"][:, i])
 
+    def samples(self, index: NDArray[np.intp]) -> _Columns:
+        """These samples alone (``index`` ascending), as columns of their own. An interval
+        between two of them is unbroken only where they were neighbours in the recording
+        and unbroken there, so every figure made over a mask of the recording is made the
+        same, value for value and in the same order, over the samples the mask held."""
+        sub = object.__new__(_Columns)
+        sub.weights = self.weights[index]
+        sub.contiguous = self.contiguous[index[:-1]] & (np.diff(index) == 1)
+        sub.active, sub.set, sub.rep = self.active[index], self.set[index], self.rep[index]
+        for name in ("q", "q_ok", "q_cmd", "q_cmd_ok", "tau", "tau_ok"):
+            columns: dict[str, NDArray[Any]] = getattr(self, name)
+            setattr(sub, name, {axis: x[index] for axis, x in columns.items()})
+        return sub
+
+
+def repetitions(c: _Columns) -> list[NDArray[np.intp]]:
+    """The ACTIVE samples of each (set, rep) the station tagged, in (set, rep) order, each
+    repetition's in time order. Sorted once: a mask of the whole recording per repetition
+    made a long session's metrics cost repetitions × samples (a 6.4 h session at 100 Hz
+    with 3,820 repetitions: a minute of CPU at each upload)."""
+    tagged = np.flatnonzero(c.active & (c.rep > 0))
+    if not len(tagged):
+        return []
+    # lexsort is stable: within a repetition, the samples stay in the order they came.
+    ranked = tagged[np.lexsort((c.rep[tagged], c.set[tagged]))]
+    s, r = c.set[ranked], c.rep[ranked]
+    starts = np.flatnonzero((np.diff(s) != 0) | (np.diff(r) != 0)) + 1
+    return np.split(ranked, starts)
+
 
 def _peak(x: NDArray[np.float64]) -> float | None:
     return max(float(x.max()), 0.0) if len(x) else None
@@ -350,22 +379,21 @@ def exercise_metrics(rec: Recording, axes: list[str]) -> ExerciseMetrics:
     c = _Columns(rec)
     kind = exercise_kind(rec.header.prescription)
     reps: list[RepetitionMetrics] = []
-    in_rep = c.active & (c.rep > 0)
-    pairs = np.unique(np.stack([c.set[in_rep], c.rep[in_rep]], axis=1), axis=0)
-    for set_, rep in pairs.tolist():
-        mask = in_rep & (c.set == set_) & (c.rep == rep)
+    for index in repetitions(c):
+        one = c.samples(index)
+        mask = np.ones(len(index), dtype=bool)
         holds: dict[str, HoldMetrics] = {}
         if kind == ExerciseKind.ISOMETRIC:
             for axis in axes:
-                hold = _hold(c, axis, mask)
+                hold = _hold(one, axis, mask)
                 if hold is not None:
                     holds[axis] = hold
         reps.append(
             RepetitionMetrics(
-                set=int(set_),
-                rep=int(rep),
-                duration_s=float(c.weights[mask].sum()),
-                axes={axis: _axis_metrics(c, axis, mask) for axis in axes},
+                set=int(one.set[0]),
+                rep=int(one.rep[0]),
+                duration_s=float(one.weights.sum()),
+                axes={axis: _axis_metrics(one, axis, mask) for axis in axes},
                 holds=holds,
             )
         )

@@ -7,15 +7,17 @@ minimal detectable change, and adherence per prescription (``sessions.progress``
 
 from __future__ import annotations
 
+import asyncio
+import json
 from datetime import datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request
 from pydantic import Field
-from sqlalchemy import select
+from sqlalchemy import ColumnElement, Text, cast, select
 
 from server.deps import Db, Id, TherapistOrAdmin, patient_for
-from server.facts import prescription_facts, session_facts
+from server.facts import SessionRow, prescription_facts, session_facts
 from server.models import Patient, Prescription, Session, utcnow
 from server.routes.common import NOT_FOUND, UNAUTHORIZED
 from server.routes.dates import Tz, day_or_time, refuse, shown, zone
@@ -37,6 +39,53 @@ class ProgressPublic(Progress):
         description="Each axis's direction names and labels for the patient's side "
         "(sessions.anatomy.direction_table): sign 1 is 'positive', -1 'negative'."
     )
+
+
+async def session_rows(
+    request: Request, db: Db, where: list[ColumnElement[bool]], *, ordered: bool = False
+) -> list[SessionRow]:
+    """The sessions ``where`` selects (by start, then id, if ``ordered``), their summaries
+    read as JSON text and parsed in a thread: parsed by the ORM on the event loop, a year of
+    sessions (1,000 summaries of 14 kB) held it 0.4-0.6 s, and nothing else was answered.
+    PostgreSQL's driver parses a json column as it arrives, so it is sent as text.
+    Those stored before the metrics existed get them first (``with_metrics``)."""
+    query = select(
+        Session.id,
+        Session.session_uuid,
+        Session.prescription_id,
+        Session.started_at,
+        Session.ended_at,
+        Session.end_reason,
+        cast(Session.summary, Text),  # text on either store: parsed below, in the thread
+    ).where(*where)
+    if ordered:
+        query = query.order_by(Session.started_at, Session.id)
+    found = (await db.execute(query)).all()
+
+    def parse() -> list[SessionRow]:
+        return [
+            SessionRow(
+                id=r[0],
+                session_uuid=r[1],
+                prescription_id=r[2],
+                started_at=r[3],
+                ended_at=r[4],
+                end_reason=r[5],
+                summary=None if r[6] is None else json.loads(r[6]),
+            )
+            for r in found
+        ]
+
+    rows = await asyncio.to_thread(parse)
+    stale = [r.id for r in rows if r.summary is not None and r.summary.get("metrics") is None]
+    if stale:
+        fixed = await with_metrics(
+            request, db, list(await db.scalars(select(Session).where(Session.id.in_(stale))))
+        )
+        summaries = {row.id: row.summary for row in fixed}
+        for r in rows:
+            r.summary = summaries.get(r.id, r.summary)
+    return rows
 
 
 def parse_kind(text: str | None) -> ExerciseKind | None:
@@ -66,25 +115,33 @@ async def load_progress(
     prescriptions = (
         await db.scalars(select(Prescription).where(Prescription.patient_id == patient.id))
     ).all()
-    query = select(Session).where(Session.patient_id == patient.id)
+    where = [Session.patient_id == patient.id]
     if until is not None:
-        query = query.where(Session.started_at < until)
-    rows = await with_metrics(request, db, list(await db.scalars(query)))
-    result = progress(
-        [prescription_facts(p) for p in prescriptions],
-        [session_facts(s) for s in rows],
-        now=utcnow(),
-        since=since,
-        until=until,
-        kind=kind,
-    )
-    return ProgressPublic(
-        **result.model_dump(),
-        patient_id=patient.id,
-        affected_side=patient.affected_side,
-        weight_kg=patient.weight_kg,
-        directions=direction_table(patient.affected_side),
-    )
+        where.append(Session.started_at < until)
+    rows = await session_rows(request, db, where)
+    side, weight = patient.affected_side, patient.weight_kg
+
+    def compute() -> ProgressPublic:
+        result = progress(
+            [prescription_facts(p) for p in prescriptions],
+            [session_facts(s) for s in rows],
+            now=utcnow(),
+            since=since,
+            until=until,
+            kind=kind,
+        )
+        return ProgressPublic(
+            **result.model_dump(),
+            patient_id=patient.id,
+            affected_side=side,
+            weight_kg=weight,
+            directions=direction_table(side),
+        )
+
+    # In a thread: reading a thousand stored summaries and the progress made of them took
+    # 0.7-1.6 s of pure Python, and on the event loop nothing else was answered meanwhile.
+    # The loaded rows are only read there (expire_on_commit is off: nothing loads lazily).
+    return await asyncio.to_thread(compute)
 
 
 @router.get(

@@ -37,7 +37,7 @@ from server.routes.dates import (
     shown,
     zone,
 )
-from server.routes.progress import load_progress
+from server.routes.progress import load_progress, session_rows
 from sessions import fhir, record
 
 router = APIRouter(prefix="/patients", tags=["reports"])
@@ -134,17 +134,12 @@ async def patient_record(
     # A prescription withdrawn or completed before the period began is not in it.
     facts = {p.id: prescription_facts(p) for p in prescriptions}
     prescriptions = [p for p in prescriptions if (facts[p.id].ended_at or until) >= since]
-    rows = (
-        await db.scalars(
-            select(Session)
-            .where(
-                Session.patient_id == patient.id,
-                Session.started_at >= since,
-                Session.started_at < until,
-            )
-            .order_by(Session.started_at, Session.id)
-        )
-    ).all()
+    rows = await session_rows(
+        request,
+        db,
+        [Session.patient_id == patient.id, Session.started_at >= since, Session.started_at < until],
+        ordered=True,
+    )
     kinds = {p.id: facts[p.id].exercise.value for p in prescriptions}
     rxs = [
         record.Prescription(
@@ -283,7 +278,15 @@ async def report_fhir(
     where = zone(tz)
     first, last = period(since, until, where if tz is not None else None)
     data = await patient_record(request, db, patient, first, last, where)
-    bundle = fhir.bundle(request.app.state.settings.fhir_base, data)
+    base = request.app.state.settings.fhir_base
+
+    def make() -> tuple[int, bytes]:
+        bundle = fhir.bundle(base, data)
+        return len(bundle["entry"]) - 1, json.dumps(bundle, ensure_ascii=False).encode()
+
+    # In a thread, as the PDF is: a year of sessions (1,000) is a 9 MB bundle, over a second
+    # of pure Python in which the event loop would otherwise answer nobody else.
+    observations, body = await asyncio.to_thread(make)
     await _exported(
         db,
         user,
@@ -291,7 +294,6 @@ async def report_fhir(
         "fhir",
         data,
         sessions=len(data.sessions),
-        observations=len(bundle["entry"]) - 1,
+        observations=observations,
     )
-    body = json.dumps(bundle, ensure_ascii=False).encode()
     return _attachment(body, fhir.MEDIA_TYPE, disposition(patient, first, last, ".fhir.json"))

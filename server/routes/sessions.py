@@ -598,13 +598,21 @@ def session_series(session_id: int, rec: Recording, points: int) -> SessionSerie
     spec.append(("supply_bar", None, s["supply"], 1 / _PA_PER_BAR, 4))
 
     n = len(s)
-    values = np.empty((n, len(spec)))
-    for k, (_, _, x, scale, _) in enumerate(spec):
-        values[:, k] = np.asarray(x, dtype=np.float64) * scale
     buckets = points // 2
     decimated = n > points
+    # One column at a time: the 40 columns of a 6 h session at 100 Hz side by side were
+    # 0.7 GB, and decimating them at once took as much again several times over (2.8 GB at
+    # the peak); a column's buckets do not depend on another's.
+    values = np.empty((2 * buckets if decimated else n, len(spec)))
+    starts = ends = np.zeros(0, dtype=np.intp)
+    for k, (_, _, x, scale, _) in enumerate(spec):
+        full = np.asarray(x, dtype=np.float64) * scale
+        if decimated:
+            starts, ends, low_high = minmax_buckets(full[:, None], buckets)
+            values[:, k] = low_high[:, 0]
+        else:
+            values[:, k] = full
     if decimated:
-        starts, ends, values = minmax_buckets(values, buckets)
         row_time = np.empty(2 * buckets)
         row_time[0::2], row_time[1::2] = time[starts], time[ends]
     else:

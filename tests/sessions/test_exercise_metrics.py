@@ -257,3 +257,53 @@ def test_a_summary_stored_before_metrics_still_reads(tmp_path: Path) -> None:
     old = summarize(rec).model_dump(mode="json")
     del old["metrics"]
     assert Summary.model_validate(old).metrics is None
+
+
+@pytest.mark.parametrize("kind", [ExerciseKind.STRENGTH, ExerciseKind.ISOMETRIC])
+def test_each_repetition_is_its_samples_wherever_they_lie(
+    tmp_path: Path, kind: ExerciseKind
+) -> None:
+    """A repetition's figures come from its own samples (sorted once), value for value what
+    a mask of the whole recording gives, even where the station's tags do not come in runs:
+    a (set, rep) that comes back later, two interleaved, a gap in the telemetry inside one,
+    unmeasured angles and torques."""
+    from sessions.metrics import _axis_metrics, _Columns, _hold
+
+    rng = np.random.default_rng(3)
+    n = 6000
+    rows = np.zeros(n, SAMPLE_DTYPE)
+    dt = np.full(n, DT)
+    dt[rng.random(n) < 0.003] = 0.5  # gaps
+    rows["t"] = 5.0 + np.cumsum(dt)
+    rows["wall"] = 1_700_000_000.0 + rows["t"]
+    rows["mode"] = np.where(rng.random(n) < 0.9, int(DeviceMode.ACTIVE), int(DeviceMode.HOLD))
+    segment = np.arange(n) // 150
+    rows["set"] = segment % 2 + 1  # the sets interleave: (1, r) and (2, r) alternate
+    rows["rep"] = np.where(rng.random(n) < 0.05, 0, (segment // 2) % 5 + 1)  # and come back
+    for name, scale in (("pose", 0.3), ("wrench", 20.0)):
+        x = scale * np.sin(np.arange(n)[:, None] / 37.0 + np.arange(6)) + rng.normal(
+            0, 0.01 * scale, (n, 6)
+        )
+        x[rng.random((n, 6)) < 0.01] = np.nan
+        rows[name] = x
+    rec = recording(tmp_path, header(kind, [{"axis": "pitch"}, {"axis": "roll"}]), rows)
+    axes = ["pitch", "roll"]
+
+    m = exercise_metrics(rec, axes)
+
+    c = _Columns(rec)
+    in_rep = c.active & (c.rep > 0)
+    pairs = sorted(set(zip(c.set[in_rep].tolist(), c.rep[in_rep].tolist(), strict=True)))
+    assert [(r.set, r.rep) for r in m.repetitions] == pairs
+    assert len(pairs) == 10
+    for r in m.repetitions:
+        mask = in_rep & (c.set == r.set) & (c.rep == r.rep)
+        # Each comes back at least once, after other repetitions' samples.
+        assert np.count_nonzero(np.diff(mask.astype(np.int8)) == 1) >= 2
+        assert r.duration_s == float(c.weights[mask].sum())
+        for axis in axes:
+            assert r.axes[axis] == _axis_metrics(c, axis, mask)
+            if kind == ExerciseKind.ISOMETRIC:
+                assert r.holds.get(axis) == _hold(c, axis, mask)
+    if kind == ExerciseKind.ISOMETRIC:
+        assert any(r.holds for r in m.repetitions)
