@@ -117,6 +117,13 @@ class CodedError(BaseModel):
     code: str = Field(description="For programs: what the station does next.")
 
 
+class UploadConflict(BaseModel):
+    detail: str = Field(description="What happened and what to do, in a sentence.")
+    code: str | None = Field(
+        default=None, description=f"``{CORRUPTED_CODE}`` when the server discarded its bytes."
+    )
+
+
 STORAGE_FULL: Responses = {
     507: {
         "model": CodedError,
@@ -447,7 +454,7 @@ async def _check_recorder(db: AsyncSession, named: int, station: Station) -> Non
     responses={
         201: {"model": SessionPublic, "description": "Filed now (200: filed before, the same)."},
         409: {
-            "model": CodedError,
+            "model": UploadConflict,
             "description": "Not all bytes are there yet (``Upload-Offset`` says how many "
             f"are); or ``{CORRUPTED_CODE}``: the server's bytes are not the file whose size "
             "and SHA-256 were sent (or are gone), so it discarded them: start a new upload of "
@@ -508,7 +515,6 @@ async def upload_complete(
             raise _corrupted(sid, exc) from None
         end = rec.end
         assert end is not None  # _checked refuses a recording without one
-        final = sessions_dir / f"{sid}.rec"
         prescription = await db.get(Prescription, rec.header.prescription_id)
         row = Session(
             session_uuid=sid,
