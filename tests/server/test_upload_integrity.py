@@ -12,10 +12,12 @@ import errno
 import hashlib
 import logging
 import os
+import time
 import uuid
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from sqlalchemy import func, select
 
@@ -25,7 +27,14 @@ from station.uploader import CHUNK, Uploader
 from tests.server.live_server import Live, World, bearer
 from tests.server.test_metrics import sample, scrape
 from tests.server.test_series import recording_bytes, samples
-from tests.server.test_upload_refusals import complete, held, part_file, put, put_from
+from tests.server.test_upload_refusals import (
+    complete,
+    held,
+    part_file,
+    put,
+    put_from,
+    refused_and_discarded,
+)
 
 pytestmark = [pytest.mark.both_stores, pytest.mark.asyncio]
 
@@ -259,3 +268,81 @@ async def test_bytes_damaged_on_the_way_are_sent_again_not_refused(
     assert await sessions_of(live, sid) == 1
     errors = [rec.getMessage() for rec in caplog.records if rec.levelno >= logging.ERROR]
     assert any(f"upload {sid}: the bytes received hash to {damaged}" in e for e in errors)
+
+
+def replayed() -> Any:
+    """The first 600 samples twice, as a file whose samples were appended again."""
+    s = samples()[:600]
+    return np.concatenate([s, s])
+
+
+def repeated() -> Any:
+    """Sample 100 written twice in a row."""
+    s = samples()[:200]
+    return np.concatenate([s[:101], s[100:]])
+
+
+@pytest.mark.parametrize(
+    ("rows", "named"),
+    [
+        (
+            replayed,
+            "sample 600 (of 1200, counted from 0) goes back in time: its device time t "
+            "(42 s) and wall time are not after those of the sample before it (t 47.99 s)",
+        ),
+        (repeated, "sample 101 (of 201, counted from 0) goes back in time"),
+    ],
+    ids=["replayed", "repeated"],
+)
+async def test_samples_going_back_on_both_clocks_are_a_422_naming_where(
+    live: Live, world: World, rows: Any, named: str
+) -> None:
+    """Samples duplicated made a session of 162 s of exercise in 81 s: the device clock's
+    forward steps were only held to the session's length plus an hour."""
+    sid = str(uuid.uuid4())
+    bad = recording_bytes(sid, rows(), world.s1_id, world.p1, world.rx1)
+    detail = await refused_and_discarded(live, world, sid, bad)
+    assert detail.startswith("not a valid recording: ") and named in detail, detail
+
+
+async def filed_summary(live: Live, world: World, rows: Any) -> dict[str, Any]:
+    sid = str(uuid.uuid4())
+    started = time.time() - 3600  # within the attention list's week
+    data = recording_bytes(sid, rows, world.s1_id, world.p1, world.rx1, started_at=started)
+    assert await put(live, world, sid, data) == 204
+    r = await complete(live, world, sid, data)
+    assert r.status_code == 201, r.text
+    summary: dict[str, Any] = r.json()["summary"]
+    return summary
+
+
+async def test_samples_missing_are_filed_and_told_to_the_therapist(
+    live: Live, world: World
+) -> None:
+    """40 s of samples missing (the device's link or the station stalled) is a session
+    that happened: filed, but no longer as whole. Its summary counts the gap and the time
+    missing, left out of the exercise time, and the therapist's attention list says so.
+    A restarted device (its clock back at 0, received later) is a gap too, not a replay."""
+    s = samples()
+    gap = np.concatenate([s[:6000], s[10000:]])  # 40 s gone
+    summary = await filed_summary(live, world, gap)
+    assert summary["telemetry_gaps"] == 1
+    assert summary["telemetry_missing_s"] == pytest.approx(40.0, abs=1e-6)
+    assert summary["end_reason"] == "completed"
+    whole = await filed_summary(live, world, samples())
+    assert whole["telemetry_gaps"] == 0 and whole["telemetry_missing_s"] == 0.0
+    assert summary["duration_s"] == pytest.approx(whole["duration_s"] - 40.0, abs=0.02)
+
+    restarted = samples()[:3000]
+    restarted["t"][1500:] = 0.5 + np.arange(1500) / 100.0  # the device's clock starts again
+    restarted["wall"][1500:] += 5.0  # received 5 s later
+    again = await filed_summary(live, world, restarted)
+    assert again["telemetry_gaps"] == 1
+    assert again["telemetry_missing_s"] == pytest.approx(5.0, abs=1e-6)
+
+    items = (await live.client.get("/patients/attention", headers=bearer(world.t1))).json()
+    missing = sorted(i["text"] for i in items if i["kind"] == "data_missing")
+    assert missing == [
+        "Telemetry missing for 40 s (1 gap): the session's numbers leave that time out.",
+        "Telemetry missing for 5 s (1 gap): the session's numbers leave that time out.",
+    ]
