@@ -31,7 +31,7 @@ from server.relay import open_relay
 from server.routes import API_PREFIX, ROUTERS
 from server.routes.common import document_must_change
 from server.routes.health import server_version
-from server.routes.uploads import CHUNK_MAX, expire_uploads_forever
+from server.routes.uploads import CHUNK_MAX, UploadAnswer, expire_uploads_forever, upload_answer
 from server.security import HashingSlots
 from server.throttle import LoginGate, LoginThrottle
 from server.tickets import ViewTickets
@@ -142,6 +142,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(DBAPIError, errors.database_error)
     app.add_exception_handler(errors.CommitUnknown, errors.commit_unknown)
     app.add_exception_handler(Replay, replayed)
+    app.add_exception_handler(UploadAnswer, upload_answer)
     # Bearer tokens, not cookies: no credentials mode, so a listed origin can call the API
     # but a browser never attaches anything on its own.
     app.add_middleware(

@@ -27,6 +27,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from server.facts import prescription_facts
 from server.models import Patient, Prescription, Session, Station, User
 from sessions.progress import WEEK, SessionFacts, missed_weeks
+from sessions.record import data_missing
 
 LOOKBACK_DAYS = 7
 """Sessions from this many days back are looked at."""
@@ -35,14 +36,15 @@ OFFLINE_DAYS = 2
 FAULT_KINDS = ("fault", "estop", "watchdog", "supply_low")
 """Safety events that count as a fault (a range limit reached is the device doing its job)."""
 
-Kind = Literal["fault", "held", "ended_early", "missed", "offline"]
+Kind = Literal["fault", "held", "ended_early", "data_missing", "missed", "offline"]
 
 
 class AttentionItem(BaseModel):
     """One thing to look at."""
 
     kind: Kind = Field(
-        description="fault, held (the exercise was put on hold), ended_early, missed "
+        description="fault, held (the exercise was put on hold), ended_early, data_missing "
+        "(the session's recording has gaps in its telemetry: its numbers leave them out), missed "
         "(prescribed sessions not done in a prescribed week that ended in the last 7 days, "
         "as the progress page's adherence counts them) or offline (a station not seen)."
     )
@@ -89,6 +91,9 @@ def _session_items(rows: Iterable[Any], names: dict[int, str]) -> Iterable[Atten
             reps = f": {done} of {prescribed} repetitions" if short else ""
             why = s.get("end_text") or end_reason
             yield AttentionItem(kind="ended_early", text=f"Ended early ({why}){reps}.", **base)
+        missing = data_missing(s)
+        if missing:
+            yield AttentionItem(kind="data_missing", text=f"{missing}.", **base)
 
 
 OnlineOf = Callable[[list[int]], Awaitable[set[int]]]

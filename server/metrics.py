@@ -96,6 +96,17 @@ AUDIT_LOST = Counter(
     registry=REGISTRY,
 )
 
+UPLOAD_FAULTS = Counter(
+    "ankle_upload_faults",
+    "Uploads the server could not keep as the station sent them (each is logged at ERROR): "
+    "'storage_full' (a chunk found no space or quota left in the data directory: answered "
+    "507, the bytes before it kept), 'corrupted' (at complete, the server's bytes did not "
+    "hash to the station's SHA-256), 'lost' (bytes acknowledged earlier were no longer on "
+    "disk); the last two discard the upload and ask the station to send it again.",
+    ["fault"],
+    registry=REGISTRY,
+)
+
 _sent_at: dict[str, tuple[str, float]] = {}
 """request_id -> (action, when it was sent): commands awaiting their answer."""
 _SENT_KEPT = 10_000
@@ -146,6 +157,11 @@ def result_dropped() -> None:
 def audit_row_lost(reason: str) -> None:
     """One audit row will not be stored, for ``reason`` (see ``AUDIT_LOST``)."""
     AUDIT_LOST.labels(reason).inc()
+
+
+def upload_fault(fault: str) -> None:
+    """An upload met ``fault`` (see ``UPLOAD_FAULTS``)."""
+    UPLOAD_FAULTS.labels(fault).inc()
 
 
 def watch_database(engine: AsyncEngine) -> None:

@@ -41,7 +41,7 @@ from sessions.anatomy import label
 from sessions.measures import Measure
 from sessions.prescription import EXERCISE_LIBRARY, ExerciseKind
 from sessions.progress import PrescriptionAdherence, Progress
-from sessions.record import PatientRecord, Session, ended_early
+from sessions.record import PatientRecord, Session, data_missing, ended_early
 
 TITLE = "Ankle rehabilitation report"
 _SIDE = {"left": "Left", "right": "Right", "both": "Both"}
@@ -382,6 +382,9 @@ def notable_events(s: Session) -> list[str]:
     if ended_early(s):
         why = summary.get("end_text") or ""
         found.append(f"ended early ({s.end_reason}){': ' + why if why else ''}")
+    missing = data_missing(summary)
+    if missing:
+        found.append(missing[0].lower() + missing[1:])
     return found
 
 

@@ -88,3 +88,24 @@ class PatientRecord:
 
 def ended_early(session: Session) -> bool:
     return session.end_reason in EARLY_END_REASONS
+
+
+DATA_MISSING_MIN_S = 1.0
+"""Seconds of telemetry missing from a session worth a therapist's look: less is a few
+frames lost on the wire, counted in the summary but no reason to doubt its numbers."""
+
+
+def data_missing(summary: dict[str, Any]) -> str:
+    """The gaps in a session's telemetry in words ("Telemetry missing for 40 s (1 gap): …"),
+    or "" when they leave out less than :data:`DATA_MISSING_MIN_S` (or its summary was
+    stored before they were counted)."""
+    gaps, missing = summary.get("telemetry_gaps"), summary.get("telemetry_missing_s")
+    if not isinstance(gaps, int) or not isinstance(missing, int | float) or gaps <= 0:
+        return ""
+    seconds = float(missing)
+    if not seconds >= DATA_MISSING_MIN_S:
+        return ""
+    return (
+        f"Telemetry missing for {seconds:.0f} s ({gaps} gap{'s' if gaps != 1 else ''}): "
+        "the session's numbers leave that time out"
+    )

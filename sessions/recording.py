@@ -291,8 +291,17 @@ def check_session(rec: Recording) -> None:
     starts, its samples were received within it (station clock, ``wall``), and the device's
     clock covers no more time than the session lasted (the sum of its forward steps ``t``,
     so that a device restarted mid-session, its clock back at 0, still counts right). Each
-    allows :data:`CLOCK_SLACK_S`. Times that are not finite are unmeasured, not wrong (the
-    summary leaves them out). Raises :class:`RecordingError` naming the field.
+    allows :data:`CLOCK_SLACK_S`. No sample goes back in time on both clocks at once: the
+    station writes each sample once, in the order received, so a device time ``t`` that
+    does not move forward while the station's ``wall`` does not either is a sample repeated
+    or replayed (a device restarted has its ``t`` back at 0, but received later). Times that
+    are not finite are unmeasured, not wrong (the summary leaves them out). Raises
+    :class:`RecordingError` naming the field and, for a sample, where it is.
+
+    Samples missing (a gap in ``t``: the device's link stalled for under the 2 s that end a
+    session, the station stood still, frames lost on the wire) are no reason to refuse a
+    session that happened: the summary counts them (``telemetry_gaps``,
+    ``telemetry_missing_s``) and leaves their time out of the exercise.
 
     The server asks it of every upload before filing it (``server.routes.uploads``);
     :func:`decode` does not, so that the station's recovery never takes a session whose
@@ -326,9 +335,20 @@ def check_session(rec: Recording) -> None:
             f"{CLOCK_SLACK_S:g} s)"
         )
     with np.errstate(over="ignore", invalid="ignore"):
-        dt = np.diff(samples["t"].astype(np.float64))
+        t = samples["t"].astype(np.float64)
+        dt = np.diff(t)
+        dwall = np.diff(samples["wall"].astype(np.float64))
+        replayed = np.isfinite(dt) & np.isfinite(dwall) & (dt <= 0) & (dwall <= 0)
         forward = dt[np.isfinite(dt) & (dt > 0)]
         covered = float(forward.sum()) if len(forward) else 0.0
+    if replayed.any():
+        i = int(np.argmax(replayed))
+        raise RecordingError(
+            f"sample {i + 1} (of {len(samples)}, counted from 0) goes back in time: its "
+            f"device time t ({t[i + 1]:.6g} s) and wall time are not after those of the "
+            f"sample before it (t {t[i]:.6g} s): samples repeated or replayed, not a "
+            "recording the station writes"
+        )
     if covered > stop - start + CLOCK_SLACK_S:
         raise RecordingError(
             f"the samples' device time t covers {covered:.6g} s, more than the session lasted "

@@ -9,7 +9,8 @@ How the numbers are made:
 - Each sample stands for the time until the next one on the device clock ``t``. An interval
   longer than ``sessions.metrics.GAP_FACTOR`` times the median one is a gap in the
   telemetry (a lost link, a restarted device), not exercise: it counts as one median
-  interval.
+  interval. The gaps are counted (``telemetry_gaps``) with the time they leave out
+  (``telemetry_missing_s``), so that a session with samples missing never reads as whole.
 - Range of motion is the lowest and highest measured angle; torques are the patient's, on
   the foot plate (``wrench[3:6]``: generalised forces conjugate to roll, pitch and yaw, so
   torque times angular velocity is power).
@@ -138,6 +139,18 @@ class Summary(BaseModel):
     )
     events: dict[str, int] = Field(description="Number of events of each kind.")
     faults: list[FaultSummary] = Field(description="Faults, limits, emergency stops, watchdogs.")
+    telemetry_gaps: int | None = Field(
+        default=None,
+        description="Gaps in the telemetry recorded: intervals of the device clock longer "
+        "than GAP_FACTOR median intervals (samples lost: the device's link or the station "
+        "stalled), or where it went back (the device restarted). Null in a summary stored "
+        "before they were counted.",
+    )
+    telemetry_missing_s: float | None = Field(
+        default=None,
+        description="Time the gaps leave without samples, s (beyond one interval each): "
+        "not counted as exercise. Null in a summary stored before it was counted.",
+    )
     game: GameSummary | None = Field(
         default=None, description="The patient's game; null if none was played."
     )
@@ -163,6 +176,7 @@ def summarize(rec: Recording) -> Summary:
     else:
         sets_done, reps_done = counts.get("set_done", 0), counts.get("rep_done", 0)
 
+    gaps, missing = telemetry_gaps(t, s["wall"].astype(np.float64), contiguous)
     wall = s["wall"][np.isfinite(s["wall"])]
     axes = prescribed_axes(rec.header.prescription)
     tracked = tracked_axes(rec.header.prescription, axes)
@@ -190,9 +204,30 @@ def summarize(rec: Recording) -> Summary:
             for e in rec.events
             if e.kind in SAFETY_EVENT_KINDS
         ],
+        telemetry_gaps=gaps,
+        telemetry_missing_s=missing,
         game=_game_summary(rec),
         metrics=exercise_metrics(rec, axes),
     )
+
+
+def telemetry_gaps(
+    t: NDArray[np.float64], wall: NDArray[np.float64], contiguous: NDArray[np.bool_]
+) -> tuple[int, float]:
+    """How many intervals break the telemetry (measured ones that ``sample_weights`` does
+    not count as unbroken) and the seconds they leave without samples beyond one median
+    interval each: on the device clock, or on the station's where the device's went back
+    (a restart: how long it was away is the station's to say)."""
+    if len(t) < 2:
+        return 0, 0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        dt, dwall = np.diff(t), np.diff(wall)
+        forward = np.isfinite(dt) & (dt > 0)
+        typical = float(np.median(dt[forward])) if forward.any() else 0.0
+        broken = np.isfinite(dt) & ~contiguous
+        step = np.where(dt > 0, dt, np.where(np.isfinite(dwall), dwall, 0.0))[broken]
+        missing = float(np.clip(step - typical, 0.0, None).sum())
+    return int(broken.sum()), missing
 
 
 def prescribed_axes(prescription: dict[str, Any]) -> list[str]:

@@ -804,3 +804,27 @@ def test_a_column_is_never_narrower_than_its_longest_word() -> None:
     # Never past the page: the widest needs are cut to one level, the narrow ones kept.
     assert report.fit_widths([10, 10], [300, 20], 100) == pytest.approx([80, 20])
     assert report.fit_widths([10, 10, 10], [300, 200, 20], 100) == pytest.approx([40, 40, 20])
+
+
+@pytest.mark.parametrize(
+    ("gaps", "missing_s", "listed"),
+    [
+        (
+            2,
+            40.4,
+            ["telemetry missing for 40 s (2 gaps): the session's numbers leave that time out"],
+        ),
+        (3, 0.12, []),  # a few frames lost on the wire: counted, not notable
+        (None, None, []),  # a summary stored before gaps were counted
+    ],
+)
+def test_telemetry_missing_is_a_notable_event(
+    gaps: int | None, missing_s: float | None, listed: list[str]
+) -> None:
+    from sessions.record import Session as RecordedSession
+
+    summary: dict[str, Any] = {"faults": [], "events": {}}
+    if gaps is not None:
+        summary |= {"telemetry_gaps": gaps, "telemetry_missing_s": missing_s}
+    s = RecordedSession(1, "u", datetime.now(UTC), None, "completed", None, "strength", summary)
+    assert report.notable_events(s) == listed

@@ -30,6 +30,7 @@ const ATTENTION = {
   fault: ["bad", "Fault"],
   held: ["warn", "Held"],
   ended_early: ["warn", "Ended early"],
+  data_missing: ["warn", "Data missing"],
   missed: ["warn", "Sessions missed"],
   offline: ["offline", "Station offline"],
 };
