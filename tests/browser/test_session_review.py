@@ -299,11 +299,15 @@ def test_rom_assessments_trials_and_progress_with_mdc(
         assert r.status_code == 201, r.text
         rx = r.json()["id"]
         ids = []
-        for at, trials in history:
+        for k, (at, trials) in enumerate(history):
             sid = str(uuid.uuid4())
+            rows = assessment_rows(trials)
+            if k == len(history) - 1:  # the last assessment's link stalled 5 s at its end
+                rows["t"][-10:] += 5.0
+                rows["wall"][-10:] += 5.0
             data = recording_bytes(
                 sid,
-                assessment_rows(trials),
+                rows,
                 system.station_id,
                 int(creds["patient_id"]),
                 rx,
@@ -336,6 +340,10 @@ def test_rom_assessments_trials_and_progress_with_mdc(
     expect(rows.nth(0)).to_contain_text("25.0")
     expect(rows.nth(1)).to_contain_text("27.0")
     expect(page.locator("#mx-tracking")).to_have_count(0)
+    # Samples missing are said beside the samples' count, not left to read as whole.
+    expect(page.locator("#gaps")).to_have_text(
+        "(1 gap in the telemetry, 5 s missing: the numbers leave that time out)"
+    )
     page.screenshot(path=shots / "session-review-rom.png", full_page=False)
 
     page.goto(f"{system.url}/app/patients/{creds['patient_id']}")

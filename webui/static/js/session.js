@@ -71,7 +71,13 @@ function renderSummary(session, patient) {
     ...fact("Ended", endReasonBadge(session.end_reason), ...(sum.end_text ? [" ", el("span", { id: "end-text" }, sum.end_text)] : [])),
     ...fact("Repetitions", `${reps} of ${prescribed} prescribed`),
     ...fact("Sets completed", sum.sets_completed ?? "–"),
-    ...fact("Samples", sum.samples ?? "–"),
+    ...fact(
+      "Samples",
+      sum.samples ?? "–",
+      ...(sum.telemetry_gaps > 0
+        ? [" ", el("span", { id: "gaps", class: "data-missing" }, `(${sum.telemetry_gaps} gap${sum.telemetry_gaps === 1 ? "" : "s"} in the telemetry, ${fmt.duration(sum.telemetry_missing_s)} missing: the numbers leave that time out)`)]
+        : []),
+    ),
     ...(game
       ? fact(
           "Game score",
