@@ -116,7 +116,10 @@ async def test_a_disk_that_fills_mid_exercise_stops_it_safely_and_the_station_ca
         monkeypatch.setattr(os, "statvfs", no_room)
         before = sorted(p.name for p in (tmp_path / "spool").glob("*.rec"))
         why = station.start(PRESCRIPTION_ID)
-        assert why.startswith("the station's disk is full: 0.0 MB free"), why
+        assert why.startswith(
+            "the station's disk is full: 0.0 MB free where sessions are kept, and this "
+            "exercise needs 6.8 MB to be recorded"  # 12 s at 100 Hz, a hold and a homing
+        ), why
         assert "free some space on the station, then start again" in why
         assert station.run_ is None and station.writer is None
         assert sorted(p.name for p in (tmp_path / "spool").glob("*.rec")) == before
