@@ -97,6 +97,7 @@ for replay (64)."""
 REASON_MAX = 240
 """Characters of the server's reason a status gives for each refused session (the whole
 reason is in the spool, beside the session)."""
+DISK_FULL = "the station's disk is full"
 RECORD_ROOM = 1 << 20
 """Bytes kept free in the spool beyond a session's samples (:func:`room_needed`): its
 header, events and end take a few kilobytes."""
@@ -406,10 +407,12 @@ class Station:
         """The session file could not be written (``why``: the disk, in words): the exercise
         stops as on STOP (the platform holds and goes home), what the file holds is kept,
         and the session ends ``interrupted`` saying so. The station itself carries on."""
-        said = (
-            f"{why}: the exercise was stopped, and what was recorded until then is kept; "
+        then = (
             "free some space on the station before the next exercise"
+            if why == DISK_FULL
+            else "have the station's disk checked before the next exercise"
         )
+        said = f"{why}: the exercise was stopped, and what was recorded until then is kept; {then}"
         log.error("the session file cannot be written: %s", said)
         self.message = said
         run = self.run_
@@ -502,9 +505,9 @@ class Station:
         if free >= need:
             return ""
         return (
-            f"the station's disk is full: {_mb(free)} free where sessions are kept, and "
-            f"this exercise needs {_mb(need)} to be recorded; free some space on the "
-            "station, then start again"
+            f"the station's disk is too full to record this exercise: {_mb(free)} free where "
+            f"sessions are kept, and it needs {_mb(need)}; free some space on the station, "
+            "then start again"
         )
 
     @staticmethod
@@ -929,7 +932,7 @@ def _mb(n: int) -> str:
 def disk_words(exc: OSError) -> str:
     """What a failed write to the station's disk means, for the patient and the therapist."""
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return "the station's disk is full"
+        return DISK_FULL
     if exc.errno == errno.EROFS:
         return "the station's disk cannot be written to (it is read-only)"
     return f"the station could not write to its disk ({exc.strerror or exc})"

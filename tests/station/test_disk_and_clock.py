@@ -117,8 +117,8 @@ async def test_a_disk_that_fills_mid_exercise_stops_it_safely_and_the_station_ca
         before = sorted(p.name for p in (tmp_path / "spool").glob("*.rec"))
         why = station.start(PRESCRIPTION_ID)
         assert why.startswith(
-            "the station's disk is full: 0.0 MB free where sessions are kept, and this "
-            "exercise needs 6.8 MB to be recorded"  # 12 s at 100 Hz, a hold and a homing
+            "the station's disk is too full to record this exercise: 0.0 MB free where "
+            "sessions are kept, and it needs 6.8 MB"  # 12 s at 100 Hz, a hold and a homing
         ), why
         assert "free some space on the station, then start again" in why
         assert station.run_ is None and station.writer is None
