@@ -10,19 +10,42 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 import os
+import re
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from device.client import CommandRefused, DeviceClient, DeviceError, Stall, Subscription
+import numpy as np
+
+from device.client import (
+    CommandRefused,
+    DeviceClient,
+    DeviceError,
+    LinkTimeout,
+    Stall,
+    Subscription,
+)
 from device.commands import CommandError, check_segment_as_received, published
 from device.protocol.messages import Capability, DeviceHello, DeviceMode, Telemetry
 from sessions import wire
 from sessions.home_progress import HomeProgress
-from sessions.recording import End, Header, RecordingWriter, SessionEvent, sample_row
+from sessions.prescription import PrescriptionBody
+from sessions.recording import (
+    SAMPLE_DTYPE,
+    End,
+    Header,
+    RecordingWriter,
+    RecordType,
+    SessionEvent,
+    encode_json,
+    encode_samples,
+    sample_row,
+)
 from sessions.translate import device_event, device_info, telemetry_sample
 from sessions.wire import PrescriptionItem
 from station.config import StationConfig
@@ -36,7 +59,7 @@ from station.reasons import (
 )
 from station.server_link import ServerLink
 from station.spool import Spool
-from station.timeline import ExerciseRun, segment_for, send_home
+from station.timeline import HOMING_TIMEOUT_S, ExerciseRun, SessionClock, segment_for, send_home
 from station.uploader import Uploader
 
 log = logging.getLogger("ankle.station")
@@ -74,6 +97,10 @@ for replay (64)."""
 REASON_MAX = 240
 """Characters of the server's reason a status gives for each refused session (the whole
 reason is in the spool, beside the session)."""
+DISK_FULL = "the station's disk is full"
+RECORD_ROOM = 1 << 20
+"""Bytes kept free in the spool beyond a session's samples (:func:`room_needed`): its
+header, events and end take a few kilobytes."""
 
 
 class Station:
@@ -93,6 +120,8 @@ class Station:
         self.run_: ExerciseRun | None = None
         self.writer: SessionWriter | None = None
         self.session_id: str | None = None
+        self.clock: SessionClock | None = None
+        """The running session's time (its recording's stamps), or None."""
         self.message = ""
         """The last session's notice (why it ended early, why it could not start): kept until
         the next start, across a reconnection to the device."""
@@ -185,7 +214,7 @@ class Station:
                 # Stopped as asked, but not yet ended (the platform was still going home).
                 writer.end(
                     End(
-                        ended_at=time.time(),
+                        ended_at=self._stamp(),
                         reason="stopped",
                         sets_completed=run.sets_done,
                         repetitions_completed=run.reps_done,
@@ -200,7 +229,10 @@ class Station:
             try:
                 dev = await DeviceClient.connect(self.config.device, self.config.baud)
             except (DeviceError, OSError) as exc:
-                self._link_notice = f"cannot reach the platform: {exc}"
+                notice = unreachable(self.config.device, exc)
+                if notice != self._link_notice:
+                    log.warning("%s (%s)", notice, exc)  # the link's own words, once
+                self._link_notice = notice
                 self._status_dirty.set()
                 await asyncio.sleep(1.0)
                 continue
@@ -262,7 +294,7 @@ class Station:
     async def _telemetry(self, dev: DeviceClient) -> str:
         """Record and stream the device's telemetry until its link closes (``""``) or goes
         silent (how long, in words)."""
-        last_flush = time.monotonic()
+        last_flush = time.monotonic()  # not the wall clock: one set back stopped the flushes
         stream = dev.telemetry()
         while True:
             try:
@@ -276,14 +308,14 @@ class Station:
                     f"the platform sent nothing for {DEVICE_STALE_S:g} s (the device stalled, "
                     "or its cable was cut)"
                 )
-            wall = time.time()
             run = self.run_
             s, r = (run.set, run.rep) if run else (0, 0)
             if self.writer is not None:
-                self.writer.add(sample_row(t, wall, s, r))
-                if wall - last_flush >= FLUSH_S:
+                self.writer.add(sample_row(t, self._stamp(), s, r))
+                now = time.monotonic()
+                if now - last_flush >= FLUSH_S:
                     self.writer.flush_soon()
-                    last_flush = wall
+                    last_flush = now
             self.link.send_sample(
                 telemetry_sample(t, s, r), dev.hello.telemetry_hz if dev.hello else 0
             )
@@ -299,8 +331,7 @@ class Station:
             # or to a station that has just connected).
             latest = dev.latest
             lag = max(0.0, latest.time - e.time) if latest is not None else 0.0
-            at = time.time() - lag
-            self.reasons.device_event(e, at)
+            self.reasons.device_event(e, time.time() - lag)
             run = self.run_
             if run is not None:
                 run.device_event(e)
@@ -308,7 +339,7 @@ class Station:
             # that has just connected) is not this session's record; what it says of the
             # device (above) may still change the status.
             if run is None or run.follows(e):
-                self._event(device_event(e, at))
+                self._event(device_event(e, self._stamp() - lag))
             self._status_dirty.set()
 
     async def _left_watch(self, dev: DeviceClient) -> None:
@@ -350,7 +381,7 @@ class Station:
             "sent home"
         )
         log.warning("%s (by %s)", text, by)
-        self._event(SessionEvent(wall=time.time(), kind="stop", by=by, detail={"text": text}))
+        self._event(SessionEvent(wall=self._stamp(), kind="stop", by=by, detail={"text": text}))
         try:
             home, note = await send_home(dev)
         except DeviceError as exc:
@@ -366,6 +397,28 @@ class Station:
         if self.writer is not None:
             self.writer.event(event)
         self.link.send(wire.EventMsg(session_id=self.session_id, event=event))
+
+    def _stamp(self) -> float:
+        """Now, as the running session's recording stamps it (:class:`SessionClock`); the
+        wall clock when none runs."""
+        return self.clock.now() if self.clock is not None else time.time()
+
+    def _write_failed(self, why: str) -> None:
+        """The session file could not be written (``why``: the disk, in words): the exercise
+        stops as on STOP (the platform holds and goes home), what the file holds is kept,
+        and the session ends ``interrupted`` saying so. The station itself carries on."""
+        then = (
+            "free some space on the station before the next exercise"
+            if why == DISK_FULL
+            else "have the station's disk checked before the next exercise"
+        )
+        said = f"{why}: the exercise was stopped, and what was recorded until then is kept; {then}"
+        log.error("the session file cannot be written: %s", said)
+        self.message = said
+        run = self.run_
+        if run is not None and not run.ending:
+            run.interrupt(said)
+        self._status_dirty.set()
 
     # -- sessions ------------------------------------------------------------------------
     def _autostart(self) -> None:
@@ -390,7 +443,14 @@ class Station:
         hello = self.dev.hello
         self.message = ""  # the last session's notice is history now
         self.ended_link_lost = False
+        no_room = self._no_room(item.body, hello)
+        if no_room:
+            log.error("exercise not started: %s", no_room)
+            self.message = no_room
+            self._status_dirty.set()
+            return no_room
         self.session_id = str(uuid.uuid4())
+        self.clock = SessionClock()
         header = Header(
             session_id=self.session_id,
             station_id=welcome.station_id if welcome else 0,
@@ -399,10 +459,20 @@ class Station:
             prescription=item.body.model_dump(mode="json"),
             device=device_info(hello),
             software=SOFTWARE,
-            started_at=time.time(),
+            started_at=self.clock.started_at,
         )
         path = self.spool.path(self.session_id)
-        self.writer = SessionWriter(path, header)
+        try:
+            self.writer = SessionWriter(path, header, self._write_failed)
+        except OSError as exc:
+            # Not even the header went to disk: no session, and no empty file left behind.
+            path.unlink(missing_ok=True)
+            self.session_id = self.clock = None
+            why = f"{disk_words(exc)}: the exercise cannot be recorded, so it does not start"
+            log.error("exercise not started: %s (%s)", why, exc)
+            self.message = why
+            self._status_dirty.set()
+            return why
         self.uploader.skip(path)
         # Refused here, with the reason the patient can act on, rather than by the device's
         # NACK of the homing a moment later. The status says it while it lasts (not kept as
@@ -419,10 +489,26 @@ class Station:
             self._event,
             self._status_dirty.set,
             first_segment_id=self._segment_base,
+            clock=self.clock,
         )
         self._session_task = asyncio.create_task(self._run_session(self.run_), name="exercise")
         self._status_dirty.set()
         return ""
+
+    def _no_room(self, body: PrescriptionBody, hello: DeviceHello) -> str:
+        """Why the spool has no room for a session of ``body``, or ``""``."""
+        need = room_needed(body, hello.telemetry_hz, self.config.hold_limit_s)
+        try:
+            free = self.spool.free_bytes()
+        except OSError as exc:
+            return f"{disk_words(exc)}: the exercise cannot be recorded, so it does not start"
+        if free >= need:
+            return ""
+        return (
+            f"the station's disk is too full to record this exercise: {_mb(free)} free where "
+            f"sessions are kept, and it needs {_mb(need)}; free some space on the station, "
+            "then start again"
+        )
 
     @staticmethod
     def _refusal(item: PrescriptionItem, hello: DeviceHello) -> str:
@@ -445,13 +531,13 @@ class Station:
         reason stays the status's notice until the next start."""
         log.error("exercise not started: %s", why)
         self._event(
-            SessionEvent(wall=time.time(), kind="refused", by="station", detail={"text": why})
+            SessionEvent(wall=self._stamp(), kind="refused", by="station", detail={"text": why})
         )
         writer, self.writer = self.writer, None
         if writer is not None:
             writer.end(
                 End(
-                    ended_at=time.time(),
+                    ended_at=self._stamp(),
                     reason="stopped",
                     sets_completed=0,
                     repetitions_completed=0,
@@ -459,7 +545,7 @@ class Station:
                 )
             )
             writer.close()
-        self.session_id = None
+        self.session_id = self.clock = None
         self.message = why if keep else ""
         self._last_phase = "stopped"
         self.uploader.skip(None)
@@ -478,6 +564,13 @@ class Station:
             writer.close()
         if end.text:
             self.message = end.text
+        if writer is not None and writer.failed and not writer.ended:
+            # Not even the end record went to disk: closed at the next start from what the
+            # file holds (and uploaded then), and said so now.
+            self.uploader.hold(writer.path)
+            self.message = "; ".join(
+                m for m in (self.message, "the session's end could not be recorded") if m
+            )
         self.ended_link_lost = run.link_lost
         latest = run.dev.latest
         self.reasons.settled(latest.mode if latest is not None else None)
@@ -487,7 +580,7 @@ class Station:
             # device holds it only over a lost link, which _left_watch then sends home.
             self._left_tried = run.last_segment_id
         self.run_ = None
-        self.session_id = None
+        self.session_id = self.clock = None
         self._last_phase = run.phase  # shown until the next start: done, stopped or fault
         self.uploader.skip(None)
         self.uploader.wake()
@@ -573,7 +666,7 @@ class Station:
                     change = await self._set_impedance(dev, run, cmd)
                     self._event(
                         SessionEvent(
-                            wall=time.time(),
+                            wall=self._stamp(),
                             kind="impedance",
                             by=cmd.by or "station",
                             detail=change.model_dump(mode="json"),
@@ -617,7 +710,7 @@ class Station:
                     self._send_home(dev, cmd.by or "station")
                     return result(True, text="acknowledged by the device; the platform goes home")
                 run.stop()
-            self._event(SessionEvent(wall=time.time(), kind=cmd.action, by=cmd.by or "station"))
+            self._event(SessionEvent(wall=self._stamp(), kind=cmd.action, by=cmd.by or "station"))
             return result(True, text="acknowledged by the device")
         except CommandRefused as exc:
             return result(False, exc.nack.code.name, exc.nack.field, exc.nack.text)
@@ -657,7 +750,7 @@ class Station:
         latest = self.dev.latest if self.dev is not None else None
         self._event(
             SessionEvent(
-                wall=time.time(),
+                wall=self._stamp(),
                 t=latest.time if latest is not None else None,
                 kind=kind,
                 by=by,
@@ -737,7 +830,7 @@ class Station:
             log.warning("the exercise ends: %s", why)
             self._event(
                 SessionEvent(
-                    wall=now,
+                    wall=self._stamp(),
                     kind="interrupted",
                     by="station",
                     detail={"text": why, "hold": hold.code, "held_s": round(held, 1)},
@@ -820,22 +913,158 @@ def _cut(text: str, most: int = REASON_MAX) -> str:
     return text if len(text) <= most else text[: most - 1] + "…"
 
 
+_NO_ROWS = np.zeros(0, SAMPLE_DTYPE)
+
+
+def room_needed(body: PrescriptionBody, telemetry_hz: float, hold_limit_s: float) -> int:
+    """Bytes of spool a session of ``body`` may fill: the device's samples (and each flush's
+    record framing) for twice the exercise's time (the moves to and from each repetition,
+    pauses), one hold to its limit and a homing, plus :data:`RECORD_ROOM`."""
+    per_s = telemetry_hz * SAMPLE_DTYPE.itemsize + len(encode_samples(_NO_ROWS)) / FLUSH_S
+    seconds = 2.0 * body.total_s() + hold_limit_s + HOMING_TIMEOUT_S
+    return int(per_s * seconds) + RECORD_ROOM
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
+
+
+def disk_words(exc: OSError) -> str:
+    """What a failed write to the station's disk means, for the patient and the therapist."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return DISK_FULL
+    if exc.errno == errno.EROFS:
+        return "the station's disk cannot be written to (it is read-only)"
+    return f"the station could not write to its disk ({exc.strerror or exc})"
+
+
+_ERRNO = re.compile(r"\[Errno (\d+)\]")
+_UNREACHABLE: dict[int, str] = {
+    errno.ECONNREFUSED: "nothing answers at {link}: is the platform switched on and connected?",
+    errno.ENOENT: "there is no port {link}: is the platform's cable plugged in?",
+    errno.EACCES: "the station may not open {link} (permission denied)",
+    errno.EPERM: "the station may not open {link} (permission denied)",
+    errno.EBUSY: "{link} is in use by another program",
+    errno.EHOSTUNREACH: "{link} cannot be reached over the network",
+    errno.ENETUNREACH: "{link} cannot be reached over the network",
+    errno.ETIMEDOUT: "{link} did not answer in time: is the platform switched on?",
+}
+"""Why the platform's link could not be opened, by the innermost error number the link's
+error names (the transport nests the system's words in its own)."""
+
+
+def unreachable(link: str, exc: BaseException) -> str:
+    """Why the station cannot reach the platform on ``link``, as a sentence (the patient's
+    page shows it; the link's own words, "[Errno 111] …", go to the log)."""
+    if isinstance(exc, LinkTimeout):
+        why = f"the platform did not answer on {link}: is it switched on?"
+    else:
+        numbers = _ERRNO.findall(str(exc))
+        code = int(numbers[-1]) if numbers else None
+        if code in _UNREACHABLE:
+            why = _UNREACHABLE[code].format(link=link)
+        else:
+            why = f"the link to it on {link} could not be opened"
+    return f"cannot reach the platform: {why}"
+
+
 class SessionWriter(RecordingWriter):
     """The session file as the station writes it: rows go to the OS at once, the wait for
     the disk (fsync, up to half a second on a busy disk) runs in a thread. The event loop
     also feeds the device's watchdog: if it stalls for 200 ms the device holds the exercise.
-    """
 
-    def __init__(self, path: Path, header: Header) -> None:
+    A write the disk refuses (full, failing) never raises into the station: the file is cut
+    back to its last whole record, :attr:`failed` says why, ``on_failure`` is told once,
+    and nothing more is written but the end record, which may still fit (a few hundred
+    bytes, where the cut-back block was)."""
+
+    def __init__(
+        self, path: Path, header: Header, on_failure: Callable[[str], None] = lambda why: None
+    ) -> None:
+        self.failed = ""
+        """Why the file could not be written (the disk, in words), or ``""``."""
+        self.ended = False
+        """The end record is on disk."""
+        self._on_failure = on_failure
         super().__init__(path, header)
         self._sync: asyncio.Future[None] | None = None
 
     def flush_soon(self) -> None:
         """Write the buffered rows; sync them unless the last sync is still running."""
         self._write_rows()
+        if self.failed or self._fd < 0:
+            return
         if self._sync is None or self._sync.done():
             self._sync = asyncio.ensure_future(asyncio.to_thread(_fsync_dup, os.dup(self._fd)))
-            self._sync.add_done_callback(_sync_done)
+            self._sync.add_done_callback(self._sync_done)
+
+    def event(self, event: SessionEvent) -> None:
+        self._write_rows()
+        self._append(encode_json(RecordType.EVENT, event))
+
+    def end(self, end: End) -> None:
+        self._write_rows()
+        if self._append(encode_json(RecordType.END, end), last=True):
+            self.ended = True
+            self.flush()
+
+    def _write_rows(self) -> None:
+        if self._rows and self.failed:
+            self._rows.clear()
+        if self._rows:
+            rows = np.array(self._rows, dtype=SAMPLE_DTYPE)
+            self._rows.clear()
+            if self._append(encode_samples(rows)):
+                self.samples_written += len(rows)
+
+    def flush(self) -> None:
+        self._write_rows()
+        try:
+            os.fsync(self._fd)
+        except OSError as exc:
+            self._fail(exc)
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            self.flush()
+            os.close(self._fd)
+            self._fd = -1
+
+    def _append(self, data: bytes, last: bool = False) -> bool:
+        """Append whole records; False, and the file as it was, if the disk would not take
+        them. Once a write failed only the end record (``last``) is tried."""
+        if self._fd < 0 or (self.failed and not last):
+            return False
+        size = os.fstat(self._fd).st_size
+        view = memoryview(data)
+        try:
+            while view:
+                wrote = os.write(self._fd, view)
+                if wrote <= 0:  # no error and no progress: no room
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                view = view[wrote:]
+        except OSError as exc:
+            # A torn record would end the file for every reader: what follows it is lost.
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, size)
+            self._fail(exc)
+            return False
+        return True
+
+    def _fail(self, exc: OSError) -> None:
+        if self.failed:
+            return
+        self.failed = disk_words(exc)
+        log.error("cannot write the session file %s: %s", self.path, exc)
+        self._on_failure(self.failed)
+
+    def _sync_done(self, future: asyncio.Future[None]) -> None:
+        if future.cancelled() or future.exception() is None:
+            return
+        exc = future.exception()
+        log.error("cannot sync the session file: %s", exc)
+        if isinstance(exc, OSError):
+            self._fail(exc)
 
 
 def _fsync_dup(fd: int) -> None:
@@ -843,8 +1072,3 @@ def _fsync_dup(fd: int) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
-
-
-def _sync_done(future: asyncio.Future[None]) -> None:
-    if not future.cancelled() and future.exception() is not None:
-        log.error("cannot sync the session file: %s", future.exception())

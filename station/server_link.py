@@ -97,7 +97,7 @@ class ServerLink:
                 ) as ws:
                     await self._session(ws)
             except InvalidStatus as exc:
-                self.last_error = f"server refused the station ({exc.response.status_code})"
+                self.last_error = refused_words(exc.response.status_code)
             except (OSError, WebSocketException, TimeoutError) as exc:
                 self.last_error = f"server unreachable ({type(exc).__name__})"
             except _Closed as exc:
@@ -182,6 +182,18 @@ class ServerLink:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(max(0.0, next_beat - now)):
                     await self._wake.wait()
+
+
+def refused_words(status: int) -> str:
+    """Why the server refused this station's link (the HTTP status of its handshake)."""
+    if status in (401, 403):
+        # The server answers one way for both, so as not to tell a stranger which it is.
+        return (
+            f"the server refused this station's token ({status}): it was revoked, or the "
+            "server does not know it; provision the station again and start it with the "
+            "new token"
+        )
+    return f"server refused the station ({status})"
 
 
 class _Closed(Exception):

@@ -26,6 +26,21 @@ STOPPED_MODES = (DeviceMode.FAULT, DeviceMode.ESTOP)
 Phase = Literal["homing", "running", "rest", "paused", "done", "stopped", "fault", "interrupted"]
 
 
+class SessionClock:
+    """A session's time, as its recording stamps it: the wall clock read once, at the start,
+    plus the monotonic clock's count since. A wall clock set back while a session ran made
+    it end before it started, a session the server refuses for good; set forward by hours,
+    it made a short session hours long. Neither changes this count."""
+
+    def __init__(self) -> None:
+        self.started_at = time.time()
+        self._began = time.monotonic()
+
+    def now(self) -> float:
+        """Unix s, as the session counts it: ``started_at`` plus the time elapsed since."""
+        return self.started_at + (time.monotonic() - self._began)
+
+
 def segment_for(
     hello: msg.DeviceHello,
     segment_id: int,
@@ -77,8 +92,11 @@ class ExerciseRun:
         on_event: Callable[[SessionEvent], None],
         on_change: Callable[[], None],
         first_segment_id: int = 1,
+        clock: SessionClock | None = None,
     ) -> None:
         assert dev.hello is not None
+        self.clock = clock if clock is not None else SessionClock()
+        """The session's time (its events and its end are stamped with it)."""
         self.dev = dev
         self.hello = dev.hello
         self.prescription_id = prescription_id
@@ -195,7 +213,7 @@ class ExerciseRun:
             self._on_change()
 
     def _event(self, kind: str, **detail: object) -> None:
-        self._on_event(SessionEvent(wall=time.time(), kind=kind, by="station", detail=detail))
+        self._on_event(SessionEvent(wall=self.clock.now(), kind=kind, by="station", detail=detail))
 
     # -- the timeline ------------------------------------------------------------------
     async def run(self) -> End:
@@ -225,7 +243,7 @@ class ExerciseRun:
         said = self.message if reason in ("fault", "interrupted") or self._refused else ""
         why = self._stop_why if reason != "completed" else ""
         return End(
-            ended_at=time.time(),
+            ended_at=self.clock.now(),
             reason=reason,
             sets_completed=self.sets_done,
             repetitions_completed=self.reps_done,

@@ -190,3 +190,44 @@ def test_cached_prescriptions_from_before_are_made_private_on_the_next_save(
     Spool(tmp_path).save_prescriptions([{"id": 4}])
     assert mode(cache) == 0o600
     assert Spool(tmp_path).load_prescriptions() == [{"id": 4}]
+
+
+def test_a_finished_session_damaged_on_disk_is_kept_and_not_cut_to_its_damage(
+    tmp_path: Path,
+) -> None:
+    """One byte changed in the middle of a finished session: every file was cut back at its
+    first damage and closed again, and this one went up as half a session, "interrupted".
+    Now the original is kept as found, and what reads of it goes up with its own end, saying
+    what was lost."""
+    spool = Spool(tmp_path)
+    path = spool.path("done")
+    with RecordingWriter(path, header("done")) as writer:
+        for block in range(10):
+            for i in range(20):
+                writer.add(row(block * 0.2 + i * 0.01))
+            writer.flush()
+            writer.event(SessionEvent(wall=1.0, kind="rep_done"))
+        writer.end(
+            End(ended_at=2.0, reason="completed", sets_completed=1, repetitions_completed=10)
+        )
+    whole = read(path)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01  # a sample record's payload in the middle
+    path.write_bytes(bytes(data))
+    assert read(path).end is None  # it reads only up to the damage
+
+    assert spool.recover_unfinished() == []  # not closed as interrupted: it was finished
+    kept = tmp_path / "damaged" / "done.rec"
+    assert kept.read_bytes() == bytes(data)  # the original, as found
+    rec = read(path)
+    assert not rec.damaged and rec.end is not None
+    assert rec.end.reason == "completed" and rec.end.repetitions_completed == 10
+    assert rec.end.ended_at == 2.0
+    assert "damaged on the station's disk" in rec.end.text, rec.end.text
+    # One block of 20 samples lost, the nine others and every event kept.
+    assert len(rec.samples) == len(whole.samples) - 20
+    assert [e.kind for e in rec.events] == ["rep_done"] * 10 + ["damaged"]
+    # Started again, the station leaves the repaired file as it is.
+    repaired = path.read_bytes()
+    assert spool.recover_unfinished() == []
+    assert path.read_bytes() == repaired
