@@ -818,13 +818,22 @@ class Station:
     async def _hold_watch(self) -> None:
         """End an exercise held past the limit (the device never resumes by itself, and a
         hold nobody answers would leave the patient's foot in a frozen platform)."""
+        seen: tuple[int, float, float] | None = None  # run, hold.since, when it began
         while True:
             await asyncio.sleep(HOLD_CHECK_S)
             run, hold = self.run_, self._hold()
-            now = time.time()
-            if run is None or hold is None or hold.ends_at is None or now < hold.ends_at:
+            if run is None or hold is None or hold.ends_at is None:
+                seen = None
                 continue
-            held = now - max(hold.since, run.began)
+            if seen is None or seen[:2] != (id(run), hold.since):
+                # How long it has been held: from the wall clock once, as the hold is first
+                # seen, then on the monotonic clock. A clock set back an hour mid-hold kept
+                # the patient's foot in a held platform an hour past the limit.
+                before = max(0.0, time.time() - max(hold.since, run.began))
+                seen = (id(run), hold.since, time.monotonic() - before)
+            held = time.monotonic() - seen[2]
+            if held < self.config.hold_limit_s:
+                continue
             why = f"held {held:.0f} s, longer than the {self.config.hold_limit_s:g} s limit: "
             why += hold.text
             log.warning("the exercise ends: %s", why)
