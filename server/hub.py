@@ -147,7 +147,7 @@ TOKEN_SHARED = (
 """Told to the viewers (as the connected station's presence) when a link of another run of
 the station program took over a live one, or a station says it was displaced."""
 REPLACED = "a newer connection with this station's token took over this link"
-TOKEN_SHARED_ACTION = "station.token_shared"
+TOKEN_SHARED_ACTION = live_audit.TOKEN_SHARED_ACTION
 SHARED_ROWS_WINDOW = RateLimitItemPerHour(6)
 """Audit rows of one station's token in use twice: 6 in any hour. Two stations fighting
 over one token take turns every minute or more (each steps back when displaced), an older

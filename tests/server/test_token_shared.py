@@ -128,6 +128,13 @@ async def test_a_displaced_station_steps_back_and_the_server_says_two_use_its_to
                 assert len(rows) == 1, rows
                 assert rows[0]["new"]["seen"] == "took_over"
                 assert rows[0]["patient_id"] == world.p1
+                # Where the therapist looks for what needs attention.
+                r = await live.client.get("/patients/attention", headers=bearer(world.t1))
+                shared = [i for i in r.json() if i["kind"] == "token_shared"]
+                assert [(i["station_id"], i["link"]) for i in shared] == [
+                    (world.s1_id, f"/app/patients/{world.p1}")
+                ], shared
+                assert "Two stations used the token" in shared[0]["text"]
                 # Neither takes the link back: one connection each, however long we look.
                 await asyncio.sleep(QUIET_S)
                 assert (first.connects, second.connects) == (1, 1)

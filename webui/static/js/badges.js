@@ -32,6 +32,7 @@ const ATTENTION = {
   ended_early: ["warn", "Ended early"],
   missed: ["warn", "Sessions missed"],
   offline: ["offline", "Station offline"],
+  token_shared: ["bad", "Token used twice"],
 };
 
 /** What kind of thing needs attention (GET /patients/attention's kind), as a badge. */
