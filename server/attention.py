@@ -245,9 +245,9 @@ async def _token_shared(
                 patient_id=pid,
                 patient_name=names[pid],
                 at=last,
-                text=f"Two stations used the token of station “{name}” ({times} recorded in "
-                f"{LOOKBACK_DAYS} days): the platform seen live may not have been the patient's; "
-                "re-provision the station.",
+                text=f"Two stations used the token of station “{name}” (recorded {times} in "
+                f"the last {LOOKBACK_DAYS} days): the platform seen live may not have been the "
+                "patient's; re-provision the station.",
                 link=f"/app/patients/{pid}",
                 station_id=st_id,
             )

@@ -53,8 +53,8 @@ DISPLACED_MAX_S = 540.0
 DISPLACED_LOG = (
     "another station or process is connected with this station's token (a copied "
     "configuration or a stolen token) and took over its link to the server; this station "
-    "tries again in %.0f s (taken over %d times in a row): ask the clinic to re-provision "
-    "the station (a new token) and switch the other one off"
+    "tries again in %.0f s (its link taken over %s): ask the clinic to re-provision the "
+    "station (a new token) and switch the other one off"
 )
 DISPLACED_NOTICE = (
     "Another device is connected to your therapist with this station's key, so this station "
@@ -159,7 +159,8 @@ class ServerLink:
         self.displaced += 1
         self.notice = DISPLACED_NOTICE
         wait = DISPLACED_FIRST_S + displacement.next()
-        log.warning(DISPLACED_LOG, wait, self.displaced)
+        times = "once" if self.displaced == 1 else f"{self.displaced} times in a row"
+        log.warning(DISPLACED_LOG, wait, times)
         return wait
 
     async def _session(self, ws: ClientConnection) -> None:
