@@ -544,8 +544,7 @@ class Hub:
         """Tell the viewers, everywhere, that the station of ``conn`` is online (with what
         :meth:`token_shared` found, if it did)."""
         conn.announced = True
-        presence = wire.Presence(online=True, text=conn.presence)
-        self.broadcast(conn.station_id, presence.model_dump_json())
+        self.broadcast(conn.station_id, _online(conn))
 
     def token_shared(self, conn: StationConn, seen: str) -> None:
         """Two stations use ``conn``'s token: the viewers are told while ``conn`` holds the
@@ -693,7 +692,7 @@ class Hub:
         await self.watch(viewer.station_id)
         conn = self.stations.get(viewer.station_id)
         if conn is not None and conn.presence != CONNECTED:  # sent after its welcome
-            viewer.push(wire.Presence(online=True, text=conn.presence).model_dump_json())
+            viewer.push(_online(conn))
         if not self.relay.reachable and viewer.station_id not in self.stations:
             viewer.push(_unknown())
 
@@ -1276,6 +1275,12 @@ class Arrival:
     at: float
     """The event loop's clock."""
     holds: int
+
+
+def _online(conn: StationConn) -> str:
+    """The presence of a station online through ``conn``, with what its viewers must know."""
+    text = conn.presence
+    return wire.Presence(online=True, text=text, warning=text != CONNECTED).model_dump_json()
 
 
 def _other_run(older: str, newer: object) -> bool:

@@ -526,6 +526,12 @@ class Presence(BaseModel):
         description="False when the viewer's server cannot reach the station's (the relay is "
         "down): online is then false, and whether the station is connected is not known.",
     )
+    warning: bool = Field(
+        default=False,
+        description="The station is online but the text says what the therapist must know "
+        "while it is: two stations are using its token, so the platform shown may not be "
+        "the one in use.",
+    )
 
 
 StationUp = Annotated[

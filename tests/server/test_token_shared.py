@@ -123,7 +123,7 @@ async def test_a_displaced_station_steps_back_and_the_server_says_two_use_its_to
                 assert not first.connected.is_set()
                 # The therapist is told, in the words of the presence, not a bare "online".
                 presence = await presence_where(view, lambda text: text == TOKEN_SHARED)
-                assert presence.online
+                assert presence.online and presence.warning
                 rows = await until_audited(live, world, TOKEN_SHARED_ACTION)
                 assert len(rows) == 1, rows
                 assert rows[0]["new"]["seen"] == "took_over"
@@ -157,7 +157,7 @@ async def test_a_station_reconnecting_over_its_own_half_open_link_gets_in_unrepo
                 code, _ = await closed_with(half_open, WAIT_S)
                 assert code == wire.CLOSE_REPLACED
                 presence = await presence_where(view, lambda text: True)
-                assert presence.online and presence.text == CONNECTED
+                assert presence.online and presence.text == CONNECTED and not presence.warning
                 # A HOLD's request row is queued after any row of the reconnection: once it
                 # is stored, a row of a token used twice would be too.
                 hold = wire.Command(request_id="after-reconnect", action="hold")
