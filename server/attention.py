@@ -4,14 +4,17 @@ From the last :data:`LOOKBACK_DAYS` days of the therapist's current patients: se
 fault, sessions held, sessions ended early (stopped, interrupted, or completed with fewer
 repetitions than prescribed), active prescriptions with sessions missed in a prescribed week
 that ended in those days (``sessions.progress.missed_weeks``: the weeks and counts of the
-progress page's adherence, so the two never disagree), and home stations not seen for
-:data:`OFFLINE_DAYS` days. Each item says what happened in a sentence and links to where it
+progress page's adherence, so the two never disagree), home stations not seen for
+:data:`OFFLINE_DAYS` days, and stations whose token another station used in those days (the
+live hub's ``station.token_shared`` audit rows: the platform the therapist watched may not
+have been the patient's). Each item says what happened in a sentence and links to where it
 happened: the session's review page, or the patient's page (their prescriptions and
 stations).
 
 Five queries whatever the number of patients and sessions (the patients' names, sessions
 with their stored summaries, active prescriptions, their sessions of the last two weeks,
-stations), plus one look-up of which stations are connected now.
+stations, stations whose token two stations used), plus one look-up of which stations are
+connected now.
 """
 
 from __future__ import annotations
@@ -21,11 +24,12 @@ from datetime import datetime, timedelta
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
-from sqlalchemy import select
+from sqlalchemy import Integer, cast, func, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from server.facts import prescription_facts
-from server.models import Patient, Prescription, Session, Station, User
+from server.live_audit import TOKEN_SHARED_ACTION
+from server.models import AuditEntry, Patient, Prescription, Session, Station, User
 from sessions.progress import WEEK, SessionFacts, missed_weeks
 from sessions.record import data_missing
 
@@ -36,7 +40,7 @@ OFFLINE_DAYS = 2
 FAULT_KINDS = ("fault", "estop", "watchdog", "supply_low")
 """Safety events that count as a fault (a range limit reached is the device doing its job)."""
 
-Kind = Literal["fault", "held", "ended_early", "data_missing", "missed", "offline"]
+Kind = Literal["fault", "held", "ended_early", "data_missing", "missed", "offline", "token_shared"]
 
 
 class AttentionItem(BaseModel):
@@ -46,7 +50,8 @@ class AttentionItem(BaseModel):
         description="fault, held (the exercise was put on hold), ended_early, data_missing "
         "(the session's recording has gaps in its telemetry: its numbers leave them out), missed "
         "(prescribed sessions not done in a prescribed week that ended in the last 7 days, "
-        "as the progress page's adherence counts them) or offline (a station not seen)."
+        "as the progress page's adherence counts them), offline (a station not seen) or "
+        "token_shared (two stations used one station's token in the last 7 days)."
     )
     patient_id: int
     patient_name: str
@@ -125,6 +130,7 @@ async def attention(
     items = list(_session_items(rows, names))
     items.extend(await _missed(db, mine, names, now))
     items.extend(await _offline(db, mine, names, now, online_of))
+    items.extend(await _token_shared(db, mine, names, since))
     return items
 
 
@@ -213,6 +219,40 @@ async def _offline(
                 patient_name=names[pid],
                 at=seen,
                 text=text,
+                link=f"/app/patients/{pid}",
+                station_id=st_id,
+            )
+        )
+    return out
+
+
+async def _token_shared(
+    db: AsyncSession, mine: Any, names: dict[int, str], since: datetime
+) -> list[AttentionItem]:
+    rows = await db.execute(
+        select(Station.id, Station.patient_id, Station.name, func.count(), func.max(AuditEntry.at))
+        .join(Station, Station.id == cast(AuditEntry.entity_id, Integer))
+        .where(
+            AuditEntry.action == TOKEN_SHARED_ACTION,
+            AuditEntry.entity == "station",
+            AuditEntry.patient_id.in_(mine),
+            AuditEntry.at >= since,
+        )
+        .group_by(Station.id, Station.patient_id, Station.name)
+        .order_by(Station.id)
+    )
+    out: list[AttentionItem] = []
+    for st_id, pid, name, count, last in rows:
+        times = "once" if count == 1 else f"{count} times"
+        out.append(
+            AttentionItem(
+                kind="token_shared",
+                patient_id=pid,
+                patient_name=names[pid],
+                at=last,
+                text=f"Two stations used the token of station “{name}” (recorded {times} in "
+                f"the last {LOOKBACK_DAYS} days): the platform seen live may not have been the "
+                "patient's; re-provision the station.",
                 link=f"/app/patients/{pid}",
                 station_id=st_id,
             )

@@ -36,7 +36,12 @@ from datetime import UTC, datetime
 from typing import Any, TypeVar
 
 from fastapi import WebSocket, WebSocketDisconnect
-from limits import RateLimitItem, RateLimitItemPerMinute, RateLimitItemPerSecond
+from limits import (
+    RateLimitItem,
+    RateLimitItemPerHour,
+    RateLimitItemPerMinute,
+    RateLimitItemPerSecond,
+)
 from limits.storage import MemoryStorage
 from limits.strategies import MovingWindowRateLimiter
 from sqlalchemy import select
@@ -133,6 +138,20 @@ GONE = (
     "no server holds the station's link any more (it closed, or its server stopped), so the "
     "station is offline"
 )
+TOKEN_SHARED = (
+    "two stations are using this station's token: another station or program connected with "
+    "it and took over the link, so the platform shown here may not be the one the patient "
+    "is using; ask the clinic to re-provision the station (a copied configuration or a "
+    "stolen token)"
+)
+"""Told to the viewers (as the connected station's presence) when a link of another run of
+the station program took over a live one, or a station says it was displaced."""
+REPLACED = "a newer connection with this station's token took over this link"
+TOKEN_SHARED_ACTION = live_audit.TOKEN_SHARED_ACTION
+SHARED_ROWS_WINDOW = RateLimitItemPerHour(6)
+"""Audit rows of one station's token in use twice: 6 in any hour. Two stations fighting
+over one token take turns every minute or more (each steps back when displaced), an older
+station without that every second; the rows left out are counted into the next one."""
 RELAY_REFUSED = (
     "this server cannot reach the other server processes (the relay is down), so the command "
     "could not be sent to the station; try again when the station shows online"
@@ -240,6 +259,15 @@ class StationConn:
     seq: int = 0
     """The newest batch's number."""
     messages: int = 0
+    instance: str = ""
+    """The run of the station program that holds the link (its hello's; empty from an older
+    station): a link replaced by one of another run is a second station with this token."""
+    displaced: int = 0
+    """How often its link was taken over since its last one that ended otherwise (hello)."""
+    presence: str = CONNECTED
+    """What its viewers are told while it holds the link."""
+    announced: bool = False
+    """Its viewers were told it is online (:meth:`Hub.announce`)."""
 
     def telemetry(self, raw: str, batch: wire.TelemetryBatchBase) -> None:
         self.seq += 1
@@ -381,6 +409,8 @@ class Hub:
         self._serial = str(next(_hubs))
         self._unlogged: collections.Counter[int] = collections.Counter()
         """Dropped results of each station not logged (``DROPPED_LOG_WINDOW``)."""
+        self._shared_unwritten: collections.Counter[int] = collections.Counter()
+        """Sightings of each station's token in use twice not audited (``SHARED_ROWS_WINDOW``)."""
         self._recheck_lock = asyncio.Lock()
         self._recheck_asked = 0
         self._recheck_done = 0
@@ -484,14 +514,77 @@ class Hub:
         return here | elsewhere.keys()
 
     async def station_joined(self, conn: StationConn) -> None:
-        """``conn`` is the station's link now: an older one, here or elsewhere, is closed."""
+        """``conn`` is the station's link now: an older one, here or elsewhere, is closed.
+
+        The newest link wins, always: a station whose network dropped reconnects over its
+        own half-open link and must get in at once. A link that took over a live one of
+        another run of the station program (``instance``), or a hello saying its station's
+        link was taken over, means two stations are using one token: audited, and told to
+        the viewers (:meth:`token_shared`). The process that held the older link compares
+        the runs, since only it knows the older one's."""
         old = self.stations.get(conn.station_id)
         if old is not None:
-            await close_link(old.ws, wire.CLOSE_REPLACED, "the station connected again")
+            await close_link(old.ws, wire.CLOSE_REPLACED, REPLACED)
         self.stations[conn.station_id] = conn
+        if old is not None and _other_run(old.instance, conn.instance):
+            self.token_shared(conn, "took_over")
+        elif conn.displaced:
+            self.token_shared(conn, "reported")
         before = await self._ask("claim", self.relay.claim(conn.station_id), None)
         if before is not None:
-            self.relay.send(before, {"type": "replaced", "station_id": conn.station_id})
+            replaced = {
+                "type": "replaced",
+                "station_id": conn.station_id,
+                "instance": conn.instance,
+                "by": self.relay.process,
+            }
+            self.relay.send(before, replaced)
+
+    def announce(self, conn: StationConn) -> None:
+        """Tell the viewers, everywhere, that the station of ``conn`` is online (with what
+        :meth:`token_shared` found, if it did)."""
+        conn.announced = True
+        self.broadcast(conn.station_id, _online(conn))
+
+    def token_shared(self, conn: StationConn, seen: str) -> None:
+        """Two stations use ``conn``'s token: the viewers are told while ``conn`` holds the
+        link, and an audit row says so (:data:`SHARED_ROWS_WINDOW`; the rows left out are
+        counted into the next). ``seen``: ``took_over`` (``conn`` replaced a live link of
+        another run) or ``reported`` (its hello says its own was taken over)."""
+        station_id = conn.station_id
+        if conn.presence != TOKEN_SHARED:
+            conn.presence = TOKEN_SHARED
+            if conn.announced:
+                self.announce(conn)
+        if not _COUNTS.hit(SHARED_ROWS_WINDOW, "shared", self._serial, str(station_id)):
+            self._shared_unwritten[station_id] += 1
+            return
+        unwritten = self._shared_unwritten.pop(station_id, 0)
+        log.warning(
+            "station %d: two stations are using its token (a link %s); ask the clinic to "
+            "re-provision it%s",
+            station_id,
+            "took over a live one of another station program"
+            if seen == "took_over"
+            else f"reports it was taken over {conn.displaced} times",
+            f" ({unwritten} more like it since the last such warning)" if unwritten else "",
+        )
+        self.writer.write_soon(
+            {
+                "actor": f"station:{station_id}",
+                "action": TOKEN_SHARED_ACTION,
+                "entity": "station",
+                "entity_id": station_id,
+                "patient_id": conn.patient_id,
+                "old": None,
+                "new": {
+                    "seen": seen,
+                    "displaced": conn.displaced,
+                    "unwritten_before": unwritten,
+                    "text": TOKEN_SHARED,
+                },
+            }
+        )
 
     async def station_left(self, conn: StationConn) -> None:
         """``conn``'s link ended: its commands will not be answered; if it was still the
@@ -597,6 +690,9 @@ class Hub:
     async def viewer_joined(self, viewer: Viewer) -> None:
         self.viewers[viewer.station_id].add(viewer)
         await self.watch(viewer.station_id)
+        conn = self.stations.get(viewer.station_id)
+        if conn is not None and conn.presence != CONNECTED:  # sent after its welcome
+            viewer.push(_online(conn))
         if not self.relay.reachable and viewer.station_id not in self.stations:
             viewer.push(_unknown())
 
@@ -712,7 +808,16 @@ class Hub:
             conn = self.stations.pop(station_id, None)
             if conn is not None:  # it stays online, elsewhere: no presence change to tell
                 await self.relay.release(station_id)  # the other process's claim stays
-                await close_link(conn.ws, wire.CLOSE_REPLACED, "the station connected again")
+                await close_link(conn.ws, wire.CLOSE_REPLACED, REPLACED)
+                newer, by = message.get("instance"), message.get("by")
+                if isinstance(newer, str) and _other_run(conn.instance, newer) and by:
+                    shared = {"type": "token_shared", "station_id": station_id, "instance": newer}
+                    with contextlib.suppress(Exception):
+                        self.relay.send(str(by), shared)
+        elif kind == "token_shared" and isinstance(station_id, int):
+            conn = self.stations.get(station_id)
+            if conn is not None and conn.instance == message.get("instance"):
+                self.token_shared(conn, "took_over")
 
     # -- shutdown --------------------------------------------------------------------------
     async def close(self) -> None:
@@ -1170,6 +1275,18 @@ class Arrival:
     at: float
     """The event loop's clock."""
     holds: int
+
+
+def _online(conn: StationConn) -> str:
+    """The presence of a station online through ``conn``, with what its viewers must know."""
+    text = conn.presence
+    return wire.Presence(online=True, text=text, warning=text != CONNECTED).model_dump_json()
+
+
+def _other_run(older: str, newer: object) -> bool:
+    """Whether two links' instances are different runs of the station program (an older
+    station names none: then not known, and not reported)."""
+    return bool(older) and isinstance(newer, str) and bool(newer) and older != newer
 
 
 def _unknown() -> str:

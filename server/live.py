@@ -33,7 +33,6 @@ from server.hub import (
     BUSY,
     COMMAND_BURST,
     COMMANDS_PER_S,
-    CONNECTED,
     LOGIN_CLOSE,
     VIEW_COMMANDS_MAX,
     Arrival,
@@ -162,11 +161,12 @@ async def station_socket(ws: WebSocket) -> None:
         hello = wire.STATION_UP.validate_json(await _receive(ws, silence))
         if not isinstance(hello, wire.StationHello):
             raise _Close(wire.CLOSE_MALFORMED, "the first message must be hello")
-        if hello.protocol != wire.PROTOCOL:
+        if not wire.PROTOCOL_OLDEST <= hello.protocol <= wire.PROTOCOL:
             raise _Close(
                 wire.CLOSE_VERSION,
                 f"station speaks protocol {hello.protocol}, server {wire.PROTOCOL}: update one",
             )
+        conn.instance, conn.displaced = hello.instance, hello.displaced
         await hub.station_joined(conn)
         await _seen(hub, station.id)
         await send_text(
@@ -178,7 +178,7 @@ async def station_socket(ws: WebSocket) -> None:
         assert hub.sessionmaker is not None
         async with hub.sessionmaker() as db:
             await send_text(ws, (await prescriptions_of(db, station.patient_id)).model_dump_json())
-        hub.broadcast(station.id, wire.Presence(online=True, text=CONNECTED).model_dump_json())
+        hub.announce(conn)
         beat = asyncio.create_task(_heartbeats(ws))
         try:
             while True:

@@ -30,6 +30,10 @@ The server's own refusals of one user's commands to one station past a few a sec
 counted rather than written one by one: one ``command.refusals`` row says how many
 (:class:`server.hub.Refusals`).
 
+A link that took over a live one of another run of the station program, or a station saying
+its own was taken over, is one station token used by two stations: a ``station.token_shared``
+row (:data:`TOKEN_SHARED_ACTION`; at most 6 an hour per station, ``Hub.token_shared``).
+
 ``kind`` is ``impedance`` (``set_impedance``), ``hold``, ``resume``, ``stop`` or ``start``.
 Rows go through the hub's batched writer; outcomes are queued, never awaited, so a station's
 answer costs the relay no database round trip.
@@ -53,6 +57,8 @@ KIND: dict[str, str] = {
     "start": "start",
 }
 """The audit name of each command action."""
+TOKEN_SHARED_ACTION = "station.token_shared"
+"""Two stations were found using one station token (``new``: how it was seen)."""
 SAFE_ACTIONS = frozenset({"hold", "stop"})
 """Commands that take motion away: sent at once, their request row written beside them."""
 UNANSWERED_CODES = frozenset({"TIMEOUT"})

@@ -5,8 +5,9 @@ Every message is JSON with a ``type`` tag; each direction of each link is one di
 union, validated on receipt. The server publishes the JSON Schemas of these unions (WebSocket
 routes do not appear in OpenAPI) at ``/api/v1/schemas/ws``.
 
-Links and their handshake (``PROTOCOL`` is the version; a mismatch closes with
-:data:`CLOSE_VERSION` and a reason naming both versions):
+Links and their handshake (``PROTOCOL`` is the version; a station speaking one outside
+``PROTOCOL_OLDEST`` to ``PROTOCOL`` is closed with :data:`CLOSE_VERSION` and a reason naming
+both versions):
 - ``/ws/station``: the station authenticates with its bearer token (``Authorization``
   header) and sends :class:`StationHello`; the server answers :class:`Welcome`, then pushes
   :class:`Prescriptions` and :class:`Command`\\ s; the station streams :class:`TelemetryBatch`,
@@ -48,10 +49,16 @@ from sessions.prescription import (
 from sessions.recording import ID_MAX, DeviceInfo, SessionEvent
 from sessions.text import Line, Lines
 
-PROTOCOL = 4
+PROTOCOL = 5
 """2: telemetry travels in batches (:class:`TelemetryBatch`), no longer one sample a message.
 3: a K/B change's result carries the change the station made (:class:`ImpedanceChange`).
-4: the station's status names the sessions the server refused for good (``refused_uploads``)."""
+4: the station's status names the sessions the server refused for good (``refused_uploads``).
+5: the hello names the station's run (``instance``) and how often its link was taken by
+another connection with its token (``displaced``). A station of protocol 4 still connects
+(both fields have defaults); a protocol-5 station is told by a protocol-4 server that the
+versions differ, rather than that its hello has fields it does not know."""
+PROTOCOL_OLDEST = 4
+"""The oldest station protocol the server still accepts."""
 REFUSED_NAMED = 10
 """Refused sessions a status names (all are counted)."""
 SUBPROTOCOL = "ankle.v1"
@@ -78,7 +85,10 @@ CLOSE_VERSION = 4000
 CLOSE_TIMEOUT = 4001
 """No message for ``HEARTBEAT_TIMEOUT_S``."""
 CLOSE_REPLACED = 4002
-"""The same station connected again; the newest connection wins."""
+"""A newer connection with the same station token replaced this link; the newest wins (a
+station reconnecting over its own half-open link must get in at once). A station whose live
+link is closed with it knows the newer connection was not its own, and steps back for
+minutes rather than take the link straight back."""
 CLOSE_REVOKED = 4003
 """The station's token was revoked (a station link), or the watched station was (a view)."""
 CLOSE_SIGNED_OUT = 4004
@@ -136,6 +146,23 @@ class StationHello(BaseModel):
     protocol: int
     software: str
     device: DeviceInfo | None = Field(default=None, description="None while not connected.")
+    instance: str = Field(
+        default="",
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_-]*$",
+        description="Names this run of the station program, the same on each of its "
+        "reconnections (protocol 5; empty from an older station). A link that replaces a "
+        "live one of another instance is a second station using the same token.",
+    )
+    displaced: int = Field(
+        default=0,
+        strict=True,
+        ge=0,
+        le=1_000_000,
+        description="How many times in a row this station's live link was closed because "
+        "another connection with its token replaced it (CLOSE_REPLACED), since its last link "
+        "that ended otherwise (protocol 5; 0 from an older station).",
+    )
 
 
 class Welcome(BaseModel):
@@ -498,6 +525,12 @@ class Presence(BaseModel):
         default=True,
         description="False when the viewer's server cannot reach the station's (the relay is "
         "down): online is then false, and whether the station is connected is not known.",
+    )
+    warning: bool = Field(
+        default=False,
+        description="The station is online but the text says what the therapist must know "
+        "while it is: two stations are using its token, so the platform shown may not be "
+        "the one in use.",
     )
 
 

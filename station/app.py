@@ -874,7 +874,7 @@ class Station:
             message=(
                 run.message
                 if run and run.message
-                else supply_notice(latest) or self._link_notice or self.message
+                else supply_notice(latest) or self._link_notice or self.link.notice or self.message
             ),
             hold=self._hold(),
             fault=self.reasons.fault(latest.mode if latest else None, latest.trip if latest else 0),

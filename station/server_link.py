@@ -16,6 +16,7 @@ import asyncio
 import collections
 import contextlib
 import logging
+import secrets
 import time
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any
@@ -38,6 +39,29 @@ restarted server come back spread over a second, not in the same instant."""
 RECONNECT_MAX_S = 10.0
 REFUSED_WAIT_S = 30.0
 """Added to the wait when the server refused this station (token, revoked, version)."""
+DISPLACED_FIRST_S = 60.0
+"""The least wait after this station's live link was taken over by another connection with
+its token (:data:`~sessions.wire.CLOSE_REPLACED`). Its own reconnections come one after the
+other, so the link being closed is its current one: the newer connection is another station
+or program. Taking the link straight back made two such stations take turns about once a
+second for as long as they ran, the therapist's view switching between two platforms; this
+station steps back instead, for a minute and more."""
+DISPLACED_GROWTH_S = 60.0
+DISPLACED_MAX_S = 540.0
+"""Added to ``DISPLACED_FIRST_S``, jittered: up to 60 s, then 120, 240, at most 540 more
+(10 minutes in all) while the link keeps being taken over."""
+DISPLACED_LOG = (
+    "another station or process is connected with this station's token (a copied "
+    "configuration or a stolen token) and took over its link to the server; this station "
+    "tries again in %.0f s (its link taken over %s): ask the clinic to re-provision the "
+    "station (a new token) and switch the other one off"
+)
+DISPLACED_NOTICE = (
+    "Another device is connected to your therapist with this station's key, so this station "
+    "is not connected now. Your exercises still work and are sent later. Please tell your "
+    "clinic."
+)
+"""What the patient's page says while the station steps back."""
 
 
 class ServerLink:
@@ -60,6 +84,14 @@ class ServerLink:
         self._wake = asyncio.Event()
         self.last_error = ""
         self.connects = 0
+        self.instance = secrets.token_urlsafe(12)
+        """Names this run of the station program to the server, on every reconnection."""
+        self.displaced = 0
+        """Times in a row its live link was taken over (told to the server in the hello)."""
+        self.notice = ""
+        """For the patient's page: why the station is not connected, when it is news."""
+        self.retry_in = 0.0
+        """The wait chosen after the last link ended, in seconds."""
         self.telemetry_dropped = 0
         self.batch_hz = batch_hz
         self._rows: list[Mapping[str, Any]] = []
@@ -84,9 +116,11 @@ class ServerLink:
 
     async def run(self) -> None:
         backoff = Backoff(RECONNECT_FIRST_S, RECONNECT_MAX_S)
+        displacement = Backoff(DISPLACED_GROWTH_S, DISPLACED_MAX_S)
         while True:
             connects = self.connects
             refused = False
+            displaced = False
             try:
                 async with connect(
                     f"{self.url}/ws/station",
@@ -103,17 +137,37 @@ class ServerLink:
             except _Closed as exc:
                 self.last_error = str(exc)
                 refused = exc.code in (wire.CLOSE_POLICY, wire.CLOSE_REVOKED, wire.CLOSE_VERSION)
+                displaced = exc.code == wire.CLOSE_REPLACED
             finally:
                 self.connected.clear()
                 self.welcome = None
+            if displaced:
+                self.retry_in = self._displaced(displacement)
+                await asyncio.sleep(self.retry_in)
+                continue
             if self.connects != connects:
                 backoff.reset()  # the link was up: a server that just went away is retried soon
+                displacement.reset()
+                self.displaced = 0
             wait = backoff.next() + (REFUSED_WAIT_S if refused else 0.0)
+            self.retry_in = wait
             log.info("server link down: %s; retrying in %.2f s", self.last_error, wait)
             await asyncio.sleep(wait)
 
+    def _displaced(self, displacement: Backoff) -> float:
+        """The live link was taken over (only ever raised once it was up): step back."""
+        self.displaced += 1
+        self.notice = DISPLACED_NOTICE
+        wait = DISPLACED_FIRST_S + displacement.next()
+        times = "once" if self.displaced == 1 else f"{self.displaced} times in a row"
+        log.warning(DISPLACED_LOG, wait, times)
+        return wait
+
     async def _session(self, ws: ClientConnection) -> None:
-        await ws.send(self._hello().model_dump_json())
+        hello = self._hello().model_copy(
+            update={"instance": self.instance, "displaced": self.displaced}
+        )
+        await ws.send(hello.model_dump_json())
         # asyncio.timeout, not wait_for, throughout: on Python 3.11 wait_for drops a
         # cancellation that arrives together with a result, and the link would not stop.
         async with asyncio.timeout(wire.HEARTBEAT_TIMEOUT_S):
@@ -124,6 +178,7 @@ class ServerLink:
         self.welcome = welcome
         self.connects += 1
         self.last_error = ""
+        self.notice = ""
         self.connected.set()
         log.info("connected to %s as station %d", self.url, welcome.station_id)
         reader = asyncio.create_task(self._read(ws))

@@ -301,13 +301,13 @@ def test_rom_assessments_trials_and_progress_with_mdc(
         ids = []
         for k, (at, trials) in enumerate(history):
             sid = str(uuid.uuid4())
-            rows = assessment_rows(trials)
+            trial_rows = assessment_rows(trials)
             if k == len(history) - 1:  # the last assessment's link stalled 5 s at its end
-                rows["t"][-10:] += 5.0
-                rows["wall"][-10:] += 5.0
+                trial_rows["t"][-10:] += 5.0
+                trial_rows["wall"][-10:] += 5.0
             data = recording_bytes(
                 sid,
-                rows,
+                trial_rows,
                 system.station_id,
                 int(creds["patient_id"]),
                 rx,

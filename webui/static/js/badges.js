@@ -33,6 +33,7 @@ const ATTENTION = {
   data_missing: ["warn", "Data missing"],
   missed: ["warn", "Sessions missed"],
   offline: ["offline", "Station offline"],
+  token_shared: ["bad", "Token used twice"],
 };
 
 /** What kind of thing needs attention (GET /patients/attention's kind), as a badge. */

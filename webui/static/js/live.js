@@ -17,6 +17,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   online: false,
   unreachable: "", // why the server cannot tell whether the station is online (the relay is down)
+  warning: "", // what the therapist must know while the station is online (its token used twice)
   status: null,
   prescriptions: [],
   activeAxes: AXES,
@@ -136,6 +137,7 @@ function showLink() {
   const badge = $("st-link");
   if (state.ended) return showEnded();
   if (!linkOpen) setBadge(badge, "server connection lost", "bad");
+  else if (state.online && state.warning) setBadge(badge, `station online, but ${state.warning}`, "bad");
   else if (state.online) setBadge(badge, "station online", "online");
   else if (state.unreachable) setBadge(badge, "station not reachable", "bad");
   else setBadge(badge, "station offline", "offline");
@@ -517,6 +519,7 @@ function onMessage(m) {
     case "welcome":
       state.online = m.online;
       state.unreachable = "";
+      state.warning = "";
       state.status = null; // what the server knows now; nothing from before the connection
       if (m.status) showStatus(m.status);
       showLink();
@@ -524,6 +527,7 @@ function onMessage(m) {
     case "presence":
       state.online = m.online;
       state.unreachable = m.online || m.known !== false ? "" : m.text || "";
+      state.warning = m.online && m.warning ? m.text || "" : "";
       showLink();
       if (m.online && state.status) showStatus(state.status);
       break;
