@@ -784,6 +784,47 @@ def test_a_valve_that_fails_after_a_sensor_trip_is_held_and_said(
     assert math.degrees(moved[3:].max()) <= 1.0 and 1e3 * moved[:3].max() <= 1.5, moved
 
 
+@pytest.mark.parametrize(
+    ("kind", "channel", "value"),
+    [
+        (FaultKind.CHAMBER_LEAK, 7, 0.2),
+        (FaultKind.VALVE_STUCK_OPEN, 15, 0.0),
+        (FaultKind.CHAMBER_LEAK, 6, 0.2),
+    ],
+)
+def test_a_chamber_that_fails_after_its_legs_sensor_tripped_is_named_and_held(
+    kind: FaultKind, channel: int, value: float
+) -> None:
+    """Leg 4's length sensor is 3 mm off mid-exercise and trips LEG_SENSOR; 0.2 s later one
+    of its chambers leaks or its exhaust sticks open. Both its chambers were skipped by the
+    hold after the trip (their air needs the leg's length): never named, the platform turned
+    10-14 deg and moved 17-22 mm. Their two pressures say how far the leg moved each on its
+    own, and a chamber losing air says the other way: named, and held by its intake."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode, EventKind
+
+    rig, *_ = safety._run(FaultKind.LEG_OFFSET, "exercise", 1, 3, after=0.2)
+    assert rig.trip == Trip.LEG_SENSOR and rig.trip_channel == 3, rig.trip
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.step()
+    assert machine.mode == DeviceMode.FAULT
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    start = hw.state.pose.copy()
+    hw.inject(Fault(kind, float(hw.state.time[0]), channel, value))
+    moved = np.zeros(6)
+    for _ in range(400):
+        rig.run(0.002, log_hz=0)
+        machine.step()
+        moved = np.maximum(moved, np.abs(hw.state.pose - start))
+    chamber = channel // 2 if kind == FaultKind.VALVE_STUCK_OPEN else channel
+    assert rig.held_chambers == [chamber], rig.held_chambers
+    said = [e for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert len(said) == 1 and said[0][4] == float(chamber), events
+    assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
+
+
 def test_two_valves_stuck_open_on_two_legs_are_each_held_and_said() -> None:
     """Leg 3's cap-side and leg 4's rod-side exhausts stick open together mid-exercise: the
     air checks name chamber 5, the air of two legs trips SUPPLY_LOSS, and the hold after it
