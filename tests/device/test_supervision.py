@@ -825,6 +825,34 @@ def test_a_chamber_that_fails_after_its_legs_sensor_tripped_is_named_and_held(
     assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
 
 
+def test_after_a_supply_loss_nothing_feeds_and_the_event_says_so() -> None:
+    """The supply is lost mid-exercise (SUPPLY_LOSS); 0.3 s later chamber 4 leaks. The hold
+    named it with "its own valves hold it", and its intake was to feed it from what was left
+    in the supply's line: no intake can hold a chamber without a supply (the platform turns
+    13.4 deg either way). Its event says nothing can hold it, and no intake opens."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import EventKind
+
+    rig, *_ = safety._run(FaultKind.SUPPLY_LOSS, "exercise", 1, after=0.3)
+    assert rig.trip == Trip.SUPPLY_LOSS, rig.trip
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.step()
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.CHAMBER_LEAK, float(hw.state.time[0]), 3, 0.3))
+    opened = 0
+    for _ in range(500):
+        rig.run(0.001, log_hz=0)
+        machine.step()
+        opened |= int(rig.state.valves[0::2].any())
+    assert rig.held_chambers == [3], rig.held_chambers
+    said = [e for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert len(said) == 1 and said[0][4] == 3.0, events
+    assert "nothing can hold it" in str(said[0][5]), said
+    assert not opened
+
+
 def test_two_valves_stuck_open_on_two_legs_are_each_held_and_said() -> None:
     """Leg 3's cap-side and leg 4's rod-side exhausts stick open together mid-exercise: the
     air checks name chamber 5, the air of two legs trips SUPPLY_LOSS, and the hold after it
