@@ -1580,6 +1580,24 @@ def test_a_force_sensor_bias_that_jumps_is_caught_before_the_legs_push_against_i
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
 
 
+def test_a_sideways_force_sensor_offset_under_its_limit_never_names_a_leg_sensor() -> None:
+    """Fy 10 N off while roll renders 15 N m/rad against a 2 N m push (the impedance
+    experiment): the load compensation hands the phantom force to the held legs and the
+    loop holds them against it, several legs at once. Leg 5 stood 0.6 mm short of its
+    target for 33 reads with the loop pushing it 10 N, and the stuck rule named its length
+    sensor (717 ms after the offset): a technician sent to a good sensor. A push the loop
+    shares with other legs counts only as it grows while the leg stands still."""
+    from device.plant.model import SCRIPT_RAMP
+
+    with ex.injected((Fault(FaultKind.FT_OFFSET, 1.5, 1, 10.0),)):
+        rig = ex._impedance_rig(3, 15.0, 1.3, 1)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.script_torque(3, SCRIPT_RAMP, rig.time, 0.5, 2.0)
+    rig.run(2.0, log_hz=0)
+    assert rig.trip != Trip.LEG_SENSOR, (rig.trip, rig.trip_channel)
+
+
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
 def test_a_sideways_force_sensor_offset_is_caught_by_the_sideways_cross_check(
     scenario: str,
