@@ -3040,16 +3040,18 @@ def bleed(
         first = -1 if c < 0 else (c % HOLD_FEED)
     istate[I_BLEED] = c
     istate[I_HELD_MORE] = more
-    # No intake feeds on a supply transducer judged faulty, nor from a supply the trip found
-    # lost: what is left in its line is not a supply. A chamber losing air is then not held
-    # at all (after a SUPPLY_LOSS trip mid-exercise, a leak of 0.3 of a valve on chamber 4
-    # turns the platform 13.4 deg and moves it 19.3 mm within 0.8 s, its event says so:
-    # device.modes); one gaining it (an intake stuck open on what is left) its exhaust
-    # still bleeds.
+    # No intake feeds on a supply transducer judged faulty, nor from a supply its transducer
+    # found lost: what is left in its line is not a supply. A chamber losing air is then
+    # not held at all (after a SUPPLY_LOSS trip mid-exercise, a leak of 0.3 of a valve on
+    # chamber 4 turns the platform 13.4 deg and moves it 19.3 mm within 0.8 s, its event
+    # says so: device.modes); one gaining it (an intake stuck open on what is left) its
+    # exhaust still bleeds. A SUPPLY_LOSS found by the air of two legs (SUPPLY_BY_AIR) is
+    # as often a fault on each with the supply there: two exhausts stuck open on legs 3 and
+    # 4 are each held by their intakes, at most 0.39 deg; left unfed, 12.9 deg.
     supply_named = (
         (code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL)
         or sensor_bad(istate, SUPPLY_CHANNEL)
-        or code == Trip.SUPPLY_LOSS
+        or (code == Trip.SUPPLY_LOSS and named == SUPPLY_CHANNEL)
     )
     for k in range(12):  # the chambers found besides I_BLEED's, each by a valve of its own
         if _deaf(istate, k):

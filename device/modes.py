@@ -30,7 +30,7 @@ from device.controller import Mode
 from device.limits import APPROACH_SPEED
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
-from device.trips import Trip, event_text, where
+from device.trips import SUPPLY_BY_AIR, Trip, event_text, where
 from device.waveforms import AxisTarget
 
 HOMING_LEG_SPEED = 0.010
@@ -365,9 +365,9 @@ class ModeMachine:
 
     def _hold_text(self, chamber: int) -> str:
         """What holds a chamber ``_report_held`` names. With the supply lost (a SUPPLY_LOSS
-        trip) no intake feeds (ctl.bleed): a chamber losing air goes on losing it, and only
-        its exhaust still bleeds one that gains."""
-        if self.rig.trip != Trip.SUPPLY_LOSS:
+        trip on the supply's transducer) no intake feeds (ctl.bleed): a chamber losing air
+        goes on losing it, and only its exhaust still bleeds one that gains."""
+        if self.rig.trip != Trip.SUPPLY_LOSS or self.rig.trip_channel == SUPPLY_BY_AIR:
             return "its own valves hold it"
         feeding = self.rig.held_feeding(chamber)
         if feeding is None:
