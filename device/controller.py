@@ -2797,6 +2797,106 @@ def _blind(istate: NDArray[np.int64], k: int) -> bool:
 
 
 @njit_inline
+def _deaf(istate: NDArray[np.int64], k: int) -> bool:
+    """Whether chamber ``k``'s transducer was judged faulty or is the one the latched trip
+    names: its pressure cannot be held, its leg's length sensor aside."""
+    code, named = istate[I_TRIP], istate[I_TRIP_CHANNEL]
+    return (code == Trip.PRESSURE_SENSOR and named == k) or sensor_bad(istate, k)
+
+
+BLIND_MOVED = 0.02e5
+"""Pa the other chamber of a leg without a length sensor must have moved from its trip
+pressure before its length is believed (``HOLD_BAND``: 7 times the noisiest transducer's
+rms), so that a chamber standing still is never read as moving either way."""
+
+
+@njit_inline
+def _implied_travel(
+    k: int,
+    pressure: NDArray[np.float64],
+    p_trip: NDArray[np.float64],
+    x_ref: float,
+    dead_volume: NDArray[np.float64],
+    area_cap: float,
+    area_annulus: float,
+    stroke: float,
+    sup: supervision.SupervisionParams,
+) -> float:
+    """How far (m, + extends) chamber ``k``'s leg moved since the trip as chamber ``k``'s own
+    pressure says, if its air stayed what it was (``p^(1/k) V`` constant, k the observer's
+    polytropic index; its volume at the trip from the leg's last believed length)."""
+    v0 = chamber_volume(k, x_ref, dead_volume, area_cap, area_annulus, stroke)
+    ratio = max(p_trip[k] + sup.atm, 1.0) / max(pressure[k] + sup.atm, 1.0)
+    grown = v0 * (ratio ** (1.0 / sup.obs_k) - 1.0)
+    if k % 2 == 0:
+        return float(grown / area_cap)
+    return float(-grown / area_annulus)
+
+
+@njit_inline
+def _blind_leg_fault(
+    leg: int,
+    pressure: NDArray[np.float64],
+    p_trip: NDArray[np.float64],
+    x_ref: float,
+    dead_volume: NDArray[np.float64],
+    area_cap: float,
+    area_annulus: float,
+    stroke: float,
+    sup: supervision.SupervisionParams,
+) -> int:
+    """A leg whose length sensor is not believed, after a trip (every valve shut): each of
+    its chambers is a closed volume, and its pressure alone says how far the leg moved
+    (:func:`_implied_travel`); both its transducers still read. Without a leak the two say
+    the same way whatever the errors in what they assume only scale each travel: a
+    polytropic index anywhere from 1 (isothermal) to 1.4 (adiabatic), a dead volume or a
+    trip length a few mm off (the sensor that tripped). A leak, or a valve stuck open, in
+    one chamber moves its pressure the way its leg would have to move to make room for what
+    it lost or gained, while its leg moves the other way (the other chamber pushes it back,
+    or yields): the two travels have opposite signs. The faulty one is the one whose
+    pressure moved more than the travel the other's says (the leg's inertia and the
+    platform's other legs hold it back, so the faulty chamber's own pressure runs ahead).
+    So does a chamber just filled that cools after the trip, or air a worn piston seal lets
+    from one side to the other, each a little: what tells them from a leak is how much air
+    moved. Returns the chamber, + 12 if it lost air, or -1: named once it moved
+    ``BLEED_RISE`` from its trip pressure, its air (p V) at the length the other chamber
+    says ``BLEED_AIR`` the same way (as any chamber's after a trip), and the other chamber
+    ``BLIND_MOVED`` from its own. Whether the leg as a whole lost the air (``BLEED_NEW``)
+    needs its length and is not judged: a piston seal that passes a tenth of a chamber's
+    air would be held."""
+    c, r = 2 * leg, 2 * leg + 1
+    if abs(pressure[c] - p_trip[c]) < BLIND_MOVED or abs(pressure[r] - p_trip[r]) < BLIND_MOVED:
+        return -1
+    dc = _implied_travel(
+        c, pressure, p_trip, x_ref, dead_volume, area_cap, area_annulus, stroke, sup
+    )
+    dr = _implied_travel(
+        r, pressure, p_trip, x_ref, dead_volume, area_cap, area_annulus, stroke, sup
+    )
+    if dc * dr >= 0.0:
+        return -1
+    k, travel = (c, dr) if abs(dc) > abs(dr) else (r, dc)
+    rise = pressure[k] - p_trip[k]
+    if abs(rise) < BLEED_RISE:
+        return -1
+    # Its air (p V, as the other legs' chambers are judged) at the length the other chamber
+    # says, against its air at the trip: a chamber just filled cools after the trip and
+    # loses 0.1 bar at a standing leg (measured on drawn builds, its leg's other side then
+    # drifting the other way by a few counts), but not a tenth of its air.
+    before = (p_trip[k] + sup.atm) * chamber_volume(
+        k, x_ref, dead_volume, area_cap, area_annulus, stroke
+    )
+    now = (pressure[k] + sup.atm) * chamber_volume(
+        k, x_ref + travel, dead_volume, area_cap, area_annulus, stroke
+    )
+    if rise < 0.0 and now < (1.0 - BLEED_AIR) * before:
+        return k + 12
+    if rise > 0.0 and now > (1.0 + BLEED_AIR) * before:
+        return k
+    return -1
+
+
+@njit_inline
 def bleed(
     istate: NDArray[np.int64],
     pressure: NDArray[np.float64],
@@ -2827,11 +2927,19 @@ def bleed(
     other chamber to balance the force was tried and moved the platform more (up to 7.5
     deg), so the other valves stay closed. Never past the trip's pressure: a frozen reading
     never opens a valve, nothing vents a chamber below where it carried its leg or fills it
-    above, a transducer named by the trip (a chamber's, or a leg's sensor for both its
-    chambers) is never taken for a moving chamber, and an intake feeds only while the
-    supply is above the chamber, never on a supply transducer the trip named. An e-stop
-    after the trip does not close them either: de-energising the coils would not stop the
-    stuck valve's air.
+    above, a chamber's transducer named by the trip is never taken for a moving chamber,
+    and an intake feeds only while the supply is above the chamber, never on a supply
+    transducer the trip named nor from a supply the trip found lost. An e-stop after the
+    trip does not close them either: de-energising the coils would not stop the stuck
+    valve's air.
+
+    A leg whose length sensor is not believed (the trip's, or one judged after it) has no
+    volume to judge its chambers' air by: its two chambers are judged together instead
+    (:func:`_blind_leg_fault`), each pressure saying how far the leg moved. Before, both were
+    skipped: leg 4's sensor 3 mm off tripped mid pitch exercise, and a leak of 0.2 of a
+    valve on its rod side 0.14 s later turned the platform 10.7 deg and moved it 17.1 mm
+    within 0.8 s, its exhaust stuck open 13.9 deg and 21.9 mm, never named; now named in
+    35 and 19 ms, 0.37 deg / 0.58 mm and 1.06 deg / 1.52 mm.
 
     A chamber the air checks had already named while the loop ran (``service``, from
     ``supervision.C_SERVICE``: a leak or a valve stuck open that the loop outran) is held
@@ -2840,7 +2948,10 @@ def bleed(
     measured mid-exercise, an e-stop 0.2 s after the chamber was named let a cap or rod side
     with its exhaust stuck open turn the platform 5.4-8.0 deg and drop it 7.6-13.0 mm in
     2 s, a leak of half a valve's conductance up to 11.8 deg and 17.1 mm (a healthy e-stop
-    there: 0.36 deg, 0.41 mm). Not when the trip names that chamber's transducer.
+    there: 0.36 deg, 0.41 mm). Not when the trip names that chamber's transducer, nor its
+    leg's length sensor: a leg sensor frozen while driven makes its chambers' air seem not
+    to add up, and that chamber was held and named a valve's fault (7 of 800 healthy frozen
+    or offset leg sensors over the library).
 
     An e-stop, like any other trip, also holds a chamber found moving after it (a valve that
     sticks open, a leak that starts, with every valve shut): the safe state is "every valve
@@ -2863,12 +2974,10 @@ def bleed(
         return
     code, named = istate[I_TRIP], istate[I_TRIP_CHANNEL]
     record = math.isnan(trip_air[0])
-    if (
-        record
-        and c == -1
-        and service >= 0
-        and not (code == Trip.PRESSURE_SENSOR and named == service)
-    ):
+    # Not a chamber whose transducer or leg length sensor was judged faulty: the air checks
+    # judged its air through that reading (a leg sensor frozen while driven: its chambers'
+    # air seems not to add up), and its leg is judged on its two pressures below instead.
+    if record and c == -1 and service >= 0 and not _blind(istate, service):
         c = HOLD_BOTH + service
         p_desired[service] = pressure[service]  # held where the trip found it
     # The chamber I_BLEED holds: neither it nor its leg's other chamber is judged by its air
@@ -2885,7 +2994,25 @@ def bleed(
         # Held already, or on a held chamber's leg: a second stuck valve on one leg is left
         # to the first's hold (a leg's air is judged on both its chambers' together).
         held = ((more | (more >> 12)) & ((1 << k) | (1 << (k ^ 1)))) != 0
-        if held or k // 2 == first // 2 or _blind(istate, k):
+        if held or k // 2 == first // 2:
+            continue
+        if _blind(istate, k):
+            # A leg whose length sensor is not believed: judged on its two chambers'
+            # pressures together (once, at its cap side), while both transducers read.
+            if k % 2 == 1 or _deaf(istate, k) or _deaf(istate, k + 1):
+                continue
+            found = _blind_leg_fault(
+                k // 2, pressure, p_desired, leg_x[k // 2], dead_volume, area_cap,
+                area_annulus, stroke, sup,
+            )  # fmt: skip
+            if found < 0:
+                continue
+            f = found % 12
+            if c == -1:
+                c = f if found < 12 else HOLD_FEED + f
+            else:
+                more |= 1 << (f if found < 12 else 12 + f)
+            first = c % HOLD_FEED
             continue
         rise = pressure[k] - p_desired[k]
         gained = rise > BLEED_RISE and air > (1.0 + BLEED_AIR) * trip_air[k]
@@ -2913,11 +3040,21 @@ def bleed(
         first = -1 if c < 0 else (c % HOLD_FEED)
     istate[I_BLEED] = c
     istate[I_HELD_MORE] = more
-    supply_named = (code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL) or sensor_bad(
-        istate, SUPPLY_CHANNEL
+    # No intake feeds on a supply transducer judged faulty, nor from a supply its transducer
+    # found lost: what is left in its line is not a supply. A chamber losing air is then
+    # not held at all (after a SUPPLY_LOSS trip mid-exercise, a leak of 0.3 of a valve on
+    # chamber 4 turns the platform 13.4 deg and moves it 19.3 mm within 0.8 s, its event
+    # says so: device.modes); one gaining it (an intake stuck open on what is left) its
+    # exhaust still bleeds. A SUPPLY_LOSS found by the air of two legs (SUPPLY_BY_AIR) is
+    # as often a fault on each with the supply there: two exhausts stuck open on legs 3 and
+    # 4 are each held by their intakes, at most 0.39 deg; left unfed, 12.9 deg.
+    supply_named = (
+        (code == Trip.PRESSURE_SENSOR and named == SUPPLY_CHANNEL)
+        or sensor_bad(istate, SUPPLY_CHANNEL)
+        or (code == Trip.SUPPLY_LOSS and named == SUPPLY_CHANNEL)
     )
     for k in range(12):  # the chambers found besides I_BLEED's, each by a valve of its own
-        if _blind(istate, k):
+        if _deaf(istate, k):
             continue  # a transducer judged faulty after the chamber was found: shut
         if ((more >> k) & 1) != 0 and pressure[k] > p_desired[k]:
             valves[2 * k + 1] = 1
@@ -2928,7 +3065,7 @@ def bleed(
             and supervision.intake_allowed(supply_abs, pressure[k], sup)
         ):
             valves[2 * k] = 1
-    if first >= 0 and _blind(istate, first):
+    if first >= 0 and _deaf(istate, first):
         return
     if 0 <= c < HOLD_FEED and pressure[c] > p_desired[c]:
         valves[2 * c + 1] = 1

@@ -30,7 +30,7 @@ from device.controller import Mode
 from device.limits import APPROACH_SPEED
 from device.protocol.messages import DeviceMode, EventKind
 from device.rig import Rig
-from device.trips import Trip, event_text, where
+from device.trips import SUPPLY_BY_AIR, Trip, event_text, where
 from device.waveforms import AxisTarget
 
 HOMING_LEG_SPEED = 0.010
@@ -360,8 +360,21 @@ class ModeMachine:
             )
             self._valve_event(
                 chamber,
-                f"{why} (a stuck valve, a leak, or its transducer): its own valves hold it",
+                f"{why} (a stuck valve, a leak, or its transducer): {self._hold_text(chamber)}",
             )
+
+    def _hold_text(self, chamber: int) -> str:
+        """What holds a chamber ``_report_held`` names. With the supply lost (a SUPPLY_LOSS
+        trip on the supply's transducer) no intake feeds (ctl.bleed): a chamber losing air
+        goes on losing it, and only its exhaust still bleeds one that gains."""
+        if self.rig.trip != Trip.SUPPLY_LOSS or self.rig.trip_channel == SUPPLY_BY_AIR:
+            return "its own valves hold it"
+        feeding = self.rig.held_feeding(chamber)
+        if feeding is None:
+            return "with the air supply lost only its exhaust holds it, if it gains air"
+        if feeding:
+            return "with the air supply lost nothing can hold it: it keeps losing air"
+        return "its exhaust holds it"
 
     def _report_rings(self) -> None:
         """An event for each ring the guard damped since the last pass (device.ring)."""

@@ -345,6 +345,17 @@ class Rig:
         found = [c for c in range(12) if c != first and (more >> c | more >> (12 + c)) & 1]
         return ([first] if first >= 0 else []) + found
 
+    def held_feeding(self, chamber: int) -> bool | None:
+        """How ``chamber`` of ``held_chambers`` is held (ctl.bleed): True fed by its intake
+        (its air was lost), False bled by its exhaust (gained), None either as it moves (the
+        chamber the air checks named while the loop ran, ``HOLD_BOTH``)."""
+        c = int(self.state.istate[ctl.I_BLEED])
+        if c >= 0 and self.held_chamber == chamber:
+            if c >= ctl.HOLD_BOTH:
+                return None
+            return ctl.HOLD_FEED <= c < ctl.HOLD_BALANCE
+        return bool((int(self.state.istate[ctl.I_HELD_MORE]) >> (12 + chamber)) & 1)
+
     @property
     def venting(self) -> bool:
         return bool(self.state.istate[ctl.I_VENT])

@@ -1556,6 +1556,9 @@ def check_reading(
                 code, part = Trip.FORCE_SENSOR, k
     # Leg length sensors.
     alone = leg_alone(monitor, q)
+    pushes = 0.0  # the loop's pushes' sum of squares (N^2)
+    for i in range(6):
+        pushes += monitor[M_PUSH + i] ** 2
     if counters[C_POSE_ROUGH] > 0:
         counters[C_POSE_ROUGH] -= 1
     for i in range(6):
@@ -1587,14 +1590,22 @@ def check_reading(
         if leg_friction[i] > 0.0:
             force = min(force, q.leg_stuck_floor + q.leg_stuck_seals * leg_friction[i])
         measured = push + monitor[M_BLIND + i]
-        if i == alone and abs(monitor[M_RESIDUAL + i]) > q.balance_steady_floor:
-            # This leg alone carries a force-balance residual (leg_alone): its force reading
-            # may be what is off (a transducer 0.3 bar off: 12-15 N the integral term makes
-            # up, while the leg stands still on its target). Counted is only what the loop
-            # pushes beyond what it pushed while the reading last changed: a frozen reading
-            # makes the loop push ever harder; a wrong force the force balance names
-            # (check_steady). Over 600 runs of transducers 0.3 bar off, the push alone named
-            # the leg's length sensor in three.
+        spread = pushes > 0.0 and push * push < q.balance_one_leg_share * pushes
+        if spread or (i == alone and abs(monitor[M_RESIDUAL + i]) > q.balance_steady_floor):
+            # Counted is only what the loop pushes beyond what it pushed while the reading
+            # last changed: a frozen reading makes the loop push ever harder. A steady push
+            # on a leg that stands still is the loop holding it against a force that is not
+            # there. This leg alone carries a force-balance residual (leg_alone): its force
+            # reading may be what is off (a transducer 0.3 bar off: 12-15 N the integral term
+            # makes up, while the leg stands still on its target; over 600 runs of
+            # transducers 0.3 bar off, the push alone named the leg's length sensor in
+            # three); a wrong force the force balance names (check_steady). Or the loop
+            # pushes several legs at once (``spread``: this one less than
+            # ``balance_one_leg_share`` of their pushes' sum of squares), as against a
+            # wrench, not one leg's frozen reading: a force/torque sensor off, whose phantom
+            # load the compensation hands to the legs (Fy 10-14 N off with roll rendered at
+            # 15 N m/rad: a healthy leg 0.6 mm short of its target held at 10 N by the loop,
+            # 0.46 of the pushes, stood still 33 reads and its length sensor was named).
             seen = monitor[M_PUSH_SEEN + i]
             push = min(abs(push), abs(push - seen))
             measured = min(abs(measured), abs(measured - seen))

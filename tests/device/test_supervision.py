@@ -784,6 +784,75 @@ def test_a_valve_that_fails_after_a_sensor_trip_is_held_and_said(
     assert math.degrees(moved[3:].max()) <= 1.0 and 1e3 * moved[:3].max() <= 1.5, moved
 
 
+@pytest.mark.parametrize(
+    ("kind", "channel", "value"),
+    [
+        (FaultKind.CHAMBER_LEAK, 7, 0.2),
+        (FaultKind.VALVE_STUCK_OPEN, 15, 0.0),
+        (FaultKind.CHAMBER_LEAK, 6, 0.2),
+    ],
+)
+def test_a_chamber_that_fails_after_its_legs_sensor_tripped_is_named_and_held(
+    kind: FaultKind, channel: int, value: float
+) -> None:
+    """Leg 4's length sensor is 3 mm off mid-exercise and trips LEG_SENSOR; 0.2 s later one
+    of its chambers leaks or its exhaust sticks open. Both its chambers were skipped by the
+    hold after the trip (their air needs the leg's length): never named, the platform turned
+    10-14 deg and moved 17-22 mm. Their two pressures say how far the leg moved each on its
+    own, and a chamber losing air says the other way: named, and held by its intake."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import DeviceMode, EventKind
+
+    rig, *_ = safety._run(FaultKind.LEG_OFFSET, "exercise", 1, 3, after=0.2)
+    assert rig.trip == Trip.LEG_SENSOR and rig.trip_channel == 3, rig.trip
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.step()
+    assert machine.mode == DeviceMode.FAULT
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    start = hw.state.pose.copy()
+    hw.inject(Fault(kind, float(hw.state.time[0]), channel, value))
+    moved = np.zeros(6)
+    for _ in range(400):
+        rig.run(0.002, log_hz=0)
+        machine.step()
+        moved = np.maximum(moved, np.abs(hw.state.pose - start))
+    chamber = channel // 2 if kind == FaultKind.VALVE_STUCK_OPEN else channel
+    assert rig.held_chambers == [chamber], rig.held_chambers
+    said = [e for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert len(said) == 1 and said[0][4] == float(chamber), events
+    assert math.degrees(moved[3:].max()) <= 2.0 and 1e3 * moved[:3].max() <= 3.0, moved
+
+
+def test_after_a_supply_loss_nothing_feeds_and_the_event_says_so() -> None:
+    """The supply is lost mid-exercise (SUPPLY_LOSS); 0.3 s later chamber 4 leaks. The hold
+    named it with "its own valves hold it", and its intake was to feed it from what was left
+    in the supply's line: no intake can hold a chamber without a supply (the platform turns
+    13.4 deg either way). Its event says nothing can hold it, and no intake opens."""
+    from device.modes import ModeMachine
+    from device.protocol.messages import EventKind
+
+    rig, *_ = safety._run(FaultKind.SUPPLY_LOSS, "exercise", 1, after=0.3)
+    assert rig.trip == Trip.SUPPLY_LOSS, rig.trip
+    events: list[tuple[object, ...]] = []
+    machine = ModeMachine(rig, lambda *e: events.append(e))
+    machine.step()
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.inject(Fault(FaultKind.CHAMBER_LEAK, float(hw.state.time[0]), 3, 0.3))
+    opened = 0
+    for _ in range(500):
+        rig.run(0.001, log_hz=0)
+        machine.step()
+        opened |= int(rig.state.valves[0::2].any())
+    assert rig.held_chambers == [3], rig.held_chambers
+    said = [e for e in events if e[0] == EventKind.FAULT and e[3] == Trip.VALVE]
+    assert len(said) == 1 and said[0][4] == 3.0, events
+    assert "nothing can hold it" in str(said[0][5]), said
+    assert not opened
+
+
 def test_two_valves_stuck_open_on_two_legs_are_each_held_and_said() -> None:
     """Leg 3's cap-side and leg 4's rod-side exhausts stick open together mid-exercise: the
     air checks name chamber 5, the air of two legs trips SUPPLY_LOSS, and the hold after it
@@ -1509,6 +1578,24 @@ def test_a_force_sensor_bias_that_jumps_is_caught_before_the_legs_push_against_i
     for channel in (0, 1, 2):
         rig = _force_offset("holding", channel, 80.0, 0.003)
         assert rig.trip == Trip.FORCE_SENSOR and rig.trip_channel == channel, rig.trip
+
+
+def test_a_sideways_force_sensor_offset_under_its_limit_never_names_a_leg_sensor() -> None:
+    """Fy 10 N off while roll renders 15 N m/rad against a 2 N m push (the impedance
+    experiment): the load compensation hands the phantom force to the held legs and the
+    loop holds them against it, several legs at once. Leg 5 stood 0.6 mm short of its
+    target for 33 reads with the loop pushing it 10 N, and the stuck rule named its length
+    sensor (717 ms after the offset): a technician sent to a good sensor. A push the loop
+    shares with other legs counts only as it grows while the leg stands still."""
+    from device.plant.model import SCRIPT_RAMP
+
+    with ex.injected((Fault(FaultKind.FT_OFFSET, 1.5, 1, 10.0),)):
+        rig = ex._impedance_rig(3, 15.0, 1.3, 1)
+    hw = rig.hardware
+    assert isinstance(hw, SimulatedHardware)
+    hw.script_torque(3, SCRIPT_RAMP, rig.time, 0.5, 2.0)
+    rig.run(2.0, log_hz=0)
+    assert rig.trip != Trip.LEG_SENSOR, (rig.trip, rig.trip_channel)
 
 
 @pytest.mark.parametrize("scenario", safety.SCENARIOS)
