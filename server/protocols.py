@@ -254,10 +254,19 @@ class Utf8WebSocketProtocol(WebSocketsSansIOProtocol):
         super().send_receive_event_to_app()
 
 
+SHUTDOWN_WAIT_S = 10
+"""How long a stopping server waits for its requests and live links to end before it
+cancels them (uvicorn's ``timeout_graceful_shutdown``). Without a bound it waited for ever:
+a link handler stuck on a store that no longer answered kept a stopping server (and a test
+run, idle for an hour) from ending."""
+
+
 def protocols(settings: Settings) -> dict[str, Any]:
     """uvicorn.Config's ``http`` and ``ws`` for ``settings`` (a partial, not a class made
-    on the fly: worker processes receive the configuration pickled)."""
+    on the fly: worker processes receive the configuration pickled), and how long a
+    shutdown waits (:data:`SHUTDOWN_WAIT_S`)."""
     return {
+        "timeout_graceful_shutdown": SHUTDOWN_WAIT_S,
         "http": functools.partial(
             TimedH11Protocol,
             header_timeout_s=settings.header_timeout_s,
